@@ -1,0 +1,7 @@
+//! climbsim: a hardware-in-the-loop simulator for a magnetic wall-climbing welding robot.
+//!
+//! Layers import only downwards: [`protocol`] (sans-IO codec) → [`device`] (control table and
+//! servo model per firmware profile) → [`bus`] (routing, multi-reply ordering, wire timing) →
+//! [`transport`] (pty, TCP, in-memory). See `README.md` for the architecture.
+
+pub mod protocol;
