@@ -5,3 +5,4 @@
 //! [`transport`] (pty, TCP, in-memory). See `README.md` for the architecture.
 
 pub mod protocol;
+pub mod device;

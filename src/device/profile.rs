@@ -1,0 +1,381 @@
+//! Firmware profiles: a servo model's control table and motor constants, loaded from a TOML file
+//! in `firmware-profiles/`. The device code names items by `key` only; every address, size, range
+//! and constant comes from here.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use thiserror::Error;
+
+/// A profile file that cannot be used.
+#[derive(Debug, Error)]
+pub enum ProfileError {
+    #[error("cannot read firmware profile {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("firmware profile {path}:{line}:{column}: {message}")]
+    Parse { path: PathBuf, line: usize, column: usize, message: String },
+    #[error("firmware profile {path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub enum Access {
+    R,
+    RW,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Area {
+    Eeprom,
+    Ram,
+}
+
+/// One control-table item as written in the profile file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ItemSpec {
+    pub key: String,
+    pub name: String,
+    pub address: u16,
+    pub size: u16,
+    pub access: Access,
+    pub area: Area,
+    #[serde(default)]
+    pub default: Option<i64>,
+    #[serde(default)]
+    pub min: Option<i64>,
+    #[serde(default)]
+    pub max: Option<i64>,
+    /// Lower bound taken from another item (`"-key"` negates it); breaking it is a Data Limit Error.
+    #[serde(default)]
+    pub min_ref: Option<String>,
+    #[serde(default)]
+    pub max_ref: Option<String>,
+    /// Operating modes in which `min_ref`/`max_ref` apply (all modes when absent).
+    #[serde(default)]
+    pub refs_in_modes: Option<Vec<i64>>,
+    /// The only values accepted.
+    #[serde(default)]
+    pub values: Option<Vec<i64>>,
+    #[serde(default)]
+    pub signed: bool,
+    #[serde(default)]
+    pub unit: Option<String>,
+    #[serde(default)]
+    pub scale: Option<f64>,
+    /// Saved by Control Table Backup.
+    #[serde(default)]
+    pub backup: bool,
+    #[serde(default)]
+    pub note: Option<String>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSpec {
+    pub name: String,
+    pub model_number: u16,
+    pub firmware_version: u8,
+    pub model_information: u32,
+    pub boot_time_ms: u64,
+    pub control_period_us: u64,
+    pub bits_per_byte: u32,
+    pub inter_byte_timeout_us: u64,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BaudRate {
+    pub code: u8,
+    pub bps: u32,
+}
+
+/// Motor and gearbox constants (datasheet figures and documented choices).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotorSpec {
+    pub rated_voltage_v: f64,
+    pub stall_torque_nm: f64,
+    pub stall_current_a: f64,
+    pub no_load_speed_rpm: f64,
+    pub standby_current_a: f64,
+    pub gear_ratio: f64,
+    pub pulses_per_rev: u32,
+    pub rotor_inertia_kgm2: f64,
+    pub coulomb_friction_nm: f64,
+    pub viscous_friction_nm_per_rad_s: f64,
+    pub thermal_resistance_c_per_w: f64,
+    pub thermal_time_constant_s: f64,
+    pub ambient_temperature_c: f64,
+    pub overload_current_fraction: f64,
+    pub overload_time_s: f64,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HardwareErrorBits {
+    pub input_voltage: u8,
+    pub overheating: u8,
+    pub motor_encoder: u8,
+    pub electrical_shock: u8,
+    pub overload: u8,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IndirectBlock {
+    pub address_start: u16,
+    pub data_start: u16,
+    pub count: u16,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OperatingModes {
+    pub current: u8,
+    pub velocity: u8,
+    pub position: u8,
+    pub extended_position: u8,
+    pub current_based_position: u8,
+    pub pwm: u8,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ProfileFile {
+    model: ModelSpec,
+    baud_rate: Vec<BaudRate>,
+    motor: MotorSpec,
+    hardware_error_bits: HardwareErrorBits,
+    indirect_block: Vec<IndirectBlock>,
+    operating_modes: OperatingModes,
+    item: Vec<ItemSpec>,
+}
+
+/// A bound resolved against the table: a constant or (the negation of) another item's value.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Bound {
+    Const(i64),
+    Item { index: usize, negate: bool },
+}
+
+/// A control-table item with its references resolved.
+#[derive(Debug, Clone)]
+pub struct Item {
+    pub spec: ItemSpec,
+    pub min: Option<Bound>,
+    pub max: Option<Bound>,
+}
+
+impl Item {
+    pub fn address(&self) -> u16 {
+        self.spec.address
+    }
+    pub fn size(&self) -> usize {
+        usize::from(self.spec.size)
+    }
+    pub fn end(&self) -> usize {
+        usize::from(self.spec.address) + self.size()
+    }
+}
+
+/// A validated firmware profile.
+#[derive(Debug, Clone)]
+pub struct FirmwareProfile {
+    pub path: PathBuf,
+    pub model: ModelSpec,
+    pub baud_rates: Vec<BaudRate>,
+    pub motor: MotorSpec,
+    pub hardware_error_bits: HardwareErrorBits,
+    pub indirect_blocks: Vec<IndirectBlock>,
+    pub operating_modes: OperatingModes,
+    pub items: Vec<Item>,
+    /// For every address of the table, the index of the item covering it.
+    item_at: Vec<Option<usize>>,
+    by_key: HashMap<String, usize>,
+}
+
+impl FirmwareProfile {
+    /// Load and validate a profile file.
+    pub fn load(path: &Path) -> Result<Self, ProfileError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ProfileError::Io { path: path.to_owned(), source })?;
+        Self::parse(path, &text)
+    }
+
+    /// Parse profile text; `path` is used in error messages only.
+    pub fn parse(path: &Path, text: &str) -> Result<Self, ProfileError> {
+        let file: ProfileFile = toml::from_str(text).map_err(|e| {
+            let (line, column) = e.span().map(|s| line_col(text, s.start)).unwrap_or((0, 0));
+            ProfileError::Parse { path: path.to_owned(), line, column, message: e.message().to_owned() }
+        })?;
+        let invalid = |message: String| ProfileError::Invalid { path: path.to_owned(), message };
+
+        let mut specs = file.item;
+        specs.sort_by_key(|i| i.address);
+        let mut by_key = HashMap::new();
+        for (index, spec) in specs.iter().enumerate() {
+            if spec.size == 0 || spec.size > 4 {
+                return Err(invalid(format!("item `{}` has size {}, expected 1..=4", spec.key, spec.size)));
+            }
+            if by_key.insert(spec.key.clone(), index).is_some() {
+                return Err(invalid(format!("item key `{}` appears twice", spec.key)));
+            }
+        }
+        let table_len = specs.iter().map(|s| usize::from(s.address) + usize::from(s.size)).max().unwrap_or(0);
+        let mut item_at = vec![None; table_len];
+        for (index, spec) in specs.iter().enumerate() {
+            for addr in usize::from(spec.address)..usize::from(spec.address) + usize::from(spec.size) {
+                if let Some(other) = item_at[addr] {
+                    let other: &ItemSpec = &specs[other];
+                    return Err(invalid(format!("items `{}` and `{}` overlap at address {addr}", other.key, spec.key)));
+                }
+                item_at[addr] = Some(index);
+            }
+        }
+        let resolve = |spec: &ItemSpec, reference: &Option<String>, constant: Option<i64>| -> Result<Option<Bound>, ProfileError> {
+            match (reference, constant) {
+                (Some(r), _) => {
+                    let (negate, key) = match r.strip_prefix('-') {
+                        Some(k) => (true, k),
+                        None => (false, r.as_str()),
+                    };
+                    let index = *by_key
+                        .get(key)
+                        .ok_or_else(|| invalid(format!("item `{}` refers to unknown item `{key}`", spec.key)))?;
+                    Ok(Some(Bound::Item { index, negate }))
+                }
+                (None, Some(c)) => Ok(Some(Bound::Const(c))),
+                (None, None) => Ok(None),
+            }
+        };
+        let mut items = Vec::with_capacity(specs.len());
+        for spec in &specs {
+            let min = resolve(spec, &spec.min_ref, spec.min)?;
+            let max = resolve(spec, &spec.max_ref, spec.max)?;
+            items.push(Item { spec: spec.clone(), min, max });
+        }
+        let profile = Self {
+            path: path.to_owned(),
+            model: file.model,
+            baud_rates: file.baud_rate,
+            motor: file.motor,
+            hardware_error_bits: file.hardware_error_bits,
+            indirect_blocks: file.indirect_block,
+            operating_modes: file.operating_modes,
+            items,
+            item_at,
+            by_key,
+        };
+        profile.check_required_keys().map_err(invalid)?;
+        Ok(profile)
+    }
+
+    /// Every item the device code names. A profile for another model must provide them all.
+    pub const REQUIRED_KEYS: &'static [&'static str] = &[
+        "model_number", "model_information", "firmware_version", "id", "baud_rate", "return_delay_time", "drive_mode",
+        "operating_mode", "secondary_id", "protocol_type", "homing_offset", "moving_threshold", "temperature_limit",
+        "max_voltage_limit", "min_voltage_limit", "pwm_limit", "current_limit", "velocity_limit", "max_position_limit",
+        "min_position_limit", "startup_configuration", "shutdown", "torque_enable", "led", "status_return_level",
+        "registered_instruction", "hardware_error_status", "velocity_i_gain", "velocity_p_gain", "position_d_gain",
+        "position_i_gain", "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain", "bus_watchdog", "goal_pwm",
+        "goal_current", "goal_velocity", "profile_acceleration", "profile_velocity", "goal_position", "realtime_tick",
+        "moving", "moving_status", "present_pwm", "present_current", "present_velocity", "present_position",
+        "velocity_trajectory", "position_trajectory", "present_input_voltage", "present_temperature", "backup_ready",
+    ];
+
+    fn check_required_keys(&self) -> Result<(), String> {
+        let missing: Vec<_> = Self::REQUIRED_KEYS.iter().filter(|k| !self.by_key.contains_key(**k)).collect();
+        if !missing.is_empty() {
+            return Err(format!("missing control-table items: {missing:?}"));
+        }
+        if self.baud_rates.is_empty() {
+            return Err("no [[baud_rate]] entries".into());
+        }
+        for block in &self.indirect_blocks {
+            for n in 0..block.count {
+                let addr = self.item_index_at(block.address_start + 2 * n);
+                let data = self.item_index_at(block.data_start + n);
+                if addr.is_none() || data.is_none() {
+                    return Err(format!("indirect block at {} has no item for entry {n}", block.address_start));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Bytes in the control table (one past the highest defined address).
+    pub fn table_len(&self) -> usize {
+        self.item_at.len()
+    }
+
+    /// The item covering `address`, if any.
+    pub fn item_index_at(&self, address: u16) -> Option<usize> {
+        self.item_at.get(usize::from(address)).copied().flatten()
+    }
+
+    /// The index of item `key`.
+    ///
+    /// # Panics
+    /// Never for a key in [`Self::REQUIRED_KEYS`]: `load` has checked they exist.
+    pub fn index(&self, key: &str) -> usize {
+        // ok: required keys are validated at load time; other keys are a programming error.
+        self.by_key[key]
+    }
+
+    pub fn find(&self, key: &str) -> Option<usize> {
+        self.by_key.get(key).copied()
+    }
+
+    /// Bits per second for Baud Rate code `code`.
+    pub fn baud_bps(&self, code: u8) -> Option<u32> {
+        self.baud_rates.iter().find(|b| b.code == code).map(|b| b.bps)
+    }
+
+    /// Baud Rate code for `bps`.
+    pub fn baud_code(&self, bps: u32) -> Option<u8> {
+        self.baud_rates.iter().find(|b| b.bps == bps).map(|b| b.code)
+    }
+}
+
+fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before.rfind('\n').map_or(before.len(), |nl| before.len() - nl - 1) + 1;
+    (line, column)
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    pub(crate) fn xm540() -> FirmwareProfile {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles/xm540-w270-r.toml");
+        FirmwareProfile::load(&path).unwrap()
+    }
+
+    #[test]
+    fn xm540_profile_loads_with_every_csv_row() {
+        let profile = xm540();
+        assert_eq!(profile.items.len(), 171);
+        assert_eq!(profile.table_len(), 662);
+        let goal = &profile.items[profile.index("goal_position")];
+        assert_eq!((goal.address(), goal.size()), (116, 4));
+        assert_eq!(profile.item_index_at(40), None, "old Acceleration Limit is reserved");
+    }
+
+    #[test]
+    fn parse_error_names_file_and_line() {
+        let err = FirmwareProfile::parse(Path::new("bad.toml"), "[model]\nname = 3\n").unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains("bad.toml:2:"), "{text}");
+    }
+
+    #[test]
+    fn unknown_reference_is_rejected() {
+        let text = std::fs::read_to_string(xm540().path).unwrap().replace("max_ref = \"velocity_limit\"", "max_ref = \"nope\"");
+        let err = FirmwareProfile::parse(Path::new("x.toml"), &text).unwrap_err();
+        assert!(err.to_string().contains("unknown item `nope`"), "{err}");
+    }
+}
