@@ -4,8 +4,16 @@
 
 mod control_table;
 mod error;
+mod keys;
+mod motor;
+mod plant;
 pub mod profile;
+mod servo;
+pub mod shaft;
 
 pub use control_table::{ControlTable, StagedWrite, WriteContext};
 pub use error::DeviceError;
+pub use plant::{BenchPlant, Plant};
 pub use profile::{FirmwareProfile, ProfileError};
+pub use servo::{Addressing, AfterReply, Outcome, Request, Servo};
+pub use shaft::{BenchLoad, ShaftDrive, ShaftLoad, ShaftState};

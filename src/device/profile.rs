@@ -81,6 +81,8 @@ pub struct ModelSpec {
     pub model_information: u32,
     pub boot_time_ms: u64,
     pub control_period_us: u64,
+    pub in_position_window_pulses: i64,
+    pub following_error_pulses: i64,
     pub bits_per_byte: u32,
     pub inter_byte_timeout_us: u64,
 }
@@ -272,21 +274,8 @@ impl FirmwareProfile {
         Ok(profile)
     }
 
-    /// Every item the device code names. A profile for another model must provide them all.
-    pub const REQUIRED_KEYS: &'static [&'static str] = &[
-        "model_number", "model_information", "firmware_version", "id", "baud_rate", "return_delay_time", "drive_mode",
-        "operating_mode", "secondary_id", "protocol_type", "homing_offset", "moving_threshold", "temperature_limit",
-        "max_voltage_limit", "min_voltage_limit", "pwm_limit", "current_limit", "velocity_limit", "max_position_limit",
-        "min_position_limit", "startup_configuration", "shutdown", "torque_enable", "led", "status_return_level",
-        "registered_instruction", "hardware_error_status", "velocity_i_gain", "velocity_p_gain", "position_d_gain",
-        "position_i_gain", "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain", "bus_watchdog", "goal_pwm",
-        "goal_current", "goal_velocity", "profile_acceleration", "profile_velocity", "goal_position", "realtime_tick",
-        "moving", "moving_status", "present_pwm", "present_current", "present_velocity", "present_position",
-        "velocity_trajectory", "position_trajectory", "present_input_voltage", "present_temperature", "backup_ready",
-    ];
-
     fn check_required_keys(&self) -> Result<(), String> {
-        let missing: Vec<_> = Self::REQUIRED_KEYS.iter().filter(|k| !self.by_key.contains_key(**k)).collect();
+        let missing: Vec<_> = super::keys::Keys::NAMES.iter().filter(|k| !self.by_key.contains_key(**k)).collect();
         if !missing.is_empty() {
             return Err(format!("missing control-table items: {missing:?}"));
         }
@@ -318,7 +307,7 @@ impl FirmwareProfile {
     /// The index of item `key`.
     ///
     /// # Panics
-    /// Never for a key in [`Self::REQUIRED_KEYS`]: `load` has checked they exist.
+    /// Never for a key in `Keys::NAMES`: `parse` has checked they exist.
     pub fn index(&self, key: &str) -> usize {
         // ok: required keys are validated at load time; other keys are a programming error.
         self.by_key[key]
