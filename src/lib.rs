@@ -5,4 +5,7 @@
 //! [`transport`] (pty, TCP, in-memory). See `README.md` for the architecture.
 
 pub mod protocol;
+pub mod source_location;
 pub mod device;
+pub mod bus;
+pub mod robot;

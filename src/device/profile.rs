@@ -209,7 +209,7 @@ impl FirmwareProfile {
     /// Parse profile text; `path` is used in error messages only.
     pub fn parse(path: &Path, text: &str) -> Result<Self, ProfileError> {
         let file: ProfileFile = toml::from_str(text).map_err(|e| {
-            let (line, column) = e.span().map(|s| line_col(text, s.start)).unwrap_or((0, 0));
+            let (line, column) = e.span().map(|s| crate::source_location::line_col(text, s.start)).unwrap_or((0, 0));
             ProfileError::Parse { path: path.to_owned(), line, column, message: e.message().to_owned() }
         })?;
         let invalid = |message: String| ProfileError::Invalid { path: path.to_owned(), message };
@@ -326,13 +326,6 @@ impl FirmwareProfile {
     pub fn baud_code(&self, bps: u32) -> Option<u8> {
         self.baud_rates.iter().find(|b| b.bps == bps).map(|b| b.code)
     }
-}
-
-fn line_col(text: &str, offset: usize) -> (usize, usize) {
-    let before = &text[..offset.min(text.len())];
-    let line = before.matches('\n').count() + 1;
-    let column = before.rfind('\n').map_or(before.len(), |nl| before.len() - nl - 1) + 1;
-    (line, column)
 }
 
 #[cfg(test)]

@@ -26,6 +26,8 @@ pub enum Request<'a> {
     Reboot,
     Clear { params: &'a [u8] },
     ControlTableBackup { params: &'a [u8] },
+    /// An instruction code the firmware does not know.
+    Unknown { code: u8 },
 }
 
 /// How the packet reached the servo.
@@ -357,6 +359,7 @@ impl Servo {
                 Outcome::done()
             }
             Request::ControlTableBackup { params } => self.control_table_backup(params),
+            Request::Unknown { .. } => Outcome::reply(Err(DeviceError::Instruction)),
         }
     }
 

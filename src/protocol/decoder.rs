@@ -28,6 +28,8 @@ pub struct RawPacket {
     pub params: Vec<u8>,
     /// Bytes the packet occupied on the wire, stuffing included (LEN + 7).
     pub wire_len: usize,
+    /// The packet exactly as received (for traces).
+    pub bytes: Vec<u8>,
 }
 
 /// Something in the byte stream that was not a valid packet. None of these stop the decoder.
@@ -189,7 +191,13 @@ impl Decoder {
         if received != computed {
             return Front::Skip(1, Some(FrameError::BadCrc { id, received, computed }));
         }
-        Front::Packet(RawPacket { id, instruction: buf[PREFIX_LEN], params: unstuff(&buf[PREFIX_LEN + 1..total - 2]), wire_len: total })
+        Front::Packet(RawPacket {
+            id,
+            instruction: buf[PREFIX_LEN],
+            params: unstuff(&buf[PREFIX_LEN + 1..total - 2]),
+            wire_len: total,
+            bytes: buf[..total].to_vec(),
+        })
     }
 }
 
@@ -225,7 +233,7 @@ mod tests {
         for &b in &PING_1 {
             got.extend(packets(decoder.push(T0, &[b])));
         }
-        assert_eq!(got, vec![RawPacket { id: 1, instruction: 0x01, params: vec![], wire_len: 10 }]);
+        assert_eq!(got, vec![RawPacket { id: 1, instruction: 0x01, params: vec![], wire_len: 10, bytes: PING_1.to_vec() }]);
         assert_eq!(decoder.pending(), 0);
     }
 
@@ -246,7 +254,9 @@ mod tests {
         // Reference §3: the Python SDK writes 0x00FDFFFF to 116 unstuffed.
         let bytes = [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x09, 0x00, 0x03, 0x74, 0x00, 0xFF, 0xFF, 0xFD, 0x00, 0xC9, 0x07];
         let got = packets(Decoder::default().push(T0, &bytes));
-        assert_eq!(got, vec![RawPacket { id: 1, instruction: 0x03, params: vec![0x74, 0x00, 0xFF, 0xFF, 0xFD, 0x00], wire_len: 16 }]);
+        assert_eq!(got.len(), 1);
+        assert_eq!((got[0].id, got[0].instruction, got[0].wire_len), (1, 0x03, 16));
+        assert_eq!(got[0].params, [0x74, 0x00, 0xFF, 0xFF, 0xFD, 0x00]);
     }
 
     #[test]

@@ -27,3 +27,4 @@ pub const STATUS_INSTRUCTION: u8 = 0x55;
 pub const PREFIX_LEN: usize = 7;
 /// Alert bit of the status error byte: Hardware Error Status is non-zero.
 pub const ALERT_BIT: u8 = 0x80;
+

@@ -1,0 +1,408 @@
+//! The shared half-duplex bus: routes each instruction to the servos it concerns, collects their
+//! replies in the order the protocol prescribes, and schedules them on a modelled wire.
+//!
+//! Wire model (on by default): an instruction occupies the wire for bytes × bits_per_byte / baud
+//! from when it arrived (or when the wire became free); each reply starts Return Delay Time after
+//! the end of what preceded it and occupies the wire for its own bytes. With [`Timing::Off`] every
+//! reply is due at once.
+
+mod trace;
+
+use std::time::Duration;
+
+use thiserror::Error;
+use tracing::{debug, trace as trace_event, warn};
+
+use crate::device::{Addressing, FirmwareProfile, Outcome, Plant, Request, Servo};
+use crate::protocol::{self, BROADCAST_ID, FastReplyBuilder, Instruction, RawPacket, encode_status};
+
+pub use trace::{TraceWriter, transaction_json};
+
+/// Whether replies are paced like a real wire.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Timing {
+    #[default]
+    Wire,
+    Off,
+}
+
+/// One status packet put on the wire.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Reply {
+    pub bytes: Vec<u8>,
+    /// When its first byte starts on the wire.
+    pub start: Duration,
+    /// When its last byte has been received: the moment to hand it to the controller.
+    pub end: Duration,
+    /// IDs of the servos that sent it (several for a Fast reply or a collision).
+    pub from: Vec<u8>,
+}
+
+/// An instruction and what the bus answered.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Transaction {
+    pub packet: RawPacket,
+    /// The decoded instruction, or why its parameters did not parse.
+    pub instruction: Result<Instruction, protocol::ParamError>,
+    pub received_at: Duration,
+    /// When the instruction's last byte was on the wire.
+    pub instruction_end: Duration,
+    pub replies: Vec<Reply>,
+}
+
+#[derive(Debug, Error)]
+pub enum BusError {
+    #[error("servo ID {0} is listed twice in the robot description")]
+    DuplicateId(u8),
+    #[error("servo ID {0} is outside 0..=252")]
+    InvalidId(u8),
+    #[error("baud rate {bps} bps is not one the firmware profile {profile} offers")]
+    UnsupportedBaud { bps: u32, profile: String },
+}
+
+/// Eight (or any number of) servos on one bus.
+pub struct Bus {
+    servos: Vec<Servo>,
+    plant: Box<dyn Plant>,
+    timing: Timing,
+    bits_per_byte: u32,
+    /// Baud assumed when the transport has none (TCP, in-memory).
+    default_baud: u32,
+    wire_free_at: Duration,
+}
+
+impl std::fmt::Debug for Bus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Bus").field("servos", &self.servos.len()).field("timing", &self.timing).finish_non_exhaustive()
+    }
+}
+
+impl Bus {
+    pub fn new(servos: Vec<Servo>, plant: Box<dyn Plant>, timing: Timing, default_baud: u32) -> Result<Self, BusError> {
+        let mut seen = [false; 256];
+        for servo in &servos {
+            let id = servo.id();
+            if id > protocol_max_id() {
+                return Err(BusError::InvalidId(id));
+            }
+            if std::mem::replace(&mut seen[usize::from(id)], true) {
+                return Err(BusError::DuplicateId(id));
+            }
+        }
+        let bits_per_byte = servos.first().map_or(10, |s| s.profile().model.bits_per_byte);
+        Ok(Self { servos, plant, timing, bits_per_byte, default_baud, wire_free_at: Duration::ZERO })
+    }
+
+    pub fn servos(&self) -> &[Servo] {
+        &self.servos
+    }
+
+    pub fn servos_mut(&mut self) -> &mut [Servo] {
+        &mut self.servos
+    }
+
+    pub fn timing(&self) -> Timing {
+        self.timing
+    }
+
+    /// The inter-byte timeout of the servos' firmware (for the decoder).
+    pub fn inter_byte_timeout(&self) -> Duration {
+        Duration::from_micros(self.servos.first().map_or(1500, |s| s.profile().model.inter_byte_timeout_us))
+    }
+
+    /// Time `bytes` take on the wire at `baud`.
+    pub fn wire_time(&self, bytes: usize, baud: u32) -> Duration {
+        Duration::from_secs_f64(bytes as f64 * f64::from(self.bits_per_byte) / f64::from(baud.max(1)))
+    }
+
+    /// Advance the servos' physics to `now` without any packet (e.g. on a timer).
+    pub fn advance(&mut self, now: Duration) {
+        self.plant.advance(&mut self.servos, now);
+    }
+
+    /// Handle one packet that finished arriving at `received_at`. `line_baud` is the baud the
+    /// controller's port is set to, where the transport knows it (a pty): servos set to another
+    /// baud do not hear the packet, exactly as on a real bus.
+    pub fn handle(&mut self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>) -> Transaction {
+        let baud = line_baud.unwrap_or(self.default_baud);
+        let (instruction_end, reply_base) = match self.timing {
+            Timing::Wire => {
+                let end = received_at.max(self.wire_free_at) + self.wire_time(packet.wire_len, baud);
+                (end, end)
+            }
+            Timing::Off => (received_at, received_at),
+        };
+        self.plant.advance(&mut self.servos, instruction_end);
+        let instruction = Instruction::parse(packet.instruction, &packet.params);
+        let mut transaction = Transaction { packet, instruction, received_at, instruction_end, replies: Vec::new() };
+        if transaction.packet.instruction == protocol::STATUS_INSTRUCTION {
+            return transaction; // another device's status packet: nothing to do
+        }
+        let Ok(instruction) = &transaction.instruction else {
+            // Chosen (reference §7 unverified): ROBOTIS's own slave code drops a packet whose
+            // parameters do not fit, without a reply.
+            debug!(error = ?transaction.instruction, "malformed parameters, dropped");
+            return transaction;
+        };
+        let hearing: Vec<usize> = (0..self.servos.len())
+            .filter(|&i| {
+                let servo = &self.servos[i];
+                !servo.is_booting(instruction_end)
+                    && servo.speaks_protocol_2()
+                    && line_baud.is_none_or(|bps| servo.baud_bps() == Some(bps))
+            })
+            .collect();
+        if hearing.len() < self.servos.len() && line_baud.is_some() {
+            trace_event!(hearing = hearing.len(), baud, "some servos do not hear this baud or are booting");
+        }
+        let pending = self.route(transaction.packet.id, instruction, &hearing, instruction_end);
+        transaction.replies = self.schedule(pending, reply_base, baud);
+        if let Some(last) = transaction.replies.last() {
+            self.wire_free_at = last.end;
+        } else {
+            self.wire_free_at = instruction_end;
+        }
+        transaction
+    }
+
+    /// Execute the instruction on every servo it concerns; return the replies (unscheduled).
+    fn route(&mut self, id: u8, instruction: &Instruction, hearing: &[usize], now: Duration) -> Vec<PendingReply> {
+        let mut replies = Vec::new();
+        if id == BROADCAST_ID {
+            self.route_broadcast(instruction, hearing, now, &mut replies);
+            return replies;
+        }
+        let Some(request) = unicast_request(instruction) else {
+            return replies; // Sync/Bulk instructions must go to the broadcast ID
+        };
+        let primary_taken = hearing.iter().any(|&i| self.servos[i].id() == id);
+        for &index in hearing {
+            let servo = &self.servos[index];
+            let via_secondary = servo.id() != id && servo.secondary_id() == Some(id) && !primary_taken;
+            if servo.id() != id && !via_secondary {
+                continue;
+            }
+            let addressing = Addressing { broadcast: false, via_secondary_id: via_secondary };
+            let reply_id = servo.id();
+            let answers = !via_secondary && replies_at_level(&request, servo.status_return_level());
+            let outcome = self.execute(index, request, addressing, now);
+            if answers {
+                let error = self.servos[index].status_error_byte(&outcome.reply);
+                let params = outcome.reply.as_deref().unwrap_or_default();
+                replies.push(PendingReply::single(index, reply_id, encode_status(reply_id, error, params)));
+            }
+            self.finish(index, &outcome, now);
+        }
+        replies
+    }
+
+    fn route_broadcast(&mut self, instruction: &Instruction, hearing: &[usize], now: Duration, replies: &mut Vec<PendingReply>) {
+        let addressing = Addressing { broadcast: true, via_secondary_id: false };
+        match instruction {
+            Instruction::Ping => {
+                let mut order: Vec<usize> = hearing.to_vec();
+                order.sort_by_key(|&i| self.servos[i].id());
+                for index in order {
+                    let outcome = self.execute(index, Request::Ping, addressing, now);
+                    let servo = &self.servos[index];
+                    let error = servo.status_error_byte(&outcome.reply);
+                    let params = outcome.reply.as_deref().unwrap_or_default();
+                    replies.push(PendingReply::single(index, servo.id(), encode_status(servo.id(), error, params)));
+                }
+            }
+            Instruction::SyncRead { address, length, ids } => {
+                for &id in ids {
+                    self.read_slot(id, *address, *length, hearing, now, replies);
+                }
+            }
+            Instruction::BulkRead { entries } => {
+                for entry in entries {
+                    self.read_slot(entry.id, entry.address, entry.length, hearing, now, replies);
+                }
+            }
+            Instruction::FastSyncRead { address, length, ids } => {
+                let reads: Vec<(u8, u16, u16)> = ids.iter().map(|&id| (id, *address, *length)).collect();
+                replies.extend(self.fast_read(&reads, hearing, now));
+            }
+            Instruction::FastBulkRead { entries } => {
+                let reads: Vec<(u8, u16, u16)> = entries.iter().map(|e| (e.id, e.address, e.length)).collect();
+                replies.extend(self.fast_read(&reads, hearing, now));
+            }
+            Instruction::SyncWrite { address, entries, .. } => {
+                for entry in entries {
+                    self.write_slot(entry.id, Request::Write { address: *address, data: &entry.data }, hearing, now);
+                }
+            }
+            Instruction::BulkWrite { entries } => {
+                for entry in entries {
+                    self.write_slot(entry.id, Request::Write { address: entry.address, data: &entry.data }, hearing, now);
+                }
+            }
+            // Read to broadcast is not executed (reference §4); unknown codes get no reply.
+            Instruction::Read { .. } | Instruction::Unknown { .. } => {}
+            other => {
+                if let Some(request) = unicast_request(other) {
+                    for &index in hearing {
+                        let outcome = self.execute(index, request, addressing, now);
+                        self.finish(index, &outcome, now);
+                    }
+                }
+            }
+        }
+    }
+
+    /// The servos (primary ID match) that answer a slot of a Sync/Bulk instruction.
+    fn slot_servos(&self, id: u8, hearing: &[usize]) -> Vec<usize> {
+        hearing.iter().copied().filter(|&i| self.servos[i].id() == id).collect()
+    }
+
+    fn read_slot(&mut self, id: u8, address: u16, length: u16, hearing: &[usize], now: Duration, replies: &mut Vec<PendingReply>) {
+        let addressing = Addressing { broadcast: true, via_secondary_id: false };
+        for index in self.slot_servos(id, hearing) {
+            let outcome = self.execute(index, Request::Read { address, length }, addressing, now);
+            let servo = &self.servos[index];
+            if servo.status_return_level() >= 1 {
+                let error = servo.status_error_byte(&outcome.reply);
+                let params = outcome.reply.as_deref().unwrap_or_default();
+                replies.push(PendingReply::single(index, id, encode_status(id, error, params)));
+            }
+        }
+    }
+
+    fn write_slot(&mut self, id: u8, request: Request<'_>, hearing: &[usize], now: Duration) {
+        let addressing = Addressing { broadcast: true, via_secondary_id: false };
+        for index in self.slot_servos(id, hearing) {
+            let outcome = self.execute(index, request, addressing, now);
+            self.finish(index, &outcome, now);
+        }
+    }
+
+    /// Fast Sync/Bulk Read: one packet, each listed servo adds its block in order. The chain
+    /// stops at the first listed servo that is absent or silent, leaving the packet short of its
+    /// LEN, as a real bus would (the SDK then reports a corrupt or timed-out reply).
+    fn fast_read(&mut self, reads: &[(u8, u16, u16)], hearing: &[usize], now: Duration) -> Option<PendingReply> {
+        let addressing = Addressing { broadcast: true, via_secondary_id: false };
+        let mut builder = FastReplyBuilder::new(reads.iter().map(|&(_, _, len)| usize::from(len)));
+        let mut senders = Vec::new();
+        for &(id, address, length) in reads {
+            let Some(&index) = self.slot_servos(id, hearing).first() else { break };
+            if self.servos[index].status_return_level() < 1 {
+                break;
+            }
+            let outcome = self.execute(index, Request::Read { address, length }, addressing, now);
+            let error = self.servos[index].status_error_byte(&outcome.reply);
+            // A servo that cannot read still fills its slot so the packet keeps its length.
+            let data = outcome.reply.unwrap_or_else(|_| vec![0; usize::from(length)]);
+            builder.push_block(error, id, &data);
+            senders.push(index);
+        }
+        let first = *senders.first()?;
+        let ids = senders.iter().map(|&i| self.servos[i].id()).collect();
+        Some(PendingReply { first_sender: first, from: ids, bytes: builder.into_bytes() })
+    }
+
+    fn execute(&mut self, index: usize, request: Request<'_>, addressing: Addressing, now: Duration) -> Outcome {
+        let servo = &mut self.servos[index];
+        servo.note_packet(now);
+        let outcome = servo.handle(now, request, addressing);
+        if let Err(error) = &outcome.reply {
+            debug!(id = servo.id(), ?request, %error, "servo refused");
+        }
+        outcome
+    }
+
+    fn finish(&mut self, index: usize, outcome: &Outcome, now: Duration) {
+        if let Some(after) = outcome.after_reply {
+            self.servos[index].finish(now, after);
+        }
+    }
+
+    /// Give each reply its slot on the wire. Replies from servos with the same ID land in the
+    /// same slot and collide.
+    fn schedule(&self, pending: Vec<PendingReply>, base: Duration, baud: u32) -> Vec<Reply> {
+        let mut scheduled: Vec<Reply> = Vec::with_capacity(pending.len());
+        let mut cursor = base;
+        for reply in pending {
+            if let Some(previous) = scheduled.last_mut()
+                && reply.from.len() == 1
+                && previous.from.len() == 1
+                && previous.from[0] == reply.from[0]
+            {
+                warn!(id = reply.from[0], "two servos answered with the same ID: collision on the wire");
+                collide(&mut previous.bytes, &reply.bytes);
+                continue;
+            }
+            let (start, end) = match self.timing {
+                Timing::Wire => {
+                    let start = cursor + self.servos[reply.first_sender].return_delay();
+                    (start, start + self.wire_time(reply.bytes.len(), baud))
+                }
+                Timing::Off => (base, base),
+            };
+            cursor = end;
+            scheduled.push(Reply { bytes: reply.bytes, start, end, from: reply.from });
+        }
+        scheduled
+    }
+}
+
+/// A reply before it has a slot on the wire.
+struct PendingReply {
+    first_sender: usize,
+    from: Vec<u8>,
+    bytes: Vec<u8>,
+}
+
+impl PendingReply {
+    fn single(index: usize, id: u8, bytes: Vec<u8>) -> Self {
+        Self { first_sender: index, from: vec![id], bytes }
+    }
+}
+
+/// Two drivers on one half-duplex line: a 0 bit wins (dominant low), so bytes AND together.
+fn collide(into: &mut Vec<u8>, other: &[u8]) {
+    for (i, &b) in other.iter().enumerate() {
+        match into.get_mut(i) {
+            Some(existing) => *existing &= b,
+            None => into.push(b),
+        }
+    }
+}
+
+fn protocol_max_id() -> u8 {
+    252
+}
+
+/// The per-servo request for a unicast (or plain broadcast) instruction.
+fn unicast_request(instruction: &Instruction) -> Option<Request<'_>> {
+    Some(match instruction {
+        Instruction::Ping => Request::Ping,
+        Instruction::Read { address, length } => Request::Read { address: *address, length: *length },
+        Instruction::Write { address, data } => Request::Write { address: *address, data },
+        Instruction::RegWrite { address, data } => Request::RegWrite { address: *address, data },
+        Instruction::Action => Request::Action,
+        Instruction::FactoryReset { option } => Request::FactoryReset { option: *option },
+        Instruction::Reboot => Request::Reboot,
+        Instruction::Clear { params } => Request::Clear { params },
+        Instruction::ControlTableBackup { params } => Request::ControlTableBackup { params },
+        Instruction::Unknown { code } => Request::Unknown { code: *code },
+        _ => return None,
+    })
+}
+
+/// Status Return Level (reference §6): 0 answers Ping only, 1 also the Read family, 2 everything.
+fn replies_at_level(request: &Request<'_>, level: u8) -> bool {
+    match request {
+        Request::Ping => true,
+        Request::Read { .. } => level >= 1,
+        _ => level >= 2,
+    }
+}
+
+/// Build the servos of a bus from one profile.
+pub fn servos_from_profile(profile: &std::sync::Arc<FirmwareProfile>, ids: &[u8], baud_bps: u32, supply_voltage_v: f64) -> Result<Vec<Servo>, BusError> {
+    let code = profile
+        .baud_code(baud_bps)
+        .ok_or_else(|| BusError::UnsupportedBaud { bps: baud_bps, profile: profile.path.display().to_string() })?;
+    Ok(ids.iter().map(|&id| Servo::new(std::sync::Arc::clone(profile), id, code, supply_voltage_v)).collect())
+}
