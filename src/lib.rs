@@ -9,3 +9,4 @@ pub mod source_location;
 pub mod device;
 pub mod bus;
 pub mod robot;
+pub mod transport;

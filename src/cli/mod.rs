@@ -1,0 +1,134 @@
+//! Command-line interface: `climbsim serve`.
+
+use std::io::Write as _;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand, ValueEnum};
+use tracing::{info, warn};
+
+use climbsim::bus::{Timing, TraceWriter};
+use climbsim::robot::RobotDescription;
+use climbsim::transport::{BusHandle, TcpServer, VirtualPort, parse_tcp_addr, serve_stream};
+
+#[derive(Debug, Parser)]
+#[command(name = "climbsim", version, about = "Hardware-in-the-loop simulator for a magnetic wall-climbing welding robot")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum TimingArg {
+    /// Replies arrive when a real bus would deliver them (Return Delay Time, bytes × 10 / baud).
+    Wire,
+    /// Replies as fast as possible.
+    Off,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Emulate the robot's eight servos on a virtual serial port (and optionally TCP).
+    Serve {
+        /// Also create this symlink to the port (a stable name for your controller's config).
+        #[arg(long)]
+        link: Option<PathBuf>,
+        /// Also listen for controllers on TCP: PORT or HOST:PORT (a bare port binds 127.0.0.1).
+        #[arg(long, value_parser = parse_tcp_addr)]
+        tcp: Option<std::net::SocketAddr>,
+        /// Reply timing.
+        #[arg(long, value_enum, default_value = "wire")]
+        timing: TimingArg,
+        /// Write every bus transaction to this file as JSON lines.
+        #[arg(long)]
+        trace_bus: Option<PathBuf>,
+        /// Robot description (servo IDs, firmware profile, power-on baud).
+        #[arg(long, default_value_os_t = RobotDescription::default_path())]
+        robot: PathBuf,
+        /// Power-on baud of every servo, overriding the robot description.
+        #[arg(long)]
+        baud: Option<u32>,
+    },
+}
+
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Serve { link, tcp, timing, trace_bus, robot, baud } => serve(link, tcp, timing, trace_bus, &robot, baud),
+    }
+}
+
+fn serve(
+    link: Option<PathBuf>,
+    tcp: Option<std::net::SocketAddr>,
+    timing: TimingArg,
+    trace_bus: Option<PathBuf>,
+    robot_path: &std::path::Path,
+    baud: Option<u32>,
+) -> Result<()> {
+    let robot = RobotDescription::load(robot_path)?;
+    let timing = match timing {
+        TimingArg::Wire => Timing::Wire,
+        TimingArg::Off => Timing::Off,
+    };
+    let bus = robot.bench_bus(timing, baud)?;
+    let trace = match &trace_bus {
+        Some(path) => {
+            let file = std::fs::File::create(path).with_context(|| format!("cannot create bus trace {}", path.display()))?;
+            Some(TraceWriter::new(Box::new(std::io::BufWriter::new(file))))
+        }
+        None => None,
+    };
+    let handle = BusHandle::new(bus, trace);
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    runtime.block_on(async move {
+        let port = Arc::new(VirtualPort::open(link.as_deref())?);
+        let tcp_server = match tcp {
+            Some(addr) => Some(TcpServer::bind(addr).await.with_context(|| format!("cannot listen on {addr}"))?),
+            None => None,
+        };
+        let mut stdout = std::io::stdout().lock();
+        writeln!(stdout, "port: {}", port.path().display())?;
+        if let Some(server) = &tcp_server {
+            writeln!(stdout, "tcp: {}", server.local_addr()?)?;
+        }
+        stdout.flush()?;
+        drop(stdout);
+
+        // The pty gets its own thread: precise reply timing spins, and must not stall anything.
+        let pty_handle = Arc::clone(&handle);
+        let pty_port = Arc::clone(&port);
+        let pty_thread = std::thread::Builder::new().name("pty".into()).spawn(move || -> Result<()> {
+            let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+            runtime.block_on(serve_pty(pty_port, pty_handle))
+        })?;
+        if let Some(server) = tcp_server {
+            let tcp_handle = Arc::clone(&handle);
+            tokio::spawn(async move {
+                if let Err(error) = server.run(tcp_handle).await {
+                    warn!(%error, "TCP listener stopped");
+                }
+            });
+        }
+        let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => info!("SIGINT: shutting down"),
+            _ = terminate.recv() => info!("SIGTERM: shutting down"),
+        }
+        if pty_thread.is_finished() {
+            warn!("the pty session had stopped before shutdown");
+        }
+        // Let the controller read the last reply before the master closes.
+        port.drain(Duration::from_secs(1)).await;
+        Ok::<_, anyhow::Error>(port)
+    })
+    .map(|port| port.remove_link())
+}
+
+/// Serve the pty until the process ends. The port outlives every controller connection.
+async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>) -> Result<()> {
+    let line = port.line();
+    serve_stream(port.stream(), handle, &line).await?;
+    Ok(())
+}

@@ -1,0 +1,207 @@
+//! A pseudo-terminal that looks like a USB-RS485 adapter to the controller.
+//!
+//! climbsim keeps its own descriptor of the slave side open for its whole life: without it the
+//! master reads EIO (and epoll spins on HUP) whenever the controller closes the port, and the
+//! next open would find a different terminal state. With it the port survives any number of
+//! close/reopen cycles, exactly like a real adapter.
+
+use std::io;
+use std::os::fd::{AsFd, AsRawFd, OwnedFd};
+use std::path::{Path, PathBuf};
+use std::pin::Pin;
+use std::sync::Arc;
+use std::task::{Context, Poll, ready};
+use std::time::{Duration, Instant};
+
+use nix::fcntl::{OFlag, open};
+use nix::pty::{PtyMaster, grantpt, posix_openpt, ptsname_r, unlockpt};
+use nix::sys::stat::Mode;
+use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+use thiserror::Error;
+use tokio::io::unix::AsyncFd;
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tracing::{info, warn};
+
+use super::LineSettings;
+
+#[derive(Debug, Error)]
+pub enum PtyError {
+    #[error("cannot create a pseudo-terminal: {0}")]
+    Create(nix::Error),
+    #[error("link path {0} is busy (it exists and is not a stale climbsim link); choose another --link or remove it")]
+    LinkBusy(PathBuf),
+    #[error("cannot create link {path}: {source}")]
+    Link { path: PathBuf, source: io::Error },
+    #[error("pseudo-terminal I/O setup: {0}")]
+    Io(#[from] io::Error),
+}
+
+/// The emulator's end of a virtual serial port.
+pub struct VirtualPort {
+    master: AsyncFd<PtyMaster>,
+    /// Held open for the port's whole life (see the module comment).
+    slave: OwnedFd,
+    slave_path: PathBuf,
+    link: Option<PathBuf>,
+}
+
+impl VirtualPort {
+    /// Open a pty in raw mode, mode 0600, with an optional stable symlink to it. Must be called
+    /// inside a tokio runtime (the master is registered with its reactor).
+    pub fn open(link: Option<&Path>) -> Result<Self, PtyError> {
+        let master = posix_openpt(OFlag::O_RDWR | OFlag::O_NOCTTY | OFlag::O_NONBLOCK | OFlag::O_CLOEXEC).map_err(PtyError::Create)?;
+        grantpt(&master).map_err(PtyError::Create)?;
+        unlockpt(&master).map_err(PtyError::Create)?;
+        let slave_path = PathBuf::from(ptsname_r(&master).map_err(PtyError::Create)?);
+        let slave = open(&slave_path, OFlag::O_RDWR | OFlag::O_NOCTTY | OFlag::O_CLOEXEC, Mode::empty()).map_err(PtyError::Create)?;
+        let mut termios = tcgetattr(&slave).map_err(PtyError::Create)?;
+        cfmakeraw(&mut termios);
+        tcsetattr(&slave, SetArg::TCSANOW, &termios).map_err(PtyError::Create)?;
+        std::fs::set_permissions(&slave_path, std::os::unix::fs::PermissionsExt::from_mode(0o600))?;
+        let link = match link {
+            Some(path) => {
+                make_link(path, &slave_path)?;
+                Some(path.to_owned())
+            }
+            None => None,
+        };
+        // SAFETY: PtyMaster owns its descriptor and returns the same one for its whole life.
+        let master = unsafe { AsyncFd::register(master) }.map_err(|e| PtyError::Io(e.into()))?;
+        info!(slave = %slave_path.display(), link = ?link, "virtual serial port ready");
+        Ok(Self { master, slave, slave_path, link })
+    }
+
+    /// The path a controller opens: the link if there is one, else the /dev/pts node.
+    pub fn path(&self) -> &Path {
+        self.link.as_deref().unwrap_or(&self.slave_path)
+    }
+
+    pub fn slave_path(&self) -> &Path {
+        &self.slave_path
+    }
+
+    /// Bytes written to the controller that it has not read yet.
+    pub fn unread_by_controller(&self) -> usize {
+        let mut pending: libc::c_int = 0;
+        // SAFETY: FIONREAD writes one c_int through the pointer, which is valid for the call.
+        let rc = unsafe { libc::ioctl(self.slave.as_raw_fd(), libc::FIONREAD, &mut pending) };
+        if rc == 0 { pending.max(0) as usize } else { 0 }
+    }
+
+    /// Wait (up to `limit`) until the controller has read every reply, so that closing the master
+    /// does not throw away a last answer.
+    pub async fn drain(&self, limit: Duration) {
+        let deadline = Instant::now() + limit;
+        while self.unread_by_controller() > 0 && Instant::now() < deadline {
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+    }
+
+    /// A handle reporting the baud the controller set on the port.
+    pub fn line(&self) -> PtyLine {
+        PtyLine { slave: self.slave.as_raw_fd() }
+    }
+
+    /// Remove the link if it still points at this port (idempotent).
+    pub fn remove_link(&self) {
+        if let Some(link) = &self.link
+            && std::fs::read_link(link).is_ok_and(|target| target == self.slave_path)
+            && let Err(error) = std::fs::remove_file(link)
+        {
+            warn!(link = %link.display(), %error, "could not remove link");
+        }
+    }
+
+    /// A byte stream over the master, sharable with the thread that serves it.
+    pub fn stream(self: &Arc<Self>) -> PortStream {
+        PortStream(Arc::clone(self))
+    }
+
+    fn poll_read_master(&self, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+        loop {
+            let mut guard = ready!(self.master.poll_read_ready(cx))?;
+            let unfilled = buf.initialize_unfilled();
+            match guard.try_io(|fd| nix::unistd::read(fd.get_ref().as_fd(), unfilled).map_err(io::Error::from)) {
+                Ok(Ok(n)) => {
+                    buf.advance(n);
+                    return Poll::Ready(Ok(()));
+                }
+                // EIO only happens if no slave is open, which the held slave prevents; treat it
+                // like "no data yet" rather than end the port.
+                Ok(Err(e)) if e.raw_os_error() == Some(libc::EIO) => return Poll::Pending,
+                Ok(Err(e)) => return Poll::Ready(Err(e)),
+                Err(_would_block) => continue,
+            }
+        }
+    }
+
+    fn poll_write_master(&self, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+        loop {
+            let mut guard = ready!(self.master.poll_write_ready(cx))?;
+            match guard.try_io(|fd| nix::unistd::write(fd.get_ref(), data).map_err(io::Error::from)) {
+                Ok(result) => return Poll::Ready(result),
+                Err(_would_block) => continue,
+            }
+        }
+    }
+}
+
+/// The master side as an `AsyncRead + AsyncWrite` stream.
+pub struct PortStream(Arc<VirtualPort>);
+
+impl Drop for VirtualPort {
+    fn drop(&mut self) {
+        self.remove_link();
+    }
+}
+
+fn make_link(link: &Path, target: &Path) -> Result<(), PtyError> {
+    if let Ok(meta) = std::fs::symlink_metadata(link) {
+        // A dangling symlink into /dev/pts is what a killed climbsim leaves behind: replace it.
+        let stale = meta.file_type().is_symlink()
+            && std::fs::read_link(link).is_ok_and(|t| t.starts_with("/dev/pts"))
+            && std::fs::metadata(link).is_err();
+        if !stale {
+            return Err(PtyError::LinkBusy(link.to_owned()));
+        }
+        warn!(link = %link.display(), "replacing a stale link");
+        std::fs::remove_file(link).map_err(|source| PtyError::Link { path: link.to_owned(), source })?;
+    }
+    std::os::unix::fs::symlink(target, link).map_err(|source| PtyError::Link { path: link.to_owned(), source })
+}
+
+/// Reads the controller's baud from the slave's termios (TCGETS2 reports any rate, standard or
+/// not, as the number pyserial or serial2 set).
+#[derive(Debug, Clone, Copy)]
+pub struct PtyLine {
+    slave: i32,
+}
+
+impl LineSettings for PtyLine {
+    fn baud(&self) -> Option<u32> {
+        // SAFETY: termios2 is plain data; TCGETS2 fills it and the pointer is valid for the call.
+        let mut termios: libc::termios2 = unsafe { std::mem::zeroed() };
+        let rc = unsafe { libc::ioctl(self.slave, libc::TCGETS2, &mut termios) };
+        (rc == 0).then_some(termios.c_ospeed)
+    }
+}
+
+impl AsyncRead for PortStream {
+    fn poll_read(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+        self.0.poll_read_master(cx, buf)
+    }
+}
+
+impl AsyncWrite for PortStream {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+        self.0.poll_write_master(cx, data)
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+}
