@@ -581,11 +581,19 @@ impl Servo {
         self.loops.planned_velocity = Some((velocity, accel));
     }
 
-    /// Reduce the multi-turn count to one turn (reference §8).
+    /// Reduce the multi-turn count to one turn (reference §8). The goal and the trajectory move
+    /// with it, so a servo holding position under torque does not spin back the turns it lost.
     fn rebase_single_turn(&mut self) {
         let raw = self.raw_position_pulses();
         let ppr = self.units.pulses_per_rev as i64;
-        self.turn_base = raw.div_euclid(ppr) * ppr;
+        let new_base = raw.div_euclid(ppr) * ppr;
+        let shift = new_base - self.turn_base;
+        self.turn_base = new_base;
+        if shift != 0 {
+            let goal = self.keys.goal_position;
+            self.table.set(goal, self.get(goal) - shift);
+            self.loops.trajectory_position -= shift as f64;
+        }
     }
 
     fn direction(&self) -> f64 {
@@ -882,6 +890,8 @@ impl Servo {
         self.temperature_c = ambient + (self.temperature_c - ambient) * (-elapsed / spec.thermal_time_constant_s).exp();
         self.next_tick = now;
         self.publish_state(now);
+        // Voltage and temperature limits are watched even when nothing moves.
+        self.check_protections(0.0, 0.0);
     }
 }
 

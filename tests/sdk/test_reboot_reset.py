@@ -183,10 +183,16 @@ def test_clear_multi_turn(dxl):
     )
     result, error = dxl.ph.clearMultiTurn(dxl.port, 1)
     assert result == COMM_SUCCESS and error == 0, f"Clear when stopped: {describe(dxl.ph, result, error)}"
-    time.sleep(0.02)
     pos = dxl.read_s(1, A_PRESENT_POS, 4)
     assert 0 <= pos <= 4095, f"Present Position {pos} after Clear, expected within one turn"
     assert abs(pos - goal % 4096) <= 20, f"Present Position {pos} after Clear, expected about {goal % 4096}"
+    # the servo must stay where it is: Clear renumbers the turn, it is not a new goal
+    time.sleep(0.3)
+    later = dxl.read_s(1, A_PRESENT_POS, 4)
+    goal_after = dxl.read_s(1, A_GOAL_POS, 4)
+    assert abs(later - pos) <= 10, (
+        f"servo moved after Clear: Present {pos} -> {later} (Goal Position now {goal_after})"
+    )
 
 
 def test_clear_reply_bytes(dxl):

