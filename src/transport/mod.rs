@@ -1,6 +1,7 @@
 //! Byte transports between a controller and the bus: a pseudo-terminal, TCP, or an in-memory
-//! duplex. All of them run the same [`serve_stream`] over any `AsyncRead + AsyncWrite`.
+//! duplex ([`memory`]). All of them run the same [`serve_stream`] over any `AsyncRead + AsyncWrite`.
 
+pub mod memory;
 mod pty;
 mod tcp;
 

@@ -1,0 +1,151 @@
+//! `climbsim serve` from the outside: clear errors for bad input, the bus trace, clean shutdown.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::os::fd::AsRawFd;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_climbsim");
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("climbsim-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Run `climbsim serve` expecting it to fail at start-up; return its stderr.
+fn serve_fails(args: &[&str]) -> String {
+    let out = Command::new(BIN).arg("serve").args(args).output().unwrap();
+    assert_eq!(out.status.code(), Some(1), "expected exit 1, stdout: {}", String::from_utf8_lossy(&out.stdout));
+    assert!(out.stdout.is_empty(), "no port line on failure");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    stderr
+}
+
+#[test]
+fn bad_robot_file_names_file_line_and_key() {
+    let dir = temp_dir("robot");
+    let robot = dir.join("robot.toml");
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("hil/robot.toml")).unwrap();
+    let text = text.replace("supply_voltage_v = 12.0", "supply_voltage_v = 12.0\nsupply_volts = 12");
+    std::fs::write(&robot, &text).unwrap();
+    let line = text.lines().position(|l| l.starts_with("supply_volts")).unwrap() + 1;
+    let stderr = serve_fails(&["--robot", robot.to_str().unwrap()]);
+    assert!(stderr.contains(&format!("{}:{line}:", robot.display())), "{stderr}");
+    assert!(stderr.contains("supply_volts"), "{stderr}");
+}
+
+#[test]
+fn bad_profile_file_is_named() {
+    let dir = temp_dir("profile");
+    std::fs::write(dir.join("profile.toml"), "[model]\nname = \"X\"\nmodel_number = \"not a number\"\n").unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("hil/robot.toml")).unwrap();
+    let text = text.replace("../firmware-profiles/xm540-w270-r.toml", "profile.toml");
+    std::fs::write(dir.join("robot.toml"), text).unwrap();
+    let stderr = serve_fails(&["--robot", dir.join("robot.toml").to_str().unwrap()]);
+    assert!(stderr.contains("profile.toml:3:"), "{stderr}");
+}
+
+#[test]
+fn busy_link_path_is_refused() {
+    let dir = temp_dir("busy");
+    let busy = dir.join("taken");
+    std::fs::write(&busy, "mine").unwrap();
+    let stderr = serve_fails(&["--link", busy.to_str().unwrap()]);
+    assert!(stderr.contains("is busy"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(&busy).unwrap(), "mine", "the file was not touched");
+}
+
+#[test]
+fn bad_tcp_address_is_refused() {
+    let out = Command::new(BIN).args(["serve", "--tcp", "localhost:99999"]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not PORT or HOST:PORT"));
+}
+
+#[test]
+fn unsupported_baud_is_refused() {
+    let stderr = serve_fails(&["--baud", "12345"]);
+    assert!(stderr.contains("12345"), "{stderr}");
+}
+
+struct Serve {
+    child: Child,
+    port: PathBuf,
+}
+
+impl Serve {
+    fn start(args: &[&str]) -> Self {
+        let mut child = Command::new(BIN).arg("serve").args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.as_mut().unwrap()).read_line(&mut line).unwrap();
+        let port = PathBuf::from(line.trim().strip_prefix("port: ").unwrap_or_else(|| panic!("no port line: {line:?}")));
+        Self { child, port }
+    }
+
+    fn stop(mut self) -> std::process::ExitStatus {
+        // SAFETY: kill(2) on our own child's pid.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+        self.child.wait().unwrap()
+    }
+}
+
+impl Drop for Serve {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn open_raw(path: &Path) -> std::fs::File {
+    let file = std::fs::OpenOptions::new().read(true).write(true).open(path).unwrap();
+    let mut termios = nix::sys::termios::tcgetattr(&file).unwrap();
+    nix::sys::termios::cfmakeraw(&mut termios);
+    nix::sys::termios::cfsetspeed(&mut termios, nix::sys::termios::BaudRate::B57600).unwrap();
+    nix::sys::termios::tcsetattr(&file, nix::sys::termios::SetArg::TCSANOW, &termios).unwrap();
+    file
+}
+
+fn read_exact_within(file: &mut std::fs::File, n: usize, limit: Duration) -> Vec<u8> {
+    let deadline = Instant::now() + limit;
+    let mut out = Vec::new();
+    let mut buf = [0u8; 256];
+    while out.len() < n {
+        let left = deadline.saturating_duration_since(Instant::now());
+        assert!(!left.is_zero(), "only {} of {n} bytes: {out:02X?}", out.len());
+        let mut poll = [nix::poll::PollFd::new(unsafe { std::os::fd::BorrowedFd::borrow_raw(file.as_raw_fd()) }, nix::poll::PollFlags::POLLIN)];
+        nix::poll::poll(&mut poll, nix::poll::PollTimeout::try_from(left.as_millis() as i32).unwrap()).unwrap();
+        let got = file.read(&mut buf).unwrap();
+        out.extend_from_slice(&buf[..got]);
+    }
+    out
+}
+
+#[test]
+fn trace_bus_writes_each_transaction_as_json_lines_and_shutdown_removes_link() {
+    let dir = temp_dir("trace");
+    let link = dir.join("ttyDXL");
+    let trace = dir.join("bus.jsonl");
+    let serve = Serve::start(&["--link", link.to_str().unwrap(), "--timing", "off", "--trace-bus", trace.to_str().unwrap()]);
+    assert_eq!(serve.port, link);
+    let mut port = open_raw(&link);
+    port.write_all(&[0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01, 0x19, 0x4E]).unwrap();
+    let reply = read_exact_within(&mut port, 14, Duration::from_secs(2));
+    assert_eq!(reply, [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x07, 0x00, 0x55, 0x00, 0x60, 0x04, 0x30, 0xEA, 0xDA]);
+    drop(port);
+    let status = serve.stop();
+    assert!(status.success(), "{status:?}");
+    assert!(!link.exists() && std::fs::symlink_metadata(&link).is_err(), "link removed on shutdown");
+    let lines: Vec<serde_json::Value> =
+        std::fs::read_to_string(&trace).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 2, "{lines:?}");
+    assert_eq!(lines[0]["dir"], "controller->servos");
+    assert_eq!(lines[0]["decoded"]["instruction"], "Ping");
+    assert_eq!(lines[0]["hex"], "FF FF FD 00 01 03 00 01 19 4E");
+    assert_eq!(lines[1]["dir"], "servos->controller");
+    assert_eq!(lines[1]["hex"], "FF FF FD 00 01 07 00 55 00 60 04 30 EA DA");
+    assert_eq!(lines[1]["from"], serde_json::json!([1]));
+}
