@@ -8,13 +8,12 @@ use thiserror::Error;
 
 use crate::bus::{self, Bus, BusError, Timing};
 use crate::device::{BenchPlant, FirmwareProfile, ProfileError};
+use crate::source_location::{DataFileError, load_toml};
 
 #[derive(Debug, Error)]
 pub enum RobotError {
-    #[error("cannot read robot description {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("robot description {path}:{line}:{column}: {message}")]
-    Parse { path: PathBuf, line: usize, column: usize, message: String },
+    #[error(transparent)]
+    File(#[from] DataFileError),
     #[error(transparent)]
     Profile(#[from] ProfileError),
     #[error("robot description {path}: {source}")]
@@ -60,11 +59,7 @@ impl RobotDescription {
     }
 
     pub fn load(path: &Path) -> Result<Self, RobotError> {
-        let text = std::fs::read_to_string(path).map_err(|source| RobotError::Io { path: path.to_owned(), source })?;
-        let mut robot: Self = toml::from_str(&text).map_err(|e| {
-            let (line, column) = e.span().map(|s| crate::source_location::line_col(&text, s.start)).unwrap_or((0, 0));
-            RobotError::Parse { path: path.to_owned(), line, column, message: e.message().to_owned() }
-        })?;
+        let mut robot: Self = load_toml("robot description", path)?;
         robot.path = path.to_owned();
         Ok(robot)
     }

@@ -63,16 +63,7 @@ impl ControlTable {
     /// The value of item `index`, sign-extended if the item is signed.
     pub fn get(&self, index: usize) -> i64 {
         let item = &self.profile.items[index];
-        let start = usize::from(item.address());
-        let mut raw = [0u8; 8];
-        raw[..item.size()].copy_from_slice(&self.mem[start..item.end()]);
-        let unsigned = u64::from_le_bytes(raw);
-        if item.spec.signed {
-            let shift = 64 - 8 * item.size() as u32;
-            ((unsigned << shift) as i64) >> shift
-        } else {
-            unsigned as i64
-        }
+        decode(&self.mem[usize::from(item.address())..item.end()], item.spec.signed)
     }
 
     /// Store `value` in item `index` without any check (the servo's own updates).
@@ -170,7 +161,7 @@ impl ControlTable {
                 fail(&mut error, DeviceError::DataLength);
                 continue;
             }
-            let value = decode(&staged, item.size(), item.spec.signed);
+            let value = decode(&staged[..item.size()], item.spec.signed);
             if let Err(e) = self.check_value(index, value, ctx.operating_mode) {
                 fail(&mut error, e);
             }
@@ -242,12 +233,13 @@ impl ControlTable {
     }
 }
 
-fn decode(bytes: &[u8; 8], size: usize, signed: bool) -> i64 {
+/// Little-endian item bytes (1..=4) as a value, sign-extended for signed items.
+fn decode(bytes: &[u8], signed: bool) -> i64 {
     let mut raw = [0u8; 8];
-    raw[..size].copy_from_slice(&bytes[..size]);
+    raw[..bytes.len()].copy_from_slice(bytes);
     let unsigned = u64::from_le_bytes(raw);
     if signed {
-        let shift = 64 - 8 * size as u32;
+        let shift = 64 - 8 * bytes.len() as u32;
         ((unsigned << shift) as i64) >> shift
     } else {
         unsigned as i64

@@ -8,13 +8,15 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 use thiserror::Error;
 
+use crate::source_location::{DataFileError, load_toml, parse_toml};
+
+const WHAT: &str = "firmware profile";
+
 /// A profile file that cannot be used.
 #[derive(Debug, Error)]
 pub enum ProfileError {
-    #[error("cannot read firmware profile {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("firmware profile {path}:{line}:{column}: {message}")]
-    Parse { path: PathBuf, line: usize, column: usize, message: String },
+    #[error(transparent)]
+    File(#[from] DataFileError),
     #[error("firmware profile {path}: {message}")]
     Invalid { path: PathBuf, message: String },
 }
@@ -202,16 +204,16 @@ pub struct FirmwareProfile {
 impl FirmwareProfile {
     /// Load and validate a profile file.
     pub fn load(path: &Path) -> Result<Self, ProfileError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ProfileError::Io { path: path.to_owned(), source })?;
-        Self::parse(path, &text)
+        let file: ProfileFile = load_toml(WHAT, path)?;
+        Self::from_file(path, file)
     }
 
     /// Parse profile text; `path` is used in error messages only.
     pub fn parse(path: &Path, text: &str) -> Result<Self, ProfileError> {
-        let file: ProfileFile = toml::from_str(text).map_err(|e| {
-            let (line, column) = e.span().map(|s| crate::source_location::line_col(text, s.start)).unwrap_or((0, 0));
-            ProfileError::Parse { path: path.to_owned(), line, column, message: e.message().to_owned() }
-        })?;
+        Self::from_file(path, parse_toml(WHAT, path, text)?)
+    }
+
+    fn from_file(path: &Path, file: ProfileFile) -> Result<Self, ProfileError> {
         let invalid = |message: String| ProfileError::Invalid { path: path.to_owned(), message };
 
         let mut specs = file.item;
