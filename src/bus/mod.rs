@@ -282,7 +282,11 @@ impl Bus {
     /// LEN, as a real bus would (the SDK then reports a corrupt or timed-out reply).
     fn fast_read(&mut self, reads: &[(u8, u16, u16)], hearing: &[usize], now: Duration) -> Option<PendingReply> {
         let addressing = Addressing { broadcast: true, via_secondary_id: false };
-        let mut builder = FastReplyBuilder::new(reads.iter().map(|&(_, _, len)| usize::from(len)));
+        let Some(mut builder) = FastReplyBuilder::new(reads.iter().map(|&(_, _, len)| usize::from(len))) else {
+            // Chosen: a combined reply too long for the LEN field is never started.
+            debug!(devices = reads.len(), "Fast read reply would exceed the LEN field; no reply");
+            return None;
+        };
         let mut senders = Vec::new();
         for &(id, address, length) in reads {
             let Some(&index) = self.slot_servos(id, hearing).first() else { break };

@@ -94,6 +94,12 @@ impl ControlTable {
         address
     }
 
+    /// Bytes past the end of the table are undefined addresses: Access Error, whatever else the
+    /// access covers. This also bounds every reply to a size a packet can carry.
+    fn check_within_table(&self, address: u16, length: usize) -> Result<(), DeviceError> {
+        if usize::from(address) + length > self.mem.len() { Err(DeviceError::Access) } else { Ok(()) }
+    }
+
     fn item_at(&self, address: usize) -> Option<usize> {
         u16::try_from(address).ok().and_then(|a| self.profile.item_index_at(a))
     }
@@ -101,6 +107,7 @@ impl ControlTable {
     /// Read `length` bytes at `address`. Reserved gaps between items read as 0; a read that covers
     /// no item at all is an Access Error (reference §5; gap behaviour unverified, §11.3).
     pub fn read(&self, address: u16, length: u16) -> Result<Vec<u8>, DeviceError> {
+        self.check_within_table(address, usize::from(length))?;
         let mut out = Vec::with_capacity(usize::from(length));
         let mut any_item = false;
         for address in usize::from(address)..usize::from(address) + usize::from(length) {
@@ -117,6 +124,7 @@ impl ControlTable {
 
     /// Check a write of `data` at `address` against every rule, without changing anything.
     pub fn stage_write(&self, address: u16, data: &[u8], ctx: WriteContext) -> Result<StagedWrite, DeviceError> {
+        self.check_within_table(address, data.len())?;
         // Per touched item: the staged bytes and which of them this write covers.
         let mut touched: Vec<(usize, [u8; 8], u8)> = Vec::new();
         let mut error: Option<DeviceError> = None;
@@ -268,6 +276,7 @@ mod tests {
     fn read_of_only_reserved_bytes_is_access_error() {
         assert_eq!(table().read(40, 4), Err(DeviceError::Access));
         assert_eq!(table().read(700, 1), Err(DeviceError::Access));
+        assert_eq!(table().read(0, 0xFFFF), Err(DeviceError::Access), "runs past the table");
     }
 
     #[test]

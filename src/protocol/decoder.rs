@@ -191,10 +191,13 @@ impl Decoder {
         if received != computed {
             return Front::Skip(1, Some(FrameError::BadCrc { id, received, computed }));
         }
+        // Unstuff from the instruction byte on, as it was stuffed (reference §3).
+        let mut body = unstuff(&buf[PREFIX_LEN..total - 2]);
+        let instruction = body.remove(0);
         Front::Packet(RawPacket {
             id,
-            instruction: buf[PREFIX_LEN],
-            params: unstuff(&buf[PREFIX_LEN + 1..total - 2]),
+            instruction,
+            params: body,
             wire_len: total,
             bytes: buf[..total].to_vec(),
         })

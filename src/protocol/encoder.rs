@@ -5,16 +5,21 @@ use super::crc16::{RunningCrc, crc16};
 use super::stuffing::stuff;
 use super::{BROADCAST_ID, HEADER, STATUS_INSTRUCTION};
 
+/// Stuffing covers the instruction byte through the last parameter (reference §3).
 fn frame(id: u8, instruction: u8, body: &[u8]) -> Vec<u8> {
-    let stuffed = stuff(body);
-    // LEN = instruction byte + stuffed body + CRC.
-    let len = 1 + stuffed.len() + 2;
+    let mut unstuffed = Vec::with_capacity(body.len() + 1);
+    unstuffed.push(instruction);
+    unstuffed.extend_from_slice(body);
+    let stuffed = stuff(&unstuffed);
+    // LEN = stuffed instruction + body + CRC. Callers keep bodies far below the 16-bit limit
+    // (reads are bounded by the control table).
+    let len = stuffed.len() + 2;
+    debug_assert!(len <= usize::from(u16::MAX), "packet body of {len} bytes cannot be framed");
     let mut out = Vec::with_capacity(len + 7);
     out.extend_from_slice(&HEADER);
     out.push(0x00);
     out.push(id);
     out.extend_from_slice(&(len as u16).to_le_bytes());
-    out.push(instruction);
     out.extend_from_slice(&stuffed);
     let crc = crc16(&out);
     out.extend_from_slice(&crc.to_le_bytes());
@@ -43,18 +48,20 @@ pub struct FastReplyBuilder {
 
 impl FastReplyBuilder {
     /// `data_lens` are the data lengths of every device listed in the instruction, in order; LEN is
-    /// fixed by them before any device has answered, as on the real bus.
-    pub fn new(data_lens: impl IntoIterator<Item = usize>) -> Self {
+    /// fixed by them before any device has answered, as on the real bus. `None` when the combined
+    /// packet would not fit the 16-bit LEN field.
+    pub fn new(data_lens: impl IntoIterator<Item = usize>) -> Option<Self> {
         let len: usize = 1 + data_lens.into_iter().map(|n| n + 4).sum::<usize>();
-        let mut bytes = Vec::with_capacity(len + 7);
+        let len = u16::try_from(len).ok()?;
+        let mut bytes = Vec::with_capacity(usize::from(len) + 7);
         bytes.extend_from_slice(&HEADER);
         bytes.push(0x00);
         bytes.push(BROADCAST_ID);
-        bytes.extend_from_slice(&(len as u16).to_le_bytes());
+        bytes.extend_from_slice(&len.to_le_bytes());
         bytes.push(STATUS_INSTRUCTION);
         let mut crc = RunningCrc::new();
         crc.update(&bytes);
-        Self { bytes, crc }
+        Some(Self { bytes, crc })
     }
 
     /// Append one device's block.
@@ -96,7 +103,7 @@ mod tests {
 
     #[test]
     fn fast_sync_read_reply_matches_emanual() {
-        let mut builder = FastReplyBuilder::new([4, 4, 4]);
+        let mut builder = FastReplyBuilder::new([4, 4, 4]).unwrap();
         builder.push_block(0, 3, &[0xA6, 0, 0, 0]);
         builder.push_block(0, 7, &[0x1F, 0x08, 0, 0]);
         builder.push_block(0, 4, &[0xFF, 0x03, 0, 0]);
