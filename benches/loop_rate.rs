@@ -1,0 +1,356 @@
+//! Control-loop rate a `dynamixel2` (0.9.1) controller reaches against climbsim over a real pty.
+//!
+//! One cycle = one Sync Read of 8 IDs × 8 bytes at address 128 (Present Velocity + Present
+//! Position) + one Sync Write of 8 × Goal Velocity (address 104, 4 bytes), with all servos in
+//! velocity mode (Operating Mode 1) and torque on. dynamixel2's `sync_write` does not wait for
+//! anything (there is no reply); the next Sync Read queues behind it on the wire.
+//!
+//! 1. `serve --timing off`, client at 57600: cycles/s for ~3 s. Target ≥ 5000 cycles/s.
+//! 2. `serve --timing wire --baud 4000000`, client at 4 Mbps: measured cycles/s against the wire
+//!    model's prediction, with the default Return Delay Time (250 = 500 µs per reply) and again
+//!    after writing Return Delay Time = 0 to all servos (EEPROM, torque off first).
+//!    Target: measured within 10 % of the prediction.
+//!
+//! Model (climbsim's `--timing wire`): an instruction occupies bytes × 10 / baud from when it
+//! arrives or the wire frees, whichever is later; each reply starts Return Delay Time after the
+//! end of what precedes it and lasts bytes × 10 / baud. So one cycle is predicted to take
+//! `(sync-read bytes + 8 × reply bytes + sync-write bytes) × 10 / baud + 8 × RDT`; what the
+//! measurement adds on top is the client's turnaround (last reply in → Sync Write out).
+//!
+//! Results: a table on stdout and `target/bench-results/loop_rate.json`. Without `--bench` (e.g.
+//! `cargo test --benches`) it runs a short smoke pass and writes nothing.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use climbsim::protocol::{encode_instruction, encode_status};
+use dynamixel2::instructions::SyncWriteData;
+
+type Bus = dynamixel2::Bus<Vec<u8>, Vec<u8>>;
+
+const IDS: [u8; 8] = [1, 2, 3, 4, 5, 6, 7, 8];
+const A_RETURN_DELAY: u16 = 9;
+const A_OPERATING_MODE: u16 = 11;
+const A_TORQUE: u16 = 64;
+const A_GOAL_VELOCITY: u16 = 104;
+const A_PRESENT_VELOCITY: u16 = 128;
+const READ_LEN: u16 = 8;
+const SYNC_READ: u8 = 0x82;
+const SYNC_WRITE: u8 = 0x83;
+const WIRE_BAUD: u32 = 4_000_000;
+const BITS_PER_BYTE: f64 = 10.0;
+/// Small goal velocities (0.229 rev/min units): wheels turning, magnet shafts still. None is
+/// negative on purpose: dynamixel2 0.9.1 mis-unstuffs `FF FF FF FD FD` (its unstuffing state
+/// machine resets on the third `FF`), which a negative Present Velocity (`.. FF FF FF`) followed by
+/// a Present Position whose low byte is 0xFD puts on the wire; the crate then reports 9 parameters
+/// instead of 8. The emulator's reply is correct; a real servo would send the same bytes.
+const GOALS: [i32; 8] = [10, 10, 10, 10, 0, 0, 0, 0];
+
+fn main() {
+    let full = std::env::args().any(|a| a == "--bench");
+    let (run_for, warm_for) = if full {
+        (Duration::from_secs(3), Duration::from_millis(300))
+    } else {
+        (Duration::from_millis(200), Duration::from_millis(20))
+    };
+    let goals: Vec<SyncWriteData<u32>> = IDS.iter().zip(GOALS).map(|(&id, v)| SyncWriteData { motor_id: id, data: v as u32 }).collect();
+
+    // Wire bytes of one cycle, from the codec that builds the real packets.
+    let mut sync_read_params = vec![];
+    sync_read_params.extend_from_slice(&A_PRESENT_VELOCITY.to_le_bytes());
+    sync_read_params.extend_from_slice(&READ_LEN.to_le_bytes());
+    sync_read_params.extend_from_slice(&IDS);
+    let sync_read_bytes = encode_instruction(0xFE, SYNC_READ, &sync_read_params).len();
+    let reply_bytes = encode_status(1, 0, &[0; READ_LEN as usize]).len();
+    let mut sync_write_params = vec![];
+    sync_write_params.extend_from_slice(&A_GOAL_VELOCITY.to_le_bytes());
+    sync_write_params.extend_from_slice(&4u16.to_le_bytes());
+    for g in &goals {
+        sync_write_params.push(g.motor_id);
+        sync_write_params.extend_from_slice(&g.data.to_le_bytes());
+    }
+    let sync_write_bytes = encode_instruction(0xFE, SYNC_WRITE, &sync_write_params).len();
+    let cycle_bytes = sync_read_bytes + IDS.len() * reply_bytes + sync_write_bytes;
+
+    // 1. Timing off.
+    let mut emu = Emulator::start(&["--timing", "off"]);
+    let mut bus = Bus::open(&emu.port, 57_600).expect("open pty at 57600");
+    velocity_mode(&mut bus);
+    run(&mut bus, &goals, warm_for);
+    let off = run(&mut bus, &goals, run_for);
+    drop(bus);
+    let off_exit_ok = emu.stop();
+
+    // 2. Wire timing at 4 Mbps.
+    let mut emu = Emulator::start(&["--timing", "wire", "--baud", "4000000"]);
+    let mut bus = Bus::open(&emu.port, WIRE_BAUD).expect("open pty at 4 Mbps");
+    velocity_mode(&mut bus);
+    let mut wire = Vec::new();
+    for rdt_code in [250u8, 0] {
+        for id in IDS {
+            write(&mut bus, id, A_TORQUE, 0);
+            write(&mut bus, id, A_RETURN_DELAY, rdt_code);
+            write(&mut bus, id, A_TORQUE, 1);
+            let back = bus.read_u8(id, A_RETURN_DELAY).unwrap_or_else(|e| panic!("read RDT of {id}: {e}")).data;
+            assert_eq!(back, rdt_code, "Return Delay Time of ID {id}");
+        }
+        run(&mut bus, &goals, warm_for);
+        let measured = run(&mut bus, &goals, run_for);
+        let rdt_s = f64::from(rdt_code) * 2e-6;
+        let predicted_cycle_s = cycle_bytes as f64 * BITS_PER_BYTE / f64::from(WIRE_BAUD) + IDS.len() as f64 * rdt_s;
+        wire.push((rdt_code, measured, predicted_cycle_s));
+    }
+    drop(bus);
+    let wire_exit_ok = emu.stop();
+
+    // Report.
+    let smoke = if full { "" } else { "  [smoke run, not a measurement]" };
+    println!();
+    println!("dynamixel2 control loop: Sync Read 8 × 8 B @128 + Sync Write 8 × 4 B @104 per cycle{smoke}");
+    println!("wire bytes per cycle: sync read {sync_read_bytes} + 8 × reply {reply_bytes} + sync write {sync_write_bytes} = {cycle_bytes}");
+    println!();
+    println!("| run                                  | cycles | s    | cycles/s | median µs | p99 µs | target       | errors |");
+    println!("|--------------------------------------|-------:|-----:|---------:|----------:|-------:|--------------|-------:|");
+    println!(
+        "| --timing off, 57600 nominal          | {:>6} | {:.2} | {:>8.0} | {:>9.1} | {:>6.1} | ≥ 5000: {:<4} | {:>6} |",
+        off.cycles,
+        off.elapsed.as_secs_f64(),
+        off.rate(),
+        off.median_us(),
+        off.p99_us(),
+        if off.rate() >= 5000.0 { "met" } else { "NOT" },
+        off.errors
+    );
+    println!();
+    println!("| --timing wire, 4 Mbps      | cycles/s measured | cycles/s predicted | µs/cycle measured | µs/cycle predicted | extra µs/cycle | difference | ≤ 10 % | errors |");
+    println!("|----------------------------|------------------:|-------------------:|------------------:|-------------------:|---------------:|-----------:|--------|-------:|");
+    let mut wire_json = Vec::new();
+    for (rdt_code, measured, predicted_cycle_s) in &wire {
+        let predicted_rate = 1.0 / predicted_cycle_s;
+        let diff = (measured.rate() - predicted_rate) / predicted_rate;
+        println!(
+            "| RDT {:>3} ({:>3} µs per reply) | {:>17.1} | {:>18.1} | {:>17.1} | {:>18.1} | {:>14.1} | {:>+8.1} % | {:<6} | {:>6} |",
+            rdt_code,
+            u32::from(*rdt_code) * 2,
+            measured.rate(),
+            predicted_rate,
+            1e6 / measured.rate(),
+            predicted_cycle_s * 1e6,
+            1e6 / measured.rate() - predicted_cycle_s * 1e6,
+            diff * 100.0,
+            if diff.abs() <= 0.10 { "met" } else { "NOT" },
+            measured.errors
+        );
+        wire_json.push(serde_json::json!({
+            "return_delay_time_code": rdt_code,
+            "return_delay_time_us": u32::from(*rdt_code) * 2,
+            "cycles": measured.cycles,
+            "seconds": measured.elapsed.as_secs_f64(),
+            "measured_cycles_per_s": measured.rate(),
+            "predicted_cycles_per_s": predicted_rate,
+            "measured_cycle_us": 1e6 / measured.rate(),
+            "predicted_cycle_us": predicted_cycle_s * 1e6,
+            "extra_us_per_cycle": 1e6 / measured.rate() - predicted_cycle_s * 1e6,
+            "median_cycle_us": measured.median_us(),
+            "p99_cycle_us": measured.p99_us(),
+            "relative_difference": diff,
+            "target_max_relative_difference": 0.10,
+            "target_met": diff.abs() <= 0.10,
+            "errors": measured.errors,
+        }));
+    }
+
+    let errors = off.errors + wire.iter().map(|w| w.1.errors).sum::<usize>();
+    if full {
+        let json = serde_json::json!({
+            "bench": "loop_rate",
+            "client": "dynamixel2 0.9.1",
+            "cycle": "sync_read 8 ids x 8 bytes @128 + sync_write 8 x 4 bytes @104 (velocity mode, torque on)",
+            "bytes": {
+                "sync_read_instruction": sync_read_bytes,
+                "status_reply_each": reply_bytes,
+                "sync_write_instruction": sync_write_bytes,
+                "per_cycle": cycle_bytes,
+            },
+            "timing_off_57600": {
+                "cycles": off.cycles,
+                "seconds": off.elapsed.as_secs_f64(),
+                "cycles_per_s": off.rate(),
+                "median_cycle_us": off.median_us(),
+                "p99_cycle_us": off.p99_us(),
+                "target_min_cycles_per_s": 5000,
+                "target_met": off.rate() >= 5000.0,
+                "errors": off.errors,
+            },
+            "timing_wire_4mbps": wire_json,
+            "emulator_exit_ok": off_exit_ok && wire_exit_ok,
+        });
+        let path = results_dir().join("loop_rate.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&json).expect("json") + "\n").expect("write results");
+        println!("results: {}", path.display());
+    }
+    assert!(off_exit_ok && wire_exit_ok, "climbsim did not exit 0 on SIGTERM");
+    assert_eq!(errors, 0, "some Sync Read replies were missing or wrong: the numbers above are not valid");
+}
+
+fn write(bus: &mut Bus, id: u8, address: u16, value: u8) {
+    bus.write_u8(id, address, value).unwrap_or_else(|e| panic!("write {value} to {address} of ID {id}: {e}"));
+}
+
+/// Torque off, Operating Mode 1 (velocity), torque on, on every servo.
+fn velocity_mode(bus: &mut Bus) {
+    for id in IDS {
+        write(bus, id, A_TORQUE, 0);
+        write(bus, id, A_OPERATING_MODE, 1);
+        write(bus, id, A_TORQUE, 1);
+    }
+}
+
+struct Run {
+    cycles: usize,
+    errors: usize,
+    elapsed: Duration,
+    cycle_ns: Vec<u64>,
+}
+
+impl Run {
+    fn rate(&self) -> f64 {
+        self.cycles as f64 / self.elapsed.as_secs_f64()
+    }
+    fn pct_us(&self, p: f64) -> f64 {
+        let mut v = self.cycle_ns.clone();
+        v.sort_unstable();
+        v[((v.len() - 1) as f64 * p).round() as usize] as f64 / 1e3
+    }
+    fn median_us(&self) -> f64 {
+        self.pct_us(0.5)
+    }
+    fn p99_us(&self) -> f64 {
+        self.pct_us(0.99)
+    }
+}
+
+/// Run the loop for `duration`. A cycle counts as an error unless all 8 servos answered, in
+/// order, with 8 bytes each.
+fn run(bus: &mut Bus, goals: &[SyncWriteData<u32>], duration: Duration) -> Run {
+    let mut cycle_ns = Vec::with_capacity(100_000);
+    let mut errors = 0;
+    let mut samples: Vec<String> = Vec::new();
+    let started = Instant::now();
+    let mut last = started;
+    while last.duration_since(started) < duration {
+        let mut answered = 0usize;
+        let mut next = 0usize;
+        bus.sync_read_cb(&IDS, A_PRESENT_VELOCITY, READ_LEN, |reply| match reply {
+            Ok(r) if r.motor_id == IDS[next] && r.data.len() == READ_LEN as usize => {
+                answered += 1;
+                next += 1;
+            }
+            Ok(r) => {
+                note(&mut samples, format!("ID {} answered in slot of ID {} with {} bytes", r.motor_id, IDS[next], r.data.len()));
+                next += 1;
+            }
+            Err(e) => {
+                note(&mut samples, format!("slot of ID {}: {e}", IDS[next]));
+                next += 1;
+            }
+        })
+        .expect("sync read write");
+        if answered != IDS.len() {
+            errors += 1;
+        }
+        bus.sync_write_u32(A_GOAL_VELOCITY, goals).expect("sync write");
+        let now = Instant::now();
+        cycle_ns.push(now.duration_since(last).as_nanos() as u64);
+        last = now;
+    }
+    for sample in &samples {
+        eprintln!("sync read error (first of its kind): {sample}");
+    }
+    Run { cycles: cycle_ns.len(), errors, elapsed: last.duration_since(started), cycle_ns }
+}
+
+/// Keep the first few distinct error descriptions.
+fn note(samples: &mut Vec<String>, text: String) {
+    if samples.len() < 5 && !samples.contains(&text) {
+        samples.push(text);
+    }
+}
+
+/// `target/bench-results` (or `$CARGO_TARGET_DIR/bench-results`).
+fn results_dir() -> PathBuf {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let target = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) if !dir.is_empty() => manifest.join(dir),
+        _ => manifest.join("target"),
+    };
+    let dir = target.join("bench-results");
+    std::fs::create_dir_all(&dir).expect("create bench-results dir");
+    dir
+}
+
+/// `climbsim serve <args>`, stopped with SIGTERM (and killed if it hangs or the bench panics).
+struct Emulator {
+    child: Option<Child>,
+    port: PathBuf,
+}
+
+impl Emulator {
+    fn start(args: &[&str]) -> Self {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+            .arg("serve")
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("spawn climbsim");
+        let stdout = child.stdout.take().expect("stdout");
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut emulator = Self { child: Some(child), port: PathBuf::new() };
+        loop {
+            let line = rx.recv_timeout(Duration::from_secs(20)).expect("climbsim did not print `port: <path>` within 20 s");
+            if let Some(port) = line.strip_prefix("port: ") {
+                emulator.port = PathBuf::from(port.trim());
+                return emulator;
+            }
+        }
+    }
+
+    /// SIGTERM; true if it exited 0.
+    fn stop(&mut self) -> bool {
+        let Some(mut child) = self.child.take() else { return false };
+        // SAFETY: kill(2) on a child we spawned and have not reaped.
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+        let deadline = Instant::now() + Duration::from_secs(10);
+        loop {
+            if let Ok(Some(status)) = child.try_wait() {
+                return status.success();
+            }
+            if Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        if self.child.is_some() {
+            self.stop();
+        }
+    }
+}

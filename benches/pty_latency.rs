@@ -1,0 +1,329 @@
+//! Round-trip latency over a real pseudo-terminal: climbsim (`serve --timing off`) against a raw
+//! pty echo, the floor any pty-based emulator sits on. Target (issue): median(climbsim) ≤ 1.5 ×
+//! median(echo). Reported, not asserted.
+//!
+//! (a) echo: a thread does a blocking read on a pty master and writes the same bytes back; the
+//!     client, on the slave (raw, 57600 nominal), writes a 14-byte packet (exactly a Read request,
+//!     `encode_instruction(1, 0x02, &[132, 0, 4, 0])`) and reads until 14 bytes came back.
+//! (b) climbsim: the client opens the emulator's pty (raw, 57600, the servos' baud), writes that
+//!     Read of Present Position (ID 1, 4 bytes) and reads until the 15-byte status reply arrived.
+//!
+//! Both use the same blocking client code. After a warm-up, the two alternate in blocks so they
+//! share machine conditions. Results: a table on stdout and `target/bench-results/pty_latency.json`.
+//!
+//! `cargo bench --bench pty_latency` runs the full measurement; without `--bench` (e.g.
+//! `cargo test --benches`) it runs a short smoke pass and writes nothing.
+
+use std::fs::{File, OpenOptions};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::os::fd::{AsFd, OwnedFd};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use climbsim::protocol::{crc16, encode_instruction};
+use nix::sys::termios::{BaudRate, SetArg, SpecialCharacterIndices, cfmakeraw, cfsetspeed, tcgetattr, tcsetattr};
+
+const READ: u8 = 0x02;
+const REPLY_LEN: usize = 15; // 11 + 4 data bytes
+
+struct Config {
+    full: bool,
+    warmup: usize,
+    blocks: usize,
+    per_block: usize,
+}
+
+fn main() {
+    let full = std::env::args().any(|a| a == "--bench");
+    let cfg = if full {
+        Config { full, warmup: 2_000, blocks: 40, per_block: 500 }
+    } else {
+        Config { full, warmup: 50, blocks: 4, per_block: 50 }
+    };
+    let request = encode_instruction(1, READ, &[132, 0, 4, 0]);
+    assert_eq!(request.len(), 14, "a Read request is 14 bytes");
+
+    // (a) Raw pty echo.
+    let pty = nix::pty::openpty(None, None).expect("openpty");
+    set_cloexec(&pty.master);
+    set_cloexec(&pty.slave);
+    let echo_client = File::from(pty.slave);
+    configure_raw(&echo_client);
+    let master = pty.master;
+    let echo = std::thread::Builder::new()
+        .name("echo".into())
+        .spawn(move || echo_loop(master))
+        .expect("spawn echo thread");
+
+    // (b) climbsim.
+    let mut emulator = Emulator::start();
+    let sim_client = OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY)
+        .open(&emulator.port)
+        .unwrap_or_else(|e| panic!("open {}: {e}", emulator.port.display()));
+    configure_raw(&sim_client);
+
+    let mut buf = [0u8; 64];
+    // Check both paths answer what they should before timing anything.
+    round_trip(&echo_client, &request, request.len(), &mut buf);
+    assert_eq!(&buf[..request.len()], &request[..], "echo returned other bytes");
+    round_trip(&sim_client, &request, REPLY_LEN, &mut buf);
+    check_reply(&buf[..REPLY_LEN]);
+
+    for _ in 0..cfg.warmup {
+        round_trip(&echo_client, &request, request.len(), &mut buf);
+        round_trip(&sim_client, &request, REPLY_LEN, &mut buf);
+    }
+    let mut echo_ns = Vec::with_capacity(cfg.blocks * cfg.per_block);
+    let mut sim_ns = Vec::with_capacity(cfg.blocks * cfg.per_block);
+    let started = Instant::now();
+    for block in 0..cfg.blocks {
+        // Alternate which one goes first in a block, so neither always follows the other.
+        let order: [bool; 2] = if block % 2 == 0 { [true, false] } else { [false, true] };
+        for is_echo in order {
+            for _ in 0..cfg.per_block {
+                if is_echo {
+                    echo_ns.push(round_trip(&echo_client, &request, request.len(), &mut buf));
+                } else {
+                    sim_ns.push(round_trip(&sim_client, &request, REPLY_LEN, &mut buf));
+                    // Spot-check: every reply is the full, valid status packet.
+                    check_reply(&buf[..REPLY_LEN]);
+                }
+            }
+        }
+    }
+    let wall = started.elapsed();
+
+    drop(sim_client);
+    let exit_ok = emulator.stop();
+    drop(echo_client); // the echo thread reads EIO and ends
+    echo.join().expect("echo thread");
+
+    let echo_stats = Stats::of(&mut echo_ns);
+    let sim_stats = Stats::of(&mut sim_ns);
+    let ratio = sim_stats.median_ns as f64 / echo_stats.median_ns as f64;
+
+    println!();
+    println!("pty round-trip latency ({} round trips each, interleaved in {} blocks, {:.1} s){}",
+        echo_stats.n, cfg.blocks, wall.as_secs_f64(), if cfg.full { "" } else { "  [smoke run, not a measurement]" });
+    println!("| path                                     |     n | min µs | median µs | p90 µs | p99 µs | max µs |");
+    println!("|------------------------------------------|------:|-------:|----------:|-------:|-------:|-------:|");
+    echo_stats.row("raw pty echo (14 B out, 14 B back)");
+    sim_stats.row("climbsim --timing off (14 B, 15 B reply)");
+    println!();
+    println!("ratio median(climbsim) / median(echo) = {ratio:.2}  (target ≤ 1.5: {})", if ratio <= 1.5 { "met" } else { "NOT met" });
+    println!("climbsim overhead over the echo floor (median) = {:.1} µs", (sim_stats.median_ns as f64 - echo_stats.median_ns as f64) / 1e3);
+
+    if cfg.full {
+        let json = serde_json::json!({
+            "bench": "pty_latency",
+            "round_trips_each": echo_stats.n,
+            "blocks": cfg.blocks,
+            "warmup_each": cfg.warmup,
+            "request_bytes": request.len(),
+            "echo": echo_stats.json(),
+            "climbsim_timing_off": sim_stats.json(),
+            "ratio_median": ratio,
+            "target_ratio_max": 1.5,
+            "target_met": ratio <= 1.5,
+            "emulator_exit_ok": exit_ok,
+            "nominal_baud": 57600,
+        });
+        let path = results_dir().join("pty_latency.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&json).expect("json") + "\n").expect("write results");
+        println!("results: {}", path.display());
+    }
+    assert!(exit_ok, "climbsim did not exit 0 on SIGTERM");
+}
+
+/// openpty(3) descriptors are inheritable; keep them out of the emulator process.
+fn set_cloexec(fd: &OwnedFd) {
+    use std::os::fd::AsRawFd;
+    // SAFETY: fcntl on a descriptor we own.
+    let rc = unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_SETFD, libc::FD_CLOEXEC) };
+    assert_eq!(rc, 0, "fcntl(FD_CLOEXEC)");
+}
+
+/// Raw mode, 57600 baud, blocking reads that return as soon as one byte is there.
+fn configure_raw(port: &File) {
+    let mut t = tcgetattr(port).expect("tcgetattr");
+    cfmakeraw(&mut t);
+    cfsetspeed(&mut t, BaudRate::B57600).expect("cfsetspeed");
+    t.control_chars[SpecialCharacterIndices::VMIN as usize] = 1;
+    t.control_chars[SpecialCharacterIndices::VTIME as usize] = 0;
+    tcsetattr(port, SetArg::TCSANOW, &t).expect("tcsetattr");
+}
+
+/// Write `request`, read until `expect` bytes have arrived; the elapsed nanoseconds.
+fn round_trip(mut port: &File, request: &[u8], expect: usize, buf: &mut [u8]) -> u64 {
+    let t0 = Instant::now();
+    port.write_all(request).expect("write request");
+    let mut got = 0;
+    while got < expect {
+        match port.read(&mut buf[got..expect]) {
+            Ok(0) => panic!("port closed after {got} of {expect} bytes"),
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => panic!("read: {e}"),
+        }
+    }
+    t0.elapsed().as_nanos() as u64
+}
+
+fn check_reply(reply: &[u8]) {
+    assert_eq!(&reply[..9], &[0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x08, 0x00, 0x55, 0x00], "status header of the Present Position reply: {reply:02X?}");
+    let crc = u16::from_le_bytes([reply[13], reply[14]]);
+    assert_eq!(crc, crc16(&reply[..13]), "CRC of the reply {reply:02X?}");
+}
+
+fn echo_loop(master: OwnedFd) {
+    let mut buf = [0u8; 256];
+    loop {
+        match nix::unistd::read(master.as_fd(), &mut buf) {
+            Ok(0) | Err(nix::errno::Errno::EIO) => return,
+            Ok(n) => {
+                let mut data = &buf[..n];
+                while !data.is_empty() {
+                    match nix::unistd::write(master.as_fd(), data) {
+                        Ok(w) => data = &data[w..],
+                        Err(nix::errno::Errno::EINTR) => {}
+                        Err(_) => return,
+                    }
+                }
+            }
+            Err(nix::errno::Errno::EINTR) => {}
+            Err(_) => return,
+        }
+    }
+}
+
+struct Stats {
+    n: usize,
+    min_ns: u64,
+    median_ns: u64,
+    p90_ns: u64,
+    p99_ns: u64,
+    max_ns: u64,
+    mean_ns: f64,
+}
+
+impl Stats {
+    fn of(samples: &mut [u64]) -> Self {
+        samples.sort_unstable();
+        let pct = |p: f64| samples[((samples.len() - 1) as f64 * p).round() as usize];
+        Self {
+            n: samples.len(),
+            min_ns: samples[0],
+            median_ns: pct(0.5),
+            p90_ns: pct(0.9),
+            p99_ns: pct(0.99),
+            max_ns: *samples.last().unwrap(),
+            mean_ns: samples.iter().sum::<u64>() as f64 / samples.len() as f64,
+        }
+    }
+
+    fn row(&self, name: &str) {
+        let us = |ns: u64| ns as f64 / 1e3;
+        println!(
+            "| {name:<40} | {:>5} | {:>6.1} | {:>9.1} | {:>6.1} | {:>6.1} | {:>6.0} |",
+            self.n,
+            us(self.min_ns),
+            us(self.median_ns),
+            us(self.p90_ns),
+            us(self.p99_ns),
+            us(self.max_ns)
+        );
+    }
+
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "n": self.n,
+            "min_us": self.min_ns as f64 / 1e3,
+            "median_us": self.median_ns as f64 / 1e3,
+            "p90_us": self.p90_ns as f64 / 1e3,
+            "p99_us": self.p99_ns as f64 / 1e3,
+            "max_us": self.max_ns as f64 / 1e3,
+            "mean_us": self.mean_ns / 1e3,
+        })
+    }
+}
+
+/// `target/bench-results` (or `$CARGO_TARGET_DIR/bench-results`).
+fn results_dir() -> PathBuf {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let target = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) if !dir.is_empty() => manifest.join(dir),
+        _ => manifest.join("target"),
+    };
+    let dir = target.join("bench-results");
+    std::fs::create_dir_all(&dir).expect("create bench-results dir");
+    dir
+}
+
+/// `climbsim serve --timing off`, stopped with SIGTERM (and killed if it hangs or the bench
+/// panics).
+struct Emulator {
+    child: Option<Child>,
+    port: PathBuf,
+}
+
+impl Emulator {
+    fn start() -> Self {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+            .args(["serve", "--timing", "off"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("spawn climbsim");
+        let stdout = child.stdout.take().expect("stdout");
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut emulator = Self { child: Some(child), port: PathBuf::new() };
+        loop {
+            let line = rx.recv_timeout(Duration::from_secs(20)).expect("climbsim did not print `port: <path>` within 20 s");
+            if let Some(port) = line.strip_prefix("port: ") {
+                emulator.port = PathBuf::from(port.trim());
+                return emulator;
+            }
+        }
+    }
+
+    /// SIGTERM; true if it exited 0.
+    fn stop(&mut self) -> bool {
+        let Some(mut child) = self.child.take() else { return false };
+        // SAFETY: kill(2) on a child we spawned and have not reaped.
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+        let deadline = Instant::now() + Duration::from_secs(10);
+        loop {
+            if let Ok(Some(status)) = child.try_wait() {
+                return status.success();
+            }
+            if Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        if self.child.is_some() {
+            self.stop();
+        }
+    }
+}
