@@ -82,7 +82,7 @@ impl Bus {
         let mut seen = [false; 256];
         for servo in &servos {
             let id = servo.id();
-            if id > protocol_max_id() {
+            if id > protocol::MAX_ID {
                 return Err(BusError::InvalidId(id));
             }
             if std::mem::replace(&mut seen[usize::from(id)], true) {
@@ -371,10 +371,6 @@ fn collide(into: &mut Vec<u8>, other: &[u8]) {
             None => into.push(b),
         }
     }
-}
-
-fn protocol_max_id() -> u8 {
-    252
 }
 
 /// The per-servo request for a unicast (or plain broadcast) instruction.

@@ -230,12 +230,18 @@ impl FirmwareProfile {
         let table_len = specs.iter().map(|s| usize::from(s.address) + usize::from(s.size)).max().unwrap_or(0);
         let mut item_at = vec![None; table_len];
         for (index, spec) in specs.iter().enumerate() {
-            for addr in usize::from(spec.address)..usize::from(spec.address) + usize::from(spec.size) {
-                if let Some(other) = item_at[addr] {
+            let start = usize::from(spec.address);
+            for (offset, slot) in item_at[start..start + usize::from(spec.size)].iter_mut().enumerate() {
+                if let Some(other) = *slot {
                     let other: &ItemSpec = &specs[other];
-                    return Err(invalid(format!("items `{}` and `{}` overlap at address {addr}", other.key, spec.key)));
+                    return Err(invalid(format!("items `{}` and `{}` overlap at address {}", other.key, spec.key, start + offset)));
                 }
-                item_at[addr] = Some(index);
+                *slot = Some(index);
+            }
+            if let Some(scale) = spec.scale
+                && !(scale.is_finite() && scale > 0.0)
+            {
+                return Err(invalid(format!("item `{}` has scale {scale}; it must be a positive number", spec.key)));
             }
         }
         let resolve = |spec: &ItemSpec, reference: &Option<String>, constant: Option<i64>| -> Result<Option<Bound>, ProfileError> {

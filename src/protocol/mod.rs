@@ -19,6 +19,8 @@ pub use stuffing::{stuff, unstuff};
 
 /// `FF FF FD`: the three header bytes every packet starts with.
 pub const HEADER: [u8; 3] = [0xFF, 0xFF, 0xFD];
+/// Highest usable device ID (0xFD would collide with the header, 0xFE is broadcast).
+pub const MAX_ID: u8 = 252;
 /// Broadcast ID.
 pub const BROADCAST_ID: u8 = 0xFE;
 /// Instruction code of a status (reply) packet.
