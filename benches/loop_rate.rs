@@ -20,14 +20,14 @@
 //! Results: a table on stdout and `target/bench-results/loop_rate.json`. Without `--bench` (e.g.
 //! `cargo test --benches`) it runs a short smoke pass and writes nothing.
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+#[path = "../tests/support/mod.rs"]
+mod support;
+
 use std::time::{Duration, Instant};
 
 use climbsim::protocol::{encode_instruction, encode_status};
 use dynamixel2::instructions::SyncWriteData;
+use support::Emulator;
 
 type Bus = dynamixel2::Bus<Vec<u8>, Vec<u8>>;
 
@@ -77,7 +77,7 @@ fn main() {
 
     // 1. Timing off.
     let mut emu = Emulator::start(&["--timing", "off"]);
-    let mut bus = Bus::open(&emu.port, 57_600).expect("open pty at 57600");
+    let mut bus = Bus::open(emu.port(), 57_600).expect("open pty at 57600");
     velocity_mode(&mut bus);
     run(&mut bus, &goals, warm_for);
     let off = run(&mut bus, &goals, run_for);
@@ -86,7 +86,7 @@ fn main() {
 
     // 2. Wire timing at 4 Mbps.
     let mut emu = Emulator::start(&["--timing", "wire", "--baud", "4000000"]);
-    let mut bus = Bus::open(&emu.port, WIRE_BAUD).expect("open pty at 4 Mbps");
+    let mut bus = Bus::open(emu.port(), WIRE_BAUD).expect("open pty at 4 Mbps");
     velocity_mode(&mut bus);
     let mut wire = Vec::new();
     for rdt_code in [250u8, 0] {
@@ -188,7 +188,7 @@ fn main() {
             "timing_wire_4mbps": wire_json,
             "emulator_exit_ok": off_exit_ok && wire_exit_ok,
         });
-        let path = results_dir().join("loop_rate.json");
+        let path = support::results_dir().join("loop_rate.json");
         std::fs::write(&path, serde_json::to_string_pretty(&json).expect("json") + "\n").expect("write results");
         println!("results: {}", path.display());
     }
@@ -280,77 +280,3 @@ fn note(samples: &mut Vec<String>, text: String) {
     }
 }
 
-/// `target/bench-results` (or `$CARGO_TARGET_DIR/bench-results`).
-fn results_dir() -> PathBuf {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let target = match std::env::var_os("CARGO_TARGET_DIR") {
-        Some(dir) if !dir.is_empty() => manifest.join(dir),
-        _ => manifest.join("target"),
-    };
-    let dir = target.join("bench-results");
-    std::fs::create_dir_all(&dir).expect("create bench-results dir");
-    dir
-}
-
-/// `climbsim serve <args>`, stopped with SIGTERM (and killed if it hangs or the bench panics).
-struct Emulator {
-    child: Option<Child>,
-    port: PathBuf,
-}
-
-impl Emulator {
-    fn start(args: &[&str]) -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-            .arg("serve")
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("spawn climbsim");
-        let stdout = child.stdout.take().expect("stdout");
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        let mut emulator = Self { child: Some(child), port: PathBuf::new() };
-        loop {
-            let line = rx.recv_timeout(Duration::from_secs(20)).expect("climbsim did not print `port: <path>` within 20 s");
-            if let Some(port) = line.strip_prefix("port: ") {
-                emulator.port = PathBuf::from(port.trim());
-                return emulator;
-            }
-        }
-    }
-
-    /// SIGTERM; true if it exited 0.
-    fn stop(&mut self) -> bool {
-        let Some(mut child) = self.child.take() else { return false };
-        // SAFETY: kill(2) on a child we spawned and have not reaped.
-        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
-        let deadline = Instant::now() + Duration::from_secs(10);
-        loop {
-            if let Ok(Some(status)) = child.try_wait() {
-                return status.success();
-            }
-            if Instant::now() > deadline {
-                let _ = child.kill();
-                let _ = child.wait();
-                return false;
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-}
-
-impl Drop for Emulator {
-    fn drop(&mut self) {
-        if self.child.is_some() {
-            self.stop();
-        }
-    }
-}

@@ -14,17 +14,18 @@
 //! `cargo bench --bench pty_latency` runs the full measurement; without `--bench` (e.g.
 //! `cargo test --benches`) it runs a short smoke pass and writes nothing.
 
+#[path = "../tests/support/mod.rs"]
+mod support;
+
 use std::fs::{File, OpenOptions};
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::os::fd::{AsFd, OwnedFd};
 use std::os::unix::fs::OpenOptionsExt;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use climbsim::protocol::{crc16, encode_instruction};
 use nix::sys::termios::{BaudRate, SetArg, SpecialCharacterIndices, cfmakeraw, cfsetspeed, tcgetattr, tcsetattr};
+use support::Emulator;
 
 const READ: u8 = 0x02;
 const REPLY_LEN: usize = 15; // 11 + 4 data bytes
@@ -59,13 +60,13 @@ fn main() {
         .expect("spawn echo thread");
 
     // (b) climbsim.
-    let mut emulator = Emulator::start();
+    let mut emulator = Emulator::start(&["--timing", "off"]);
     let sim_client = OpenOptions::new()
         .read(true)
         .write(true)
         .custom_flags(libc::O_NOCTTY)
-        .open(&emulator.port)
-        .unwrap_or_else(|e| panic!("open {}: {e}", emulator.port.display()));
+        .open(emulator.port())
+        .unwrap_or_else(|e| panic!("open {}: {e}", emulator.port().display()));
     configure_raw(&sim_client);
 
     let mut buf = [0u8; 64];
@@ -134,7 +135,7 @@ fn main() {
             "emulator_exit_ok": exit_ok,
             "nominal_baud": 57600,
         });
-        let path = results_dir().join("pty_latency.json");
+        let path = support::results_dir().join("pty_latency.json");
         std::fs::write(&path, serde_json::to_string_pretty(&json).expect("json") + "\n").expect("write results");
         println!("results: {}", path.display());
     }
@@ -253,77 +254,3 @@ impl Stats {
     }
 }
 
-/// `target/bench-results` (or `$CARGO_TARGET_DIR/bench-results`).
-fn results_dir() -> PathBuf {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let target = match std::env::var_os("CARGO_TARGET_DIR") {
-        Some(dir) if !dir.is_empty() => manifest.join(dir),
-        _ => manifest.join("target"),
-    };
-    let dir = target.join("bench-results");
-    std::fs::create_dir_all(&dir).expect("create bench-results dir");
-    dir
-}
-
-/// `climbsim serve --timing off`, stopped with SIGTERM (and killed if it hangs or the bench
-/// panics).
-struct Emulator {
-    child: Option<Child>,
-    port: PathBuf,
-}
-
-impl Emulator {
-    fn start() -> Self {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-            .args(["serve", "--timing", "off"])
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("spawn climbsim");
-        let stdout = child.stdout.take().expect("stdout");
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        let mut emulator = Self { child: Some(child), port: PathBuf::new() };
-        loop {
-            let line = rx.recv_timeout(Duration::from_secs(20)).expect("climbsim did not print `port: <path>` within 20 s");
-            if let Some(port) = line.strip_prefix("port: ") {
-                emulator.port = PathBuf::from(port.trim());
-                return emulator;
-            }
-        }
-    }
-
-    /// SIGTERM; true if it exited 0.
-    fn stop(&mut self) -> bool {
-        let Some(mut child) = self.child.take() else { return false };
-        // SAFETY: kill(2) on a child we spawned and have not reaped.
-        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
-        let deadline = Instant::now() + Duration::from_secs(10);
-        loop {
-            if let Ok(Some(status)) = child.try_wait() {
-                return status.success();
-            }
-            if Instant::now() > deadline {
-                let _ = child.kill();
-                let _ = child.wait();
-                return false;
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-}
-
-impl Drop for Emulator {
-    fn drop(&mut self) {
-        if self.child.is_some() {
-            self.stop();
-        }
-    }
-}

@@ -1,10 +1,14 @@
 //! `climbsim serve` from the outside: clear errors for bad input, the bus trace, clean shutdown.
 
-use std::io::{BufRead, BufReader, Read, Write};
+mod support;
+
+use std::io::{Read, Write};
 use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
+
+use support::Options;
 
 const BIN: &str = env!("CARGO_BIN_EXE_climbsim");
 
@@ -72,34 +76,6 @@ fn unsupported_baud_is_refused() {
     assert!(stderr.contains("12345"), "{stderr}");
 }
 
-struct Serve {
-    child: Child,
-    port: PathBuf,
-}
-
-impl Serve {
-    fn start(args: &[&str]) -> Self {
-        let mut child = Command::new(BIN).arg("serve").args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-        let mut line = String::new();
-        BufReader::new(child.stdout.as_mut().unwrap()).read_line(&mut line).unwrap();
-        let port = PathBuf::from(line.trim().strip_prefix("port: ").unwrap_or_else(|| panic!("no port line: {line:?}")));
-        Self { child, port }
-    }
-
-    fn stop(mut self) -> std::process::ExitStatus {
-        // SAFETY: kill(2) on our own child's pid.
-        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
-        self.child.wait().unwrap()
-    }
-}
-
-impl Drop for Serve {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
 fn open_raw(path: &Path) -> std::fs::File {
     let file = std::fs::OpenOptions::new().read(true).write(true).open(path).unwrap();
     let mut termios = nix::sys::termios::tcgetattr(&file).unwrap();
@@ -129,14 +105,15 @@ fn trace_bus_writes_each_transaction_as_json_lines_and_shutdown_removes_link() {
     let dir = temp_dir("trace");
     let link = dir.join("ttyDXL");
     let trace = dir.join("bus.jsonl");
-    let serve = Serve::start(&["--link", link.to_str().unwrap(), "--timing", "off", "--trace-bus", trace.to_str().unwrap()]);
-    assert_eq!(serve.port, link);
+    let mut serve =
+        Options::default().stderr_log().start(&["--link", link.to_str().unwrap(), "--timing", "off", "--trace-bus", trace.to_str().unwrap()]);
+    assert_eq!(serve.port(), link);
     let mut port = open_raw(&link);
     port.write_all(&[0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01, 0x19, 0x4E]).unwrap();
     let reply = read_exact_within(&mut port, 14, Duration::from_secs(2));
     assert_eq!(reply, [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x07, 0x00, 0x55, 0x00, 0x60, 0x04, 0x30, 0xEA, 0xDA]);
     drop(port);
-    let status = serve.stop();
+    let status = serve.terminate().expect("climbsim did not exit within 10 s of SIGTERM");
     assert!(status.success(), "{status:?}");
     assert!(!link.exists() && std::fs::symlink_metadata(&link).is_err(), "link removed on shutdown");
     let lines: Vec<serde_json::Value> =

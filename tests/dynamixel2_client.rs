@@ -18,18 +18,20 @@
 //!   Velocity followed by a Present Position with low byte 0xFD), so the stuffing test uses a
 //!   payload without a leading `FF` and checks the exact stuffed bytes on the line separately.
 
-use std::io::{BufRead, BufReader, Read, Write};
+mod support;
+
+use std::io::{Read, Write};
 use std::net::{Shutdown, SocketAddr, TcpStream};
 use std::os::fd::{AsFd, AsRawFd, OwnedFd};
 use std::path::PathBuf;
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, mpsc};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use dynamixel2::instructions::{BulkReadData, BulkWriteData, SyncWriteData, instruction_id, packet_id};
 use dynamixel2::{ReadError, TransferError};
+use support::{Emulator, Options};
 
 type Bus = dynamixel2::Bus<Vec<u8>, Vec<u8>>;
 
@@ -74,135 +76,21 @@ fn serial() -> MutexGuard<'static, ()> {
     SERIAL.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-/// One `climbsim serve` process. Dropping it without [`Emulator::finish`] (a failing test)
-/// still ends the process: SIGTERM, then SIGKILL if it does not exit.
-struct Emulator {
-    child: Option<Child>,
-    dir: PathBuf,
-    link: PathBuf,
-    port: PathBuf,
-    tcp: Option<SocketAddr>,
+/// `climbsim serve --link <tmp>/ttyDXL --timing off <extra...>`, its stderr kept in a log in the
+/// temporary directory and quoted if the test fails.
+fn start_emulator(extra: &[&str]) -> Emulator {
+    let args: Vec<&str> = ["--timing", "off"].iter().chain(extra).copied().collect();
+    Options::default().temp_link().stderr_log().start(&args)
 }
 
-impl Emulator {
-    /// `climbsim serve --link <tmp>/ttyDXL --timing off <extra...>`.
-    fn start(extra: &[&str]) -> Self {
-        static COUNTER: AtomicUsize = AtomicUsize::new(0);
-        let dir = std::env::temp_dir().join(format!(
-            "climbsim-dxl2-{}-{}",
-            std::process::id(),
-            COUNTER.fetch_add(1, Ordering::Relaxed)
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        let link = dir.join("ttyDXL");
-        let stderr = std::fs::File::create(dir.join("stderr.log")).expect("create stderr log");
-        let mut command = Command::new(env!("CARGO_BIN_EXE_climbsim"));
-        command.arg("serve").arg("--link").arg(&link).args(["--timing", "off"]).args(extra);
-        let mut child = command
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::from(stderr))
-            .spawn()
-            .expect("spawn climbsim");
-        let want_tcp = extra.contains(&"--tcp");
+/// Opens the emulator's link with dynamixel2.
+trait OpenBus {
+    fn open(&self, baud: u32) -> Bus;
+}
 
-        let stdout = child.stdout.take().expect("piped stdout");
-        let (tx, rx) = mpsc::channel::<String>();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines() {
-                let Ok(line) = line else { break };
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        let mut emulator = Self { child: Some(child), dir, link, port: PathBuf::new(), tcp: None };
-
-        let deadline = Instant::now() + Duration::from_secs(20);
-        let mut port = None;
-        while port.is_none() || (want_tcp && emulator.tcp.is_none()) {
-            let left = deadline.saturating_duration_since(Instant::now());
-            match rx.recv_timeout(left.max(Duration::from_millis(1))) {
-                Ok(line) => {
-                    if let Some(p) = line.strip_prefix("port: ") {
-                        port = Some(PathBuf::from(p.trim()));
-                    } else if let Some(a) = line.strip_prefix("tcp: ") {
-                        emulator.tcp = Some(a.trim().parse().unwrap_or_else(|e| panic!("bad tcp line {line:?}: {e}")));
-                    }
-                }
-                Err(_) => panic!(
-                    "climbsim did not announce its port{} within 20 s (exit: {:?})\nstderr:\n{}",
-                    if want_tcp { " and tcp address" } else { "" },
-                    emulator.child.as_mut().and_then(|c| c.try_wait().ok().flatten()),
-                    emulator.stderr()
-                ),
-            }
-        }
-        emulator.port = port.expect("port line");
-        assert_eq!(emulator.port, emulator.link, "with --link, `port:` must print the link path");
-        assert!(
-            std::fs::metadata(&emulator.link).is_ok(),
-            "link {} does not resolve to a device",
-            emulator.link.display()
-        );
-        emulator
-    }
-
-    fn stderr(&self) -> String {
-        std::fs::read_to_string(self.dir.join("stderr.log")).unwrap_or_default()
-    }
-
-    fn tcp(&self) -> SocketAddr {
-        self.tcp.expect("emulator started without --tcp")
-    }
-
+impl OpenBus for Emulator {
     fn open(&self, baud: u32) -> Bus {
-        Bus::open(&self.link, baud).unwrap_or_else(|e| panic!("dynamixel2 cannot open {}: {e}", self.link.display()))
-    }
-
-    fn terminate(child: &mut Child, limit: Duration) -> Option<ExitStatus> {
-        // SAFETY: kill(2) with a pid we spawned and have not reaped yet.
-        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
-        let deadline = Instant::now() + limit;
-        loop {
-            if let Ok(Some(status)) = child.try_wait() {
-                return Some(status);
-            }
-            if Instant::now() >= deadline {
-                return None;
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-
-    /// SIGTERM; the emulator must exit 0 and remove its link.
-    fn finish(mut self) {
-        let mut child = self.child.take().expect("child");
-        let status = Self::terminate(&mut child, Duration::from_secs(10));
-        let Some(status) = status else {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("climbsim did not exit within 10 s of SIGTERM\nstderr:\n{}", self.stderr());
-        };
-        assert!(status.success(), "climbsim exited with {status} after SIGTERM\nstderr:\n{}", self.stderr());
-        assert!(
-            std::fs::symlink_metadata(&self.link).is_err(),
-            "climbsim left its link {} behind",
-            self.link.display()
-        );
-    }
-}
-
-impl Drop for Emulator {
-    fn drop(&mut self) {
-        if let Some(mut child) = self.child.take()
-            && Self::terminate(&mut child, Duration::from_secs(5)).is_none()
-        {
-            let _ = child.kill();
-            let _ = child.wait();
-        }
-        let _ = std::fs::remove_dir_all(&self.dir);
+        Bus::open(self.link(), baud).unwrap_or_else(|e| panic!("dynamixel2 cannot open {}: {e}", self.link().display()))
     }
 }
 
@@ -441,7 +329,7 @@ fn sync_read_u8(bus: &mut Bus, ids: &[u8], address: u16) -> Vec<u8> {
 #[test]
 fn pty_ping_every_id_reports_xm540() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
     let mut firmware = Vec::new();
     for id in IDS {
@@ -468,7 +356,7 @@ fn pty_ping_every_id_reports_xm540() {
 #[test]
 fn pty_scan_finds_eight_servos_in_id_order() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
     assert_eq!(scan_ids(&mut bus, "scan"), IDS, "broadcast ping replies");
     // A second scan sees the same (no leftovers from the first one).
@@ -481,7 +369,7 @@ fn pty_scan_finds_eight_servos_in_id_order() {
 #[test]
 fn pty_read_write_u8_u16_u32_round_trip() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
 
     // u8: LED.
@@ -524,7 +412,7 @@ fn pty_read_write_u8_u16_u32_round_trip() {
 #[test]
 fn pty_sync_read_present_position_of_all_eight() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
     // Torque is off and nothing drives the shafts: positions are stable, so a unicast read and a
     // sync read must agree.
@@ -563,7 +451,7 @@ fn pty_sync_read_present_position_of_all_eight() {
 #[test]
 fn pty_sync_write_then_read_back() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
 
     let goals: Vec<SyncWriteData<u32>> = IDS.iter().map(|&id| SyncWriteData { motor_id: id, data: 2000 + 37 * u32::from(id) }).collect();
@@ -591,7 +479,7 @@ fn pty_sync_write_then_read_back() {
 #[test]
 fn pty_bulk_write_and_bulk_read() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
 
     let writes = vec![
@@ -638,7 +526,7 @@ fn pty_bulk_write_and_bulk_read() {
 #[test]
 fn pty_reg_write_then_action() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
 
     write_u32(&mut bus, 1, A_GOAL_POSITION, 1000);
@@ -669,7 +557,7 @@ fn pty_reg_write_then_action() {
 #[test]
 fn pty_reboot_resets_ram_keeps_eeprom() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
 
     write_u8(&mut bus, 4, A_LED, 1);
@@ -694,7 +582,7 @@ fn pty_reboot_resets_ram_keeps_eeprom() {
 #[test]
 fn pty_error_replies_surface_as_motor_errors() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
 
     let before = read_u32(&mut bus, 1, A_PRESENT_POSITION);
@@ -722,7 +610,7 @@ fn pty_error_replies_surface_as_motor_errors() {
 #[test]
 fn pty_position_mode_with_torque_reaches_goal() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
     let id = 5;
     assert_eq!(read_u8(&mut bus, id, A_OPERATING_MODE), 3, "factory Operating Mode is position");
@@ -761,7 +649,7 @@ fn pty_position_mode_with_torque_reaches_goal() {
 #[test]
 fn pty_close_and_reopen_same_link() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     for round in 0..3u32 {
         let mut bus = emu.open(BAUD);
         ping_all(&mut bus, &format!("round {round}"));
@@ -783,7 +671,7 @@ fn pty_close_and_reopen_same_link() {
 #[test]
 fn pty_servos_hear_only_their_baud() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     {
         let mut bus = emu.open(115_200);
         assert_timeout("ping 1 at 115200 while the servos are at 57600", bus.ping(1));
@@ -806,7 +694,7 @@ fn pty_servos_hear_only_their_baud() {
 #[test]
 fn pty_power_on_baud_flag() {
     let _serial = serial();
-    let emu = Emulator::start(&["--baud", "1000000"]);
+    let emu = start_emulator(&["--baud", "1000000"]);
     let mut bus = emu.open(1_000_000);
     ping_all(&mut bus, "--baud 1000000");
     for id in IDS {
@@ -822,7 +710,7 @@ fn pty_power_on_baud_flag() {
 #[test]
 fn pty_stuffed_reply_reaches_the_client_intact() {
     let _serial = serial();
-    let emu = Emulator::start(&[]);
+    let emu = start_emulator(&[]);
     let mut bus = emu.open(BAUD);
     // Homing Offset (20) = -65536 is `00 00 FF FF`, Moving Threshold (24) = 253 is `FD 00 00 00`:
     // a Read of 20..28 carries `FF FF FD`, which the servo must stuff (reference §3).
@@ -868,7 +756,7 @@ fn pty_stuffed_reply_reaches_the_client_intact() {
 #[test]
 fn tcp_bridge_ping_scan_sync_read_write() {
     let _serial = serial();
-    let emu = Emulator::start(&["--tcp", "127.0.0.1:0"]);
+    let emu = start_emulator(&["--tcp", "127.0.0.1:0"]);
     let bridge = Bridge::connect(emu.tcp());
     let mut bus = bridge.open(BAUD);
 
@@ -899,7 +787,7 @@ fn tcp_bridge_ping_scan_sync_read_write() {
 #[test]
 fn tcp_reconnect_and_client_reopen() {
     let _serial = serial();
-    let emu = Emulator::start(&["--tcp", "127.0.0.1:0"]);
+    let emu = start_emulator(&["--tcp", "127.0.0.1:0"]);
     let mut bridge = Bridge::connect(emu.tcp());
     {
         let mut bus = bridge.open(BAUD);
@@ -933,7 +821,7 @@ fn tcp_reconnect_and_client_reopen() {
 #[test]
 fn tcp_and_pty_clients_share_one_bus() {
     let _serial = serial();
-    let emu = Emulator::start(&["--tcp", "127.0.0.1:0"]);
+    let emu = start_emulator(&["--tcp", "127.0.0.1:0"]);
     let bridge = Bridge::connect(emu.tcp());
     let mut over_tcp = bridge.open(BAUD);
     let mut over_pty = emu.open(BAUD);

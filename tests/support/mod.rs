@@ -1,0 +1,255 @@
+//! Test support, not part of the library: [`Emulator`], a guard around one `climbsim serve`
+//! process, shared by the integration tests (`mod support;`) and the benches
+//! (`#[path = "../tests/support/mod.rs"] mod support;`).
+//!
+//! It is `tests/support/mod.rs` rather than `tests/support.rs` so that cargo does not build it as
+//! a test target of its own.
+
+// Every test and bench target compiles this module, and each uses only part of it.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// How long `climbsim serve` has to print `port: <path>` (and `tcp: <addr>`).
+const ANNOUNCE_WITHIN: Duration = Duration::from_secs(20);
+/// How long it has to exit after SIGTERM in [`Emulator::stop`] / [`Emulator::finish`].
+const STOP_WITHIN: Duration = Duration::from_secs(10);
+/// The same when the guard is dropped without being stopped (a failing test or bench).
+const STOP_ON_DROP_WITHIN: Duration = Duration::from_secs(5);
+
+/// How to start an [`Emulator`]. The default is plain `climbsim serve <args>` with stderr
+/// inherited.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Options {
+    temp_link: bool,
+    stderr_log: bool,
+}
+
+impl Options {
+    /// Pass `--link <dir>/ttyDXL`, `<dir>` a fresh temporary directory removed on drop.
+    pub fn temp_link(mut self) -> Self {
+        self.temp_link = true;
+        self
+    }
+
+    /// Write stderr to `stderr.log` in a fresh temporary directory (removed on drop) instead of
+    /// inheriting it; [`Emulator::stderr`] reads it back and failure messages quote it.
+    pub fn stderr_log(mut self) -> Self {
+        self.stderr_log = true;
+        self
+    }
+
+    /// `climbsim serve [--link <dir>/ttyDXL] <args...>`; returns once it has announced its port,
+    /// and its TCP address too if `args` has `--tcp`. With a link (from [`Options::temp_link`] or a
+    /// `--link` in `args`), the announced port must be the link and resolve to a device.
+    pub fn start(self, args: &[&str]) -> Emulator {
+        let dir = (self.temp_link || self.stderr_log).then(temp_dir);
+        let given_link = arg_value(args, "--link").map(PathBuf::from);
+        let link = match (&dir, self.temp_link) {
+            (Some(dir), true) => {
+                assert!(given_link.is_none(), "Options::temp_link and a --link in the arguments");
+                Some(dir.join("ttyDXL"))
+            }
+            _ => given_link,
+        };
+        let stderr = match (&dir, self.stderr_log) {
+            (Some(dir), true) => Stdio::from(std::fs::File::create(dir.join("stderr.log")).expect("create stderr log")),
+            _ => Stdio::inherit(),
+        };
+
+        let mut command = Command::new(env!("CARGO_BIN_EXE_climbsim"));
+        command.arg("serve");
+        if self.temp_link {
+            command.arg("--link").arg(link.as_ref().expect("temp link"));
+        }
+        let mut child = command
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(stderr)
+            .spawn()
+            .expect("spawn climbsim");
+
+        // Keep reading stdout for the whole run, so the emulator never blocks on a full pipe.
+        let stdout = child.stdout.take().expect("piped stdout");
+        let (tx, rx) = mpsc::channel::<String>();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut emulator = Emulator {
+            child: Some(child),
+            dir,
+            stderr_log: self.stderr_log,
+            port: PathBuf::new(),
+            link,
+            tcp: None,
+        };
+
+        let want_tcp = arg_value(args, "--tcp").is_some();
+        let deadline = Instant::now() + ANNOUNCE_WITHIN;
+        let first = emulator.announced(&rx, deadline, want_tcp);
+        let port = first
+            .strip_prefix("port: ")
+            .unwrap_or_else(|| panic!("climbsim's first stdout line is not `port: <path>`: {first:?}"));
+        emulator.port = PathBuf::from(port.trim());
+        while want_tcp && emulator.tcp.is_none() {
+            let line = emulator.announced(&rx, deadline, want_tcp);
+            if let Some(addr) = line.strip_prefix("tcp: ") {
+                emulator.tcp = Some(addr.trim().parse().unwrap_or_else(|e| panic!("bad tcp line {line:?}: {e}")));
+            }
+        }
+        if let Some(link) = &emulator.link {
+            assert_eq!(&emulator.port, link, "with --link, `port:` must print the link path");
+            assert!(std::fs::metadata(link).is_ok(), "link {} does not resolve to a device", link.display());
+        }
+        emulator
+    }
+}
+
+/// One `climbsim serve` process. Stop it with [`Emulator::stop`], [`Emulator::finish`] or
+/// [`Emulator::terminate`]; dropping it without (a failing test or bench) still ends the process:
+/// SIGTERM, then SIGKILL if it does not exit.
+pub struct Emulator {
+    child: Option<Child>,
+    dir: Option<PathBuf>,
+    stderr_log: bool,
+    port: PathBuf,
+    link: Option<PathBuf>,
+    tcp: Option<SocketAddr>,
+}
+
+impl Emulator {
+    /// `climbsim serve <args...>` with stderr inherited: [`Options::start`] with the defaults.
+    pub fn start(args: &[&str]) -> Self {
+        Options::default().start(args)
+    }
+
+    /// The pty path it announced (`port: <path>`).
+    pub fn port(&self) -> &Path {
+        &self.port
+    }
+
+    /// Its `--link` path.
+    pub fn link(&self) -> &Path {
+        self.link.as_deref().expect("emulator started without --link")
+    }
+
+    /// The TCP address it announced (`tcp: <addr>`).
+    pub fn tcp(&self) -> SocketAddr {
+        self.tcp.expect("emulator started without --tcp")
+    }
+
+    /// What it wrote to stderr so far, with [`Options::stderr_log`].
+    pub fn stderr(&self) -> String {
+        match &self.dir {
+            Some(dir) if self.stderr_log => std::fs::read_to_string(dir.join("stderr.log")).unwrap_or_default(),
+            _ => "(not captured)".into(),
+        }
+    }
+
+    /// True unless it had a link that is still there.
+    pub fn link_removed(&self) -> bool {
+        self.link.as_ref().is_none_or(|link| std::fs::symlink_metadata(link).is_err())
+    }
+
+    /// SIGTERM, then wait up to 10 s for it to exit; its exit status, or `None` if it did not exit
+    /// in time (it is then killed) or had already been stopped.
+    pub fn terminate(&mut self) -> Option<ExitStatus> {
+        self.terminate_within(STOP_WITHIN)
+    }
+
+    /// SIGTERM; true if it exited 0 and removed its link.
+    pub fn stop(&mut self) -> bool {
+        self.terminate().is_some_and(|status| status.success()) && self.link_removed()
+    }
+
+    /// SIGTERM; asserts that it exits 0 and removes its link, quoting its stderr if not.
+    pub fn finish(mut self) {
+        assert!(self.child.is_some(), "climbsim was already stopped");
+        let Some(status) = self.terminate() else {
+            panic!("climbsim did not exit within 10 s of SIGTERM\nstderr:\n{}", self.stderr());
+        };
+        assert!(status.success(), "climbsim exited with {status} after SIGTERM\nstderr:\n{}", self.stderr());
+        assert!(self.link_removed(), "climbsim left its link {} behind", self.link().display());
+    }
+
+    fn terminate_within(&mut self, limit: Duration) -> Option<ExitStatus> {
+        let mut child = self.child.take()?;
+        // SAFETY: kill(2) with a pid we spawned and have not reaped yet.
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+        let deadline = Instant::now() + limit;
+        loop {
+            if let Ok(Some(status)) = child.try_wait() {
+                return Some(status);
+            }
+            if Instant::now() >= deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// The next stdout line before `deadline`.
+    fn announced(&mut self, lines: &mpsc::Receiver<String>, deadline: Instant, want_tcp: bool) -> String {
+        let left = deadline.saturating_duration_since(Instant::now());
+        lines.recv_timeout(left.max(Duration::from_millis(1))).unwrap_or_else(|_| {
+            panic!(
+                "climbsim did not announce its port{} within {} s (exit: {:?})\nstderr:\n{}",
+                if want_tcp { " and tcp address" } else { "" },
+                ANNOUNCE_WITHIN.as_secs(),
+                self.child.as_mut().and_then(|c| c.try_wait().ok().flatten()),
+                self.stderr()
+            )
+        })
+    }
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        self.terminate_within(STOP_ON_DROP_WITHIN);
+        if let Some(dir) = &self.dir {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+}
+
+/// A fresh, empty `climbsim-emu-<pid>-<n>` in the system's temporary directory.
+fn temp_dir() -> PathBuf {
+    static COUNTER: AtomicUsize = AtomicUsize::new(0);
+    let dir = std::env::temp_dir().join(format!("climbsim-emu-{}-{}", std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed)));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("create temp dir");
+    dir
+}
+
+/// The value of `--name <value>` or `--name=<value>` in `args`.
+fn arg_value<'a>(args: &[&'a str], name: &str) -> Option<&'a str> {
+    args.iter().enumerate().find_map(|(i, arg)| match arg.strip_prefix(name)? {
+        "" => args.get(i + 1).copied(),
+        rest => rest.strip_prefix('='),
+    })
+}
+
+/// Where benches write their JSON results (`target/bench-results`, or under `CARGO_TARGET_DIR`).
+pub fn results_dir() -> PathBuf {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let target = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) if !dir.is_empty() => manifest.join(dir),
+        _ => manifest.join("target"),
+    };
+    let dir = target.join("bench-results");
+    std::fs::create_dir_all(&dir).expect("create bench-results dir");
+    dir
+}
