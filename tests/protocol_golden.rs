@@ -538,13 +538,7 @@ fn bulk_read_replies_come_in_listed_order() {
 #[test]
 fn fast_sync_read_reply_through_bus_for_ids_3_7_4() {
     let mut sim = Sim::new();
-    let transaction = sim.transact(&hex(FAST_SYNC_READ));
-    assert_eq!(transaction.replies.len(), 1);
-    let reply = &transaction.replies[0];
-    assert_eq!(reply.from, [3, 7, 4]);
-    assert_eq!(len_field(&reply.bytes), 0x19);
-    let blocks = assert_fast_reply(&reply.bytes, &[(3, 4), (7, 4), (4, 4)]);
-    assert!(blocks.iter().all(|(error, _)| *error == 0), "{blocks:?}");
+    assert_error_free_fast_transaction(&mut sim, FAST_SYNC_READ, 0x19, &[(3, 4), (7, 4), (4, 4)]);
 
     // Same with data that names each block's sender: ID item (7), 1 byte.
     let replies = sim.send(&encode_instruction(0xFE, opcode::FAST_SYNC_READ, &[7, 0, 1, 0, 3, 7, 4]));
@@ -556,12 +550,18 @@ fn fast_sync_read_reply_through_bus_for_ids_3_7_4() {
 #[test]
 fn fast_bulk_read_reply_through_bus_for_corrected_emanual_instruction() {
     let mut sim = Sim::new();
-    let transaction = sim.transact(&hex(FAST_BULK_READ));
+    assert_error_free_fast_transaction(&mut sim, FAST_BULK_READ, 0x14, &[(3, 4), (7, 2), (4, 1)]);
+}
+
+/// One combined reply from the listed servos, with the given LEN, blocks in order, no errors.
+fn assert_error_free_fast_transaction(sim: &mut Sim, instruction: &str, len: usize, expected: &[(u8, usize)]) {
+    let transaction = sim.transact(&hex(instruction));
     assert_eq!(transaction.replies.len(), 1);
     let reply = &transaction.replies[0];
-    assert_eq!(reply.from, [3, 7, 4]);
-    assert_eq!(len_field(&reply.bytes), 0x14);
-    let blocks = assert_fast_reply(&reply.bytes, &[(3, 4), (7, 2), (4, 1)]);
+    let ids: Vec<u8> = expected.iter().map(|(id, _)| *id).collect();
+    assert_eq!(reply.from, ids);
+    assert_eq!(len_field(&reply.bytes), len);
+    let blocks = assert_fast_reply(&reply.bytes, expected);
     assert!(blocks.iter().all(|(error, _)| *error == 0), "{blocks:?}");
 }
 
