@@ -154,6 +154,8 @@ where
                     let transaction = span.in_scope(|| handle.handle(packet, now, line.baud()));
                     write_replies(&mut stream, &transaction, timing, clock).instrument(span).await?;
                 }
+                // A bad CRC gets no reply (no error 0x03): ROBOTIS's own slave code drops such
+                // packets; unverified on XM firmware (reference §7), listed in the README.
                 Err(error) => log_frame_error(&error),
             }
         }
