@@ -9,4 +9,5 @@ pub mod source_location;
 pub mod device;
 pub mod bus;
 pub mod robot;
+pub mod sim;
 pub mod transport;

@@ -7,7 +7,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use crate::bus::{self, Bus, BusError, Timing};
-use crate::device::{BenchPlant, FirmwareProfile, ProfileError};
+use crate::device::{BenchPlant, FirmwareProfile, Plant, ProfileError, Servo};
 use crate::source_location::{DataFileError, load_toml};
 
 #[derive(Debug, Error)]
@@ -27,12 +27,87 @@ pub enum ServoRole {
     MagnetShaft,
 }
 
+/// Which wheel a servo belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WheelPosition {
+    FrontLeft,
+    FrontRight,
+    RearLeft,
+    RearRight,
+}
+
+impl WheelPosition {
+    pub const ALL: [Self; 4] = [Self::FrontLeft, Self::FrontRight, Self::RearLeft, Self::RearRight];
+
+    pub fn is_front(self) -> bool {
+        matches!(self, Self::FrontLeft | Self::FrontRight)
+    }
+
+    pub fn is_left(self) -> bool {
+        matches!(self, Self::FrontLeft | Self::RearLeft)
+    }
+
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ServoSpec {
     pub id: u8,
     pub name: String,
     pub role: ServoRole,
+    pub wheel: WheelPosition,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SectionSpec {
+    pub half_extents_m: [f32; 3],
+    pub mass_kg: f32,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RockerSpec {
+    pub limit_deg: f32,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodySpec {
+    pub wheelbase_m: f32,
+    pub track_m: f32,
+    pub axle_drop_m: f32,
+    pub front: SectionSpec,
+    pub middle: SectionSpec,
+    pub rear: SectionSpec,
+    pub rocker: RockerSpec,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WheelSpec {
+    pub outer_radius_m: f32,
+    pub inner_radius_m: f32,
+    pub width_m: f32,
+    pub mass_kg: f32,
+    pub friction: f32,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MagnetSpec {
+    pub mass_kg: f32,
+    pub lever_m: f32,
+    pub pull_at_contact_n: f32,
+    pub decay_length_m: f32,
+    pub range_m: f32,
+    pub alignment_exponent: f32,
+    pub probe_radius_m: f32,
+    pub encoder_at_down_pulses: u32,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -48,6 +123,9 @@ pub struct BusSpec {
 pub struct RobotDescription {
     pub bus: BusSpec,
     pub servo: Vec<ServoSpec>,
+    pub body: BodySpec,
+    pub wheel: WheelSpec,
+    pub magnet: MagnetSpec,
     #[serde(skip)]
     pub path: PathBuf,
 }
@@ -75,10 +153,25 @@ impl RobotDescription {
 
     /// A bus of bench-loaded servos at factory defaults (baud from the description unless given).
     pub fn bench_bus(&self, timing: Timing, baud_override: Option<u32>) -> Result<Bus, RobotError> {
+        self.bus_with_plant(Box::new(BenchPlant::default()), timing, baud_override)
+    }
+
+    /// A bus of factory-fresh servos whose shafts `plant` drives.
+    pub fn bus_with_plant(&self, plant: Box<dyn Plant>, timing: Timing, baud_override: Option<u32>) -> Result<Bus, RobotError> {
+        let servos = self.servos(baud_override)?;
+        self.bus_of(servos, plant, timing, baud_override)
+    }
+
+    /// Factory-fresh servos for this description (power-on baud from it unless given).
+    pub fn servos(&self, baud_override: Option<u32>) -> Result<Vec<Servo>, RobotError> {
         let profile = Arc::new(FirmwareProfile::load(&self.profile_path())?);
         let baud = baud_override.unwrap_or(self.bus.baud_bps);
-        let wrap = |source| RobotError::Bus { path: self.path.clone(), source };
-        let servos = bus::servos_from_profile(&profile, &self.ids(), baud, self.bus.supply_voltage_v).map_err(wrap)?;
-        Bus::new(servos, Box::new(BenchPlant::default()), timing, baud).map_err(wrap)
+        bus::servos_from_profile(&profile, &self.ids(), baud, self.bus.supply_voltage_v).map_err(|source| RobotError::Bus { path: self.path.clone(), source })
+    }
+
+    /// A bus of `servos` driving `plant`.
+    pub fn bus_of(&self, servos: Vec<Servo>, plant: Box<dyn Plant>, timing: Timing, baud_override: Option<u32>) -> Result<Bus, RobotError> {
+        let baud = baud_override.unwrap_or(self.bus.baud_bps);
+        Bus::new(servos, plant, timing, baud).map_err(|source| RobotError::Bus { path: self.path.clone(), source })
     }
 }

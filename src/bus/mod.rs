@@ -101,6 +101,15 @@ impl Bus {
         &mut self.servos
     }
 
+    /// The plant, if it is a `P` (e.g. the rapier world).
+    pub fn plant<P: 'static>(&self) -> Option<&P> {
+        self.plant.as_any().downcast_ref()
+    }
+
+    pub fn plant_mut<P: 'static>(&mut self) -> Option<&mut P> {
+        self.plant.as_any_mut().downcast_mut()
+    }
+
     pub fn timing(&self) -> Timing {
         self.timing
     }

@@ -42,6 +42,12 @@ impl Motor {
         }
     }
 
+    /// Torque off: the H-bridge is open, so the shaft coasts with gearbox friction only (no
+    /// back-EMF braking).
+    pub fn coast(&self) -> ShaftDrive {
+        ShaftDrive { back_emf_damping: 0.0, ..self.drive(0.0, 0.0) }
+    }
+
     /// Duty that makes the motor produce `torque_nm` at speed `omega` (an ideal current loop).
     pub fn duty_for_torque(&self, torque_nm: f64, omega: f64, supply_v: f64) -> f64 {
         let volts = (torque_nm + self.back_emf_damping * omega) * self.spec.rated_voltage_v / self.spec.stall_torque_nm;

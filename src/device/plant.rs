@@ -9,6 +9,9 @@ use super::shaft::{BenchLoad, ShaftLoad};
 /// a packet to the servos, so Present registers are current when they are read.
 pub trait Plant: Send {
     fn advance(&mut self, servos: &mut [Servo], until: Duration);
+    /// For callers that know the concrete plant (tests, sensors) to reach it through the bus.
+    fn as_any(&self) -> &dyn std::any::Any;
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any;
 }
 
 /// Each servo on the bench, driving only its own rotor (and an optional extra inertia).
@@ -44,5 +47,13 @@ impl Plant for BenchPlant {
                 servo.sense(tick, state);
             }
         }
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
     }
 }

@@ -625,7 +625,12 @@ impl Servo {
     /// Run the firmware's control loop for one tick and return what the motor does to the shaft.
     pub fn drive(&mut self) -> ShaftDrive {
         let dt = self.period.as_secs_f64();
-        let duty = if self.torque_on() { self.control_duty(dt) } else { 0.0 };
+        if !self.torque_on() {
+            self.last_duty = 0.0;
+            self.last_drive = self.motor.coast();
+            return self.last_drive;
+        }
+        let duty = self.control_duty(dt);
         let pwm_limit = self.get(self.keys.pwm_limit) as f64 * self.units.percent_per_pwm / 100.0;
         self.last_duty = duty.clamp(-pwm_limit, pwm_limit);
         self.last_drive = self.motor.drive(self.direction() * self.last_duty, self.supply_voltage_v);
@@ -726,7 +731,10 @@ impl Servo {
         self.loops.profile_type = if accel_units > 0.0 { 1 } else { 0 };
         let trajectory = *trajectory;
         self.table.set(keys.velocity_trajectory, trajectory.round() as i64);
-        let error = trajectory - self.get(keys.present_velocity) as f64;
+        // The firmware's own speed estimate is finer than the Present Velocity register (0.229
+        // rev/min steps): with the rounded value a held wheel could creep below one step unseen.
+        let measured = self.units.velocity_units(self.direction() * self.shaft.velocity_rad_s);
+        let error = trajectory - measured;
         let ki = self.gain(keys.velocity_i_gain);
         let kp = self.gain(keys.velocity_p_gain);
         let limit = self.get(keys.pwm_limit) as f64;

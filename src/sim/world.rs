@@ -1,0 +1,460 @@
+//! The robot in a rapier3d world: three body sections with a rocker, four wheels and four magnet
+//! shafts on revolute joints driven by the eight emulated servos, magnetic adhesion by a sphere
+//! cast per wheel, on a terrain collider.
+//!
+//! Frame: x forward, y up, z to the left. One physics step is one servo firmware tick: before
+//! the step each servo's [`ShaftDrive`] becomes its joint's motor, after it the joint's angle and
+//! rate flow back through [`Servo::sense`]. The same device code serves the bench and the world.
+
+use std::time::Duration;
+
+use rapier3d::parry::query::ShapeCastOptions;
+use rapier3d::parry::shape::Ball;
+use rapier3d::prelude::*;
+use thiserror::Error;
+
+use crate::device::{Plant, Servo, ShaftDrive, ShaftState};
+use crate::robot::{RobotDescription, SectionSpec, ServoRole, WheelPosition};
+
+use super::terrain::TerrainGeometry;
+
+/// Collision groups: the robot's colliders touch only the terrain, never each other.
+const TERRAIN_GROUP: Group = Group::GROUP_1;
+const ROBOT_GROUP: Group = Group::GROUP_2;
+/// Gain of the velocity motor that emulates dry friction on a coasting joint (N·m·s/rad); the
+/// motor's force limit is the friction torque itself.
+const FRICTION_MOTOR_GAIN: f32 = 1.0e3;
+/// Solver iterations per step (rapier's default is 4). With 4, wheel friction creeps under the
+/// traction a 60° climb needs: the rear wheels slipped 6 % and the four velocity loops fought
+/// (front wheels braking, rear ones driving). With 8 all four wheels roll at the goal speed.
+const SOLVER_ITERATIONS: usize = 8;
+/// Natural frequency of wheel-on-terrain contact springs (rapier's default is 60 Hz).
+const STATIC_CONTACT_HZ: f32 = 240.0;
+
+#[derive(Debug, Error)]
+pub enum WorldError {
+    #[error("robot description has no servo for the {role:?} of wheel {wheel:?}")]
+    MissingServo { role: ServoRole, wheel: WheelPosition },
+    #[error("step rate {0} Hz must match the servo firmware tick ({1} Hz)")]
+    StepRate(f64, f64),
+}
+
+/// Where the robot starts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StartPose {
+    /// Wheel-contact point of the robot's centre (x, z); y is found on the terrain.
+    pub x_m: f32,
+    pub z_m: f32,
+    pub yaw_deg: f32,
+    /// Height of the wheel bottoms above the terrain at the start.
+    pub clearance_m: f32,
+}
+
+impl Default for StartPose {
+    fn default() -> Self {
+        Self { x_m: 0.0, z_m: 0.0, yaw_deg: 0.0, clearance_m: 0.002 }
+    }
+}
+
+/// What a world is built from.
+#[derive(Debug, Clone)]
+pub struct WorldConfig {
+    pub gravity: Vector,
+    pub terrain: TerrainGeometry,
+    pub start: StartPose,
+    /// Tread-on-terrain friction (the wheel friction of the robot description if `None`).
+    pub friction: Option<f32>,
+    /// Magnets on (adhesion applied) or off.
+    pub magnets_on: bool,
+}
+
+/// One magnet's pull in the last step (for logs and tests).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct AdhesionSample {
+    /// Pull toward the surface (N); 0 without a surface in range.
+    pub force_n: f32,
+    /// Gap between tread and surface (m).
+    pub gap_m: f32,
+    /// Angle between the magnet and the surface normal (rad).
+    pub misalignment_rad: f32,
+    /// Contact point and surface normal (world).
+    pub contact: Option<(Vector, Vector)>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct WheelParts {
+    section: RigidBodyHandle,
+    wheel: RigidBodyHandle,
+    magnet: RigidBodyHandle,
+    wheel_joint: ImpulseJointHandle,
+    magnet_joint: ImpulseJointHandle,
+    /// Joint axis in the section's frame (positive servo rotation).
+    wheel_axis: Vector,
+    magnet_axis: Vector,
+}
+
+/// The joint a servo drives, with the state needed to report a multi-turn angle.
+#[derive(Debug, Clone, Copy)]
+struct ServoJoint {
+    parent: RigidBodyHandle,
+    child: RigidBodyHandle,
+    joint: ImpulseJointHandle,
+    axis: Vector,
+    /// Encoder reading (rad) at joint angle 0.
+    zero_rad: f64,
+    /// Unwrapped joint angle (rad).
+    angle: f64,
+    last_wrapped: f64,
+}
+
+pub struct RobotWorld {
+    physics: PhysicsWorld,
+    terrain: ColliderHandle,
+    sections: [RigidBodyHandle; 3],
+    wheels: [WheelParts; 4],
+    /// Per servo (in bus order): its joint.
+    joints: Vec<ServoJoint>,
+    robot: RobotDescription,
+    magnets_on: bool,
+    adhesion: [AdhesionSample; 4],
+    period: Duration,
+    time: Duration,
+    steps: u64,
+}
+
+impl std::fmt::Debug for RobotWorld {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RobotWorld").field("time", &self.time).field("steps", &self.steps).finish_non_exhaustive()
+    }
+}
+
+fn section_collider(spec: &SectionSpec) -> ColliderBuilder {
+    let [x, y, z] = spec.half_extents_m;
+    ColliderBuilder::cuboid(x, y, z)
+        .mass(spec.mass_kg)
+        .collision_groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And))
+}
+
+impl RobotWorld {
+    /// Build the world for `servos` (in bus order). Their firmware tick is the physics step, and
+    /// their profile's reflected rotor inertia is added to every joint they drive.
+    pub fn new(robot: &RobotDescription, config: WorldConfig, servos: &[Servo]) -> Result<Self, WorldError> {
+        let period = servos.first().map_or(Duration::from_millis(1), Servo::control_period);
+        let rotor_inertia = servos.first().map_or(0.0, |s| {
+            let motor = &s.profile().motor;
+            (motor.rotor_inertia_kgm2 * motor.gear_ratio * motor.gear_ratio) as f32
+        });
+        let mut physics = PhysicsWorld { gravity: config.gravity, ..PhysicsWorld::default() };
+        let dt = period.as_secs_f32();
+        physics.integration_parameters.dt = dt;
+        // rapier sizes its tolerances by a length unit (default 1 m): allowed penetration is
+        // 0.5 % of it. At 1 m a wheel sinks ~3 mm under the magnets' pull, 6 % of its radius,
+        // which would shorten the rolling radius by as much. The wheel diameter is the robot's
+        // characteristic length.
+        physics.integration_parameters.length_unit = 2.0 * robot.wheel.outer_radius_m;
+        // Contacts with the (fixed) terrain are soft springs tuned for 60 Hz games: under 80 N of
+        // magnet pull a wheel sank 2.6 mm (5 % of its radius, so 5 % of ground speed). Stiffer,
+        // still well inside the 1 kHz step's stability: the sink drops below 0.2 mm.
+        physics.integration_parameters.static_contact_softness.natural_frequency = STATIC_CONTACT_HZ;
+        physics.integration_parameters.num_solver_iterations = SOLVER_ITERATIONS;
+
+        let terrain_body = physics.insert_body(RigidBodyBuilder::fixed());
+        let friction = config.friction.unwrap_or(robot.wheel.friction);
+        let terrain_collider = config
+            .terrain
+            .collider()
+            .friction(friction)
+            .collision_groups(InteractionGroups::new(TERRAIN_GROUP, ROBOT_GROUP, InteractionTestMode::And));
+        let terrain = physics.insert_collider(terrain_collider, Some(terrain_body));
+
+        let body = &robot.body;
+        let wheel = &robot.wheel;
+        let ground_y = config.terrain.height_at(config.start.x_m, config.start.z_m).unwrap_or(0.0);
+        let axle_y = ground_y + wheel.outer_radius_m + config.start.clearance_m;
+        let centre_y = axle_y + body.axle_drop_m;
+        let yaw = Rotation::from_rotation_y(config.start.yaw_deg.to_radians());
+        let origin = Vector::new(config.start.x_m, 0.0, config.start.z_m);
+        let place = |local: Vector| origin + yaw * local;
+
+        let half_base = body.wheelbase_m / 2.0;
+        let mut section_at = |spec: &SectionSpec, x: f32| {
+            let rb = RigidBodyBuilder::dynamic().pose(Pose::from_parts(place(Vector::new(x, centre_y, 0.0)), yaw));
+            let handle = physics.insert_body(rb);
+            physics.insert_collider(section_collider(spec), Some(handle));
+            handle
+        };
+        let front = section_at(&body.front, half_base);
+        let middle = section_at(&body.middle, 0.0);
+        let rear = section_at(&body.rear, -half_base);
+
+        // Rear bolted to the middle; front rolls about x against it (the rocker).
+        let middle_to_rear = FixedJointBuilder::new()
+            .local_anchor1(Vector::new(-half_base / 2.0, 0.0, 0.0))
+            .local_anchor2(Vector::new(half_base / 2.0, 0.0, 0.0));
+        physics.insert_impulse_joint(middle, rear, middle_to_rear);
+        let limit = body.rocker.limit_deg.to_radians();
+        let rocker = RevoluteJointBuilder::new(Vector::X)
+            .local_anchor1(Vector::new(half_base / 2.0, 0.0, 0.0))
+            .local_anchor2(Vector::new(-half_base / 2.0, 0.0, 0.0))
+            .limits([-limit, limit]);
+        physics.insert_impulse_joint(middle, front, rocker);
+
+        let mut wheels = Vec::with_capacity(4);
+        for position in WheelPosition::ALL {
+            let section = if position.is_front() { front } else { rear };
+            let side = if position.is_left() { 1.0 } else { -1.0 };
+            let anchor = Vector::new(0.0, -body.axle_drop_m, side * body.track_m / 2.0);
+            let section_x = if position.is_front() { half_base } else { -half_base };
+            let centre = place(Vector::new(section_x, axle_y, side * body.track_m / 2.0));
+
+            // Hollow wheel: a ball collider rolls robustly on heightfields; its mass properties
+            // are those of a thick ring about its axle, plus the drive servo's reflected rotor.
+            let ring = 0.5 * wheel.mass_kg * (wheel.outer_radius_m.powi(2) + wheel.inner_radius_m.powi(2));
+            let ring_cross = 0.5 * ring + wheel.mass_kg * wheel.width_m.powi(2) / 12.0;
+            let wheel_mass = MassProperties::new(Vector::ZERO, wheel.mass_kg, Vector::new(ring_cross, ring_cross, ring + rotor_inertia));
+            let wheel_body = physics.insert_body(RigidBodyBuilder::dynamic().pose(Pose::from_parts(centre, yaw)).additional_mass_properties(wheel_mass));
+            physics.insert_collider(
+                ColliderBuilder::ball(wheel.outer_radius_m)
+                    .density(0.0)
+                    .friction(friction)
+                    .collision_groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And)),
+                Some(wheel_body),
+            );
+            // Magnet assembly: no collider; a point mass on its lever plus the magnet servo's rotor.
+            let magnet = &robot.magnet;
+            let lever_inertia = magnet.mass_kg * magnet.lever_m.powi(2);
+            let magnet_mass = MassProperties::new(
+                Vector::new(0.0, -magnet.lever_m, 0.0),
+                magnet.mass_kg,
+                Vector::new(lever_inertia.max(1e-6), 1e-6, lever_inertia + rotor_inertia),
+            );
+            let magnet_body = physics.insert_body(RigidBodyBuilder::dynamic().pose(Pose::from_parts(centre, yaw)).additional_mass_properties(magnet_mass));
+
+            // Positive wheel-servo rotation drives the robot forward (about -z); positive magnet
+            // rotation swings the magnet forward from straight down (about +z).
+            let wheel_axis = -Vector::Z;
+            let magnet_axis = Vector::Z;
+            let revolute = |axis: Vector| {
+                RevoluteJointBuilder::new(axis).local_anchor1(anchor).local_anchor2(Vector::ZERO).motor_model(MotorModel::ForceBased)
+            };
+            let wheel_joint = physics.insert_impulse_joint(section, wheel_body, revolute(wheel_axis));
+            let magnet_joint = physics.insert_impulse_joint(section, magnet_body, revolute(magnet_axis));
+            wheels.push(WheelParts { section, wheel: wheel_body, magnet: magnet_body, wheel_joint, magnet_joint, wheel_axis, magnet_axis });
+        }
+        let wheels: [WheelParts; 4] = [wheels[0], wheels[1], wheels[2], wheels[3]];
+
+        let mut joints = Vec::with_capacity(servos.len());
+        for servo in servos {
+            let Some(spec) = robot.servo.iter().find(|s| s.id == servo.id()) else { continue };
+            let parts = wheels[spec.wheel.index()];
+            let (child, joint, axis, zero_rad) = match spec.role {
+                ServoRole::WheelDrive => (parts.wheel, parts.wheel_joint, parts.wheel_axis, 0.0),
+                ServoRole::MagnetShaft => {
+                    let zero = f64::from(robot.magnet.encoder_at_down_pulses) / 4096.0 * std::f64::consts::TAU;
+                    (parts.magnet, parts.magnet_joint, parts.magnet_axis, zero)
+                }
+            };
+            joints.push(ServoJoint { parent: parts.section, child, joint, axis, zero_rad, angle: 0.0, last_wrapped: 0.0 });
+        }
+        for role in [ServoRole::WheelDrive, ServoRole::MagnetShaft] {
+            for wheel in WheelPosition::ALL {
+                if !robot.servo.iter().any(|s| s.role == role && s.wheel == wheel) {
+                    return Err(WorldError::MissingServo { role, wheel });
+                }
+            }
+        }
+
+        let mut world = Self {
+            physics,
+            terrain,
+            sections: [front, middle, rear],
+            wheels,
+            joints,
+            robot: robot.clone(),
+            magnets_on: config.magnets_on,
+            adhesion: [AdhesionSample::default(); 4],
+            period,
+            time: Duration::ZERO,
+            steps: 0,
+        };
+        // Ray and shape casts find nothing before the first update of the query structures.
+        world.physics.step();
+        world.physics.integration_parameters.dt = dt;
+        Ok(world)
+    }
+
+    pub fn time(&self) -> Duration {
+        self.time
+    }
+
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    pub fn terrain_collider(&self) -> ColliderHandle {
+        self.terrain
+    }
+
+    /// The rapier world (read-only), for sensors and tests.
+    pub fn physics(&self) -> &PhysicsWorld {
+        &self.physics
+    }
+
+    pub fn adhesion(&self) -> &[AdhesionSample; 4] {
+        &self.adhesion
+    }
+
+    pub fn set_magnets_on(&mut self, on: bool) {
+        self.magnets_on = on;
+    }
+
+    pub fn set_gravity(&mut self, gravity: Vector) {
+        self.physics.gravity = gravity;
+    }
+
+    /// The middle section's pose (the robot's reference frame).
+    pub fn chassis_pose(&self) -> Pose {
+        *self.physics.bodies[self.sections[1]].position()
+    }
+
+    /// The chassis' linear velocity.
+    pub fn chassis_velocity(&self) -> Vector {
+        self.physics.bodies[self.sections[1]].linvel()
+    }
+
+    /// Centre of a wheel.
+    pub fn wheel_centre(&self, wheel: WheelPosition) -> Vector {
+        self.physics.bodies[self.wheels[wheel.index()].wheel].translation()
+    }
+
+    /// Direction the magnet of a wheel points (world, unit).
+    pub fn magnet_direction(&self, wheel: WheelPosition) -> Vector {
+        self.physics.bodies[self.wheels[wheel.index()].magnet].rotation() * -Vector::Y
+    }
+
+    /// Advance one step with the servos in bus order.
+    pub fn step(&mut self, servos: &mut [Servo]) {
+        for (servo, joint) in servos.iter_mut().zip(&self.joints) {
+            let drive = servo.drive();
+            let omega = joint_rate(&self.physics, joint) as f64;
+            set_joint_motor(&mut self.physics, joint.joint, &drive, omega);
+        }
+        self.apply_adhesion();
+        self.physics.step();
+        self.time += self.period;
+        self.steps += 1;
+        for (servo, joint) in servos.iter_mut().zip(self.joints.iter_mut()) {
+            let wrapped = joint_angle(&self.physics, joint) as f64;
+            let mut delta = wrapped - joint.last_wrapped;
+            delta -= (delta / std::f64::consts::TAU).round() * std::f64::consts::TAU;
+            joint.angle += delta;
+            joint.last_wrapped = wrapped;
+            let state = ShaftState { position_rad: joint.zero_rad + joint.angle, velocity_rad_s: joint_rate(&self.physics, joint) as f64 };
+            servo.sense(self.time, state);
+        }
+    }
+
+    /// Per wheel: sweep a small sphere from the wheel centre along the magnet's direction to find
+    /// the surface and its normal; pull the wheel toward the surface by the gap law, scaled by the
+    /// magnet's alignment with the normal, and turn the magnet toward the normal with the same
+    /// pull on its lever.
+    fn apply_adhesion(&mut self) {
+        let magnet = self.robot.magnet.clone();
+        let outer = self.robot.wheel.outer_radius_m;
+        for (index, parts) in self.wheels.iter().enumerate() {
+            self.physics.bodies[parts.wheel].reset_forces(false);
+            self.physics.bodies[parts.magnet].reset_torques(false);
+            self.adhesion[index] = AdhesionSample::default();
+            if !self.magnets_on {
+                continue;
+            }
+            let centre = self.physics.bodies[parts.wheel].translation();
+            let direction = self.physics.bodies[parts.magnet].rotation() * -Vector::Y;
+            let probe = Ball::new(magnet.probe_radius_m);
+            let options = ShapeCastOptions {
+                max_time_of_impact: outer + magnet.range_m,
+                target_distance: 0.0,
+                stop_at_penetration: true,
+                compute_impact_geometry_on_penetration: true,
+            };
+            let filter = QueryFilter::default().groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And));
+            let Some((_, hit)) = self.physics.cast_shape(&Pose::from_translation(centre), direction, &probe, options, filter) else {
+                continue;
+            };
+            let contact = hit.witness1;
+            let normal = hit.normal1.normalize_or_zero();
+            if normal == Vector::ZERO {
+                continue;
+            }
+            // The magnet pulls toward the steel, i.e. against the surface normal; the gap is the
+            // tread's distance from the surface along that normal, and the pull weakens with the
+            // angle between the magnet and the normal (not the cast direction: on a plane the
+            // cast point always lies on the magnet's own line).
+            let pull_direction = -normal;
+            let gap = ((centre - contact).dot(normal) - outer).max(0.0);
+            let misalignment = direction.dot(pull_direction).clamp(-1.0, 1.0).acos();
+            let alignment = misalignment.cos().max(0.0).powf(magnet.alignment_exponent);
+            let force = magnet.pull_at_contact_n / (1.0 + gap / magnet.decay_length_m).powi(2) * alignment;
+            self.physics.bodies[parts.wheel].add_force(pull_direction * force, true);
+            // Aligning torque on the magnet: its lever pulled toward the surface.
+            let torque = (direction * magnet.lever_m).cross(pull_direction * force);
+            self.physics.bodies[parts.magnet].add_torque(torque, true);
+            self.adhesion[index] = AdhesionSample { force_n: force, gap_m: gap, misalignment_rad: misalignment, contact: Some((contact, normal)) };
+        }
+    }
+}
+
+/// A servo's torque-speed line as the joint's velocity motor: torque = b·(ω_target − ω) with
+/// ω_target = τ₀/b, limited to the stall torque; gearbox Coulomb friction opposes the motion.
+/// A coasting servo (torque off, b = 0) becomes a stiff velocity-zero motor whose force limit is
+/// the friction torque: dry friction with stiction.
+fn set_joint_motor(physics: &mut PhysicsWorld, handle: ImpulseJointHandle, drive: &ShaftDrive, omega: f64) {
+    let Some(joint) = physics.impulse_joints.get_mut(handle, true) else { return };
+    let damping = drive.back_emf_damping + drive.viscous_friction;
+    let (target, gain, max_torque) = if drive.back_emf_damping <= 0.0 {
+        (0.0, FRICTION_MOTOR_GAIN, drive.coulomb_friction_nm as f32)
+    } else {
+        let friction = if omega.abs() > 1e-3 { drive.coulomb_friction_nm * omega.signum() } else { 0.0 };
+        let target = (drive.torque_at_standstill_nm - friction) / damping;
+        (target as f32, damping as f32, (drive.torque_at_standstill_nm.abs() + drive.back_emf_damping * omega.abs()).max(drive.coulomb_friction_nm) as f32)
+    };
+    joint.data.set_motor_velocity(JointAxis::AngX, target, gain);
+    joint.data.set_motor_max_force(JointAxis::AngX, max_torque);
+}
+
+/// Joint axis in world coordinates.
+fn world_axis(physics: &PhysicsWorld, joint: &ServoJoint) -> Vector {
+    physics.bodies[joint.parent].rotation() * joint.axis
+}
+
+fn joint_rate(physics: &PhysicsWorld, joint: &ServoJoint) -> f32 {
+    let axis = world_axis(physics, joint);
+    (physics.bodies[joint.child].angvel() - physics.bodies[joint.parent].angvel()).dot(axis)
+}
+
+/// Angle of the child about the joint axis relative to the parent, in (−π, π].
+fn joint_angle(physics: &PhysicsWorld, joint: &ServoJoint) -> f32 {
+    let parent = physics.bodies[joint.parent].rotation();
+    let child = physics.bodies[joint.child].rotation();
+    let relative = parent.inverse() * *child;
+    // Twist of the relative rotation about the (parent-frame) axis.
+    let v = Vector::new(relative.x, relative.y, relative.z);
+    2.0 * v.dot(joint.axis).atan2(relative.w)
+}
+
+/// Lets the bus advance the world: one physics step per firmware tick up to `until`.
+impl Plant for RobotWorld {
+    fn advance(&mut self, servos: &mut [Servo], until: Duration) {
+        while self.time + self.period <= until {
+            self.step(servos);
+        }
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
