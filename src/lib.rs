@@ -9,5 +9,6 @@ pub mod source_location;
 pub mod device;
 pub mod bus;
 pub mod robot;
+pub mod scenario;
 pub mod sim;
 pub mod transport;

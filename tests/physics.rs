@@ -21,7 +21,7 @@ fn robot() -> RobotDescription {
 
 fn world(terrain: TerrainSpec, gravity: Vector, magnets_on: bool) -> Lockstep {
     let terrain = generate(&terrain, 7, Path::new(".")).expect("terrain");
-    let config = WorldConfig { gravity, terrain, start: StartPose::default(), friction: None, magnets_on };
+    let config = WorldConfig { gravity, terrain, start: StartPose::default(), friction: None, magnets_on, payload_kg: 0.0 };
     Lockstep::new(&robot(), config).expect("world")
 }
 
@@ -66,20 +66,33 @@ fn flat_ground_speed_matches_goal_velocity_times_radius() {
     assert!(lateral < 0.005, "drove straight: {lateral} m sideways");
 }
 
-/// Settle, then hold with torque on at zero velocity for 10 s; return the drift along x (m).
-fn drift_while_holding(gravity: Vector, magnets_on: bool) -> f32 {
-    let mut sim = world(flat(), gravity, magnets_on);
+/// Settle, then hold with torque on at zero velocity for 10 s; return the chassis' displacement.
+fn drift_while_holding_on(terrain: TerrainSpec, gravity: Vector, magnets_on: bool) -> Vector {
+    let mut sim = world(terrain, gravity, magnets_on);
     drive_wheels(&mut sim, 0);
     sim.run(Duration::from_millis(500));
-    let x0 = chassis_x(&sim);
+    let p0 = sim.world().chassis_pose().translation;
     sim.run(Duration::from_secs(10));
-    chassis_x(&sim) - x0
+    sim.world().chassis_pose().translation - p0
+}
+
+fn drift_while_holding(gravity: Vector, magnets_on: bool) -> f32 {
+    drift_while_holding_on(flat(), gravity, magnets_on).x
 }
 
 #[test]
 fn magnets_hold_on_a_30_degree_slope() {
-    let drift = drift_while_holding(tilted_gravity(30.0), true);
-    assert!(drift.abs() < 0.001, "drift {:.2} mm in 10 s", drift * 1000.0);
+    let slope = TerrainSpec::Slope { size_m: 8.0, resolution: 64, slope_x_deg: 30.0, slope_z_deg: 0.0 };
+    let drift = drift_while_holding_on(slope, Vector::new(0.0, -G, 0.0), true);
+    assert!(drift.length() < 0.001, "drift {:.2} mm in 10 s", drift.length() * 1000.0);
+}
+
+#[test]
+fn friction_alone_holds_a_stopped_robot_on_a_30_degree_slope() {
+    // Friction 0.6 alone holds at 30° (tan 30° = 0.58); what the magnets add shows on a wall.
+    let slope = TerrainSpec::Slope { size_m: 8.0, resolution: 64, slope_x_deg: 30.0, slope_z_deg: 0.0 };
+    let drift = drift_while_holding_on(slope, Vector::new(0.0, -G, 0.0), false);
+    assert!(drift.length() < 0.005, "friction alone holds at 30°: drift {:.2} mm", drift.length() * 1000.0);
 }
 
 #[test]

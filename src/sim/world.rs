@@ -66,6 +66,8 @@ pub struct WorldConfig {
     pub friction: Option<f32>,
     /// Magnets on (adhesion applied) or off.
     pub magnets_on: bool,
+    /// Extra mass on the middle section (kg).
+    pub payload_kg: f32,
 }
 
 /// One magnet's pull in the last step (for logs and tests).
@@ -167,16 +169,17 @@ impl RobotWorld {
             .collision_groups(InteractionGroups::new(TERRAIN_GROUP, ROBOT_GROUP, InteractionTestMode::And));
         let terrain = physics.insert_collider(terrain_collider, Some(terrain_body));
 
+        // Queries need one update of the query structures before they see the terrain.
+        physics.step();
         let body = &robot.body;
         let wheel = &robot.wheel;
-        let ground_y = config.terrain.height_at(config.start.x_m, config.start.z_m).unwrap_or(0.0);
-        let axle_y = ground_y + wheel.outer_radius_m + config.start.clearance_m;
-        let centre_y = axle_y + body.axle_drop_m;
-        let yaw = Rotation::from_rotation_y(config.start.yaw_deg.to_radians());
-        let origin = Vector::new(config.start.x_m, 0.0, config.start.z_m);
-        let place = |local: Vector| origin + yaw * local;
-
         let half_base = body.wheelbase_m / 2.0;
+        let (origin, attitude) = start_frame(&physics, &config.start, half_base, body.track_m / 2.0);
+        let axle_y = wheel.outer_radius_m + config.start.clearance_m;
+        let centre_y = axle_y + body.axle_drop_m;
+        let place = |local: Vector| origin + attitude * local;
+        let yaw = attitude;
+
         let mut section_at = |spec: &SectionSpec, x: f32| {
             let rb = RigidBodyBuilder::dynamic().pose(Pose::from_parts(place(Vector::new(x, centre_y, 0.0)), yaw));
             let handle = physics.insert_body(rb);
@@ -186,6 +189,13 @@ impl RobotWorld {
         let front = section_at(&body.front, half_base);
         let middle = section_at(&body.middle, 0.0);
         let rear = section_at(&body.rear, -half_base);
+        if config.payload_kg > 0.0 {
+            // A compact payload (radius of gyration 0.1 m) on the middle section.
+            let payload = MassProperties::new(Vector::ZERO, config.payload_kg, Vector::splat(config.payload_kg * 0.01));
+            if let Some(rb) = physics.bodies.get_mut(middle) {
+                rb.set_additional_mass_properties(payload, true);
+            }
+        }
 
         // Rear bolted to the middle; front rolls about x against it (the rocker).
         let middle_to_rear = FixedJointBuilder::new()
@@ -402,6 +412,30 @@ impl RobotWorld {
             self.adhesion[index] = AdhesionSample { force_n: force, gap_m: gap, misalignment_rad: misalignment, contact: Some((contact, normal)) };
         }
     }
+}
+
+/// Height of the terrain under (x, z): a ray cast down from high above.
+fn ground_height(physics: &PhysicsWorld, x: f32, z: f32) -> f32 {
+    const ABOVE: f32 = 100.0;
+    let ray = Ray::new(Vector::new(x, ABOVE, z), -Vector::Y);
+    physics.cast_ray(&ray, 2.0 * ABOVE, true, QueryFilter::default()).map_or(0.0, |(_, toi)| ABOVE - toi)
+}
+
+/// The robot's start frame: origin on the ground under the start point, rotated by the yaw and
+/// tilted to the plane through the terrain under the four wheels, so the robot starts resting on
+/// slopes and pipes instead of inside them.
+fn start_frame(physics: &PhysicsWorld, start: &StartPose, half_base: f32, half_track: f32) -> (Vector, Rotation) {
+    let yaw = Rotation::from_rotation_y(start.yaw_deg.to_radians());
+    let at = |x: f32, z: f32| {
+        let p = Vector::new(start.x_m, 0.0, start.z_m) + yaw * Vector::new(x, 0.0, z);
+        ground_height(physics, p.x, p.z)
+    };
+    let (fl, fr, rl, rr) = (at(half_base, half_track), at(half_base, -half_track), at(-half_base, half_track), at(-half_base, -half_track));
+    let pitch = ((fl + fr) - (rl + rr)).atan2(4.0 * half_base);
+    let roll = ((fr + rr) - (fl + rl)).atan2(4.0 * half_track);
+    let attitude = yaw * Rotation::from_rotation_z(pitch) * Rotation::from_rotation_x(roll);
+    let origin = Vector::new(start.x_m, (fl + fr + rl + rr) / 4.0, start.z_m);
+    (origin, attitude)
 }
 
 /// A servo's torque-speed line as the joint's velocity motor: torque = b·(ω_target − ω) with
