@@ -126,3 +126,45 @@ fn trace_bus_writes_each_transaction_as_json_lines_and_shutdown_removes_link() {
     assert_eq!(lines[1]["hex"], "FF FF FD 00 01 07 00 55 00 60 04 30 EA DA");
     assert_eq!(lines[1]["from"], serde_json::json!([1]));
 }
+
+/// Write then expect the 11-byte no-error status from `id`.
+fn write_ok(port: &mut std::fs::File, id: u8, address: u16, data: &[u8]) {
+    let mut params = address.to_le_bytes().to_vec();
+    params.extend_from_slice(data);
+    port.write_all(&climbsim::protocol::encode_instruction(id, climbsim::protocol::opcode::WRITE, &params)).unwrap();
+    let reply = read_exact_within(port, 11, Duration::from_secs(2));
+    assert_eq!(reply[8], 0, "status error from ID {id}: {reply:02X?}");
+}
+
+fn read_i32(port: &mut std::fs::File, id: u8, address: u16) -> i32 {
+    let mut params = address.to_le_bytes().to_vec();
+    params.extend_from_slice(&4u16.to_le_bytes());
+    port.write_all(&climbsim::protocol::encode_instruction(id, climbsim::protocol::opcode::READ, &params)).unwrap();
+    let reply = read_exact_within(port, 15, Duration::from_secs(2));
+    assert_eq!(reply[8], 0, "status error from ID {id}: {reply:02X?}");
+    i32::from_le_bytes(reply[9..13].try_into().unwrap())
+}
+
+#[test]
+fn serve_with_a_scenario_runs_the_world_on_the_wall_clock() {
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/flat.toml");
+    let mut serve = Options::default().stderr_log().start(&[scenario.to_str().unwrap(), "--timing", "off"]);
+    let mut port = open_raw(serve.port());
+    write_ok(&mut port, 1, 11, &[1]); // velocity mode
+    write_ok(&mut port, 1, 64, &[1]); // torque on
+    write_ok(&mut port, 1, 104, &50i32.to_le_bytes());
+    let start = read_i32(&mut port, 1, 132);
+    // No packets for a second: the world still moves (the pacer advances it).
+    std::thread::sleep(Duration::from_secs(1));
+    let moved = read_i32(&mut port, 1, 132) - start;
+    // 50 × 0.229 rev/min for ~1 s is ~780 pulses; the wheel loop ramps up first.
+    assert!((500..900).contains(&moved), "wheel 1 turned {moved} pulses in 1 s");
+    // The magnets of a robot on flat steel point straight down: encoder at mid-range.
+    for id in 5..=8 {
+        let magnet = read_i32(&mut port, id, 132);
+        assert!((magnet - 2048).abs() <= 12, "magnet {id} reads {magnet}");
+    }
+    drop(port);
+    let status = serve.terminate().expect("exit");
+    assert!(status.success(), "{status:?}");
+}

@@ -11,6 +11,8 @@ use tracing::{info, warn};
 
 use climbsim::bus::{Timing, TraceWriter};
 use climbsim::robot::RobotDescription;
+use climbsim::scenario::Scenario;
+use climbsim::sim::RobotWorld;
 use climbsim::transport::{BusHandle, TcpServer, VirtualPort, parse_tcp_addr, serve_stream};
 
 #[derive(Debug, Parser)]
@@ -32,6 +34,9 @@ pub enum TimingArg {
 pub enum Command {
     /// Emulate the robot's eight servos on a virtual serial port (and optionally TCP).
     Serve {
+        /// Scenario file: serve the robot in that world. Without one the servos sit on the bench
+        /// (each drives only its own rotor).
+        scenario: Option<PathBuf>,
         /// Also create this symlink to the port (a stable name for your controller's config).
         #[arg(long)]
         link: Option<PathBuf>,
@@ -55,24 +60,39 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { link, tcp, timing, trace_bus, robot, baud } => serve(link, tcp, timing, trace_bus, &robot, baud),
+        Command::Serve { scenario, link, tcp, timing, trace_bus, robot, baud } => {
+            let options = ServeOptions { scenario, link, tcp, timing, trace_bus, baud };
+            serve(options, &robot)
+        }
     }
 }
 
-fn serve(
+struct ServeOptions {
+    scenario: Option<PathBuf>,
     link: Option<PathBuf>,
     tcp: Option<std::net::SocketAddr>,
     timing: TimingArg,
     trace_bus: Option<PathBuf>,
-    robot_path: &std::path::Path,
     baud: Option<u32>,
-) -> Result<()> {
+}
+
+fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
+    let ServeOptions { scenario, link, tcp, timing, trace_bus, baud } = options;
     let robot = RobotDescription::load(robot_path)?;
     let timing = match timing {
         TimingArg::Wire => Timing::Wire,
         TimingArg::Off => Timing::Off,
     };
-    let bus = robot.bench_bus(timing, baud)?;
+    let world_on_wall_clock = scenario.is_some();
+    let bus = match &scenario {
+        Some(path) => {
+            let scenario = Scenario::load(path)?;
+            let servos = robot.servos(baud)?;
+            let world = RobotWorld::new(&robot, scenario.world_config()?, &servos)?;
+            robot.bus_of(servos, Box::new(world), timing, baud)?
+        }
+        None => robot.bench_bus(timing, baud)?,
+    };
     let trace = match &trace_bus {
         Some(path) => {
             let file = std::fs::File::create(path).with_context(|| format!("cannot create bus trace {}", path.display()))?;
@@ -106,6 +126,10 @@ fn serve(
             // costs two extra syscalls and an extra epoll round per packet.
             runtime.block_on(async move { tokio::spawn(serve_pty(pty_port, pty_handle)).await? })
         })?;
+        // A world runs on the wall clock: a pacer advances it every firmware tick against
+        // absolute deadlines, so it moves between packets too (packets advance it as well). The
+        // bench needs none: its servos are brought up to date exactly when a packet arrives.
+        let pacer = world_on_wall_clock.then(|| Pacer::start(Arc::clone(&handle)));
         if let Some(server) = tcp_server {
             let tcp_handle = Arc::clone(&handle);
             tokio::spawn(async move {
@@ -124,6 +148,13 @@ fn serve(
         }
         // Let the controller read the last reply before the master closes.
         port.drain(Duration::from_secs(1)).await;
+        if let Some(pacer) = pacer {
+            let (ticks, overruns) = pacer.stop();
+            info!(ticks, overruns, "world pacing: firmware ticks run on the wall clock, deadlines missed");
+            if overruns > 0 {
+                eprintln!("climbsim: the world missed {overruns} of {ticks} wall-clock deadlines (it ran slower than real time)");
+            }
+        }
         Ok::<_, anyhow::Error>(port)
     })
     .map(|port| port.remove_link())
@@ -134,4 +165,45 @@ async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>) -> Result<()>
     let line = port.line();
     serve_stream(port.stream(), handle, &line).await?;
     Ok(())
+}
+
+/// Advances the bus (and so the world) on the wall clock, one firmware tick per deadline.
+struct Pacer {
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<(u64, u64)>,
+}
+
+impl Pacer {
+    fn start(handle: Arc<BusHandle>) -> Self {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopping = Arc::clone(&stop);
+        let period = handle.with_bus(|bus| bus.servos().first().map_or(Duration::from_millis(1), |s| s.control_period()));
+        let thread = std::thread::spawn(move || {
+            let clock = handle.clock();
+            let (mut ticks, mut overruns) = (0u64, 0u64);
+            let mut deadline = clock.now();
+            while !stopping.load(Ordering::Relaxed) {
+                deadline += period;
+                let now = clock.now();
+                if deadline > now {
+                    std::thread::sleep(deadline - now);
+                }
+                handle.with_bus(|bus| bus.advance(deadline));
+                ticks += 1;
+                // Late by more than a tick: the world cannot keep up with real time here.
+                if clock.now() > deadline + period {
+                    overruns += 1;
+                    deadline = clock.now();
+                }
+            }
+            (ticks, overruns)
+        });
+        Self { stop, thread }
+    }
+
+    fn stop(self) -> (u64, u64) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.thread.join().unwrap_or((0, 0))
+    }
 }
