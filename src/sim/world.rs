@@ -342,6 +342,12 @@ impl RobotWorld {
         self.physics.bodies[self.wheels[wheel.index()].magnet].rotation() * -Vector::Y
     }
 
+    /// Step the rapier world alone: the same bodies, joints and motor settings, without the
+    /// servo models or adhesion (the bare-rapier baseline of the real-time-factor bench).
+    pub fn step_physics_only(&mut self) {
+        self.physics.step();
+    }
+
     /// Advance one step with the servos in bus order.
     pub fn step(&mut self, servos: &mut [Servo]) {
         for (servo, joint) in servos.iter_mut().zip(&self.joints) {
