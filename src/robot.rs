@@ -106,6 +106,7 @@ pub struct MagnetSpec {
     pub decay_length_m: f32,
     pub range_m: f32,
     pub alignment_exponent: f32,
+    pub damping_nm_s_per_rad: f32,
     pub probe_radius_m: f32,
     pub encoder_at_down_pulses: u32,
 }

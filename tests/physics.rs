@@ -20,8 +20,12 @@ fn robot() -> RobotDescription {
 }
 
 fn world(terrain: TerrainSpec, gravity: Vector, magnets_on: bool) -> Lockstep {
+    world_with_payload(terrain, gravity, magnets_on, 0.0)
+}
+
+fn world_with_payload(terrain: TerrainSpec, gravity: Vector, magnets_on: bool, payload_kg: f32) -> Lockstep {
     let terrain = generate(&terrain, 7, Path::new(".")).expect("terrain");
-    let config = WorldConfig { gravity, terrain, start: StartPose::default(), friction: None, magnets_on, payload_kg: 0.0 };
+    let config = WorldConfig { gravity, terrain, start: StartPose::default(), friction: None, magnets_on, payload_kg };
     Lockstep::new(&robot(), config).expect("world")
 }
 
@@ -41,6 +45,12 @@ fn drive_wheels(sim: &mut Lockstep, goal: i32) {
     for id in 1..=4 {
         sim.write(id, OPERATING_MODE, &[VELOCITY_MODE]).expect("velocity mode");
         sim.write(id, TORQUE_ENABLE, &[1]).expect("torque on");
+    }
+    set_wheel_goal(sim, goal);
+}
+
+fn set_wheel_goal(sim: &mut Lockstep, goal: i32) {
+    for id in 1..=4 {
         sim.write(id, GOAL_VELOCITY, &goal.to_le_bytes()).expect("goal velocity");
     }
 }
@@ -139,3 +149,94 @@ fn climbing_current_matches_the_weight_the_wheels_lift() {
 }
 
 
+
+/// Encoder reading of a magnet servo as an angle from straight down (rad, positive forward).
+fn magnet_encoder_angle(sim: &mut Lockstep, id: u8) -> f32 {
+    let pulses = sim.read_signed(id, 132, 4).expect("magnet position");
+    (pulses - i64::from(robot().magnet.encoder_at_down_pulses)) as f32 * std::f32::consts::TAU / 4096.0
+}
+
+#[test]
+fn passive_magnet_reads_the_contact_angle_over_a_bump() {
+    // A 30 mm bump under the left wheels' track, on fine cells (4 mm) so that the facets'
+    // normals change in steps well under a degree. The robot inches over it with the magnet
+    // servos' torque off; at each stop the magnet has settled, and its encoder (the seed's
+    // potentiometer) must read the geometric contact angle.
+    let bump = TerrainSpec::Bump { size_m: 2.0, resolution: 512, height_m: 0.03, radius_m: 0.2, x_m: 0.5, z_m: 0.13 };
+    let mut sim = world(bump, Vector::new(0.0, -G, 0.0), true);
+    let mut worst = (0.0f32, 0.0f32, 0.0f32);
+    let mut steepest = 0.0f32;
+    drive_wheels(&mut sim, 0);
+    for _ in 0..30 {
+        set_wheel_goal(&mut sim, 40);
+        sim.run(Duration::from_millis(400));
+        set_wheel_goal(&mut sim, 0);
+        sim.run(Duration::from_millis(600));
+        let geometric = sim.world().contact_angle(WheelPosition::FrontLeft).expect("terrain under the wheel");
+        let encoder = magnet_encoder_angle(&mut sim, 5);
+        steepest = steepest.max(geometric.abs());
+        if (encoder - geometric).abs() > worst.0 {
+            worst = ((encoder - geometric).abs(), encoder, geometric);
+        }
+    }
+    assert!(steepest.to_degrees() > 8.0, "the wheel crossed the bump's flanks (steepest contact {:.1}°)", steepest.to_degrees());
+    assert!(worst.0.to_degrees() < 2.0, "magnet {:.2}° vs contact {:.2}°", worst.1.to_degrees(), worst.2.to_degrees());
+}
+
+#[test]
+fn rocker_keeps_all_four_wheels_on_a_one_sided_step() {
+    // A 15 mm step under the left track only: the front section rolls about the rocker so that
+    // the left front wheel climbs it while the right front wheel stays down.
+    let step = TerrainSpec::Step { size_m: 2.0, resolution: 512, height_m: 0.015, x_m: 0.3, z_from_m: 0.0 };
+    let mut sim = world(step, Vector::new(0.0, -G, 0.0), true);
+    drive_wheels(&mut sim, 40);
+    let mut on_step = false;
+    for _ in 0..100 {
+        sim.run(Duration::from_millis(100));
+        let front_left = sim.world().wheel_centre(WheelPosition::FrontLeft);
+        let front_right = sim.world().wheel_centre(WheelPosition::FrontRight);
+        if front_left.x > 0.35 && front_left.y - front_right.y > 0.012 {
+            on_step = true;
+            break;
+        }
+    }
+    assert!(on_step, "the front left wheel climbed the step");
+    set_wheel_goal(&mut sim, 0);
+    sim.run(Duration::from_millis(300));
+    for (wheel, sample) in WheelPosition::ALL.iter().zip(sim.world().adhesion()) {
+        assert!(sample.force_n > 0.5 * robot().magnet.pull_at_contact_n && sample.gap_m < 0.001, "{wheel:?} lost contact: {sample:?}");
+    }
+}
+
+/// Drive at goal speed 100 for 1.5 s on a slope of `deg` carrying `payload_kg`; return the
+/// chassis' travel along the slope (m), the wheels' mean Present Current (2.69 mA units), and the
+/// simulation for more checks.
+fn climb_with_payload(deg: f32, payload_kg: f32) -> (f32, i64, Lockstep) {
+    let slope = TerrainSpec::Slope { size_m: 8.0, resolution: 64, slope_x_deg: deg, slope_z_deg: 0.0 };
+    let mut sim = world_with_payload(slope, Vector::new(0.0, -G, 0.0), true, payload_kg);
+    drive_wheels(&mut sim, 0);
+    sim.run(Duration::from_millis(300));
+    let start = sim.world().chassis_pose().translation;
+    set_wheel_goal(&mut sim, 100);
+    sim.run(Duration::from_millis(1500));
+    let travel = (sim.world().chassis_pose().translation - start).x / deg.to_radians().cos();
+    let current = (1..=4).map(|id| sim.read_signed(id, PRESENT_CURRENT, 2).expect("current")).sum::<i64>() / 4;
+    (travel, current, sim)
+}
+
+#[test]
+fn a_slope_beyond_the_wheels_torque_stalls_them_and_a_shallow_one_does_not() {
+    // 200 kg towed on 30°: about 1000 N along the slope, more than four wheels at 10.6 N·m on a
+    // 50 mm radius give (848 N); friction (0.6 × (4 × 80 N + 1740 N)) still holds them.
+    let payload = 200.0;
+    let (travel, current, mut sim) = climb_with_payload(30.0, payload);
+    let stall_current = (4.4 / 2.69e-3) as i64;
+    assert!(travel < 0.005, "climbed {travel:.3} m beyond stall torque");
+    assert!(current > stall_current * 9 / 10, "Present Current {current} units, stall is {stall_current}");
+    // Held at stall, the servos' overload protection trips (Hardware Error Status bit 5).
+    sim.run(Duration::from_secs(2));
+    let status = sim.read(1, 70, 1).expect("hardware error status")[0];
+    assert_eq!(status & 0x20, 0x20, "overload latched after 2 s at stall: {status:#04X}");
+    let (travel, current, _) = climb_with_payload(3.0, payload);
+    assert!(travel > 0.05, "on 3° the same load climbs: {travel:.3} m, current {current}");
+}

@@ -432,3 +432,15 @@ fn a_ball_rests_on_each_terrain() {
         );
     }
 }
+
+#[test]
+fn bump_is_where_it_is_asked_for() {
+    let spec = TerrainSpec::Bump { size_m: 6.0, resolution: 256, height_m: 0.03, radius_m: 0.2, x_m: 0.5, z_m: 0.13 };
+    let bump = generate(&spec, 1, Path::new(".")).unwrap();
+    let peak = bump.height_at(0.5, 0.13).unwrap();
+    assert!((peak - 0.03).abs() < 1e-3, "peak {peak}");
+    for (x, z) in [(0.16, 0.13), (0.5, -0.13), (-1.0, 2.0), (0.5, 0.4)] {
+        assert!(bump.height_at(x, z).unwrap().abs() < 1e-6, "flat at ({x}, {z}): {}", bump.height_at(x, z).unwrap());
+    }
+}
+

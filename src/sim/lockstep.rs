@@ -74,7 +74,8 @@ impl Lockstep {
         let replies = self.transact(&encode_instruction(id, code, params));
         let reply = replies.into_iter().next().ok_or(ReplyError::NoReply)?;
         match reply.params.split_first() {
-            Some((0, data)) => Ok(data.to_vec()),
+            // The alert bit alone (a latched hardware error) does not fail the instruction.
+            Some((&error, data)) if error & !crate::protocol::ALERT_BIT == 0 => Ok(data.to_vec()),
             Some((&error, _)) => Err(ReplyError::Status(error)),
             None => Err(ReplyError::NoReply),
         }

@@ -67,6 +67,12 @@ pub enum TerrainSpec {
     /// A plane `y = tan(slope_x_deg)·x + tan(slope_z_deg)·z` (through the origin, rising towards
     /// +X for a positive `slope_x_deg`) on a square of side `size_m`; angles in (−90°, 90°).
     Slope { size_m: f32, resolution: u32, slope_x_deg: f32, slope_z_deg: f32 },
+    /// One smooth bump (a raised cosine) of `height_m` and base radius `radius_m` centred at
+    /// (`x_m`, `z_m`) on flat ground; `height_m < 0` makes a dent. For magnet and rocker tests.
+    Bump { size_m: f32, resolution: u32, height_m: f32, radius_m: f32, x_m: f32, z_m: f32 },
+    /// A one-sided step: ground raised by `height_m` where x ≥ `x_m` and z ≥ `z_from_m` (the left
+    /// side when `z_from_m` is 0), with a ramp one cell wide. For rocker tests.
+    Step { size_m: f32, resolution: u32, height_m: f32, x_m: f32, z_from_m: f32 },
     /// The outside of a steel pipe (cylinder of `radius_m`, `length_m` long, centred on the
     /// origin along its horizontal `axis`), top line at height 0 under the origin, so its axis is
     /// at y = −`radius_m`. A `segments`-gon (≥ 3) inscribed in the circle with a vertex at the
@@ -145,6 +151,24 @@ pub fn generate(spec: &TerrainSpec, seed: u64, base_dir: &Path) -> Result<Terrai
             let tx = slope_tan("slope_x_deg", slope_x_deg)?;
             let tz = slope_tan("slope_z_deg", slope_z_deg)?;
             grid(size_m, size_m, resolution as usize + 1, resolution as usize + 1, |x, z| tx * x + tz * z)
+        }
+        TerrainSpec::Bump { size_m, resolution, height_m, radius_m, x_m, z_m } => {
+            positive("size_m", size_m)?;
+            check_resolution(resolution)?;
+            positive("radius_m", radius_m)?;
+            let (cx, cz, h, r) = (f64::from(x_m), f64::from(z_m), f64::from(height_m), f64::from(radius_m));
+            let n = resolution as usize + 1;
+            level_to_corner(grid(size_m, size_m, n, n, |x, z| {
+                let d = ((x - cx).powi(2) + (z - cz).powi(2)).sqrt();
+                if d < r { h * 0.5 * (1.0 + (std::f64::consts::PI * d / r).cos()) } else { 0.0 }
+            }))
+        }
+        TerrainSpec::Step { size_m, resolution, height_m, x_m, z_from_m } => {
+            positive("size_m", size_m)?;
+            check_resolution(resolution)?;
+            let n = resolution as usize + 1;
+            let (x0, z0, h) = (f64::from(x_m), f64::from(z_from_m), f64::from(height_m));
+            level_to_corner(grid(size_m, size_m, n, n, |x, z| if x >= x0 && z >= z0 { h } else { 0.0 }))
         }
         TerrainSpec::Pipe { radius_m, length_m, axis, segments } => {
             positive("radius_m", radius_m)?;
@@ -326,6 +350,17 @@ fn grid(size_x: f32, size_z: f32, rows: usize, cols: usize, f: impl Fn(f64, f64)
         }
     }
     recentre(TerrainGeometry::HeightField { heights, rows, cols, scale })
+}
+
+/// Shift a heightfield so that its (−x, −z) corner, flat ground for bumps and steps, is at 0:
+/// `grid` centres on the origin, which may lie on the feature.
+fn level_to_corner(mut geometry: TerrainGeometry) -> TerrainGeometry {
+    if let TerrainGeometry::HeightField { heights, .. } = &mut geometry
+        && let Some(&corner) = heights.first()
+    {
+        heights.iter_mut().for_each(|h| *h -= corner);
+    }
+    geometry
 }
 
 fn recentre(mut geometry: TerrainGeometry) -> TerrainGeometry {

@@ -230,13 +230,15 @@ impl RobotWorld {
                     .collision_groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And)),
                 Some(wheel_body),
             );
-            // Magnet assembly: no collider; a point mass on its lever plus the magnet servo's rotor.
+            // Magnet assembly: no collider; its mass on the lever (as a disc of the lever's radius,
+            // so no axis has a near-zero inertia that would make the joint solver jitter) plus
+            // the magnet servo's reflected rotor about the axle.
             let magnet = &robot.magnet;
-            let lever_inertia = magnet.mass_kg * magnet.lever_m.powi(2);
+            let disc = 0.25 * magnet.mass_kg * magnet.lever_m.powi(2);
             let magnet_mass = MassProperties::new(
                 Vector::new(0.0, -magnet.lever_m, 0.0),
                 magnet.mass_kg,
-                Vector::new(lever_inertia.max(1e-6), 1e-6, lever_inertia + rotor_inertia),
+                Vector::new(disc, 2.0 * disc, disc + rotor_inertia),
             );
             let magnet_body = physics.insert_body(RigidBodyBuilder::dynamic().pose(Pose::from_parts(centre, yaw)).additional_mass_properties(magnet_mass));
 
@@ -342,6 +344,26 @@ impl RobotWorld {
         self.physics.bodies[self.wheels[wheel.index()].magnet].rotation() * -Vector::Y
     }
 
+    /// The geometric contact angle of a wheel: the direction from its centre to the closest
+    /// terrain point, as an angle in the wheel's plane from straight down (positive toward the
+    /// front), in its section's frame. What a perfectly aligned passive magnet would read.
+    pub fn contact_angle(&self, wheel: WheelPosition) -> Option<f32> {
+        let parts = self.wheels[wheel.index()];
+        let centre = self.physics.bodies[parts.wheel].translation();
+        let filter = QueryFilter::default().groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And));
+        let reach = self.robot.wheel.outer_radius_m + self.robot.magnet.range_m;
+        let (_, projection) = self.physics.project_point(centre, reach, true, filter)?;
+        let local = self.physics.bodies[parts.section].rotation().inverse() * (projection.point - centre);
+        Some(local.x.atan2(-local.y))
+    }
+
+    /// The magnet's angle from straight down in its section's frame (positive toward the front).
+    pub fn magnet_angle(&self, wheel: WheelPosition) -> f32 {
+        let parts = self.wheels[wheel.index()];
+        let local = self.physics.bodies[parts.section].rotation().inverse() * self.magnet_direction(wheel);
+        local.x.atan2(-local.y)
+    }
+
     /// Step the rapier world alone: the same bodies, joints and motor settings, without the
     /// servo models or adhesion (the bare-rapier baseline of the real-time-factor bench).
     pub fn step_physics_only(&mut self) {
@@ -377,31 +399,29 @@ impl RobotWorld {
     fn apply_adhesion(&mut self) {
         let magnet = self.robot.magnet.clone();
         let outer = self.robot.wheel.outer_radius_m;
+        // Forces and torques added to bodies persist until reset: start every step from zero.
+        for section in self.sections {
+            self.physics.bodies[section].reset_torques(false);
+        }
         for (index, parts) in self.wheels.iter().enumerate() {
             self.physics.bodies[parts.wheel].reset_forces(false);
             self.physics.bodies[parts.magnet].reset_torques(false);
             self.adhesion[index] = AdhesionSample::default();
+            // Damping of the magnet's swing relative to its section (eddy currents, grease).
+            let axis = self.physics.bodies[parts.section].rotation() * parts.magnet_axis;
+            let relative = (self.physics.bodies[parts.magnet].angvel() - self.physics.bodies[parts.section].angvel()).dot(axis);
+            let damping = -magnet.damping_nm_s_per_rad * relative * axis;
+            self.physics.bodies[parts.magnet].add_torque(damping, true);
+            self.physics.bodies[parts.section].add_torque(-damping, true);
             if !self.magnets_on {
                 continue;
             }
             let centre = self.physics.bodies[parts.wheel].translation();
             let direction = self.physics.bodies[parts.magnet].rotation() * -Vector::Y;
-            let probe = Ball::new(magnet.probe_radius_m);
-            let options = ShapeCastOptions {
-                max_time_of_impact: outer + magnet.range_m,
-                target_distance: 0.0,
-                stop_at_penetration: true,
-                compute_impact_geometry_on_penetration: true,
-            };
             let filter = QueryFilter::default().groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And));
-            let Some((_, hit)) = self.physics.cast_shape(&Pose::from_translation(centre), direction, &probe, options, filter) else {
+            let Some((contact, normal)) = find_surface(&self.physics, centre, direction, outer + magnet.range_m, magnet.probe_radius_m, filter) else {
                 continue;
             };
-            let contact = hit.witness1;
-            let normal = hit.normal1.normalize_or_zero();
-            if normal == Vector::ZERO {
-                continue;
-            }
             // The magnet pulls toward the steel, i.e. against the surface normal; the gap is the
             // tread's distance from the surface along that normal, and the pull weakens with the
             // angle between the magnet and the normal (not the cast direction: on a plane the
@@ -418,6 +438,21 @@ impl RobotWorld {
             self.adhesion[index] = AdhesionSample { force_n: force, gap_m: gap, misalignment_rad: misalignment, contact: Some((contact, normal)) };
         }
     }
+}
+
+/// The surface a magnet faces: contact point and outward normal, looking from `centre` along
+/// `direction` up to `reach`. A ray gives the exact face normal; a ray that passes exactly
+/// through a grid vertex or edge can miss, and then the seed's sphere cast (radius `probe`)
+/// finds the surface. The sphere cast is not the first choice because parry's shape cast
+/// against a fine heightfield returned normals tilted by up to 20° on flat cells (measured).
+fn find_surface(physics: &PhysicsWorld, centre: Vector, direction: Vector, reach: f32, probe: f32, filter: QueryFilter<'_>) -> Option<(Vector, Vector)> {
+    let ray = Ray::new(centre, direction);
+    if let Some((_, hit)) = physics.cast_ray_and_get_normal(&ray, reach, true, filter) {
+        return Some((ray.point_at(hit.time_of_impact), hit.normal));
+    }
+    let options = ShapeCastOptions { max_time_of_impact: reach, target_distance: 0.0, stop_at_penetration: true, compute_impact_geometry_on_penetration: true };
+    let (_, hit) = physics.cast_shape(&Pose::from_translation(centre), direction, &Ball::new(probe), options, filter)?;
+    Some((hit.witness1, hit.normal1))
 }
 
 /// Height of the terrain under (x, z): a ray cast down from high above.
