@@ -240,3 +240,24 @@ fn a_slope_beyond_the_wheels_torque_stalls_them_and_a_shallow_one_does_not() {
     let (travel, current, _) = climb_with_payload(3.0, payload);
     assert!(travel > 0.05, "on 3° the same load climbs: {travel:.3} m, current {current}");
 }
+
+/// Run a scenario file in lockstep for `seconds` with all wheels at Goal Velocity 50; return the
+/// chassis pose's bits.
+fn run_scenario(path: &str, seconds: u64) -> Vec<u32> {
+    let scenario = climbsim::scenario::Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join(path)).expect("scenario");
+    let mut sim = Lockstep::new(&robot(), scenario.world_config().expect("world config")).expect("world");
+    drive_wheels(&mut sim, 50);
+    sim.run(Duration::from_secs(seconds));
+    let pose = sim.world().chassis_pose();
+    let t = pose.translation;
+    let r = pose.rotation;
+    [t.x, t.y, t.z, r.x, r.y, r.z, r.w].iter().map(|v| v.to_bits()).collect()
+}
+
+#[test]
+fn same_scenario_and_seed_give_a_bit_identical_trajectory() {
+    let first = run_scenario("scenarios/bumpy-deck.toml", 3);
+    let second = run_scenario("scenarios/bumpy-deck.toml", 3);
+    assert_eq!(first, second);
+    assert_ne!(first, run_scenario("scenarios/flat.toml", 3), "a different world gives a different trajectory");
+}
