@@ -38,8 +38,6 @@ const STATIC_CONTACT_HZ: f32 = 240.0;
 pub enum WorldError {
     #[error("robot description has no servo for the {role:?} of wheel {wheel:?}")]
     MissingServo { role: ServoRole, wheel: WheelPosition },
-    #[error("step rate {0} Hz must match the servo firmware tick ({1} Hz)")]
-    StepRate(f64, f64),
 }
 
 /// Where the robot starts.
@@ -280,7 +278,7 @@ impl RobotWorld {
             }
         }
 
-        let mut world = Self {
+        let world = Self {
             physics,
             terrain,
             sections: [front, middle, rear],
@@ -293,9 +291,6 @@ impl RobotWorld {
             time: Duration::ZERO,
             steps: 0,
         };
-        // Ray and shape casts find nothing before the first update of the query structures.
-        world.physics.step();
-        world.physics.integration_parameters.dt = dt;
         Ok(world)
     }
 
