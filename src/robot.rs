@@ -121,12 +121,28 @@ pub struct BusSpec {
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
+pub struct CameraMount {
+    pub position_m: [f32; 3],
+    pub orthographic_size_m: f32,
+    pub image_px: u32,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LidarMount {
+    pub position_m: [f32; 3],
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RobotDescription {
     pub bus: BusSpec,
     pub servo: Vec<ServoSpec>,
     pub body: BodySpec,
     pub wheel: WheelSpec,
     pub magnet: MagnetSpec,
+    pub camera: CameraMount,
+    pub lidar: LidarMount,
     #[serde(skip)]
     pub path: PathBuf,
 }
