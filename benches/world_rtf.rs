@@ -38,8 +38,10 @@ fn robot_with_period(period_us: u64, dir: &Path) -> RobotDescription {
     RobotDescription::load(&robot_path).expect("robot copy")
 }
 
-/// µs per step for the full robot and for bare rapier, each over `steps` steps after a warm-up.
-fn measure(robot: &RobotDescription, steps: u32) -> (f64, f64) {
+/// Median µs per step for the full robot and for bare rapier: `blocks` alternating blocks of
+/// `steps_per_block` steps each after a warm-up, so that both see the same machine conditions
+/// (this VM's neighbours make single runs vary by ±30 %).
+fn measure(robot: &RobotDescription, blocks: u32, steps_per_block: u32) -> (f64, f64) {
     let mut sim = Lockstep::new(robot, config(256)).expect("world");
     for id in 1..=4 {
         sim.write(id, 11, &[1]).expect("velocity mode");
@@ -48,16 +50,24 @@ fn measure(robot: &RobotDescription, steps: u32) -> (f64, f64) {
     }
     let tick = sim.bus().servos()[0].control_period();
     sim.run(tick * 200); // warm-up
-    let started = Instant::now();
-    sim.run(tick * steps);
-    let full = started.elapsed().as_secs_f64() * 1e6 / f64::from(steps);
-    let world: &mut RobotWorld = sim.world_mut();
-    let started = Instant::now();
-    for _ in 0..steps {
-        world.step_physics_only();
+    let (mut full, mut bare) = (Vec::new(), Vec::new());
+    for _ in 0..blocks {
+        let started = Instant::now();
+        sim.run(tick * steps_per_block);
+        full.push(started.elapsed().as_secs_f64() * 1e6 / f64::from(steps_per_block));
+        let world: &mut RobotWorld = sim.world_mut();
+        let started = Instant::now();
+        for _ in 0..steps_per_block {
+            world.step_physics_only();
+        }
+        bare.push(started.elapsed().as_secs_f64() * 1e6 / f64::from(steps_per_block));
     }
-    let bare = started.elapsed().as_secs_f64() * 1e6 / f64::from(steps);
-    (full, bare)
+    (median(&mut full), median(&mut bare))
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
 }
 
 fn peak_rss_mb() -> f64 {
@@ -75,13 +85,14 @@ fn main() {
         return;
     }
     let full_run = args.iter().any(|a| a == "--bench");
-    let steps = if full_run { 10_000 } else { 200 };
+    let (blocks, steps_per_block) = if full_run { (9, 2_000) } else { (1, 200) };
+    let steps = blocks * steps_per_block;
     let dir = std::env::temp_dir().join(format!("climbsim-rtf-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let mut rows = Vec::new();
     for (hz, period_us) in [(1000u32, 1000u64), (500, 2000)] {
         let robot = robot_with_period(period_us, &dir);
-        let (full, bare) = measure(&robot, steps);
+        let (full, bare) = measure(&robot, blocks, steps_per_block);
         let dt_us = period_us as f64;
         rows.push((hz, full, bare, dt_us / full, dt_us / bare, full / bare));
     }
@@ -90,7 +101,7 @@ fn main() {
     let memory = std::process::Command::new(exe).arg(MEMORY_PROBE).output().expect("memory probe");
     let peak_mb: f64 = String::from_utf8_lossy(&memory.stdout).trim().parse().unwrap_or(f64::NAN);
 
-    println!("\nrobot world, 256×256 Perlin terrain, lockstep, one core ({steps} steps each{})", if full_run { "" } else { ", smoke run" });
+    println!("\nrobot world, 256×256 Perlin terrain, lockstep, one core (medians of {blocks} alternating blocks of {steps_per_block} steps{})", if full_run { "" } else { ", smoke run" });
     println!("| step rate | full µs/step | bare rapier µs/step | full × real time | bare × real time | overhead full/bare |");
     println!("|----------:|-------------:|--------------------:|-----------------:|-----------------:|-------------------:|");
     for (hz, full, bare, rtf, bare_rtf, ratio) in &rows {

@@ -377,6 +377,15 @@ impl RobotWorld {
             set_joint_motor(&mut self.physics, joint.joint, &drive, omega);
         }
         self.apply_adhesion();
+        tracing::trace!(
+            target: "climbsim::adhesion",
+            t = self.time.as_secs_f64(),
+            fl = self.adhesion[0].force_n,
+            fr = self.adhesion[1].force_n,
+            rl = self.adhesion[2].force_n,
+            rr = self.adhesion[3].force_n,
+            "magnet pull (N)"
+        );
         self.physics.step();
         self.time += self.period;
         self.steps += 1;
