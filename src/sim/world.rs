@@ -13,7 +13,7 @@ use rapier3d::parry::shape::Ball;
 use rapier3d::prelude::*;
 use thiserror::Error;
 
-use crate::device::{Plant, Servo, ShaftDrive, ShaftState};
+use crate::device::{BenchLoad, Plant, Servo, ShaftDrive, ShaftLoad, ShaftState};
 use crate::robot::{RobotDescription, SectionSpec, ServoRole, WheelPosition};
 
 use super::terrain::TerrainGeometry;
@@ -88,26 +88,43 @@ pub struct AdhesionSample {
 struct WheelParts {
     section: RigidBodyHandle,
     wheel: RigidBodyHandle,
-    magnet: RigidBodyHandle,
     wheel_joint: ImpulseJointHandle,
-    magnet_joint: ImpulseJointHandle,
-    /// Joint axis in the section's frame (positive servo rotation).
+    /// Joint axes in the section's frame (positive servo rotation).
     wheel_axis: Vector,
     magnet_axis: Vector,
 }
 
-/// The joint a servo drives, with the state needed to report a multi-turn angle.
+/// A magnet assembly: one rotational degree of freedom about its wheel's axle, relative to the
+/// section, integrated here rather than by rapier (a rapier body and joint per magnet cost four
+/// bodies and twenty constraint rows every step for a part that only turns about one axis).
+/// Its shaft is the magnet servo's load, exactly as a bench load is.
+#[derive(Debug, Clone, Default)]
+struct MagnetShaft {
+    load: BenchLoad,
+    /// Torque from the surface (aligning pull on the lever) and gravity this step (N·m).
+    external_nm: f64,
+    /// Last drive from its servo.
+    drive: ShaftDrive,
+}
+
+/// The rapier joint a wheel servo drives, with the state needed to report a multi-turn angle.
 #[derive(Debug, Clone, Copy)]
 struct ServoJoint {
     parent: RigidBodyHandle,
     child: RigidBodyHandle,
     joint: ImpulseJointHandle,
     axis: Vector,
-    /// Encoder reading (rad) at joint angle 0.
-    zero_rad: f64,
     /// Unwrapped joint angle (rad).
     angle: f64,
     last_wrapped: f64,
+}
+
+/// What a servo's shaft is attached to.
+#[derive(Debug, Clone, Copy)]
+enum ServoLink {
+    Wheel(ServoJoint),
+    /// The magnet shaft of wheel `wheel`; the encoder reads `zero_rad` with the magnet straight down.
+    Magnet { wheel: usize, zero_rad: f64 },
 }
 
 pub struct RobotWorld {
@@ -115,8 +132,9 @@ pub struct RobotWorld {
     terrain: ColliderHandle,
     sections: [RigidBodyHandle; 3],
     wheels: [WheelParts; 4],
-    /// Per servo (in bus order): its joint.
-    joints: Vec<ServoJoint>,
+    /// Per servo (in bus order): what it drives.
+    links: Vec<ServoLink>,
+    magnets: [MagnetShaft; 4],
     robot: RobotDescription,
     magnets_on: bool,
     adhesion: [AdhesionSample; 4],
@@ -223,7 +241,9 @@ impl RobotWorld {
             // are those of a thick ring about its axle, plus the drive servo's reflected rotor.
             let ring = 0.5 * wheel.mass_kg * (wheel.outer_radius_m.powi(2) + wheel.inner_radius_m.powi(2));
             let ring_cross = 0.5 * ring + wheel.mass_kg * wheel.width_m.powi(2) / 12.0;
-            let wheel_mass = MassProperties::new(Vector::ZERO, wheel.mass_kg, Vector::new(ring_cross, ring_cross, ring + rotor_inertia));
+            // The magnet assembly's mass rides on the axle, so it is carried by the wheel body;
+            // its rotation is the magnet shaft's own degree of freedom (`MagnetShaft`).
+            let wheel_mass = MassProperties::new(Vector::ZERO, wheel.mass_kg + robot.magnet.mass_kg, Vector::new(ring_cross, ring_cross, ring + rotor_inertia));
             let wheel_body = physics.insert_body(RigidBodyBuilder::dynamic().pose(Pose::from_parts(centre, yaw)).additional_mass_properties(wheel_mass));
             physics.insert_collider(
                 ColliderBuilder::ball(wheel.outer_radius_m)
@@ -232,18 +252,6 @@ impl RobotWorld {
                     .collision_groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And)),
                 Some(wheel_body),
             );
-            // Magnet assembly: no collider; its mass on the lever (as a disc of the lever's radius,
-            // so no axis has a near-zero inertia that would make the joint solver jitter) plus
-            // the magnet servo's reflected rotor about the axle.
-            let magnet = &robot.magnet;
-            let disc = 0.25 * magnet.mass_kg * magnet.lever_m.powi(2);
-            let magnet_mass = MassProperties::new(
-                Vector::new(0.0, -magnet.lever_m, 0.0),
-                magnet.mass_kg,
-                Vector::new(disc, 2.0 * disc, disc + rotor_inertia),
-            );
-            let magnet_body = physics.insert_body(RigidBodyBuilder::dynamic().pose(Pose::from_parts(centre, yaw)).additional_mass_properties(magnet_mass));
-
             // Positive wheel-servo rotation drives the robot forward (about -z); positive magnet
             // rotation swings the magnet forward from straight down (about +z).
             let wheel_axis = -Vector::Z;
@@ -252,24 +260,28 @@ impl RobotWorld {
                 RevoluteJointBuilder::new(axis).local_anchor1(anchor).local_anchor2(Vector::ZERO).motor_model(MotorModel::ForceBased)
             };
             let wheel_joint = physics.insert_impulse_joint(section, wheel_body, revolute(wheel_axis));
-            let magnet_joint = physics.insert_impulse_joint(section, magnet_body, revolute(magnet_axis));
-            wheels.push(WheelParts { section, wheel: wheel_body, magnet: magnet_body, wheel_joint, magnet_joint, wheel_axis, magnet_axis });
+            wheels.push(WheelParts { section, wheel: wheel_body, wheel_joint, wheel_axis, magnet_axis });
         }
         let wheels: [WheelParts; 4] = [wheels[0], wheels[1], wheels[2], wheels[3]];
 
-        let mut joints = Vec::with_capacity(servos.len());
+        let mut links = Vec::with_capacity(servos.len());
         for servo in servos {
             let Some(spec) = robot.servo.iter().find(|s| s.id == servo.id()) else { continue };
             let parts = wheels[spec.wheel.index()];
-            let (child, joint, axis, zero_rad) = match spec.role {
-                ServoRole::WheelDrive => (parts.wheel, parts.wheel_joint, parts.wheel_axis, 0.0),
-                ServoRole::MagnetShaft => {
-                    let zero = f64::from(robot.magnet.encoder_at_down_pulses) / 4096.0 * std::f64::consts::TAU;
-                    (parts.magnet, parts.magnet_joint, parts.magnet_axis, zero)
+            links.push(match spec.role {
+                ServoRole::WheelDrive => {
+                    ServoLink::Wheel(ServoJoint { parent: parts.section, child: parts.wheel, joint: parts.wheel_joint, axis: parts.wheel_axis, angle: 0.0, last_wrapped: 0.0 })
                 }
-            };
-            joints.push(ServoJoint { parent: parts.section, child, joint, axis, zero_rad, angle: 0.0, last_wrapped: 0.0 });
+                ServoRole::MagnetShaft => {
+                    let zero_rad = f64::from(robot.magnet.encoder_at_down_pulses) / 4096.0 * std::f64::consts::TAU;
+                    ServoLink::Magnet { wheel: spec.wheel.index(), zero_rad }
+                }
+            });
         }
+        // The magnet assembly on its lever (a disc of the lever's radius about its own centre).
+        let magnet = &robot.magnet;
+        let magnet_inertia = f64::from(magnet.mass_kg * magnet.lever_m.powi(2) * 1.25);
+        let magnets: [MagnetShaft; 4] = std::array::from_fn(|_| MagnetShaft { load: BenchLoad::new(magnet_inertia), ..MagnetShaft::default() });
         for role in [ServoRole::WheelDrive, ServoRole::MagnetShaft] {
             for wheel in WheelPosition::ALL {
                 if !robot.servo.iter().any(|s| s.role == role && s.wheel == wheel) {
@@ -283,7 +295,8 @@ impl RobotWorld {
             terrain,
             sections: [front, middle, rear],
             wheels,
-            joints,
+            links,
+            magnets,
             robot: robot.clone(),
             magnets_on: config.magnets_on,
             adhesion: [AdhesionSample::default(); 4],
@@ -340,7 +353,14 @@ impl RobotWorld {
 
     /// Direction the magnet of a wheel points (world, unit).
     pub fn magnet_direction(&self, wheel: WheelPosition) -> Vector {
-        self.physics.bodies[self.wheels[wheel.index()].magnet].rotation() * -Vector::Y
+        self.magnet_direction_at(wheel.index())
+    }
+
+    fn magnet_direction_at(&self, index: usize) -> Vector {
+        let parts = self.wheels[index];
+        let angle = self.magnets[index].load.state().position_rad as f32;
+        let local = Rotation::from_axis_angle(parts.magnet_axis, angle) * -Vector::Y;
+        self.physics.bodies[parts.section].rotation() * local
     }
 
     /// The geometric contact angle of a wheel: the direction from its centre to the closest
@@ -371,10 +391,15 @@ impl RobotWorld {
 
     /// Advance one step with the servos in bus order.
     pub fn step(&mut self, servos: &mut [Servo]) {
-        for (servo, joint) in servos.iter_mut().zip(&self.joints) {
+        for (servo, link) in servos.iter_mut().zip(&self.links) {
             let drive = servo.drive();
-            let omega = joint_rate(&self.physics, joint) as f64;
-            set_joint_motor(&mut self.physics, joint.joint, &drive, omega);
+            match *link {
+                ServoLink::Wheel(joint) => {
+                    let omega = joint_rate(&self.physics, &joint) as f64;
+                    set_joint_motor(&mut self.physics, joint.joint, &drive, omega);
+                }
+                ServoLink::Magnet { wheel, .. } => self.magnets[wheel].drive = drive,
+            }
         }
         self.apply_adhesion();
         tracing::trace!(
@@ -386,17 +411,48 @@ impl RobotWorld {
             rr = self.adhesion[3].force_n,
             "magnet pull (N)"
         );
+        self.step_magnets();
         self.physics.step();
         self.time += self.period;
         self.steps += 1;
-        for (servo, joint) in servos.iter_mut().zip(self.joints.iter_mut()) {
-            let wrapped = joint_angle(&self.physics, joint) as f64;
-            let mut delta = wrapped - joint.last_wrapped;
-            delta -= (delta / std::f64::consts::TAU).round() * std::f64::consts::TAU;
-            joint.angle += delta;
-            joint.last_wrapped = wrapped;
-            let state = ShaftState { position_rad: joint.zero_rad + joint.angle, velocity_rad_s: joint_rate(&self.physics, joint) as f64 };
+        for (servo, link) in servos.iter_mut().zip(self.links.iter_mut()) {
+            let state = match link {
+                ServoLink::Wheel(joint) => {
+                    let wrapped = joint_angle(&self.physics, joint) as f64;
+                    let mut delta = wrapped - joint.last_wrapped;
+                    delta -= (delta / std::f64::consts::TAU).round() * std::f64::consts::TAU;
+                    joint.angle += delta;
+                    joint.last_wrapped = wrapped;
+                    ShaftState { position_rad: joint.angle, velocity_rad_s: joint_rate(&self.physics, joint) as f64 }
+                }
+                ServoLink::Magnet { wheel, zero_rad } => {
+                    let shaft = self.magnets[*wheel].load.state();
+                    ShaftState { position_rad: *zero_rad + shaft.position_rad, velocity_rad_s: shaft.velocity_rad_s }
+                }
+            };
             servo.sense(self.time, state);
+        }
+    }
+
+    /// Integrate each magnet shaft over the step: its servo's torque-speed line, gearbox friction,
+    /// swing damping, and the external torque from the surface and gravity; the section takes
+    /// the reaction of everything the servo and its bearings exert.
+    fn step_magnets(&mut self) {
+        let dt = self.period.as_secs_f64();
+        let damping = f64::from(self.robot.magnet.damping_nm_s_per_rad);
+        for index in 0..4 {
+            let parts = self.wheels[index];
+            let shaft = &mut self.magnets[index];
+            let mut drive = shaft.drive;
+            drive.viscous_friction += damping;
+            let before = shaft.load.state().velocity_rad_s;
+            shaft.load.external_torque_nm = shaft.external_nm;
+            let after = shaft.load.step(&drive, dt).velocity_rad_s;
+            let inertia = drive.rotor_inertia_kgm2 + shaft.load.extra_inertia_kgm2;
+            // J·α = internal + external: the section feels −internal about the axle.
+            let internal = inertia * (after - before) / dt - shaft.external_nm;
+            let axis = self.physics.bodies[parts.section].rotation() * parts.magnet_axis;
+            self.physics.bodies[parts.section].add_torque(-(internal as f32) * axis, true);
         }
     }
 
@@ -411,21 +467,20 @@ impl RobotWorld {
         for section in self.sections {
             self.physics.bodies[section].reset_torques(false);
         }
-        for (index, parts) in self.wheels.iter().enumerate() {
+        let gravity = self.physics.gravity;
+        for index in 0..4 {
+            let parts = self.wheels[index];
             self.physics.bodies[parts.wheel].reset_forces(false);
-            self.physics.bodies[parts.magnet].reset_torques(false);
             self.adhesion[index] = AdhesionSample::default();
-            // Damping of the magnet's swing relative to its section (eddy currents, grease).
+            let direction = self.magnet_direction_at(index);
             let axis = self.physics.bodies[parts.section].rotation() * parts.magnet_axis;
-            let relative = (self.physics.bodies[parts.magnet].angvel() - self.physics.bodies[parts.section].angvel()).dot(axis);
-            let damping = -magnet.damping_nm_s_per_rad * relative * axis;
-            self.physics.bodies[parts.magnet].add_torque(damping, true);
-            self.physics.bodies[parts.section].add_torque(-damping, true);
+            // Gravity on the magnet's mass, on its lever.
+            let pendulum = (direction * magnet.lever_m).cross(gravity * magnet.mass_kg).dot(axis);
+            self.magnets[index].external_nm = f64::from(pendulum);
             if !self.magnets_on {
                 continue;
             }
             let centre = self.physics.bodies[parts.wheel].translation();
-            let direction = self.physics.bodies[parts.magnet].rotation() * -Vector::Y;
             let filter = QueryFilter::default().groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And));
             let Some((contact, normal)) = find_surface(&self.physics, centre, direction, outer + magnet.range_m, magnet.probe_radius_m, filter) else {
                 continue;
@@ -441,8 +496,8 @@ impl RobotWorld {
             let force = magnet.pull_at_contact_n / (1.0 + gap / magnet.decay_length_m).powi(2) * alignment;
             self.physics.bodies[parts.wheel].add_force(pull_direction * force, true);
             // Aligning torque on the magnet: its lever pulled toward the surface.
-            let torque = (direction * magnet.lever_m).cross(pull_direction * force);
-            self.physics.bodies[parts.magnet].add_torque(torque, true);
+            let aligning = (direction * magnet.lever_m).cross(pull_direction * force).dot(axis);
+            self.magnets[index].external_nm += f64::from(aligning);
             self.adhesion[index] = AdhesionSample { force_n: force, gap_m: gap, misalignment_rad: misalignment, contact: Some((contact, normal)) };
         }
     }
