@@ -1,10 +1,11 @@
-//! The robot in a rapier3d world: three body sections with a rocker, four wheels and four magnet
-//! shafts on revolute joints driven by the eight emulated servos, magnetic adhesion by a sphere
-//! cast per wheel, on a terrain collider.
+//! The robot in a rapier3d world: three body sections with a rocker and four wheels on revolute
+//! joints, four magnet shafts turning about the axles, all driven by the eight emulated servos;
+//! magnetic adhesion found by a ray (or the seed's sphere cast) per wheel, on a terrain collider.
 //!
 //! Frame: x forward, y up, z to the left. One physics step is one servo firmware tick: before
-//! the step each servo's [`ShaftDrive`] becomes its joint's motor, after it the joint's angle and
-//! rate flow back through [`Servo::sense`]. The same device code serves the bench and the world.
+//! the step each wheel servo's [`ShaftDrive`] becomes its joint's motor and each magnet servo's
+//! drives its shaft; after it the angles and rates flow back through [`Servo::sense`]. The same
+//! device code serves the bench and the world.
 
 use std::time::Duration;
 
