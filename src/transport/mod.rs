@@ -125,27 +125,20 @@ where
     let clock = handle.clock();
     let mut buf = vec![0u8; 4096];
     loop {
-        let (results, now) = if decoder.pending() > 0 {
-            // A partial packet waits; if the line stays quiet past the gap, drop it (and find any
-            // packet that was hidden behind a false header).
-            match tokio::time::timeout(gap, stream.read(&mut buf)).await {
-                Err(_) => (decoder.flush(), clock.now()),
-                Ok(read) => {
-                    let n = read?;
-                    if n == 0 {
-                        return Ok(());
-                    }
-                    let now = clock.now();
-                    (decoder.push(now, &buf[..n]), now)
-                }
-            }
+        // A partial packet waits for at most the inter-byte gap: if the line stays quiet that
+        // long, drop it (and find any packet that was hidden behind a false header).
+        let read = if decoder.pending() > 0 {
+            tokio::time::timeout(gap, stream.read(&mut buf)).await.ok()
         } else {
-            let n = stream.read(&mut buf).await?;
-            if n == 0 {
-                return Ok(());
-            }
-            let now = clock.now();
-            (decoder.push(now, &buf[..n]), now)
+            Some(stream.read(&mut buf).await)
+        };
+        let now = clock.now();
+        let results = match read {
+            None => decoder.flush(),
+            Some(read) => match read? {
+                0 => return Ok(()),
+                n => decoder.push(now, &buf[..n]),
+            },
         };
         for result in results {
             match result {
