@@ -196,9 +196,7 @@ impl Bus {
             let answers = !via_secondary && replies_at_level(&request, servo.status_return_level());
             let outcome = self.execute(index, request, addressing, now);
             if answers {
-                let error = self.servos[index].status_error_byte(&outcome.reply);
-                let params = outcome.reply.as_deref().unwrap_or_default();
-                replies.push(PendingReply::single(index, reply_id, encode_status(reply_id, error, params)));
+                replies.push(self.status_reply(index, reply_id, &outcome));
             }
             self.finish(index, &outcome, now);
         }
@@ -213,10 +211,7 @@ impl Bus {
                 order.sort_by_key(|&i| self.servos[i].id());
                 for index in order {
                     let outcome = self.execute(index, Request::Ping, addressing, now);
-                    let servo = &self.servos[index];
-                    let error = servo.status_error_byte(&outcome.reply);
-                    let params = outcome.reply.as_deref().unwrap_or_default();
-                    replies.push(PendingReply::single(index, servo.id(), encode_status(servo.id(), error, params)));
+                    replies.push(self.status_reply(index, self.servos[index].id(), &outcome));
                 }
             }
             Instruction::SyncRead { address, length, ids } => {
@@ -269,13 +264,17 @@ impl Bus {
         let addressing = Addressing { broadcast: true, via_secondary_id: false };
         for index in self.slot_servos(id, hearing) {
             let outcome = self.execute(index, Request::Read { address, length }, addressing, now);
-            let servo = &self.servos[index];
-            if servo.status_return_level() >= 1 {
-                let error = servo.status_error_byte(&outcome.reply);
-                let params = outcome.reply.as_deref().unwrap_or_default();
-                replies.push(PendingReply::single(index, id, encode_status(id, error, params)));
+            if self.servos[index].status_return_level() >= 1 {
+                replies.push(self.status_reply(index, id, &outcome));
             }
         }
+    }
+
+    /// The normal status packet servo `index` sends as `id` for `outcome`.
+    fn status_reply(&self, index: usize, id: u8, outcome: &Outcome) -> PendingReply {
+        let error = self.servos[index].status_error_byte(&outcome.reply);
+        let params = outcome.reply.as_deref().unwrap_or_default();
+        PendingReply::single(index, id, encode_status(id, error, params))
     }
 
     fn write_slot(&mut self, id: u8, request: Request<'_>, hearing: &[usize], now: Duration) {
