@@ -22,6 +22,11 @@ use super::terrain::TerrainGeometry;
 /// Collision groups: the robot's colliders touch only the terrain, never each other.
 const TERRAIN_GROUP: Group = Group::GROUP_1;
 const ROBOT_GROUP: Group = Group::GROUP_2;
+
+/// Membership and filter of the robot's colliders and of its surface queries: robot, sees terrain.
+fn robot_groups() -> InteractionGroups {
+    InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And)
+}
 /// Gain of the velocity motor that emulates dry friction on a coasting joint (N·m·s/rad); the
 /// motor's force limit is the friction torque itself.
 const FRICTION_MOTOR_GAIN: f32 = 1.0e3;
@@ -154,7 +159,7 @@ fn section_collider(spec: &SectionSpec) -> ColliderBuilder {
     let [x, y, z] = spec.half_extents_m;
     ColliderBuilder::cuboid(x, y, z)
         .mass(spec.mass_kg)
-        .collision_groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And))
+        .collision_groups(robot_groups())
 }
 
 impl RobotWorld {
@@ -250,7 +255,7 @@ impl RobotWorld {
                 ColliderBuilder::ball(wheel.outer_radius_m)
                     .density(0.0)
                     .friction(friction)
-                    .collision_groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And)),
+                    .collision_groups(robot_groups()),
                 Some(wheel_body),
             );
             // Positive wheel-servo rotation drives the robot forward (about -z); positive magnet
@@ -370,7 +375,7 @@ impl RobotWorld {
     pub fn contact_angle(&self, wheel: WheelPosition) -> Option<f32> {
         let parts = self.wheels[wheel.index()];
         let centre = self.physics.bodies[parts.wheel].translation();
-        let filter = QueryFilter::default().groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And));
+        let filter = QueryFilter::default().groups(robot_groups());
         let reach = self.robot.wheel.outer_radius_m + self.robot.magnet.range_m;
         let (_, projection) = self.physics.project_point(centre, reach, true, filter)?;
         let local = self.physics.bodies[parts.section].rotation().inverse() * (projection.point - centre);
@@ -482,7 +487,7 @@ impl RobotWorld {
                 continue;
             }
             let centre = self.physics.bodies[parts.wheel].translation();
-            let filter = QueryFilter::default().groups(InteractionGroups::new(ROBOT_GROUP, TERRAIN_GROUP, InteractionTestMode::And));
+            let filter = QueryFilter::default().groups(robot_groups());
             let Some((contact, normal)) = find_surface(&self.physics, centre, direction, outer + magnet.range_m, magnet.probe_radius_m, filter) else {
                 continue;
             };
