@@ -242,7 +242,7 @@ impl ControlTable {
 }
 
 /// Little-endian item bytes (1..=4) as a value, sign-extended for signed items.
-fn decode(bytes: &[u8], signed: bool) -> i64 {
+pub fn decode(bytes: &[u8], signed: bool) -> i64 {
     let mut raw = [0u8; 8];
     raw[..bytes.len()].copy_from_slice(bytes);
     let unsigned = u64::from_le_bytes(raw);

@@ -11,7 +11,7 @@ pub mod profile;
 mod servo;
 pub mod shaft;
 
-pub use control_table::{ControlTable, StagedWrite, WriteContext};
+pub use control_table::{ControlTable, StagedWrite, WriteContext, decode as decode_item};
 pub use error::DeviceError;
 pub use plant::{BenchPlant, Plant};
 pub use profile::{FirmwareProfile, ProfileError};

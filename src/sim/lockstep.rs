@@ -96,10 +96,7 @@ impl Lockstep {
     /// Read a signed little-endian item of 1, 2 or 4 bytes.
     pub fn read_signed(&mut self, id: u8, address: u16, length: u16) -> Result<i64, ReplyError> {
         let bytes = self.read(id, address, length)?;
-        let mut raw = [0u8; 8];
-        raw[..bytes.len()].copy_from_slice(&bytes);
-        let shift = 64 - 8 * bytes.len() as u32;
-        Ok((i64::from_le_bytes(raw) << shift) >> shift)
+        Ok(crate::device::decode_item(&bytes, true))
     }
 
     /// Advance the world by `duration`.
