@@ -162,7 +162,7 @@ fn passive_magnet_reads_the_contact_angle_over_a_bump() {
     // normals change in steps well under a degree. The robot inches over it with the magnet
     // servos' torque off; at each stop the magnet has settled, and its encoder (the seed's
     // potentiometer) must read the geometric contact angle.
-    let bump = TerrainSpec::Bump { size_m: 2.0, resolution: 512, height_m: 0.03, radius_m: 0.2, x_m: 0.5, z_m: 0.13 };
+    let bump = TerrainSpec::Bump { size_m: 2.0, resolution: 512, height_m: 0.03, radius_m: 0.2, x_m: 0.5, z_m: -0.13 };
     let mut sim = world(bump, Vector::new(0.0, -G, 0.0), true);
     let mut worst = (0.0f32, 0.0f32, 0.0f32);
     let mut steepest = 0.0f32;
@@ -185,8 +185,8 @@ fn passive_magnet_reads_the_contact_angle_over_a_bump() {
 
 #[test]
 fn rocker_keeps_all_four_wheels_on_a_one_sided_step() {
-    // A 15 mm step under the left track only: the front section rolls about the rocker so that
-    // the left front wheel climbs it while the right front wheel stays down.
+    // A 15 mm step under the right track only (z ≥ 0): the front section rolls about the rocker
+    // so that the right front wheel climbs it while the left front wheel stays down.
     let step = TerrainSpec::Step { size_m: 2.0, resolution: 512, height_m: 0.015, x_m: 0.3, z_from_m: 0.0 };
     let mut sim = world(step, Vector::new(0.0, -G, 0.0), true);
     drive_wheels(&mut sim, 40);
@@ -195,12 +195,12 @@ fn rocker_keeps_all_four_wheels_on_a_one_sided_step() {
         sim.run(Duration::from_millis(100));
         let front_left = sim.world().wheel_centre(WheelPosition::FrontLeft);
         let front_right = sim.world().wheel_centre(WheelPosition::FrontRight);
-        if front_left.x > 0.35 && front_left.y - front_right.y > 0.012 {
+        if front_right.x > 0.35 && front_right.y - front_left.y > 0.012 {
             on_step = true;
             break;
         }
     }
-    assert!(on_step, "the front left wheel climbed the step");
+    assert!(on_step, "the front right wheel climbed the step");
     set_wheel_goal(&mut sim, 0);
     sim.run(Duration::from_millis(300));
     for (wheel, sample) in WheelPosition::ALL.iter().zip(sim.world().adhesion()) {

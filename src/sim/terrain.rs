@@ -3,7 +3,7 @@
 //! since a heightfield cannot hold a vertical or overhanging surface).
 //!
 //! # Frame and placement
-//! World frame: Y up, robot forward +X, metres. The robot starts near the origin, so:
+//! World frame (right-handed): Y up, robot forward +X, +Z to the robot's right, metres. The robot starts near the origin, so:
 //! - flat, Perlin, slope and heightmap terrains are centred on the origin in X/Z and shifted
 //!   vertically so that the surface passes through height 0 at (x, z) = (0, 0);
 //! - the pipe's top line lies at height 0 right under the origin;
@@ -70,8 +70,8 @@ pub enum TerrainSpec {
     /// One smooth bump (a raised cosine) of `height_m` and base radius `radius_m` centred at
     /// (`x_m`, `z_m`) on flat ground; `height_m < 0` makes a dent. For magnet and rocker tests.
     Bump { size_m: f32, resolution: u32, height_m: f32, radius_m: f32, x_m: f32, z_m: f32 },
-    /// A one-sided step: ground raised by `height_m` where x ≥ `x_m` and z ≥ `z_from_m` (the left
-    /// side when `z_from_m` is 0), with a ramp one cell wide. For rocker tests.
+    /// A one-sided step: ground raised by `height_m` where x ≥ `x_m` and z ≥ `z_from_m` (the
+    /// robot's right side when `z_from_m` is 0: +z is to the right of a robot facing +x), with a ramp one cell wide. For rocker tests.
     Step { size_m: f32, resolution: u32, height_m: f32, x_m: f32, z_from_m: f32 },
     /// The outside of a steel pipe (cylinder of `radius_m`, `length_m` long, centred on the
     /// origin along its horizontal `axis`), top line at height 0 under the origin, so its axis is

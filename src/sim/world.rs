@@ -2,7 +2,8 @@
 //! joints, four magnet shafts turning about the axles, all driven by the eight emulated servos;
 //! magnetic adhesion found by a ray (or the seed's sphere cast) per wheel, on a terrain collider.
 //!
-//! Frame: x forward, y up, z to the left. One physics step is one servo firmware tick: before
+//! Frame (right-handed): x forward, y up, z to the robot's right, so positive yaw (about +y)
+//! turns the nose left. One physics step is one servo firmware tick: before
 //! the step each wheel servo's [`ShaftDrive`] becomes its joint's motor and each magnet servo's
 //! drives its shaft; after it the angles and rates flow back through [`Servo::sense`]. The same
 //! device code serves the bench and the world.
@@ -238,7 +239,8 @@ impl RobotWorld {
         let mut wheels = Vec::with_capacity(4);
         for position in WheelPosition::ALL {
             let section = if position.is_front() { front } else { rear };
-            let side = if position.is_left() { 1.0 } else { -1.0 };
+            // z points to the robot's right (x forward × y up), so the left wheels sit at −z.
+            let side = if position.is_left() { -1.0 } else { 1.0 };
             let anchor = Vector::new(0.0, -body.axle_drop_m, side * body.track_m / 2.0);
             let section_x = if position.is_front() { half_base } else { -half_base };
             let centre = place(Vector::new(section_x, axle_y, side * body.track_m / 2.0));
