@@ -11,4 +11,5 @@ pub mod bus;
 pub mod robot;
 pub mod scenario;
 pub mod sim;
+pub mod control;
 pub mod transport;
