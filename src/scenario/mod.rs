@@ -1,0 +1,217 @@
+//! Scenario files (TOML): the world a run happens in (terrain, start pose, gravity, duration) and
+//! what happens in it (weld line, camera, target speed, controller, scripted events, captured
+//! signals, `[expect]` thresholds). `scenarios/README.md` documents every key; unknown keys are
+//! rejected and errors name the file, line and key.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use rapier3d::prelude::Vector;
+use serde::Deserialize;
+use thiserror::Error;
+
+use crate::control::ReferenceConfig;
+use crate::sim::terrain::{TerrainError, TerrainSpec, generate};
+use crate::sim::{StartPose, WorldConfig};
+use crate::source_location::{DataFileError, load_toml};
+
+#[derive(Debug, Error)]
+pub enum ScenarioError {
+    #[error(transparent)]
+    File(#[from] DataFileError),
+    #[error("scenario {path}: terrain: {source}")]
+    Terrain { path: PathBuf, source: TerrainError },
+}
+
+fn default_gravity() -> [f32; 3] {
+    [0.0, -9.81, 0.0]
+}
+
+fn default_true() -> bool {
+    true
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldSection {
+    /// Seed of every random choice (terrain noise).
+    pub seed: u64,
+    /// Gravity (m/s²) in the world frame (y up). Tilting it is how a slope or wall is simulated
+    /// on flat steel; `[0, 0, 0]` turns it off as in the seed's experiments.
+    #[serde(default = "default_gravity")]
+    pub gravity_m_s2: [f32; 3],
+    /// Length of a headless run (s).
+    pub duration_s: f64,
+    /// Magnets on at the start.
+    #[serde(default = "default_true")]
+    pub magnets: bool,
+    /// Tread-on-terrain friction, if not the robot description's.
+    #[serde(default)]
+    pub friction: Option<f32>,
+    /// Extra mass carried on the middle section (kg), e.g. a towed welding carriage.
+    #[serde(default)]
+    pub payload_kg: f32,
+}
+
+/// Where the robot starts. Without a line: at (`x_m`, `z_m`) facing `yaw_deg` (0 = +x).
+/// With a line: at the line's first point moved `x_m` along it and `line_offset_m` across it
+/// (positive = the robot starts left of the line), heading along the line plus `yaw_deg` (the
+/// initial heading error, positive = pointing left of the line). `z_m` must then be 0.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartSection {
+    #[serde(default)]
+    pub x_m: f32,
+    #[serde(default)]
+    pub z_m: f32,
+    #[serde(default)]
+    pub yaw_deg: f32,
+    #[serde(default)]
+    pub line_offset_m: f32,
+}
+
+fn default_target_mm_min() -> f64 {
+    250.0
+}
+
+/// The speed task (seed §5): the welding speed to hold, from t = `step_at_s` (0 before it).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpeedSection {
+    #[serde(default = "default_target_mm_min")]
+    pub target_mm_min: f64,
+    #[serde(default)]
+    pub step_at_s: f64,
+}
+
+impl Default for SpeedSection {
+    fn default() -> Self {
+        Self { target_mm_min: default_target_mm_min(), step_at_s: 0.0 }
+    }
+}
+
+/// Millimetres per minute to metres per second.
+pub fn mm_min_to_m_s(mm_min: f64) -> f64 {
+    mm_min / 60_000.0
+}
+
+/// Who drives the robot.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ControllerSection {
+    /// The in-process reference controller, in lockstep (as fast as the CPU allows).
+    Builtin(ReferenceConfig),
+    /// A program started with the serial port's path in `DXL_PORT` and the sensor server's URL
+    /// in `CLIMBSIM_SENSORS`; the world then runs in real time.
+    External(ExternalController),
+}
+
+impl Default for ControllerSection {
+    fn default() -> Self {
+        Self::Builtin(ReferenceConfig::default())
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExternalController {
+    /// Program and arguments; a relative program path is resolved against the scenario's folder.
+    pub command: Vec<String>,
+}
+
+/// A scripted change at `at_s`. Each key present takes effect.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Event {
+    pub at_s: f64,
+    /// New target speed (a speed step).
+    #[serde(default)]
+    pub set_speed_mm_min: Option<f64>,
+    /// Shift the whole line sideways (m, positive to the left of its direction): a distance step.
+    #[serde(default)]
+    pub line_offset_m: Option<f64>,
+    /// Magnets on or off.
+    #[serde(default)]
+    pub magnets: Option<bool>,
+}
+
+fn default_capture_hz() -> f64 {
+    50.0
+}
+fn default_on_line_m() -> f64 {
+    0.002
+}
+
+/// What the time series records and how metrics are taken.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CaptureSection {
+    /// Rows per second of `timeseries.csv`.
+    #[serde(default = "default_capture_hz")]
+    pub rate_hz: f64,
+    /// |distance error| within which the robot counts as on the line (m).
+    #[serde(default = "default_on_line_m")]
+    pub on_line_tolerance_m: f64,
+}
+
+impl Default for CaptureSection {
+    fn default() -> Self {
+        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m() }
+    }
+}
+
+/// Bounds on one summary metric for `climbsim check`.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Threshold {
+    #[serde(default)]
+    pub min: Option<f64>,
+    #[serde(default)]
+    pub max: Option<f64>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    pub world: WorldSection,
+    pub terrain: TerrainSpec,
+    #[serde(default)]
+    pub start: Option<StartSection>,
+    #[serde(default)]
+    pub speed: SpeedSection,
+    #[serde(default)]
+    pub controller: ControllerSection,
+    #[serde(default)]
+    pub events: Vec<Event>,
+    #[serde(default)]
+    pub capture: CaptureSection,
+    /// Summary metric name (as in `summary.json`) → bounds.
+    #[serde(default)]
+    pub expect: BTreeMap<String, Threshold>,
+    #[serde(skip)]
+    pub path: PathBuf,
+}
+
+impl Scenario {
+    pub fn load(path: &Path) -> Result<Self, ScenarioError> {
+        let mut scenario: Self = load_toml("scenario", path)?;
+        scenario.path = path.to_owned();
+        Ok(scenario)
+    }
+
+    /// The world this scenario describes (terrain generated from its seed).
+    pub fn world_config(&self) -> Result<WorldConfig, ScenarioError> {
+        let base = self.path.parent().unwrap_or(Path::new("."));
+        let terrain = generate(&self.terrain, self.world.seed, base).map_err(|source| ScenarioError::Terrain { path: self.path.clone(), source })?;
+        let start = self.start.as_ref().map_or_else(StartPose::default, |s| StartPose { x_m: s.x_m, z_m: s.z_m, yaw_deg: s.yaw_deg, ..StartPose::default() });
+        let [gx, gy, gz] = self.world.gravity_m_s2;
+        Ok(WorldConfig {
+            gravity: Vector::new(gx, gy, gz),
+            terrain,
+            start,
+            friction: self.world.friction,
+            magnets_on: self.world.magnets,
+            payload_kg: self.world.payload_kg,
+        })
+    }
+}
