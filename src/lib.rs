@@ -12,4 +12,5 @@ pub mod robot;
 pub mod scenario;
 pub mod sim;
 pub mod control;
+pub mod sensor_server;
 pub mod transport;

@@ -349,6 +349,23 @@ impl RobotWorld {
         *self.physics.bodies[self.sections[1]].position()
     }
 
+    /// The downward camera's pose: its mount (`[camera] position_m`) on the middle section,
+    /// looking along the section's −y axis.
+    pub fn camera_pose(&self) -> Pose {
+        let [x, y, z] = self.robot.camera.position_m;
+        self.chassis_pose() * Pose::from_translation(Vector::new(x, y, z))
+    }
+
+    /// The terrain surface straight below (x, z): point and outward normal, from a ray cast down
+    /// from high above (the robot is not in the terrain group, so it never hides the ground).
+    pub fn surface_below(&self, x: f32, z: f32) -> Option<(Vector, Vector)> {
+        const ABOVE: f32 = 100.0;
+        let ray = Ray::new(Vector::new(x, ABOVE, z), -Vector::Y);
+        let filter = QueryFilter::default().groups(robot_groups());
+        let (_, hit) = self.physics.cast_ray_and_get_normal(&ray, 2.0 * ABOVE, true, filter)?;
+        Some((ray.point_at(hit.time_of_impact), hit.normal))
+    }
+
     /// The chassis' linear velocity.
     pub fn chassis_velocity(&self) -> Vector {
         self.physics.bodies[self.sections[1]].linvel()

@@ -1,0 +1,204 @@
+//! The sensor server for external controllers (issue #4): a small HTTP/1.1 server on localhost
+//! that serves what the robot's camera and line detector see.
+//!
+//! - `GET /camera.png`: the latest camera frame (8-bit grayscale PNG);
+//! - `GET /camera.mjpg`: every new frame as a `multipart/x-mixed-replace` JPEG stream, which
+//!   OpenCV's `VideoCapture("http://…/camera.mjpg")` and browsers open;
+//! - `GET /line`: the line detector's latest output, JSON `{"t": s, "d": m, "psi": rad, "valid": bool}`;
+//! - `GET /state`: the ground-truth pose, for debugging only (a real robot has no such thing).
+//!
+//! The simulation publishes into a [`SensorFeed`]; the server only reads it, so a slow or stuck
+//! HTTP client never holds up the physics. Its URL reaches the controller in `CLIMBSIM_SENSORS`.
+
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, PoisonError};
+
+use thiserror::Error;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::watch;
+use tracing::{debug, warn};
+
+/// Longest request head accepted (a GET line and a few headers).
+const MAX_REQUEST_BYTES: usize = 8192;
+const MJPEG_BOUNDARY: &str = "climbsimframe";
+/// JPEG quality of the MJPEG stream (the PNG is lossless).
+const JPEG_QUALITY: u8 = 90;
+
+#[derive(Debug, Error)]
+pub enum SensorServerError {
+    #[error("sensor server: cannot listen on {addr}: {source}")]
+    Bind { addr: SocketAddr, source: std::io::Error },
+    #[error("sensor server: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("camera frame {width}×{height} cannot be encoded: {reason}")]
+    Encode { width: u32, height: u32, reason: String },
+}
+
+#[derive(Debug, Default, Clone)]
+struct Snapshot {
+    png: Option<Arc<Vec<u8>>>,
+    jpeg: Option<Arc<Vec<u8>>>,
+    line: Option<serde_json::Value>,
+    state: Option<serde_json::Value>,
+}
+
+/// What the simulation publishes and the server serves.
+#[derive(Debug)]
+pub struct SensorFeed {
+    snapshot: Mutex<Snapshot>,
+    /// Bumped on every new frame; MJPEG streams wait on it.
+    frames: watch::Sender<u64>,
+}
+
+impl Default for SensorFeed {
+    fn default() -> Self {
+        Self { snapshot: Mutex::default(), frames: watch::channel(0).0 }
+    }
+}
+
+impl SensorFeed {
+    fn snapshot(&self) -> Snapshot {
+        self.snapshot.lock().unwrap_or_else(PoisonError::into_inner).clone()
+    }
+
+    fn update(&self, change: impl FnOnce(&mut Snapshot)) {
+        change(&mut self.snapshot.lock().unwrap_or_else(PoisonError::into_inner));
+    }
+
+    /// A new grayscale frame (`width × height` bytes, row 0 at the top).
+    pub fn publish_frame(&self, width: u32, height: u32, gray: &[u8]) -> Result<(), SensorServerError> {
+        let encode_error = |reason: String| SensorServerError::Encode { width, height, reason };
+        let mut png_bytes = Vec::new();
+        {
+            let mut encoder = png::Encoder::new(&mut png_bytes, width, height);
+            encoder.set_color(png::ColorType::Grayscale);
+            encoder.set_depth(png::BitDepth::Eight);
+            let mut writer = encoder.write_header().map_err(|e| encode_error(e.to_string()))?;
+            writer.write_image_data(gray).map_err(|e| encode_error(e.to_string()))?;
+        }
+        let mut jpeg_bytes = Vec::new();
+        let (w, h) = (u16::try_from(width).map_err(|e| encode_error(e.to_string()))?, u16::try_from(height).map_err(|e| encode_error(e.to_string()))?);
+        jpeg_encoder::Encoder::new(&mut jpeg_bytes, JPEG_QUALITY).encode(gray, w, h, jpeg_encoder::ColorType::Luma).map_err(|e| encode_error(e.to_string()))?;
+        self.update(|s| {
+            s.png = Some(Arc::new(png_bytes));
+            s.jpeg = Some(Arc::new(jpeg_bytes));
+        });
+        self.frames.send_modify(|n| *n += 1);
+        Ok(())
+    }
+
+    /// The detector's latest output.
+    pub fn publish_line(&self, t_s: f64, d_m: f64, psi_rad: f64, valid: bool) {
+        let value = serde_json::json!({ "t": t_s, "d": d_m, "psi": psi_rad, "valid": valid });
+        self.update(|s| s.line = Some(value));
+    }
+
+    /// Ground truth for debugging.
+    pub fn publish_state(&self, state: serde_json::Value) {
+        self.update(|s| s.state = Some(state));
+    }
+}
+
+/// A bound sensor server.
+pub struct SensorServer {
+    listener: TcpListener,
+}
+
+impl SensorServer {
+    pub async fn bind(addr: SocketAddr) -> Result<Self, SensorServerError> {
+        let listener = TcpListener::bind(addr).await.map_err(|source| SensorServerError::Bind { addr, source })?;
+        Ok(Self { listener })
+    }
+
+    pub fn local_addr(&self) -> Result<SocketAddr, SensorServerError> {
+        Ok(self.listener.local_addr()?)
+    }
+
+    /// The base URL controllers get in `CLIMBSIM_SENSORS`.
+    pub fn url(&self) -> Result<String, SensorServerError> {
+        Ok(format!("http://{}", self.local_addr()?))
+    }
+
+    /// Serve clients until the task is dropped; each client on its own task.
+    pub async fn run(self, feed: Arc<SensorFeed>) -> Result<(), SensorServerError> {
+        loop {
+            let (stream, peer) = self.listener.accept().await?;
+            let feed = Arc::clone(&feed);
+            tokio::spawn(async move {
+                if let Err(error) = serve_client(stream, &feed).await {
+                    debug!(%peer, %error, "sensor client gone");
+                }
+            });
+        }
+    }
+}
+
+async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Result<()> {
+    let mut head = Vec::with_capacity(512);
+    let mut chunk = [0u8; 1024];
+    while !head.windows(4).any(|w| w == b"\r\n\r\n") {
+        let n = stream.read(&mut chunk).await?;
+        if n == 0 {
+            return Ok(());
+        }
+        head.extend_from_slice(&chunk[..n]);
+        if head.len() > MAX_REQUEST_BYTES {
+            return respond(&mut stream, "431 Request Header Fields Too Large", "text/plain", b"request too large\n").await;
+        }
+    }
+    let request_line = String::from_utf8_lossy(head.split(|&b| b == b'\r').next().unwrap_or_default()).into_owned();
+    let mut parts = request_line.split_whitespace();
+    let (method, target) = (parts.next().unwrap_or_default(), parts.next().unwrap_or_default());
+    if method != "GET" {
+        return respond(&mut stream, "405 Method Not Allowed", "text/plain", b"only GET\n").await;
+    }
+    // Query strings (e.g. cache busters) are ignored.
+    let path = target.split('?').next().unwrap_or_default();
+    let snapshot = feed.snapshot();
+    let not_yet = |what: &str| format!("no {what} yet\n").into_bytes();
+    match path {
+        "/camera.png" => match snapshot.png {
+            Some(png) => respond(&mut stream, "200 OK", "image/png", &png).await,
+            None => respond(&mut stream, "503 Service Unavailable", "text/plain", &not_yet("camera frame")).await,
+        },
+        "/line" => json_or_503(&mut stream, snapshot.line, &not_yet("line measurement")).await,
+        "/state" => json_or_503(&mut stream, snapshot.state, &not_yet("state")).await,
+        "/camera.mjpg" => stream_mjpeg(stream, feed).await,
+        "/" => respond(&mut stream, "200 OK", "text/plain", b"climbsim sensors: /camera.png /camera.mjpg /line /state\n").await,
+        _ => respond(&mut stream, "404 Not Found", "text/plain", b"not found\n").await,
+    }
+}
+
+async fn json_or_503(stream: &mut TcpStream, value: Option<serde_json::Value>, missing: &[u8]) -> std::io::Result<()> {
+    match value {
+        Some(value) => respond(stream, "200 OK", "application/json", value.to_string().as_bytes()).await,
+        None => respond(stream, "503 Service Unavailable", "text/plain", missing).await,
+    }
+}
+
+async fn respond(stream: &mut TcpStream, status: &str, content_type: &str, body: &[u8]) -> std::io::Result<()> {
+    let head = format!("HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n", body.len());
+    stream.write_all(head.as_bytes()).await?;
+    stream.write_all(body).await?;
+    stream.shutdown().await
+}
+
+/// Send the current frame, then each new one, until the client goes away.
+async fn stream_mjpeg(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Result<()> {
+    let head = format!("HTTP/1.1 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary={MJPEG_BOUNDARY}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n");
+    stream.write_all(head.as_bytes()).await?;
+    let mut frames = feed.frames.subscribe();
+    loop {
+        if let Some(jpeg) = feed.snapshot().jpeg {
+            let part = format!("--{MJPEG_BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {}\r\n\r\n", jpeg.len());
+            stream.write_all(part.as_bytes()).await?;
+            stream.write_all(&jpeg).await?;
+            stream.write_all(b"\r\n").await?;
+        }
+        if frames.changed().await.is_err() {
+            warn!("sensor feed closed; ending MJPEG stream");
+            return Ok(());
+        }
+    }
+}
