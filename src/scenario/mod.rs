@@ -10,6 +10,10 @@ use rapier3d::prelude::Vector;
 use serde::Deserialize;
 use thiserror::Error;
 
+mod overrides;
+
+pub use overrides::{Override, OverrideError, parse_value, split_values};
+
 use crate::control::ReferenceConfig;
 use crate::sim::terrain::{TerrainError, TerrainSpec, generate};
 use crate::sim::{StartPose, WorldConfig};
@@ -19,6 +23,8 @@ use crate::source_location::{DataFileError, load_toml};
 pub enum ScenarioError {
     #[error(transparent)]
     File(#[from] DataFileError),
+    #[error("scenario {path} with --set {set}: {message}")]
+    Override { path: PathBuf, set: String, message: String },
     #[error("scenario {path}: terrain: {source}")]
     Terrain { path: PathBuf, source: TerrainError },
 }
@@ -160,6 +166,17 @@ impl Default for CaptureSection {
     }
 }
 
+impl Threshold {
+    fn describe(&self) -> String {
+        match (self.min, self.max) {
+            (Some(min), Some(max)) => format!("[{min}, {max}]"),
+            (Some(min), None) => format!(">= {min}"),
+            (None, Some(max)) => format!("<= {max}"),
+            (None, None) => "any value".to_owned(),
+        }
+    }
+}
+
 /// Bounds on one summary metric for `climbsim check`.
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -197,6 +214,41 @@ impl Scenario {
         let mut scenario: Self = load_toml("scenario", path)?;
         scenario.path = path.to_owned();
         Ok(scenario)
+    }
+
+    /// Load with `--set` overrides applied. Without overrides this is [`Scenario::load`] (whose
+    /// errors carry line and column); with them the file is edited as a TOML table first, so an
+    /// error names the key and the overrides instead.
+    pub fn load_with(path: &Path, overrides: &[Override]) -> Result<Self, ScenarioError> {
+        if overrides.is_empty() {
+            return Self::load(path);
+        }
+        // Parse once as the plain file so that syntax errors keep their line and column.
+        let mut table: toml::Table = load_toml("scenario", path)?;
+        let set = overrides.iter().map(ToString::to_string).collect::<Vec<_>>().join(" ");
+        let fail = |message: String| ScenarioError::Override { path: path.to_owned(), set: set.clone(), message };
+        for o in overrides {
+            o.apply(&mut table).map_err(|e| fail(e.to_string()))?;
+        }
+        let mut scenario = Self::deserialize(table).map_err(|e| fail(e.to_string()))?;
+        scenario.path = path.to_owned();
+        Ok(scenario)
+    }
+
+    /// The thresholds of `[expect]` that `summary` breaks, one message each; a metric the run
+    /// did not produce (or produced as null) fails its threshold.
+    pub fn failed_expectations(&self, summary: &BTreeMap<String, serde_json::Value>) -> Vec<String> {
+        let mut failures = Vec::new();
+        for (key, threshold) in &self.expect {
+            let Some(value) = summary.get(key).and_then(serde_json::Value::as_f64) else {
+                failures.push(format!("{key}: no value in the summary (expected {})", threshold.describe()));
+                continue;
+            };
+            if threshold.min.is_some_and(|min| value < min) || threshold.max.is_some_and(|max| value > max) {
+                failures.push(format!("{key} = {value} is outside {}", threshold.describe()));
+            }
+        }
+        failures
     }
 
     /// The world this scenario describes (terrain generated from its seed).
