@@ -11,6 +11,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 mod overrides;
+pub mod sweep;
 
 pub use overrides::{Override, OverrideError, parse_value, split_values};
 
