@@ -1,9 +1,11 @@
 //! The physical robot: a rapier3d world with terrain, rocker suspension, wheels and magnet shafts
 //! driven by the emulated servos, and magnetic adhesion.
 
+pub mod line;
 mod lockstep;
 pub mod terrain;
 pub mod world;
 
 pub use world::{AdhesionSample, RobotWorld, StartPose, WorldConfig, WorldError};
+pub use line::{LineProjection, Surface, WeldLine};
 pub use lockstep::{Lockstep, ReplyError, SimError};
