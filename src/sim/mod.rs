@@ -2,6 +2,7 @@
 //! driven by the emulated servos, and magnetic adhesion.
 
 pub mod camera;
+pub mod detector;
 pub mod line;
 mod lockstep;
 pub mod terrain;
@@ -9,5 +10,6 @@ pub mod world;
 
 pub use world::{AdhesionSample, RobotWorld, StartPose, WorldConfig, WorldError};
 pub use camera::{Frame, LineCamera, LineCameraSettings};
+pub use detector::{DetectorSettings, LineDetector, LineMeasurement};
 pub use line::{LineProjection, Surface, WeldLine};
 pub use lockstep::{Lockstep, ReplyError, SimError};
