@@ -1,9 +1,15 @@
 //! The physical robot: a rapier3d world with terrain, rocker suspension, wheels and magnet shafts
 //! driven by the emulated servos, and magnetic adhesion.
 
+pub mod camera;
+pub mod detector;
+pub mod line;
 mod lockstep;
 pub mod terrain;
 pub mod world;
 
 pub use world::{AdhesionSample, RobotWorld, StartPose, WorldConfig, WorldError};
+pub use camera::{Frame, LineCamera, LineCameraSettings};
+pub use detector::{DetectorSettings, LineDetector, LineMeasurement};
+pub use line::{LineProjection, Surface, WeldLine};
 pub use lockstep::{Lockstep, ReplyError, SimError};
