@@ -12,3 +12,4 @@ pub mod robot;
 pub mod scenario;
 pub mod sim;
 pub mod transport;
+pub mod metrics;
