@@ -13,3 +13,4 @@ pub mod scenario;
 pub mod sim;
 pub mod transport;
 pub mod metrics;
+pub mod report;

@@ -1,0 +1,42 @@
+//! A run's outputs, written into an output directory: `timeseries.csv`, `summary.json`,
+//! `settings.json`, and JUnit XML for `climbsim check`.
+//!
+//! Every file is written atomically ([`write_atomically`]): a run killed mid-write leaves either
+//! the previous file or none, never half of one. The functions do not create the output
+//! directory; the caller does, once.
+
+mod atomic;
+pub mod junit;
+mod summary;
+mod timeseries;
+
+use std::io;
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+pub use atomic::write_atomically;
+pub use summary::{
+    SETTINGS_JSON, SUMMARY_JSON, Summary, summarise, write_settings_json, write_summary_json,
+};
+pub use timeseries::{TIMESERIES_CSV, TimeSeries, write_timeseries_csv};
+
+/// Why an output could not be written. Variants about a file name it.
+#[derive(Debug, Error)]
+pub enum ReportError {
+    #[error("{}: {source}", path.display())]
+    Io { path: PathBuf, source: io::Error },
+    #[error("{}: JSON: {source}", path.display())]
+    Json {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
+    #[error("a time-series row has {got} values but the series has {expected} columns")]
+    RowWidth { expected: usize, got: usize },
+}
+
+/// Wraps an I/O error with the file it concerns: `.map_err(io_error(path))`.
+pub(crate) fn io_error(path: &Path) -> impl FnOnce(io::Error) -> ReportError + use<> {
+    let path = path.to_path_buf();
+    move |source| ReportError::Io { path, source }
+}
