@@ -1,5 +1,5 @@
 //! A run's outputs, written into an output directory: `timeseries.csv`, `summary.json`,
-//! `settings.json`, and JUnit XML for `climbsim check`.
+//! `settings.json`, the seed's three-sheet `report.xlsx`, and JUnit XML for `climbsim check`.
 //!
 //! Every file is written atomically ([`write_atomically`]): a run killed mid-write leaves either
 //! the previous file or none, never half of one. The functions do not create the output
@@ -9,6 +9,7 @@ mod atomic;
 pub mod junit;
 mod summary;
 mod timeseries;
+mod workbook;
 
 use std::io;
 use std::path::{Path, PathBuf};
@@ -20,6 +21,9 @@ pub use summary::{
     SETTINGS_JSON, SUMMARY_JSON, Summary, summarise, write_settings_json, write_summary_json,
 };
 pub use timeseries::{TIMESERIES_CSV, TimeSeries, write_timeseries_csv};
+pub use workbook::{
+    REPORT_XLSX, SHEET_RAW_DATA, SHEET_SETTINGS, SHEET_STEP_CHARACTERISTICS, write_workbook,
+};
 
 /// Why an output could not be written. Variants about a file name it.
 #[derive(Debug, Error)]
@@ -30,6 +34,11 @@ pub enum ReportError {
     Json {
         path: PathBuf,
         source: serde_json::Error,
+    },
+    #[error("{}: workbook: {source}", path.display())]
+    Workbook {
+        path: PathBuf,
+        source: rust_xlsxwriter::XlsxError,
     },
     #[error("a time-series row has {got} values but the series has {expected} columns")]
     RowWidth { expected: usize, got: usize },
