@@ -273,7 +273,7 @@ mod tests {
             .iter()
             .map(|&ti| 0.3 * (-0.5 * ti).exp() * (2.0 * ti).cos())
             .collect();
-        let d2: Vec<f64> = t.iter().map(|&ti| 0.3 * (-1.0 * ti).exp()).collect();
+        let d2: Vec<f64> = t.iter().map(|&ti| 0.3 * (-ti).exp()).collect();
         let labels = PlotLabels {
             title: "Distance error",
             x: "t (s)",
