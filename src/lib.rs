@@ -14,3 +14,5 @@ pub mod sim;
 pub mod control;
 pub mod sensor_server;
 pub mod transport;
+pub mod metrics;
+pub mod report;

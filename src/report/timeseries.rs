@@ -1,0 +1,175 @@
+//! The run's time series and its CSV file.
+
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+use super::ReportError;
+use super::atomic::write_atomically;
+
+/// File name of the time series in the output directory.
+pub const TIMESERIES_CSV: &str = "timeseries.csv";
+
+/// Named columns of numbers, one row per sample (climbsim uses columns such as `t_s`, `d_m`,
+/// `speed_m_s`, `wheel_rate_fl_rad_s`). Every row has one value per column.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct TimeSeries {
+    columns: Vec<String>,
+    rows: Vec<Vec<f64>>,
+}
+
+impl TimeSeries {
+    /// An empty series with these column names.
+    pub fn new<S: Into<String>>(columns: impl IntoIterator<Item = S>) -> Self {
+        Self {
+            columns: columns.into_iter().map(Into::into).collect(),
+            rows: Vec::new(),
+        }
+    }
+
+    /// Appends a sample; it must have one value per column.
+    pub fn push_row(&mut self, row: &[f64]) -> Result<(), ReportError> {
+        if row.len() != self.columns.len() {
+            return Err(ReportError::RowWidth {
+                expected: self.columns.len(),
+                got: row.len(),
+            });
+        }
+        self.rows.push(row.to_vec());
+        Ok(())
+    }
+
+    pub fn columns(&self) -> &[String] {
+        &self.columns
+    }
+
+    pub fn rows(&self) -> &[Vec<f64>] {
+        &self.rows
+    }
+
+    /// The values of the column called `name`, or `None` if there is no such column.
+    pub fn column(&self, name: &str) -> Option<Vec<f64>> {
+        let index = self.columns.iter().position(|column| column == name)?;
+        Some(self.rows.iter().map(|row| row[index]).collect())
+    }
+
+    /// Number of rows (samples).
+    pub fn len(&self) -> usize {
+        self.rows.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+
+    /// Writes the series as CSV: a header line of column names, then one line per row. Numbers
+    /// use Rust's shortest representation that parses back to the same `f64`; non-finite values
+    /// are written `NaN`, `inf` and `-inf`, which pandas and numpy read.
+    pub fn write_csv(&self, out: &mut impl Write) -> io::Result<()> {
+        let header: Vec<String> = self.columns.iter().map(|name| csv_field(name)).collect();
+        writeln!(out, "{}", header.join(","))?;
+        for row in &self.rows {
+            for (index, value) in row.iter().enumerate() {
+                if index > 0 {
+                    out.write_all(b",")?;
+                }
+                write!(out, "{value}")?;
+            }
+            out.write_all(b"\n")?;
+        }
+        Ok(())
+    }
+}
+
+/// Writes `series` to `out_dir/timeseries.csv` atomically and returns the file's path.
+pub fn write_timeseries_csv(out_dir: &Path, series: &TimeSeries) -> Result<PathBuf, ReportError> {
+    let path = out_dir.join(TIMESERIES_CSV);
+    write_atomically(&path, |writer| series.write_csv(writer))?;
+    Ok(path)
+}
+
+/// A CSV field, quoted (RFC 4180) only when it holds a separator, quote or line break.
+fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_owned()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn csv_of(series: &TimeSeries) -> String {
+        let mut out = Vec::new();
+        series.write_csv(&mut out).expect("writes to memory");
+        String::from_utf8(out).expect("UTF-8")
+    }
+
+    #[test]
+    fn writes_a_header_and_rows_that_round_trip() {
+        let mut series = TimeSeries::new(["t_s", "d_m"]);
+        let awkward = [0.1 + 0.2, 1e-300, -123456.789e10, 5.0];
+        series.push_row(&[0.0, awkward[0]]).expect("width 2");
+        series.push_row(&[awkward[1], awkward[2]]).expect("width 2");
+        series.push_row(&[awkward[3], f64::NAN]).expect("width 2");
+        let csv = csv_of(&series);
+        let mut lines = csv.lines();
+        assert_eq!(lines.next(), Some("t_s,d_m"));
+        let parsed: Vec<f64> = lines
+            .flat_map(|line| {
+                line.split(',')
+                    .map(|field| field.parse::<f64>().expect("a number"))
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        assert_eq!(
+            &parsed[..5],
+            &[0.0, awkward[0], awkward[1], awkward[2], awkward[3]]
+        );
+        assert!(parsed[5].is_nan());
+        assert!(csv.ends_with('\n'));
+    }
+
+    #[test]
+    fn a_row_of_the_wrong_width_is_refused() {
+        let mut series = TimeSeries::new(["t_s", "d_m"]);
+        assert!(matches!(
+            series.push_row(&[1.0]),
+            Err(ReportError::RowWidth {
+                expected: 2,
+                got: 1
+            })
+        ));
+        assert!(series.is_empty());
+    }
+
+    #[test]
+    fn column_names_with_separators_are_quoted() {
+        let series = TimeSeries::new(["t_s", "a,b", "say \"hi\""]);
+        assert_eq!(csv_of(&series), "t_s,\"a,b\",\"say \"\"hi\"\"\"\n");
+    }
+
+    #[test]
+    fn a_column_can_be_taken_out_by_name() {
+        let mut series = TimeSeries::new(["t_s", "d_m"]);
+        series.push_row(&[0.0, 0.5]).expect("width 2");
+        series.push_row(&[0.001, 0.25]).expect("width 2");
+        assert_eq!(series.column("d_m"), Some(vec![0.5, 0.25]));
+        assert_eq!(series.column("psi_rad"), None);
+        assert_eq!(series.len(), 2);
+    }
+
+    #[test]
+    fn the_file_is_written_into_the_output_directory() {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let mut series = TimeSeries::new(["t_s"]);
+        series.push_row(&[0.5]).expect("width 1");
+        let path = write_timeseries_csv(dir.path(), &series).expect("written");
+        assert_eq!(path, dir.path().join("timeseries.csv"));
+        assert_eq!(
+            std::fs::read_to_string(&path).expect("readable"),
+            "t_s\n0.5\n"
+        );
+    }
+}

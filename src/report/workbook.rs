@@ -1,0 +1,247 @@
+//! `report.xlsx`: the seed's workbook (section 4.2) with three sheets — the raw time series, the
+//! simulation settings, and the step-response characteristics.
+
+use std::path::{Path, PathBuf};
+
+use rust_xlsxwriter::{Format, Workbook, Worksheet, XlsxError};
+use serde_json::Value;
+
+use super::atomic::write_bytes_atomically;
+use super::{ReportError, Summary, TimeSeries};
+
+/// File name of the workbook in the output directory.
+pub const REPORT_XLSX: &str = "report.xlsx";
+/// Sheet of the time series: a header row of column names, then one row per sample.
+pub const SHEET_RAW_DATA: &str = "Raw data";
+/// Sheet of the settings, one `setting | value` row per leaf of the settings JSON.
+pub const SHEET_SETTINGS: &str = "Settings";
+/// Sheet of the metrics, one `metric | value` row per entry of the summary.
+pub const SHEET_STEP_CHARACTERISTICS: &str = "Step characteristics";
+
+/// Writes `out_dir/report.xlsx` atomically and returns its path. Nested settings are flattened
+/// to dotted keys (`controller.kd`, `line.points[2]`); `null` values leave the value cell empty.
+/// Excel cannot hold NaN or infinities: such samples appear as the text `NAN`, `INF`, `-INF`.
+/// A sheet holds at most 1 048 575 samples; a longer series is an error.
+pub fn write_workbook(
+    out_dir: &Path,
+    series: &TimeSeries,
+    settings: &Value,
+    summary: &Summary,
+) -> Result<PathBuf, ReportError> {
+    let path = out_dir.join(REPORT_XLSX);
+    let bytes =
+        build_workbook(series, settings, summary).map_err(|source| ReportError::Workbook {
+            path: path.clone(),
+            source,
+        })?;
+    write_bytes_atomically(&path, &bytes)?;
+    Ok(path)
+}
+
+fn build_workbook(
+    series: &TimeSeries,
+    settings: &Value,
+    summary: &Summary,
+) -> Result<Vec<u8>, XlsxError> {
+    let mut workbook = Workbook::new();
+    let header = Format::new().set_bold();
+
+    let raw = workbook.add_worksheet().set_name(SHEET_RAW_DATA)?;
+    for (column, name) in (0..).zip(series.columns()) {
+        raw.write_string_with_format(0, column, name, &header)?;
+    }
+    for (row, values) in (1..).zip(series.rows()) {
+        for (column, value) in (0..).zip(values) {
+            raw.write_number(row, column, *value)?;
+        }
+    }
+    raw.set_freeze_panes(1, 0)?;
+
+    let flat_settings = flatten_json(settings);
+    let sheet = workbook.add_worksheet().set_name(SHEET_SETTINGS)?;
+    write_key_values(
+        sheet,
+        ["setting", "value"],
+        flat_settings
+            .iter()
+            .map(|(key, value)| (key.as_str(), value)),
+        &header,
+    )?;
+
+    let sheet = workbook
+        .add_worksheet()
+        .set_name(SHEET_STEP_CHARACTERISTICS)?;
+    write_key_values(
+        sheet,
+        ["metric", "value"],
+        summary.iter().map(|(key, value)| (key.as_str(), value)),
+        &header,
+    )?;
+
+    workbook.save_to_buffer()
+}
+
+fn write_key_values<'a>(
+    sheet: &mut Worksheet,
+    headings: [&str; 2],
+    entries: impl Iterator<Item = (&'a str, &'a Value)>,
+    header: &Format,
+) -> Result<(), XlsxError> {
+    sheet.write_string_with_format(0, 0, headings[0], header)?;
+    sheet.write_string_with_format(0, 1, headings[1], header)?;
+    for (row, (key, value)) in (1..).zip(entries) {
+        sheet.write_string(row, 0, key)?;
+        match value {
+            Value::Null => {}
+            Value::Bool(flag) => {
+                sheet.write_boolean(row, 1, *flag)?;
+            }
+            Value::Number(number) => match number.as_f64() {
+                Some(number) => {
+                    sheet.write_number(row, 1, number)?;
+                }
+                None => {
+                    sheet.write_string(row, 1, number.to_string())?;
+                }
+            },
+            Value::String(text) => {
+                sheet.write_string(row, 1, text)?;
+            }
+            // flatten_json leaves no containers; a summary could hold one, so show it as JSON.
+            Value::Array(_) | Value::Object(_) => {
+                sheet.write_string(row, 1, value.to_string())?;
+            }
+        }
+    }
+    sheet.set_column_width(0, 36)?;
+    sheet.set_column_width(1, 18)?;
+    Ok(())
+}
+
+/// The leaves of a JSON value with their dotted paths, in document order (serde_json keeps object
+/// keys sorted). A scalar at the top has the path `value`; empty arrays and objects are leaves.
+fn flatten_json(value: &Value) -> Vec<(String, Value)> {
+    fn walk(path: String, value: &Value, leaves: &mut Vec<(String, Value)>) {
+        match value {
+            Value::Object(map) if !map.is_empty() => {
+                for (key, child) in map {
+                    let child_path = if path.is_empty() {
+                        key.clone()
+                    } else {
+                        format!("{path}.{key}")
+                    };
+                    walk(child_path, child, leaves);
+                }
+            }
+            Value::Array(items) if !items.is_empty() => {
+                for (index, child) in items.iter().enumerate() {
+                    walk(format!("{path}[{index}]"), child, leaves);
+                }
+            }
+            leaf => {
+                let path = if path.is_empty() {
+                    "value".to_owned()
+                } else {
+                    path
+                };
+                leaves.push((path, leaf.clone()));
+            }
+        }
+    }
+    let mut leaves = Vec::new();
+    walk(String::new(), value, &mut leaves);
+    leaves
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use calamine::{Data, Reader, Xlsx, open_workbook};
+    use serde_json::json;
+
+    #[test]
+    fn settings_flatten_to_dotted_paths() {
+        let settings = json!({
+            "controller": {"kd": 2.0, "gains": [1, 2]},
+            "name": "flat",
+            "empty": {},
+            "none": null
+        });
+        let flat = flatten_json(&settings);
+        let keys: Vec<&str> = flat.iter().map(|(key, _)| key.as_str()).collect();
+        assert_eq!(
+            keys,
+            [
+                "controller.gains[0]",
+                "controller.gains[1]",
+                "controller.kd",
+                "empty",
+                "name",
+                "none"
+            ]
+        );
+        assert_eq!(flat[2].1, json!(2.0));
+        assert_eq!(
+            flatten_json(&json!(3)),
+            vec![("value".to_owned(), json!(3))]
+        );
+    }
+
+    #[test]
+    fn the_workbook_has_the_seeds_three_sheets() {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let mut series = TimeSeries::new(["t_s", "d_m", "speed_m_s"]);
+        series.push_row(&[0.0, 0.3, 0.0]).expect("width 3");
+        series.push_row(&[0.001, 0.299, 0.0001]).expect("width 3");
+        let settings = json!({"controller": {"kd": 2.0}, "magnets": true, "terrain": "flat"});
+        let mut summary = Summary::new();
+        summary.insert("distance.rise_time_s".to_owned(), json!(1.25));
+        summary.insert("distance.settled".to_owned(), json!(true));
+        summary.insert("speed.settling_time_s".to_owned(), Value::Null);
+
+        let path = write_workbook(dir.path(), &series, &settings, &summary).expect("written");
+        assert_eq!(path, dir.path().join("report.xlsx"));
+
+        let mut workbook: Xlsx<_> = open_workbook(&path).expect("a valid xlsx");
+        assert_eq!(
+            workbook.sheet_names(),
+            ["Raw data", "Settings", "Step characteristics"]
+        );
+
+        let raw = workbook.worksheet_range("Raw data").expect("sheet");
+        assert_eq!(raw.get_value((0, 1)), Some(&Data::String("d_m".to_owned())));
+        assert_eq!(raw.get_value((2, 1)), Some(&Data::Float(0.299)));
+        assert_eq!(raw.get_value((2, 2)), Some(&Data::Float(0.0001)));
+        assert_eq!(raw.height(), 3);
+
+        let settings_sheet = workbook.worksheet_range("Settings").expect("sheet");
+        assert_eq!(
+            settings_sheet.get_value((1, 0)),
+            Some(&Data::String("controller.kd".to_owned()))
+        );
+        assert_eq!(settings_sheet.get_value((1, 1)), Some(&Data::Float(2.0)));
+        assert_eq!(settings_sheet.get_value((2, 1)), Some(&Data::Bool(true)));
+        assert_eq!(
+            settings_sheet.get_value((3, 1)),
+            Some(&Data::String("flat".to_owned()))
+        );
+
+        let steps = workbook
+            .worksheet_range("Step characteristics")
+            .expect("sheet");
+        assert_eq!(
+            steps.get_value((0, 0)),
+            Some(&Data::String("metric".to_owned()))
+        );
+        assert_eq!(
+            steps.get_value((1, 0)),
+            Some(&Data::String("distance.rise_time_s".to_owned()))
+        );
+        assert_eq!(steps.get_value((1, 1)), Some(&Data::Float(1.25)));
+        assert_eq!(
+            steps.get_value((3, 0)),
+            Some(&Data::String("speed.settling_time_s".to_owned()))
+        );
+        assert!(matches!(steps.get_value((3, 1)), None | Some(Data::Empty)));
+    }
+}
