@@ -1,4 +1,7 @@
-//! Command-line interface: `climbsim serve`.
+//! Command-line interface: `climbsim serve`, `run`, `check` and `sweep`.
+
+mod batch;
+mod realtime;
 
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -56,6 +59,64 @@ pub enum Command {
         #[arg(long)]
         baud: Option<u32>,
     },
+    /// Run a scenario and write its time series, summary, workbook and plots. A built-in
+    /// controller runs in lockstep, faster than real time; an external one (`command = [...]`)
+    /// is started with `DXL_PORT` and `CLIMBSIM_SENSORS` and runs in real time.
+    Run {
+        /// Scenario file (default: scenarios/flat-line.toml).
+        #[arg(default_value = "scenarios/flat-line.toml")]
+        scenario: PathBuf,
+        /// Output folder (default: results/<scenario name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Override a scenario key, e.g. `--set controller.zeta=0.5` (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Reply timing on the pty (external controllers only).
+        #[arg(long, value_enum, default_value = "wire")]
+        timing: TimingArg,
+        /// Also create this symlink to the pty (external controllers only).
+        #[arg(long)]
+        link: Option<PathBuf>,
+        #[arg(long, default_value_os_t = RobotDescription::default_path())]
+        robot: PathBuf,
+    },
+    /// Run scenarios and test their `[expect]` thresholds; exit non-zero if any fails.
+    Check {
+        /// Scenario files, or folders (their `*.toml` files that have an `[expect]` section).
+        #[arg(required = true)]
+        paths: Vec<PathBuf>,
+        /// Also write JUnit XML here.
+        #[arg(long)]
+        junit: Option<PathBuf>,
+        /// Root of the runs' output folders.
+        #[arg(long, default_value = "results/check")]
+        out: PathBuf,
+        #[arg(long, default_value_os_t = RobotDescription::default_path())]
+        robot: PathBuf,
+    },
+    /// Run a scenario over a grid of parameters (in parallel), or merge sweeps' shards.
+    Sweep {
+        /// Scenario file (not with --merge).
+        #[arg(required_unless_present = "merge")]
+        scenario: Option<PathBuf>,
+        /// A swept key and its values: `controller.zeta=0.3,0.5,0.7` (repeatable: a grid).
+        #[arg(long = "set", value_name = "KEY=V1,V2,...")]
+        set: Vec<String>,
+        /// Runs at once (default: the number of CPUs).
+        #[arg(long)]
+        jobs: Option<usize>,
+        /// Run only slice K of N of the grid (for CI matrices and job arrays).
+        #[arg(long, value_name = "K/N")]
+        shard: Option<String>,
+        /// Merge these sweeps' output folders (their sweep.json) instead of running.
+        #[arg(long, num_args = 1.., conflicts_with_all = ["scenario", "set", "shard"])]
+        merge: Vec<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_os_t = RobotDescription::default_path())]
+        robot: PathBuf,
+    },
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -64,6 +125,44 @@ pub fn run(cli: Cli) -> Result<()> {
             let options = ServeOptions { scenario, link, tcp, timing, trace_bus, baud };
             serve(options, &robot)
         }
+        Command::Run { scenario, out, set, timing, link, robot } => {
+            let robot = RobotDescription::load(&robot)?;
+            let overrides = batch::parse_overrides(&set)?;
+            let loaded = Scenario::load_with(&scenario, &overrides)?;
+            let out_dir = realtime::out_dir_or_default(out, &scenario);
+            let outcome = match &loaded.controller {
+                climbsim::scenario::ControllerSection::Builtin(_) => batch::run_builtin(&loaded, &robot, &out_dir)?,
+                climbsim::scenario::ControllerSection::External(external) => realtime::run_external(&loaded, &robot, &external.command, timing_of(timing), link.as_deref(), &out_dir)?,
+            };
+            batch::print_summary(&outcome, &out_dir);
+            let failures = loaded.failed_expectations(&outcome.summary);
+            if !loaded.expect.is_empty() && !failures.is_empty() {
+                anyhow::bail!("{} of {} [expect] thresholds failed:\n  {}", failures.len(), loaded.expect.len(), failures.join("\n  "));
+            }
+            Ok(())
+        }
+        Command::Check { paths, junit, out, robot } => {
+            let robot = RobotDescription::load(&robot)?;
+            batch::check(&paths, &robot, &out, junit.as_deref())
+        }
+        Command::Sweep { scenario, set, jobs, shard, merge, out, robot } => {
+            if !merge.is_empty() {
+                return batch::merge(&merge, &out);
+            }
+            let robot = RobotDescription::load(&robot)?;
+            let scenario = scenario.context("a scenario file is needed")?;
+            let axes = set.iter().map(|s| climbsim::scenario::sweep::Axis::parse(s)).collect::<Result<Vec<_>, _>>()?;
+            let shard = shard.as_deref().map(climbsim::scenario::sweep::Shard::parse).transpose()?.unwrap_or(climbsim::scenario::sweep::Shard::ALL);
+            let jobs = jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from));
+            batch::sweep(&scenario, &axes, jobs, shard, &robot, &out)
+        }
+    }
+}
+
+fn timing_of(timing: TimingArg) -> Timing {
+    match timing {
+        TimingArg::Wire => Timing::Wire,
+        TimingArg::Off => Timing::Off,
     }
 }
 
@@ -79,10 +178,7 @@ struct ServeOptions {
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
     let ServeOptions { scenario, link, tcp, timing, trace_bus, baud } = options;
     let robot = RobotDescription::load(robot_path)?;
-    let timing = match timing {
-        TimingArg::Wire => Timing::Wire,
-        TimingArg::Off => Timing::Off,
-    };
+    let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
     let bus = match &scenario {
         Some(path) => {
@@ -167,14 +263,22 @@ async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>) -> Result<()>
     Ok(())
 }
 
+/// Called on the pacer thread after every firmware tick, with the bus locked and the tick's time.
+pub type TickHook = Box<dyn FnMut(&mut climbsim::bus::Bus, Duration) + Send>;
+
 /// Advances the bus (and so the world) on the wall clock, one firmware tick per deadline.
-struct Pacer {
+pub struct Pacer {
     stop: Arc<std::sync::atomic::AtomicBool>,
     thread: std::thread::JoinHandle<(u64, u64)>,
 }
 
 impl Pacer {
-    fn start(handle: Arc<BusHandle>) -> Self {
+    pub fn start(handle: Arc<BusHandle>) -> Self {
+        Self::start_with(handle, Box::new(|_, _| {}))
+    }
+
+    /// Like [`Pacer::start`], calling `hook` after every tick (camera, capture, events).
+    pub fn start_with(handle: Arc<BusHandle>, mut hook: TickHook) -> Self {
         use std::sync::atomic::{AtomicBool, Ordering};
         let stop = Arc::new(AtomicBool::new(false));
         let stopping = Arc::clone(&stop);
@@ -189,7 +293,10 @@ impl Pacer {
                 if deadline > now {
                     std::thread::sleep(deadline - now);
                 }
-                handle.with_bus(|bus| bus.advance(deadline));
+                handle.with_bus(|bus| {
+                    bus.advance(deadline);
+                    hook(bus, deadline);
+                });
                 ticks += 1;
                 // Late by more than a tick: the world cannot keep up with real time here.
                 if clock.now() > deadline + period {
@@ -202,7 +309,8 @@ impl Pacer {
         Self { stop, thread }
     }
 
-    fn stop(self) -> (u64, u64) {
+    /// Stop; (ticks run, deadlines missed).
+    pub fn stop(self) -> (u64, u64) {
         self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
         self.thread.join().unwrap_or((0, 0))
     }

@@ -38,7 +38,7 @@ fn default_true() -> bool {
     true
 }
 fn default_kp() -> f64 {
-    4.0
+    1.0
 }
 fn default_speed_window_s() -> f64 {
     0.5
@@ -65,8 +65,12 @@ pub struct ReferenceConfig {
     /// Largest yaw-rate command (rad/s).
     #[serde(default = "default_max_yaw_rate")]
     pub max_yaw_rate_rad_s: f64,
-    /// Speed PID: output is the commanded ground speed (m/s) for a speed error (m/s). With
-    /// `ki = 0` the loop keeps a steady-state error of target/(1 + kp), as in the seed's Fig. 14.
+    /// Speed PID on the speed error (m/s), output in m/s. With `feedforward` the commanded
+    /// ground speed is target + PID; without it the PID output alone (as the seed's Unity
+    /// motors took it), so that with `ki = 0` the loop keeps a steady-state error of about
+    /// target/(1 + kp) — the trade-off of the seed's Fig. 14.
+    #[serde(default = "default_true")]
+    pub feedforward: bool,
     #[serde(default = "default_kp")]
     pub kp: f64,
     #[serde(default)]
@@ -90,6 +94,7 @@ impl Default for ReferenceConfig {
             zeta: default_zeta(),
             omega_n: default_omega_n(),
             max_yaw_rate_rad_s: default_max_yaw_rate(),
+            feedforward: true,
             kp: default_kp(),
             ki: 0.0,
             kd: 0.0,
@@ -281,7 +286,8 @@ impl ReferenceController {
             }
         };
         let measured_speed_m_s = (0..4).map(|i| wheel_rate_rad_s[i] * radius(magnet_angle_rad[i])).sum::<f64>() / 4.0;
-        let speed_command_m_s = self.pid.update(self.target_speed_m_s - measured_speed_m_s, dt);
+        let feedforward = if self.config.feedforward { self.target_speed_m_s } else { 0.0 };
+        let speed_command_m_s = feedforward + self.pid.update(self.target_speed_m_s - measured_speed_m_s, dt);
 
         let yaw_rate = match line {
             Some(error) if self.config.follow_line && self.target_speed_m_s > 0.0 => {

@@ -87,6 +87,22 @@ pub fn write_timeseries_csv(out_dir: &Path, series: &TimeSeries) -> Result<PathB
     Ok(path)
 }
 
+/// Reads a `timeseries.csv` back (as [`TimeSeries::write_csv`] writes it: unquoted numeric
+/// cells), e.g. to overlay the runs of a sweep. Column names must not hold commas.
+pub fn read_timeseries_csv(path: &Path) -> Result<TimeSeries, ReportError> {
+    let io_error = |source| ReportError::Io { path: path.to_owned(), source };
+    let text = std::fs::read_to_string(path).map_err(io_error)?;
+    let mut lines = text.lines();
+    let header = lines.next().unwrap_or_default();
+    let mut series = TimeSeries::new(header.split(',').map(|c| c.trim_matches('"').to_owned()));
+    for (number, line) in lines.enumerate().filter(|(_, l)| !l.is_empty()) {
+        let row: Result<Vec<f64>, _> = line.split(',').map(str::parse::<f64>).collect();
+        let row = row.map_err(|e| io_error(io::Error::new(io::ErrorKind::InvalidData, format!("line {}: {e}", number + 2))))?;
+        series.push_row(&row)?;
+    }
+    Ok(series)
+}
+
 /// A CSV field, quoted (RFC 4180) only when it holds a separator, quote or line break.
 fn csv_field(text: &str) -> String {
     if text.contains([',', '"', '\n', '\r']) {

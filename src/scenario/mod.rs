@@ -11,11 +11,13 @@ use serde::Deserialize;
 use thiserror::Error;
 
 mod overrides;
+pub mod run;
 pub mod sweep;
 
 pub use overrides::{Override, OverrideError, parse_value, split_values};
 
 use crate::control::ReferenceConfig;
+use crate::sim::LineCameraSettings;
 use crate::sim::terrain::{TerrainError, TerrainSpec, generate};
 use crate::sim::{StartPose, WorldConfig};
 use crate::source_location::{DataFileError, load_toml};
@@ -75,6 +77,27 @@ pub struct StartSection {
     pub yaw_deg: f32,
     #[serde(default)]
     pub line_offset_m: f32,
+}
+
+fn default_smoothness() -> u32 {
+    1
+}
+fn default_line_width_m() -> f32 {
+    0.01
+}
+
+/// The painted weld line (seed §3.2): a polyline in (x, z), smoothed, draped on the terrain.
+#[derive(Debug, Clone, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LineSection {
+    /// Two or more (x, z) points (m).
+    pub points: Vec<[f32; 2]>,
+    /// 1 = straight segments with sharp corners; higher = smoother corners (the seed's 1 vs 10).
+    #[serde(default = "default_smoothness")]
+    pub smoothness: u32,
+    /// Painted width (m).
+    #[serde(default = "default_line_width_m")]
+    pub width_m: f32,
 }
 
 fn default_target_mm_min() -> f64 {
@@ -194,6 +217,11 @@ pub struct Scenario {
     pub world: WorldSection,
     pub terrain: TerrainSpec,
     #[serde(default)]
+    pub line: Option<LineSection>,
+    /// The downward line camera (the robot description's mount and defaults if absent).
+    #[serde(default)]
+    pub camera: Option<LineCameraSettings>,
+    #[serde(default)]
     pub start: Option<StartSection>,
     #[serde(default)]
     pub speed: SpeedSection,
@@ -252,11 +280,31 @@ impl Scenario {
         failures
     }
 
+    /// Where the robot starts (see [`StartSection`]).
+    pub fn start_pose(&self) -> StartPose {
+        let given = self.start.clone().unwrap_or_default();
+        let Some(line) = self.line.as_ref().filter(|l| l.points.len() >= 2) else {
+            return StartPose { x_m: given.x_m, z_m: given.z_m, yaw_deg: given.yaw_deg, ..StartPose::default() };
+        };
+        let ([x0, z0], [x1, z1]) = (line.points[0], line.points[1]);
+        let length = (x1 - x0).hypot(z1 - z0).max(f32::EPSILON);
+        let (ux, uz) = ((x1 - x0) / length, (z1 - z0) / length);
+        // y up, z to the robot's right: the line's left is up × along = (uz, −ux), and a heading
+        // along (ux, uz) is a yaw (about +y) of atan2(−uz, ux).
+        let (left_x, left_z) = (uz, -ux);
+        StartPose {
+            x_m: x0 + given.x_m * ux + given.line_offset_m * left_x,
+            z_m: z0 + given.x_m * uz + given.line_offset_m * left_z,
+            yaw_deg: (-uz).atan2(ux).to_degrees() + given.yaw_deg,
+            ..StartPose::default()
+        }
+    }
+
     /// The world this scenario describes (terrain generated from its seed).
     pub fn world_config(&self) -> Result<WorldConfig, ScenarioError> {
         let base = self.path.parent().unwrap_or(Path::new("."));
         let terrain = generate(&self.terrain, self.world.seed, base).map_err(|source| ScenarioError::Terrain { path: self.path.clone(), source })?;
-        let start = self.start.as_ref().map_or_else(StartPose::default, |s| StartPose { x_m: s.x_m, z_m: s.z_m, yaw_deg: s.yaw_deg, ..StartPose::default() });
+        let start = self.start_pose();
         let [gx, gy, gz] = self.world.gravity_m_s2;
         Ok(WorldConfig {
             gravity: Vector::new(gx, gy, gz),

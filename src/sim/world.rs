@@ -376,6 +376,17 @@ impl RobotWorld {
         self.physics.bodies[self.wheels[wheel.index()].wheel].translation()
     }
 
+    /// A wheel's rate about its axle relative to its section (rad/s, positive rolls forward).
+    pub fn wheel_rate(&self, wheel: WheelPosition) -> f32 {
+        self.links
+            .iter()
+            .find_map(|link| match link {
+                ServoLink::Wheel(joint) if joint.child == self.wheels[wheel.index()].wheel => Some(joint_rate(&self.physics, joint)),
+                _ => None,
+            })
+            .unwrap_or(0.0)
+    }
+
     /// Direction the magnet of a wheel points (world, unit).
     pub fn magnet_direction(&self, wheel: WheelPosition) -> Vector {
         self.magnet_direction_at(wheel.index())
@@ -603,6 +614,13 @@ fn joint_angle(physics: &PhysicsWorld, joint: &ServoJoint) -> f32 {
     // Twist of the relative rotation about the (parent-frame) axis.
     let v = Vector::new(relative.x, relative.y, relative.z);
     2.0 * v.dot(joint.axis).atan2(relative.w)
+}
+
+/// The weld line drapes onto whatever terrain the world holds, trimeshes included.
+impl super::line::Surface for RobotWorld {
+    fn project_down(&self, x: f32, z: f32) -> Option<(Vector, Vector)> {
+        self.surface_below(x, z)
+    }
 }
 
 /// Lets the bus advance the world: one physics step per firmware tick up to `until`.

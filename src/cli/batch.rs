@@ -1,0 +1,290 @@
+//! `climbsim run` (built-in controller), `climbsim check` and `climbsim sweep`: headless runs in
+//! lockstep, faster than real time.
+
+use std::collections::BTreeMap;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use serde_json::Value;
+
+use climbsim::report::junit::{JunitCase, write_junit};
+use climbsim::report::{self, PlotLabels, PlotSeries, TimeSeries};
+use climbsim::robot::RobotDescription;
+use climbsim::scenario::run::{RunOutcome, run_lockstep, write_outputs};
+use climbsim::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
+use climbsim::scenario::{ControllerSection, Override, Scenario};
+
+/// Where a run's outputs go without `--out`: `results/<scenario stem>`.
+pub fn default_out_dir(scenario: &Path) -> PathBuf {
+    let stem = scenario.file_stem().map_or_else(|| "run".into(), |s| s.to_string_lossy().into_owned());
+    PathBuf::from("results").join(stem)
+}
+
+/// Print the summary's headline metrics.
+pub fn print_summary(outcome: &RunOutcome, out_dir: &Path) {
+    println!("outputs: {}", out_dir.display());
+    for (key, value) in &outcome.summary {
+        println!("  {key} = {value}");
+    }
+}
+
+/// `climbsim run SCENARIO` with a built-in controller.
+pub fn run_builtin(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path) -> Result<RunOutcome> {
+    let outcome = run_lockstep(scenario, robot)?;
+    write_outputs(&outcome, out_dir).with_context(|| format!("writing outputs to {}", out_dir.display()))?;
+    Ok(outcome)
+}
+
+/// Scenario files named by `paths` (a folder stands for its `*.toml` files with an `[expect]`).
+fn scenario_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for path in paths {
+        if path.is_dir() {
+            let mut found: Vec<PathBuf> = std::fs::read_dir(path)
+                .with_context(|| format!("cannot list {}", path.display()))?
+                .filter_map(|entry| entry.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+                .filter(|p| std::fs::read_to_string(p).is_ok_and(|text| text.lines().any(|l| l.trim() == "[expect]")))
+                .collect();
+            found.sort();
+            files.extend(found);
+        } else {
+            files.push(path.clone());
+        }
+    }
+    Ok(files)
+}
+
+/// `climbsim check PATH...`: run each scenario, test its `[expect]` thresholds.
+pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit: Option<&Path>) -> Result<()> {
+    let files = scenario_files(paths)?;
+    if files.is_empty() {
+        bail!("no scenario files with an [expect] section in {}", paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "));
+    }
+    let mut cases = Vec::new();
+    for file in &files {
+        let started = Instant::now();
+        let name = file.display().to_string();
+        let failures = match Scenario::load(file) {
+            Err(error) => vec![error.to_string()],
+            Ok(scenario) if scenario.expect.is_empty() => vec![format!("{name} has no [expect] thresholds")],
+            Ok(scenario) => {
+                let out_dir = out_root.join(default_out_dir(file).file_name().unwrap_or_default());
+                match run_builtin(&scenario, robot, &out_dir) {
+                    Ok(outcome) => scenario.failed_expectations(&outcome.summary),
+                    Err(error) => vec![format!("{error:#}")],
+                }
+            }
+        };
+        let verdict = if failures.is_empty() { "PASS" } else { "FAIL" };
+        println!("{verdict} {name} ({:.1} s)", started.elapsed().as_secs_f64());
+        for failure in &failures {
+            println!("    {failure}");
+        }
+        cases.push(JunitCase { name, time_s: started.elapsed().as_secs_f64(), failure_messages: failures });
+    }
+    if let Some(path) = junit {
+        write_junit(path, "climbsim check", &cases)?;
+    }
+    let failed = cases.iter().filter(|c| !c.failure_messages.is_empty()).count();
+    if failed > 0 {
+        bail!("{failed} of {} scenarios failed", cases.len());
+    }
+    println!("all {} scenarios passed", cases.len());
+    Ok(())
+}
+
+/// One finished sweep run, as `sweep.json` stores it.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct SweepRow {
+    index: usize,
+    label: String,
+    /// Swept key → value as TOML text.
+    parameters: BTreeMap<String, String>,
+    summary: BTreeMap<String, Value>,
+}
+
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct SweepFile {
+    scenario: String,
+    axes: Vec<String>,
+    rows: Vec<SweepRow>,
+}
+
+/// `climbsim sweep SCENARIO --set KEY=V1,V2 ...`.
+pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, robot: &RobotDescription, out_dir: &Path) -> Result<()> {
+    let points = shard.select(grid(axes));
+    if points.is_empty() {
+        bail!("shard {}/{} of this grid is empty", shard.index, shard.count);
+    }
+    // Check every grid point loads before spending minutes on the first ones.
+    let scenarios: Vec<(GridPoint, Scenario)> = points
+        .into_iter()
+        .map(|point| {
+            let scenario = Scenario::load_with(scenario_path, &point.overrides)?;
+            if matches!(scenario.controller, ControllerSection::External(_)) {
+                bail!("{}: sweeps run the built-in controller in lockstep; this scenario has an external one", scenario_path.display());
+            }
+            Ok((point, scenario))
+        })
+        .collect::<Result<_>>()?;
+    let progress = indicatif::ProgressBar::new(scenarios.len() as u64);
+    progress.set_style(indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} runs, {elapsed} elapsed, ETA {eta} {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+    let started = Instant::now();
+    let next = AtomicUsize::new(0);
+    let rows: Mutex<Vec<SweepRow>> = Mutex::new(Vec::new());
+    let errors: Mutex<Vec<String>> = Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.max(1) {
+            scope.spawn(|| {
+                while let Some((point, scenario)) = scenarios.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    let run_dir = out_dir.join("runs").join(point.label());
+                    match run_builtin(scenario, robot, &run_dir) {
+                        Ok(outcome) => {
+                            let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
+                            let row = SweepRow { index: point.index, label: point.label(), parameters, summary: outcome.summary };
+                            rows.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(row);
+                        }
+                        Err(error) => errors.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(format!("{}: {error:#}", point.label())),
+                    }
+                    progress.inc(1);
+                }
+            });
+        }
+    });
+    progress.finish_with_message("done");
+    let wall_s = started.elapsed().as_secs_f64();
+    let errors = errors.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let mut rows = rows.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
+    rows.sort_by_key(|r| r.index);
+    let file = SweepFile { scenario: scenario_path.display().to_string(), axes: axes.iter().map(|a| a.key.clone()).collect(), rows };
+    write_sweep(&file, out_dir)?;
+    println!("{} runs in {wall_s:.1} s with {} jobs; table: {}", file.rows.len(), jobs.max(1), out_dir.join("sweep.csv").display());
+    if !errors.is_empty() {
+        bail!("{} runs failed:\n  {}", errors.len(), errors.join("\n  "));
+    }
+    Ok(())
+}
+
+/// `climbsim sweep --merge DIR...`: join shards' tables and plots.
+pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<()> {
+    let mut merged: Option<SweepFile> = None;
+    for dir in dirs {
+        let path = dir.join("sweep.json");
+        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        let mut file: SweepFile = serde_json::from_str(&text).with_context(|| format!("{} is not a sweep table", path.display()))?;
+        // Runs' folders are referenced by the overlay plots: copy their time series over.
+        for row in &file.rows {
+            let from = dir.join("runs").join(&row.label);
+            let to = out_dir.join("runs").join(&row.label);
+            if from != to && from.is_dir() {
+                copy_dir(&from, &to)?;
+            }
+        }
+        match &mut merged {
+            None => merged = Some(file),
+            Some(all) => {
+                if all.axes != file.axes {
+                    bail!("{} sweeps {:?}, the others {:?}", path.display(), file.axes, all.axes);
+                }
+                all.rows.append(&mut file.rows);
+            }
+        }
+    }
+    let mut merged = merged.context("nothing to merge")?;
+    merged.rows.sort_by_key(|r| r.index);
+    merged.rows.dedup_by_key(|r| r.index);
+    write_sweep(&merged, out_dir)?;
+    println!("merged {} runs into {}", merged.rows.len(), out_dir.join("sweep.csv").display());
+    Ok(())
+}
+
+fn copy_dir(from: &Path, to: &Path) -> Result<()> {
+    std::fs::create_dir_all(to).with_context(|| format!("cannot create {}", to.display()))?;
+    for entry in std::fs::read_dir(from).with_context(|| format!("cannot list {}", from.display()))? {
+        let entry = entry?;
+        if entry.file_type()?.is_file() {
+            std::fs::copy(entry.path(), to.join(entry.file_name())).with_context(|| format!("cannot copy {}", entry.path().display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// The metrics plotted against the first swept parameter.
+const SWEEP_METRICS: &[(&str, &str)] = &[
+    ("distance.overshoot_pct", "overshoot (%)"),
+    ("distance.rise_time_s", "distance rise time (s)"),
+    ("distance.settling_time_s", "distance settling time (s)"),
+    ("speed.steady_state_error_m_s", "speed steady-state error (m/s)"),
+    ("speed.rise_time_s", "speed rise time (s)"),
+    ("rms_distance_m", "RMS distance error (m)"),
+];
+
+fn write_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
+    let json_bytes = serde_json::to_vec_pretty(file)?;
+    report::write_atomically(&out_dir.join("sweep.json"), |w| w.write_all(&json_bytes))?;
+    let axes: Vec<Axis> = file.axes.iter().map(|key| Axis { key: key.clone(), values: Vec::new() }).collect();
+    let summaries: Vec<BTreeMap<String, Value>> = file.rows.iter().map(|r| r.summary.clone()).collect();
+    let columns = table_columns(&axes, &summaries);
+    let mut csv = columns.join(",");
+    csv.push('\n');
+    for row in &file.rows {
+        let mut cells = vec![row.index.to_string()];
+        cells.extend(file.axes.iter().map(|k| row.parameters.get(k).cloned().unwrap_or_default().replace(',', ";")));
+        cells.extend(columns[1 + file.axes.len()..].iter().map(|k| row.summary.get(k).map_or(String::new(), |v| v.to_string())));
+        csv.push_str(&cells.join(","));
+        csv.push('\n');
+    }
+    report::write_atomically(&out_dir.join("sweep.csv"), |w| w.write_all(csv.as_bytes()))?;
+    plot_sweep(file, out_dir)
+}
+
+fn plot_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
+    // Overlay: every run's distance error and speed over time.
+    let mut loaded: Vec<(String, TimeSeries)> = Vec::new();
+    for row in &file.rows {
+        let path = out_dir.join("runs").join(&row.label).join(report::TIMESERIES_CSV);
+        if let Ok(series) = report::read_timeseries_csv(&path) {
+            let label = row.parameters.iter().map(|(k, v)| format!("{}={v}", k.rsplit('.').next().unwrap_or(k))).collect::<Vec<_>>().join(" ");
+            loaded.push((label, series));
+        }
+    }
+    for (column, stem, title, y) in [("d_true_m", "overlay_distance", "Distance error", "d (m)"), ("speed_m_s", "overlay_speed", "Speed", "speed (m/s)")] {
+        let data: Vec<(String, Vec<f64>, Vec<f64>)> = loaded.iter().map(|(label, s)| (label.clone(), s.column("t_s").unwrap_or_default(), s.column(column).unwrap_or_default())).collect();
+        let series: Vec<PlotSeries<'_>> = data.iter().map(|(label, x, y)| PlotSeries { label, x, y }).collect();
+        if !series.is_empty() {
+            report::plot_series(out_dir, stem, &PlotLabels { title, x: "t (s)", y }, &series)?;
+        }
+    }
+    // Metric against the first axis, one line per combination of the other axes.
+    let Some(first) = file.axes.first() else { return Ok(()) };
+    for (metric, y_label) in SWEEP_METRICS {
+        let mut groups: BTreeMap<String, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+        for row in &file.rows {
+            let (Some(x), Some(y)) = (row.parameters.get(first).and_then(|v| v.parse::<f64>().ok()), row.summary.get(*metric).and_then(Value::as_f64)) else {
+                continue;
+            };
+            let group = file.axes[1..].iter().map(|k| format!("{k}={}", row.parameters.get(k).cloned().unwrap_or_default())).collect::<Vec<_>>().join(" ");
+            let entry = groups.entry(if group.is_empty() { metric.to_string() } else { group }).or_default();
+            entry.0.push(x);
+            entry.1.push(y);
+        }
+        if groups.is_empty() {
+            continue;
+        }
+        let series: Vec<PlotSeries<'_>> = groups.iter().map(|(label, (x, y))| PlotSeries { label, x, y }).collect();
+        let stem = format!("{}_vs_{}", metric.replace('.', "_"), first.rsplit('.').next().unwrap_or(first));
+        report::plot_metric_vs_parameter(out_dir, &stem, &PlotLabels { title: y_label, x: first, y: y_label }, &series)?;
+    }
+    Ok(())
+}
+
+/// `--set` values for a single run.
+pub fn parse_overrides(sets: &[String]) -> Result<Vec<Override>> {
+    sets.iter().map(|s| Override::parse(s).map_err(anyhow::Error::from)).collect()
+}

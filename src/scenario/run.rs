@@ -1,0 +1,400 @@
+//! Running a scenario: the world, the weld line and its camera, a controller, scripted events,
+//! and the captured time series; then the seed's metrics over it.
+//!
+//! [`Observer`] is everything that watches the world (camera, detector, ground truth, capture,
+//! events) and is shared by the two clocks: [`run_lockstep`] for the built-in controller (as
+//! fast as the CPU allows, deterministic) and the real-time loop of `climbsim run` for an
+//! external controller on the virtual port.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use rapier3d::prelude::Vector;
+use serde_json::{Value, json};
+use thiserror::Error;
+use tracing::info_span;
+
+use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
+use crate::device::{FirmwareProfile, ProfileError};
+use crate::metrics::{self, StepOptions};
+use crate::report::{self, Summary, TimeSeries};
+use crate::robot::{RobotDescription, WheelPosition};
+use crate::sim::detector::DetectorError;
+use crate::sim::line::LineError as WeldLineError;
+use crate::sim::{DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, WeldLine};
+
+use super::{ControllerSection, Event, Scenario, ScenarioError, mm_min_to_m_s};
+
+#[derive(Debug, Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    #[error(transparent)]
+    Profile(#[from] ProfileError),
+    #[error("scenario {path}: [line]: {source}")]
+    Line { path: PathBuf, source: WeldLineError },
+    #[error("scenario {path}: [camera]: {message}")]
+    Camera { path: PathBuf, message: String },
+    #[error("scenario {path} has no [line]: a run needs a weld line to follow")]
+    NoLine { path: PathBuf },
+    #[error("line detector: {0}")]
+    Detector(#[from] DetectorError),
+    #[error("controller: {0}")]
+    Control(#[from] ControlError),
+    #[error("scenario {path} has an external controller; run it with `climbsim run` (real time)")]
+    NeedsRealTime { path: PathBuf },
+    #[error(transparent)]
+    Report(#[from] report::ReportError),
+}
+
+/// The time series' columns, in order.
+pub const COLUMNS: &[&str] = &[
+    "t_s",
+    "d_m",
+    "psi_rad",
+    "line_valid",
+    "d_true_m",
+    "psi_true_rad",
+    "speed_m_s",
+    "target_speed_m_s",
+    "speed_error_m_s",
+    "measured_speed_m_s",
+    "yaw_rate_command_rad_s",
+    "wheel_rate_fl_rad_s",
+    "wheel_rate_fr_rad_s",
+    "wheel_rate_rl_rad_s",
+    "wheel_rate_rr_rad_s",
+    "magnet_angle_fl_rad",
+    "magnet_angle_fr_rad",
+    "magnet_angle_rl_rad",
+    "magnet_angle_rr_rad",
+    "adhesion_fl_n",
+    "adhesion_fr_n",
+    "adhesion_rl_n",
+    "adhesion_rr_n",
+    "x_m",
+    "y_m",
+    "z_m",
+];
+
+/// The robot's pose relative to the line: what a perfect sensor would say.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct GroundTruth {
+    /// Distance from the line (m), positive when the robot is left of it.
+    pub d_err_m: f64,
+    /// Heading relative to the line (rad), positive when the robot points left of it.
+    pub psi_err_rad: f64,
+    /// Ground speed along the body's forward axis (m/s).
+    pub speed_m_s: f64,
+}
+
+/// Everything that watches the world during a run.
+pub struct Observer {
+    line: WeldLine,
+    /// Control points as given, for line-offset events (the line is rebuilt and draped again).
+    line_points: Vec<[f32; 2]>,
+    line_offset_m: f64,
+    camera: LineCamera,
+    detector: LineDetector,
+    /// The detector's output on the newest frame (None before the first frame).
+    latest: Option<LineMeasurement>,
+    frames_seen: u64,
+    series: TimeSeries,
+    capture_period_s: f64,
+    next_capture_s: f64,
+    target_speed_m_s: f64,
+    speed_step_at_s: f64,
+    events: Vec<Event>,
+    next_event: usize,
+    scenario_path: PathBuf,
+}
+
+impl Observer {
+    pub fn new(scenario: &Scenario, robot: &RobotDescription, world: &RobotWorld) -> Result<Self, RunError> {
+        let path = scenario.path.clone();
+        let line_section = scenario.line.clone().ok_or_else(|| RunError::NoLine { path: path.clone() })?;
+        let line = build_line(&line_section.points, line_section.smoothness, line_section.width_m, 0.0, world).map_err(|source| RunError::Line { path: path.clone(), source })?;
+        let settings = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
+        let camera = LineCamera::new(settings).map_err(|e| RunError::Camera { path: path.clone(), message: e.to_string() })?;
+        let detector = LineDetector::new(DetectorSettings::default())?;
+        let mut events = scenario.events.clone();
+        events.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+        Ok(Self {
+            line,
+            line_points: line_section.points,
+            line_offset_m: 0.0,
+            camera,
+            detector,
+            latest: None,
+            frames_seen: 0,
+            series: TimeSeries::new(COLUMNS.iter().copied()),
+            capture_period_s: 1.0 / scenario.capture.rate_hz.max(1e-3),
+            next_capture_s: 0.0,
+            target_speed_m_s: mm_min_to_m_s(scenario.speed.target_mm_min),
+            speed_step_at_s: scenario.speed.step_at_s,
+            events,
+            next_event: 0,
+            scenario_path: path,
+        })
+    }
+
+    /// The target speed in force at `t_s` (zero before the speed step).
+    pub fn target_speed_m_s(&self, t_s: f64) -> f64 {
+        if t_s >= self.speed_step_at_s { self.target_speed_m_s } else { 0.0 }
+    }
+
+    /// Apply the events due by `t_s`.
+    pub fn apply_events(&mut self, t_s: f64, world: &mut RobotWorld) -> Result<(), RunError> {
+        while let Some(event) = self.events.get(self.next_event).filter(|e| e.at_s <= t_s).cloned() {
+            self.next_event += 1;
+            let _span = info_span!("event", at_s = event.at_s).entered();
+            if let Some(speed) = event.set_speed_mm_min {
+                self.target_speed_m_s = mm_min_to_m_s(speed);
+            }
+            if let Some(on) = event.magnets {
+                world.set_magnets_on(on);
+            }
+            if let Some(offset) = event.line_offset_m {
+                self.line_offset_m = offset;
+                let width = self.line.width_m();
+                let smoothness = self.line.smoothness();
+                self.line = build_line(&self.line_points, smoothness, width, offset, world).map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Render the camera if a frame is due at `t`, run the detector on any new frame; the latest
+    /// measurement in the controller's convention (None while the line is not seen).
+    pub fn sense(&mut self, world: &RobotWorld, t: Duration) -> Option<LineError> {
+        if let Some(frame) = self.camera.render(world.camera_pose(), &self.line, t) {
+            self.latest = Some(self.detector.detect(frame));
+            self.frames_seen += 1;
+        }
+        // The detector says where the line is relative to the robot; the controller wants where
+        // the robot is relative to the line.
+        self.latest.filter(|m| m.valid).map(|m| LineError { d_err_m: -f64::from(m.d_m), psi_err_rad: -f64::from(m.psi_rad) })
+    }
+
+    /// The detector's output on the newest frame.
+    pub fn latest(&self) -> Option<&LineMeasurement> {
+        self.latest.as_ref()
+    }
+
+    /// Frames the camera has delivered so far.
+    pub fn frames_seen(&self) -> u64 {
+        self.frames_seen
+    }
+
+    pub fn camera(&self) -> &LineCamera {
+        &self.camera
+    }
+
+    /// The robot's true pose relative to the line.
+    pub fn ground_truth(&self, world: &RobotWorld) -> GroundTruth {
+        let pose = world.chassis_pose();
+        let centre = pose.translation;
+        let projection = self.line.nearest(centre);
+        let normal = projection.normal;
+        let tangent = projection.tangent;
+        let left = normal.cross(tangent);
+        let forward = pose.rotation * Vector::X;
+        // Heading error in the surface's plane: from the line's tangent to the robot's forward.
+        let forward_in_plane = forward - normal * forward.dot(normal);
+        let psi = tangent.cross(forward_in_plane).dot(normal).atan2(tangent.dot(forward_in_plane));
+        GroundTruth {
+            d_err_m: f64::from((centre - projection.point).dot(left)),
+            psi_err_rad: f64::from(psi),
+            speed_m_s: f64::from(world.chassis_velocity().dot(forward)),
+        }
+    }
+
+    /// Record a row if one is due at `t_s`. `control` is the built-in controller's view (an
+    /// external controller's is unknown: its columns are NaN).
+    pub fn capture(&mut self, t_s: f64, world: &RobotWorld, control: Option<&ControlSample>) -> Result<(), RunError> {
+        if t_s + 1e-9 < self.next_capture_s {
+            return Ok(());
+        }
+        self.next_capture_s += self.capture_period_s;
+        let truth = self.ground_truth(world);
+        let target = self.target_speed_m_s(t_s);
+        let position = world.chassis_pose().translation;
+        let adhesion = world.adhesion();
+        let seen = self.latest.filter(|m| m.valid);
+        let mut row = vec![
+            t_s,
+            // The camera's measurement in the same convention as the ground truth (NaN when the
+            // line is not seen).
+            seen.map_or(f64::NAN, |m| -f64::from(m.d_m)),
+            seen.map_or(f64::NAN, |m| -f64::from(m.psi_rad)),
+            f64::from(u8::from(seen.is_some())),
+            truth.d_err_m,
+            truth.psi_err_rad,
+            truth.speed_m_s,
+            target,
+            target - truth.speed_m_s,
+            control.map_or(f64::NAN, |c| c.measured_speed_m_s),
+            control.map_or(f64::NAN, |c| c.yaw_rate_command_rad_s),
+        ];
+        row.extend(WheelPosition::ALL.map(|w| f64::from(world.wheel_rate(w))));
+        row.extend(WheelPosition::ALL.map(|w| f64::from(world.magnet_angle(w))));
+        row.extend(adhesion.iter().map(|a| f64::from(a.force_n)));
+        row.extend([position.x, position.y, position.z].map(f64::from));
+        self.series.push_row(&row)?;
+        Ok(())
+    }
+
+    pub fn series(&self) -> &TimeSeries {
+        &self.series
+    }
+
+    pub fn into_series(self) -> TimeSeries {
+        self.series
+    }
+
+    /// The seed's metrics over the captured series.
+    pub fn summary(&self, on_line_tolerance_m: f64) -> Summary {
+        summarise(&self.series, self.speed_step_at_s, on_line_tolerance_m)
+    }
+}
+
+fn build_line(points: &[[f32; 2]], smoothness: u32, width_m: f32, offset_m: f64, world: &RobotWorld) -> Result<WeldLine, WeldLineError> {
+    let shifted = offset_points(points, offset_m as f32);
+    let mut line = WeldLine::new(&shifted, smoothness, width_m)?;
+    line.drape(world)?;
+    Ok(line)
+}
+
+/// The control points moved `offset` to the left of the line's direction (per segment, joined
+/// at each corner along the mean of its segments' left normals).
+fn offset_points(points: &[[f32; 2]], offset: f32) -> Vec<[f32; 2]> {
+    if offset == 0.0 || points.len() < 2 {
+        return points.to_vec();
+    }
+    let left = |a: [f32; 2], b: [f32; 2]| {
+        let (dx, dz) = (b[0] - a[0], b[1] - a[1]);
+        let length = dx.hypot(dz).max(f32::EPSILON);
+        // Up × along, with z to the right: (dz, −dx) / length.
+        [dz / length, -dx / length]
+    };
+    (0..points.len())
+        .map(|i| {
+            let before = (i > 0).then(|| left(points[i - 1], points[i]));
+            let after = (i + 1 < points.len()).then(|| left(points[i], points[i + 1]));
+            let n = match (before, after) {
+                (Some(a), Some(b)) => {
+                    let (x, z) = (a[0] + b[0], a[1] + b[1]);
+                    let length = x.hypot(z).max(f32::EPSILON);
+                    [x / length, z / length]
+                }
+                (Some(n), None) | (None, Some(n)) => n,
+                (None, None) => [0.0, 0.0],
+            };
+            [points[i][0] + offset * n[0], points[i][1] + offset * n[1]]
+        })
+        .collect()
+}
+
+/// Distance and speed step characteristics and line tracking, flattened as in `summary.json`.
+pub fn summarise(series: &TimeSeries, speed_step_at_s: f64, on_line_tolerance_m: f64) -> Summary {
+    let column = |name: &str| series.column(name).unwrap_or_default();
+    let (t, d, speed, target) = (column("t_s"), column("d_true_m"), column("speed_m_s"), column("target_speed_m_s"));
+    let final_target = target.last().copied().unwrap_or(0.0);
+    let t_first = t.first().copied().unwrap_or(0.0);
+    let distance = metrics::decaying_error_step(&t, &d, &StepOptions::default()).ok();
+    // A step "at 0" is at the first sample (the world has stepped once before capture begins).
+    let speed_options = StepOptions { t_step: Some(speed_step_at_s.max(t_first)), ..StepOptions::default() };
+    let speed_step = metrics::rising_step(&t, &speed, final_target, &speed_options).ok();
+    let tracking = metrics::line_tracking(&t, &d, on_line_tolerance_m).ok();
+    report::summarise(distance.as_ref(), speed_step.as_ref(), tracking.as_ref())
+}
+
+/// A finished run.
+pub struct RunOutcome {
+    pub series: TimeSeries,
+    pub summary: Summary,
+    pub settings: Value,
+    /// Simulated and wall-clock seconds.
+    pub sim_s: f64,
+    pub wall_s: f64,
+}
+
+/// What `settings.json` records: the scenario as run (after overrides) and the robot.
+pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
+    json!({
+        "scenario": scenario.path.display().to_string(),
+        "seed": scenario.world.seed,
+        "duration_s": scenario.world.duration_s,
+        "gravity_m_s2": scenario.world.gravity_m_s2,
+        "terrain": serde_json::to_value(&scenario.terrain).unwrap_or(Value::Null),
+        "line": serde_json::to_value(&scenario.line).unwrap_or(Value::Null),
+        "speed": { "target_mm_min": scenario.speed.target_mm_min, "step_at_s": scenario.speed.step_at_s },
+        "controller": match &scenario.controller {
+            ControllerSection::Builtin(config) => serde_json::to_value(config).unwrap_or(Value::Null),
+            ControllerSection::External(external) => json!({ "command": external.command }),
+        },
+        "robot": robot.path.display().to_string(),
+    })
+}
+
+/// Run a scenario with the built-in controller in lockstep, as fast as the CPU allows.
+pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<RunOutcome, RunError> {
+    let ControllerSection::Builtin(config) = &scenario.controller else {
+        return Err(RunError::NeedsRealTime { path: scenario.path.clone() });
+    };
+    let _span = info_span!("scenario", path = %scenario.path.display()).entered();
+    let started = Instant::now();
+    let profile = FirmwareProfile::load(&robot.profile_path())?;
+    let mut sim = Lockstep::new(robot, scenario.world_config()?)?;
+    // Rays find nothing before the first step: let the world settle one tick before draping.
+    sim.run(Duration::from_millis(1));
+    let mut observer = Observer::new(scenario, robot, sim.world())?;
+    let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;
+    controller.start(&mut sim, &profile)?;
+    let period = config.period();
+    let end = Duration::from_secs_f64(scenario.world.duration_s);
+    while sim.now() < end {
+        let now = sim.now();
+        let t_s = now.as_secs_f64();
+        observer.apply_events(t_s, sim.world_mut())?;
+        controller.set_target_speed(observer.target_speed_m_s(t_s));
+        let line = observer.sense(sim.world(), now);
+        let sample = *controller.tick(&mut sim, &profile, now, line)?;
+        observer.capture(t_s, sim.world(), Some(&sample))?;
+        sim.run(period);
+    }
+    let wall_s = started.elapsed().as_secs_f64();
+    let sim_s = sim.now().as_secs_f64();
+    let mut summary = observer.summary(scenario.capture.on_line_tolerance_m);
+    summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
+    Ok(RunOutcome { series: observer.into_series(), summary, settings: settings_json(scenario, robot), sim_s, wall_s })
+}
+
+/// Write a run's outputs into `out_dir`: `timeseries.csv`, `summary.json`, `settings.json`,
+/// `report.xlsx`, and distance and speed plots (PNG and SVG).
+pub fn write_outputs(outcome: &RunOutcome, out_dir: &std::path::Path) -> Result<(), RunError> {
+    std::fs::create_dir_all(out_dir).map_err(|source| report::ReportError::Io { path: out_dir.to_owned(), source })?;
+    report::write_timeseries_csv(out_dir, &outcome.series)?;
+    report::write_summary_json(out_dir, &outcome.summary)?;
+    report::write_settings_json(out_dir, &outcome.settings)?;
+    report::write_workbook(out_dir, &outcome.series, &outcome.settings, &outcome.summary)?;
+    let column = |name: &str| outcome.series.column(name).unwrap_or_default();
+    let t = column("t_s");
+    let (d_true, d_camera) = (column("d_true_m"), column("d_m"));
+    report::plot_series(
+        out_dir,
+        "distance",
+        &report::PlotLabels { title: "Distance error", x: "t (s)", y: "d (m)" },
+        &[report::PlotSeries { label: "ground truth", x: &t, y: &d_true }, report::PlotSeries { label: "camera", x: &t, y: &d_camera }],
+    )?;
+    let (speed, target) = (column("speed_m_s"), column("target_speed_m_s"));
+    report::plot_series(
+        out_dir,
+        "speed",
+        &report::PlotLabels { title: "Speed", x: "t (s)", y: "speed (m/s)" },
+        &[report::PlotSeries { label: "ground truth", x: &t, y: &speed }, report::PlotSeries { label: "target", x: &t, y: &target }],
+    )?;
+    Ok(())
+}
