@@ -5,20 +5,15 @@
 //! `./scripts/test.sh`, which installs `tests/sdk/requirements.txt`). A missing interpreter or
 //! SDK is a failure, never a silent skip.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 
-fn python(repo: &Path) -> PathBuf {
-    match std::env::var_os("CLIMBSIM_PYTHON") {
-        Some(p) if !p.is_empty() => PathBuf::from(p),
-        _ => repo.join(".venv").join("bin").join("python"),
-    }
-}
+mod support;
 
 #[test]
 fn official_python_sdk_conformance() {
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let python = python(&repo);
+    let python = support::sdk_python();
     let hint = "run ./scripts/test.sh (it creates .venv and installs tests/sdk/requirements.txt), \
                 or point CLIMBSIM_PYTHON at a python with dynamixel-sdk 4.0.5 and pytest";
 

@@ -450,6 +450,7 @@ impl RobotWorld {
         self.step_magnets();
         self.physics.step();
         self.time += self.period;
+        let dt = self.period.as_secs_f64();
         self.steps += 1;
         for (servo, link) in servos.iter_mut().zip(self.links.iter_mut()) {
             let state = match link {
@@ -459,7 +460,13 @@ impl RobotWorld {
                     delta -= (delta / std::f64::consts::TAU).round() * std::f64::consts::TAU;
                     joint.angle += delta;
                     joint.last_wrapped = wrapped;
-                    ShaftState { position_rad: joint.angle, velocity_rad_s: joint_rate(&self.physics, joint) as f64 }
+                    // The rate the encoder sees: the angle's change over the step. rapier
+                    // integrates positions with the velocities of its biased (position-
+                    // correcting) pass and reports those of the relaxed pass; under the magnets'
+                    // pull, with the wheels scrubbing in a turn, the two differed by up to 60 %
+                    // (the wheel turned faster than its reported rate). The servo's velocity loop
+                    // must close on what the shaft actually does.
+                    ShaftState { position_rad: joint.angle, velocity_rad_s: delta / dt }
                 }
                 ServoLink::Magnet { wheel, zero_rad } => {
                     let shaft = self.magnets[*wheel].load.state();

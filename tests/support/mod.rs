@@ -253,3 +253,20 @@ pub fn results_dir() -> PathBuf {
     std::fs::create_dir_all(&dir).expect("create bench-results dir");
     dir
 }
+
+/// The Python with the official `dynamixel-sdk`: `$CLIMBSIM_PYTHON`, else `<repo>/.venv/bin/python`
+/// (made by `./scripts/test.sh`, which installs `tests/sdk/requirements.txt`).
+pub fn sdk_python() -> PathBuf {
+    match std::env::var_os("CLIMBSIM_PYTHON") {
+        Some(p) if !p.is_empty() => PathBuf::from(p),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv").join("bin").join("python"),
+    }
+}
+
+/// A fresh, empty folder under the target directory for one test's outputs.
+pub fn scratch_dir(name: &str) -> PathBuf {
+    let dir = results_dir().join("scratch").join(format!("{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("create scratch dir");
+    dir
+}

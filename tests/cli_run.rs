@@ -1,0 +1,133 @@
+//! `climbsim run`, `check` and `sweep` as a user runs them: the binary, real files, exit codes;
+//! and the reference external controller on the official SDK over a real pty.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+mod support;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn climbsim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(repo()).output().expect("run climbsim")
+}
+
+fn text(output: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr))
+}
+
+fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let body = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = body.lines();
+    let header = lines.next().expect("header").split(',').map(str::to_owned).collect();
+    let rows = lines.map(|l| l.split(',').map(|v| v.parse().unwrap_or(f64::NAN)).collect()).collect();
+    (header, rows)
+}
+
+fn column(csv: &(Vec<String>, Vec<Vec<f64>>), name: &str) -> Vec<f64> {
+    let index = csv.0.iter().position(|c| c == name).unwrap_or_else(|| panic!("no column {name}"));
+    csv.1.iter().map(|r| r[index]).collect()
+}
+
+#[test]
+fn run_writes_every_output_file() {
+    let out = support::scratch_dir("run-outputs");
+    let out_arg = out.display().to_string();
+    let output = climbsim(&["run", "scenarios/flat-line.toml", "--out", &out_arg, "--set", "world.duration_s=4", "--set", "expect={}"]);
+    assert!(output.status.success(), "{}", text(&output));
+    for file in ["timeseries.csv", "summary.json", "settings.json", "report.xlsx", "distance.png", "distance.svg", "speed.png", "speed.svg"] {
+        let size = std::fs::metadata(out.join(file)).unwrap_or_else(|e| panic!("{file}: {e}")).len();
+        assert!(size > 0, "{file} is empty");
+    }
+    let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("summary.json")).expect("summary")).expect("json");
+    assert!(summary["realtime_factor"].as_f64().is_some_and(|f| f > 1.0), "{summary}");
+    let csv = read_csv(&out.join("timeseries.csv"));
+    assert!(csv.0.len() >= 20 && csv.1.len() >= 150, "{} columns, {} rows", csv.0.len(), csv.1.len());
+    // Nothing half-written is left behind.
+    assert!(std::fs::read_dir(&out).expect("out").all(|e| !e.expect("entry").file_name().to_string_lossy().ends_with(".tmp")));
+}
+
+#[test]
+fn check_fails_on_a_broken_threshold_and_writes_junit() {
+    let dir = support::scratch_dir("check");
+    let scenario = std::fs::read_to_string(repo().join("scenarios/flat-line.toml")).expect("scenario");
+    let base = scenario.split("[expect]").next().expect("before expect").replace("duration_s = 120.0", "duration_s = 3.0").replace("[line]", "[line]").to_owned();
+    let pass = dir.join("pass.toml");
+    let fail = dir.join("fail.toml");
+    // Relative paths inside do not matter here: flat terrain, no heightmap.
+    std::fs::write(&pass, format!("{base}[expect]\n\"max_abs_distance_m\" = {{ max = 0.1 }}\n")).expect("write");
+    std::fs::write(&fail, format!("{base}[expect]\n\"max_abs_distance_m\" = {{ max = 0.001 }}\n")).expect("write");
+    let junit = dir.join("junit.xml");
+    let (junit_arg, out_arg) = (junit.display().to_string(), dir.join("runs").display().to_string());
+    let output = climbsim(&["check", &pass.display().to_string(), "--junit", &junit_arg, "--out", &out_arg]);
+    assert!(output.status.success(), "{}", text(&output));
+    let output = climbsim(&["check", &pass.display().to_string(), &fail.display().to_string(), "--junit", &junit_arg, "--out", &out_arg]);
+    assert!(!output.status.success(), "a failed threshold fails the check");
+    let all = text(&output);
+    assert!(all.contains("PASS") && all.contains("FAIL") && all.contains("max_abs_distance_m"), "{all}");
+    let xml = std::fs::read_to_string(&junit).expect("junit");
+    assert!(xml.contains("tests=\"2\"") && xml.contains("failures=\"1\""), "{xml}");
+}
+
+#[test]
+fn sweep_shards_merge_into_one_table() {
+    let dir = support::scratch_dir("sweep");
+    let (one, two, merged) = (dir.join("one"), dir.join("two"), dir.join("merged"));
+    for (shard, out) in [("1/2", &one), ("2/2", &two)] {
+        let output = climbsim(&["sweep", "scenarios/flat-line.toml", "--set", "controller.zeta=0.5,1.0", "--set", "world.duration_s=3", "--shard", shard, "--jobs", "1", "--out", &out.display().to_string()]);
+        assert!(output.status.success(), "{}", text(&output));
+    }
+    let output = climbsim(&["sweep", "--merge", &one.display().to_string(), &two.display().to_string(), "--out", &merged.display().to_string()]);
+    assert!(output.status.success(), "{}", text(&output));
+    let table = std::fs::read_to_string(merged.join("sweep.csv")).expect("sweep.csv");
+    let lines: Vec<&str> = table.lines().collect();
+    assert_eq!(lines.len(), 3, "{table}");
+    assert!(lines[0].starts_with("run,controller.zeta,world.duration_s,"), "{}", lines[0]);
+    assert!(lines[1].starts_with("0,0.5,") && lines[2].starts_with("1,1.0,"), "{table}");
+    for plot in ["overlay_distance.png", "distance_overshoot_pct_vs_zeta.svg"] {
+        assert!(merged.join(plot).is_file(), "{plot} missing");
+    }
+}
+
+#[test]
+fn a_malformed_scenario_names_file_line_and_key() {
+    let dir = support::scratch_dir("malformed");
+    let path = dir.join("typo.toml");
+    let scenario = std::fs::read_to_string(repo().join("scenarios/flat-line.toml")).expect("scenario");
+    std::fs::write(&path, scenario.replace("frame_rate_hz = 30.0", "frame_rate_hz = 30.0\nframerate = 60")).expect("write");
+    let output = climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
+    assert!(!output.status.success());
+    let message = text(&output);
+    let line = scenario.lines().position(|l| l.starts_with("frame_rate_hz")).expect("line") + 2;
+    assert!(message.contains(&format!("typo.toml:{line}:")) && message.contains("framerate"), "{message}");
+}
+
+/// The reference external controller (Python, official dynamixel-sdk) follows the line over a
+/// real pty and the sensor server, started, timed and stopped by `climbsim run`.
+#[test]
+fn the_python_reference_controller_follows_the_line_over_a_pty() {
+    let python = support::sdk_python();
+    let bin = python.parent().expect("python's folder").to_owned();
+    let path = std::env::join_paths(std::iter::once(bin).chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()))).expect("PATH");
+    let out = support::scratch_dir("external");
+    let output = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["run", "scenarios/external-line-follower.toml", "--set", "world.duration_s=8", "--timing", "off", "--out", &out.display().to_string()])
+        .env("PATH", path)
+        .current_dir(repo())
+        .output()
+        .expect("run climbsim");
+    let log = std::fs::read_to_string(out.join("controller.log")).unwrap_or_default();
+    assert!(output.status.success(), "{}\ncontroller.log:\n{log}", text(&output));
+    assert!(log.contains("control periods"), "the controller ran and stopped cleanly:\n{log}");
+    let csv = read_csv(&out.join("timeseries.csv"));
+    let (x, psi, seen) = (column(&csv, "x_m"), column(&csv, "psi_true_rad"), column(&csv, "line_valid"));
+    let travelled = x.last().expect("rows") - x[0];
+    // 1000 mm/min for 8 s is 133 mm, less the start-up.
+    assert!(travelled > 0.06, "the robot moved {travelled} m");
+    // Starting 10 mm left of the line, it turned right (negative heading) toward it.
+    let most_right = psi.iter().copied().fold(0.0, f64::min);
+    assert!(most_right < -0.02, "heading never turned toward the line (min {most_right} rad)");
+    assert!(seen.iter().filter(|&&v| v == 1.0).count() * 10 > seen.len() * 9, "the camera saw the line");
+}
