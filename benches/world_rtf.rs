@@ -62,12 +62,7 @@ fn measure(robot: &RobotDescription, blocks: u32, steps_per_block: u32) -> (f64,
         }
         bare.push(started.elapsed().as_secs_f64() * 1e6 / f64::from(steps_per_block));
     }
-    (median(&mut full), median(&mut bare))
-}
-
-fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    values[values.len() / 2]
+    (support::median(&mut full), support::median(&mut bare))
 }
 
 fn peak_rss_mb() -> f64 {
