@@ -175,6 +175,9 @@ fn draw<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc(labels.x)
         .y_desc(labels.y)
+        // plotters' default prints 2.2e-5 and 2.5e-5 alike as 0.00002.
+        .y_label_formatter(&|v| significant(*v))
+        .x_label_formatter(&|v| significant(*v))
         .label_style((FONT_FAMILY, 15))
         .axis_desc_style((FONT_FAMILY, 18))
         .draw()?;
@@ -390,5 +393,27 @@ mod tests {
             y: "y",
         };
         plot_series(dir.path(), "empty", &labels, &[]).expect("an empty plot is still a plot");
+    }
+}
+
+/// An axis label with three significant digits and no trailing zeros.
+fn significant(value: f64) -> String {
+    if value == 0.0 || !value.is_finite() {
+        return format!("{value}");
+    }
+    let decimals = (2 - value.abs().log10().floor() as i32).clamp(0, 12) as usize;
+    let text = format!("{value:.decimals$}");
+    if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.').to_owned() } else { text }
+}
+
+#[cfg(test)]
+mod label_tests {
+    #[test]
+    fn labels_keep_three_significant_digits() {
+        assert_eq!(super::significant(0.000022), "0.000022");
+        assert_eq!(super::significant(0.0000255), "0.0000255");
+        assert_eq!(super::significant(12.5), "12.5");
+        assert_eq!(super::significant(1500.0), "1500");
+        assert_eq!(super::significant(0.0), "0");
     }
 }
