@@ -131,3 +131,58 @@ fn the_python_reference_controller_follows_the_line_over_a_pty() {
     assert!(most_right < -0.02, "heading never turned toward the line (min {most_right} rad)");
     assert!(seen.iter().filter(|&&v| v == 1.0).count() * 10 > seen.len() * 9, "the camera saw the line");
 }
+
+/// `climbsim serve` with a scenario that has a weld line also serves the camera and the line
+/// detector over HTTP, for controllers written against the real robot's sensors.
+#[test]
+fn serve_with_a_line_starts_the_sensor_server() {
+    use std::io::{BufRead, BufReader, Read, Write};
+    use std::time::{Duration, Instant};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["serve", "scenarios/flat-line.toml", "--timing", "off"])
+        .current_dir(repo())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn climbsim serve");
+    let stdout = child.stdout.take().expect("stdout");
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let url = loop {
+        let line = rx.recv_timeout(deadline.saturating_duration_since(Instant::now())).expect("`sensors: URL` on stdout");
+        if let Some(url) = line.strip_prefix("sensors: ") {
+            break url.trim().to_owned();
+        }
+    };
+    let addr = url.trim_start_matches("http://").to_owned();
+    let get = |path: &str| {
+        let mut stream = std::net::TcpStream::connect(&addr).expect("connect");
+        write!(stream, "GET {path} HTTP/1.1\r\n\r\n").expect("request");
+        let mut response = Vec::new();
+        stream.read_to_end(&mut response).expect("response");
+        response
+    };
+    // The world runs on the wall clock; the camera delivers its first frame within 1/30 s.
+    let mut line = serde_json::Value::Null;
+    while Instant::now() < deadline {
+        let response = get("/line");
+        if let Some(body) = response.windows(4).position(|w| w == b"\r\n\r\n").map(|i| &response[i + 4..])
+            && let Ok(value) = serde_json::from_slice::<serde_json::Value>(body)
+        {
+            line = value;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let png = get("/camera.png");
+    let _ = child.kill();
+    let _ = child.wait();
+    assert_eq!(line["valid"], true, "{line}");
+    // The robot starts 50 mm left of the line: the line is to its right, d < 0 (detector convention).
+    assert!(line["d"].as_f64().is_some_and(|d| (d + 0.05).abs() < 0.003), "{line}");
+    assert!(png.starts_with(b"HTTP/1.1 200") && png.windows(4).any(|w| w == b"\x89PNG"), "camera.png");
+}

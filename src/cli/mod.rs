@@ -180,12 +180,22 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
     let robot = RobotDescription::load(robot_path)?;
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
+    // A world with a weld line also gets the camera, the line detector and the sensor server.
+    let mut observer = None;
     let bus = match &scenario {
         Some(path) => {
             let scenario = Scenario::load(path)?;
             let servos = robot.servos(baud)?;
             let world = RobotWorld::new(&robot, scenario.world_config()?, &servos)?;
-            robot.bus_of(servos, Box::new(world), timing, baud)?
+            let mut bus = robot.bus_of(servos, Box::new(world), timing, baud)?;
+            if scenario.line.is_some() {
+                // Rays find nothing before the first step: one tick before draping the line.
+                let period = bus.servos().first().map_or(Duration::from_millis(1), |s| s.control_period());
+                bus.advance(period);
+                let world = bus.plant::<RobotWorld>().context("the bus drives a robot world")?;
+                observer = Some(Arc::new(std::sync::Mutex::new(climbsim::scenario::run::Observer::new(&scenario, &robot, world)?)));
+            }
+            bus
         }
         None => robot.bench_bus(timing, baud)?,
     };
@@ -225,7 +235,17 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         // A world runs on the wall clock: a pacer advances it every firmware tick against
         // absolute deadlines, so it moves between packets too (packets advance it as well). The
         // bench needs none: its servos are brought up to date exactly when a packet arrives.
-        let pacer = world_on_wall_clock.then(|| Pacer::start(Arc::clone(&handle)));
+        let pacer = match observer {
+            Some(observer) => {
+                let feed = Arc::new(climbsim::sensor_server::SensorFeed::default());
+                let url = realtime::start_sensor_server(Arc::clone(&feed)).await?;
+                println!("sensors: {url}");
+                std::io::stdout().flush()?;
+                let errors = Arc::new(std::sync::Mutex::new(None));
+                Some(Pacer::start_with(Arc::clone(&handle), realtime::observer_hook(observer, feed, errors)))
+            }
+            None => world_on_wall_clock.then(|| Pacer::start(Arc::clone(&handle))),
+        };
         if let Some(server) = tcp_server {
             let tcp_handle = Arc::clone(&handle);
             tokio::spawn(async move {

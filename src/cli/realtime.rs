@@ -18,7 +18,7 @@ use climbsim::sensor_server::{SensorFeed, SensorServer};
 use climbsim::sim::RobotWorld;
 use climbsim::transport::{BusHandle, VirtualPort};
 
-use super::Pacer;
+use super::{Pacer, TickHook};
 
 /// How long a controller gets to stop after SIGTERM before it is killed.
 const STOP_GRACE: Duration = Duration::from_secs(3);
@@ -46,14 +46,7 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
 
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
     let (port, sensors_url) = runtime.block_on(async {
-        let server = SensorServer::bind("127.0.0.1:0".parse()?).await?;
-        let url = server.url()?;
-        let served = Arc::clone(&feed);
-        tokio::spawn(async move {
-            if let Err(error) = server.run(served).await {
-                warn!(%error, "sensor server stopped");
-            }
-        });
+        let url = start_sensor_server(Arc::clone(&feed)).await?;
         let port = Arc::new(VirtualPort::open(link)?);
         let session = Arc::clone(&port);
         let bus = Arc::clone(&handle);
@@ -66,38 +59,8 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
         Ok::<_, anyhow::Error>((port, url))
     })?;
 
-    let observing = Arc::clone(&observer);
-    let publishing = Arc::clone(&feed);
     let capture_errors = Arc::new(Mutex::new(None::<String>));
-    let capture_error = Arc::clone(&capture_errors);
-    let pacer = Pacer::start_with(
-        Arc::clone(&handle),
-        Box::new(move |bus, now| {
-            let Some(world) = bus.plant_mut::<RobotWorld>() else { return };
-            let mut observer = observing.lock().unwrap_or_else(PoisonError::into_inner);
-            let t_s = now.as_secs_f64();
-            if let Err(error) = observer.apply_events(t_s, world) {
-                capture_error.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(error.to_string());
-            }
-            let frames_before = observer.frames_seen();
-            observer.sense(world, now);
-            if observer.frames_seen() != frames_before {
-                if let Some(latest) = observer.latest().copied() {
-                    publishing.publish_line(t_s, f64::from(latest.d_m), f64::from(latest.psi_rad), latest.valid);
-                }
-                if let Some(frame) = observer.camera().latest()
-                    && let Err(error) = publishing.publish_frame(frame.width, frame.height, &frame.pixels)
-                {
-                    warn!(%error, "camera frame not published");
-                }
-                let pose = world.chassis_pose();
-                publishing.publish_state(json!({ "t": t_s, "x": pose.translation.x, "y": pose.translation.y, "z": pose.translation.z, "truth": format!("{:?}", observer.ground_truth(world)) }));
-            }
-            if let Err(error) = observer.capture(t_s, world, None) {
-                capture_error.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(error.to_string());
-            }
-        }),
-    );
+    let pacer = Pacer::start_with(Arc::clone(&handle), observer_hook(Arc::clone(&observer), Arc::clone(&feed), Arc::clone(&capture_errors)));
 
     let command = resolve_command(command, &scenario.path);
     let (program, args) = command.split_first().context("the external controller's command is empty")?;
@@ -148,6 +111,57 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
     let outcome = RunOutcome { series: observer.into_series(), summary, settings: settings_json(scenario, robot), sim_s, wall_s };
     write_outputs(&outcome, out_dir)?;
     Ok(outcome)
+}
+
+/// Serve `feed` on an ephemeral localhost port (on the current runtime); its base URL.
+pub async fn start_sensor_server(feed: Arc<SensorFeed>) -> Result<String> {
+    let server = SensorServer::bind("127.0.0.1:0".parse()?).await?;
+    let url = server.url()?;
+    tokio::spawn(async move {
+        if let Err(error) = server.run(feed).await {
+            warn!(%error, "sensor server stopped");
+        }
+    });
+    Ok(url)
+}
+
+/// What the pacer does after each tick of a world with a line: events, camera and detector
+/// (publishing each new frame, line measurement and ground truth), and the time series. The
+/// first error is kept in `errors` (the pacer thread cannot return one).
+pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, errors: Arc<Mutex<Option<String>>>) -> TickHook {
+    Box::new(move |bus, now| {
+        let Some(world) = bus.plant_mut::<RobotWorld>() else { return };
+        let mut observer = observer.lock().unwrap_or_else(PoisonError::into_inner);
+        let t_s = now.as_secs_f64();
+        let keep = |error: String| {
+            errors.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(error);
+        };
+        if let Err(error) = observer.apply_events(t_s, world) {
+            keep(error.to_string());
+        }
+        let frames_before = observer.frames_seen();
+        observer.sense(world, now);
+        if observer.frames_seen() != frames_before {
+            if let Some(latest) = observer.latest().copied() {
+                feed.publish_line(t_s, f64::from(latest.d_m), f64::from(latest.psi_rad), latest.valid);
+            }
+            if let Some(frame) = observer.camera().latest()
+                && let Err(error) = feed.publish_frame(frame.width, frame.height, &frame.pixels)
+            {
+                warn!(%error, "camera frame not published");
+            }
+            let pose = world.chassis_pose();
+            let truth = observer.ground_truth(world);
+            feed.publish_state(json!({
+                "t": t_s,
+                "x": pose.translation.x, "y": pose.translation.y, "z": pose.translation.z,
+                "d_err_m": truth.d_err_m, "psi_err_rad": truth.psi_err_rad, "speed_m_s": truth.speed_m_s,
+            }));
+        }
+        if let Err(error) = observer.capture(t_s, world, None) {
+            keep(error.to_string());
+        }
+    })
 }
 
 /// SIGTERM, a grace period, then SIGKILL; the exit status if it could be had.
