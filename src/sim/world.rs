@@ -423,6 +423,12 @@ impl RobotWorld {
     /// servo models or adhesion (the bare-rapier baseline of the real-time-factor bench).
     pub fn step_physics_only(&mut self) {
         self.physics.step();
+        // Keep the encoders counting, so that the next full step's rate is one step's change.
+        self.links.iter_mut().for_each(|link| {
+            if let ServoLink::Wheel(joint) = link {
+                track_angle(&self.physics, joint);
+            }
+        });
     }
 
     /// Advance one step with the servos in bus order.
@@ -455,11 +461,7 @@ impl RobotWorld {
         for (servo, link) in servos.iter_mut().zip(self.links.iter_mut()) {
             let state = match link {
                 ServoLink::Wheel(joint) => {
-                    let wrapped = joint_angle(&self.physics, joint) as f64;
-                    let mut delta = wrapped - joint.last_wrapped;
-                    delta -= (delta / std::f64::consts::TAU).round() * std::f64::consts::TAU;
-                    joint.angle += delta;
-                    joint.last_wrapped = wrapped;
+                    let delta = track_angle(&self.physics, joint);
                     // The rate the encoder sees: the angle's change over the step. rapier
                     // integrates positions with the velocities of its biased (position-
                     // correcting) pass and reports those of the relaxed pass; under the magnets'
@@ -601,6 +603,16 @@ fn set_joint_motor(physics: &mut PhysicsWorld, handle: ImpulseJointHandle, drive
     };
     joint.data.set_motor_velocity(JointAxis::AngX, target, gain);
     joint.data.set_motor_max_force(JointAxis::AngX, max_torque);
+}
+
+/// Advance a joint's unwrapped (multi-turn) angle to the present pose; the change.
+fn track_angle(physics: &PhysicsWorld, joint: &mut ServoJoint) -> f64 {
+    let wrapped = joint_angle(physics, joint) as f64;
+    let mut delta = wrapped - joint.last_wrapped;
+    delta -= (delta / std::f64::consts::TAU).round() * std::f64::consts::TAU;
+    joint.angle += delta;
+    joint.last_wrapped = wrapped;
+    delta
 }
 
 /// Joint axis in world coordinates.
