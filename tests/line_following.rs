@@ -74,3 +74,15 @@ fn a_scenario_without_a_line_is_refused_by_name() {
     let error = run_lockstep(&scenario, &robot()).err().expect("no line, no run").to_string();
     assert!(error.contains("flat.toml") && error.contains("[line]"), "{error}");
 }
+
+#[test]
+fn captured_signals_select_the_columns_and_unknown_ones_are_named() {
+    let outcome = run("scenarios/flat-line.toml", &["world.duration_s=1", "capture.signals=[\"d_m\", \"speed_m_s\"]"]);
+    assert_eq!(outcome.series.columns(), ["t_s", "d_m", "speed_m_s"]);
+    // Metrics still come from the full series.
+    assert!(metric(&outcome, "rms_distance_m").is_some());
+    let overrides = [Override::parse("capture.signals=[\"d_mm\"]").expect("override")];
+    let scenario = Scenario::load_with(&repo().join("scenarios/flat-line.toml"), &overrides).expect("scenario");
+    let error = run_lockstep(&scenario, &robot()).err().expect("unknown signal").to_string();
+    assert!(error.contains("flat-line.toml") && error.contains("`d_mm`"), "{error}");
+}

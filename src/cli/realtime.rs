@@ -108,7 +108,7 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
     summary.insert("physics_ticks".to_owned(), json!(ticks));
     summary.insert("physics_overruns".to_owned(), json!(overruns));
     summary.insert("controller_exit".to_owned(), json!(status.map(|s| s.to_string())));
-    let outcome = RunOutcome { series: observer.into_series(), summary, settings: settings_json(scenario, robot), sim_s, wall_s };
+    let outcome = RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s };
     write_outputs(&outcome, out_dir)?;
     Ok(outcome)
 }

@@ -182,11 +182,15 @@ pub struct CaptureSection {
     /// |distance error| within which the robot counts as on the line (m).
     #[serde(default = "default_on_line_m")]
     pub on_line_tolerance_m: f64,
+    /// The columns `timeseries.csv` and the workbook keep (besides `t_s`); all when absent.
+    /// Metrics are taken from the full series either way.
+    #[serde(default)]
+    pub signals: Option<Vec<String>>,
 }
 
 impl Default for CaptureSection {
     fn default() -> Self {
-        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m() }
+        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m(), signals: None }
     }
 }
 

@@ -39,6 +39,8 @@ pub enum RunError {
     Camera { path: PathBuf, message: String },
     #[error("scenario {path} has no [line]: a run needs a weld line to follow")]
     NoLine { path: PathBuf },
+    #[error("scenario {path}: [capture] signals: no signal `{name}` (known: {known})")]
+    UnknownSignal { path: PathBuf, name: String, known: String },
     #[error("line detector: {0}")]
     Detector(#[from] DetectorError),
     #[error("controller: {0}")]
@@ -114,6 +116,11 @@ pub struct Observer {
 impl Observer {
     pub fn new(scenario: &Scenario, robot: &RobotDescription, world: &RobotWorld) -> Result<Self, RunError> {
         let path = scenario.path.clone();
+        for name in scenario.capture.signals.iter().flatten() {
+            if !COLUMNS.contains(&name.as_str()) {
+                return Err(RunError::UnknownSignal { path, name: name.clone(), known: COLUMNS[1..].join(", ") });
+            }
+        }
         let line_section = scenario.line.clone().ok_or_else(|| RunError::NoLine { path: path.clone() })?;
         let line = build_line(&line_section.points, line_section.smoothness, line_section.width_m, 0.0, world).map_err(|source| RunError::Line { path: path.clone(), source })?;
         let settings = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
@@ -250,8 +257,16 @@ impl Observer {
         &self.series
     }
 
-    pub fn into_series(self) -> TimeSeries {
-        self.series
+    /// The captured series, cut to the scenario's `[capture] signals` (and `t_s`).
+    pub fn into_series(self, signals: Option<&[String]>) -> TimeSeries {
+        let Some(signals) = signals else { return self.series };
+        let keep: Vec<usize> = self.series.columns().iter().enumerate().filter(|(i, c)| *i == 0 || signals.contains(c)).map(|(i, _)| i).collect();
+        let mut series = TimeSeries::new(keep.iter().map(|&i| self.series.columns()[i].clone()));
+        for row in self.series.rows() {
+            // ok to ignore: every row has one value per kept column by construction.
+            let _ = series.push_row(&keep.iter().map(|&i| row[i]).collect::<Vec<_>>());
+        }
+        series
     }
 
     /// The seed's metrics over the captured series.
@@ -369,7 +384,7 @@ pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<Run
     let sim_s = sim.now().as_secs_f64();
     let mut summary = observer.summary(scenario.capture.on_line_tolerance_m);
     summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
-    Ok(RunOutcome { series: observer.into_series(), summary, settings: settings_json(scenario, robot), sim_s, wall_s })
+    Ok(RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s })
 }
 
 /// Write a run's outputs into `out_dir`: `timeseries.csv`, `summary.json`, `settings.json`,
@@ -382,19 +397,17 @@ pub fn write_outputs(outcome: &RunOutcome, out_dir: &std::path::Path) -> Result<
     report::write_workbook(out_dir, &outcome.series, &outcome.settings, &outcome.summary)?;
     let column = |name: &str| outcome.series.column(name).unwrap_or_default();
     let t = column("t_s");
-    let (d_true, d_camera) = (column("d_true_m"), column("d_m"));
-    report::plot_series(
-        out_dir,
-        "distance",
-        &report::PlotLabels { title: "Distance error", x: "t (s)", y: "d (m)" },
-        &[report::PlotSeries { label: "ground truth", x: &t, y: &d_true }, report::PlotSeries { label: "camera", x: &t, y: &d_camera }],
-    )?;
-    let (speed, target) = (column("speed_m_s"), column("target_speed_m_s"));
-    report::plot_series(
-        out_dir,
-        "speed",
-        &report::PlotLabels { title: "Speed", x: "t (s)", y: "speed (m/s)" },
-        &[report::PlotSeries { label: "ground truth", x: &t, y: &speed }, report::PlotSeries { label: "target", x: &t, y: &target }],
-    )?;
+    for (stem, title, y, [(first, first_label), (second, second_label)]) in [
+        ("distance", "Distance error", "d (m)", [("d_true_m", "ground truth"), ("d_m", "camera")]),
+        ("speed", "Speed", "speed (m/s)", [("speed_m_s", "ground truth"), ("target_speed_m_s", "target")]),
+    ] {
+        let (first_y, second_y) = (column(first), column(second));
+        report::plot_series(
+            out_dir,
+            stem,
+            &report::PlotLabels { title, x: "t (s)", y },
+            &[report::PlotSeries { label: first_label, x: &t, y: &first_y }, report::PlotSeries { label: second_label, x: &t, y: &second_y }],
+        )?;
+    }
     Ok(())
 }

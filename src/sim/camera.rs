@@ -93,9 +93,14 @@ fn thirty() -> f32 {
 impl LineCameraSettings {
     /// The robot description's camera with the defaults for everything else.
     pub fn from_mount(mount: &CameraMount) -> Self {
+        Self::with_size(mount.image_px, mount.orthographic_size_m)
+    }
+
+    /// An `image_px` camera seeing 2·`orthographic_size_m`, every other setting at its default.
+    pub fn with_size(image_px: u32, orthographic_size_m: f32) -> Self {
         LineCameraSettings {
-            image_px: mount.image_px,
-            orthographic_size_m: mount.orthographic_size_m,
+            image_px,
+            orthographic_size_m,
             aspect: 1.0,
             frame_rate_hz: 30.0,
             noise_std: 0.0,
@@ -479,16 +484,7 @@ mod tests {
     use super::*;
 
     fn settings() -> LineCameraSettings {
-        LineCameraSettings {
-            image_px: 64,
-            orthographic_size_m: 0.1,
-            aspect: 1.0,
-            frame_rate_hz: 30.0,
-            noise_std: 0.0,
-            blur_px: 0,
-            latency_frames: 0,
-            seed: 0,
-        }
+        LineCameraSettings::with_size(64, 0.1)
     }
 
     fn line() -> WeldLine {
