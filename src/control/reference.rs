@@ -159,14 +159,31 @@ pub struct ReferenceController {
     dither_residual: [f64; 4],
     last_tick: Option<Duration>,
     sample: ControlSample,
+    addresses: Addresses,
 }
 
-/// Control-table addresses the controller uses, from the firmware profile.
+/// Control-table addresses and values the controller uses, from the firmware profile (resolved
+/// once: the profile's lookups by key stay off the control period).
+#[derive(Debug, Clone, Copy)]
 struct Addresses {
     operating_mode: u16,
+    velocity_mode: u8,
     torque_enable: u16,
     goal_velocity: u16,
     present_position: u16,
+}
+
+impl Addresses {
+    fn of(profile: &FirmwareProfile) -> Self {
+        let at = |key: &str| profile.items[profile.index(key)].address();
+        Addresses {
+            operating_mode: at("operating_mode"),
+            velocity_mode: profile.operating_modes.velocity,
+            torque_enable: at("torque_enable"),
+            goal_velocity: at("goal_velocity"),
+            present_position: at("present_position"),
+        }
+    }
 }
 
 impl ReferenceController {
@@ -203,6 +220,7 @@ impl ReferenceController {
             dither_residual: [0.0; 4],
             last_tick: None,
             sample: ControlSample::default(),
+            addresses: Addresses::of(profile),
         })
     }
 
@@ -224,20 +242,15 @@ impl ReferenceController {
         &self.sample
     }
 
-    fn addresses(profile: &FirmwareProfile) -> Addresses {
-        let at = |key: &str| profile.items[profile.index(key)].address();
-        Addresses { operating_mode: at("operating_mode"), torque_enable: at("torque_enable"), goal_velocity: at("goal_velocity"), present_position: at("present_position") }
-    }
-
     /// Put the wheel drives in velocity mode with torque on; leave the magnet shafts' torque off
     /// so that they follow the surface normal passively (their encoders are the seed's
     /// potentiometers).
-    pub fn start<L: BusLink>(&mut self, link: &mut L, profile: &FirmwareProfile) -> Result<(), ControlError> {
-        let at = Self::addresses(profile);
+    pub fn start<L: BusLink>(&mut self, link: &mut L) -> Result<(), ControlError> {
+        let at = self.addresses;
         let mut client = ServoClient::new(link);
         for wheel in self.wheels {
             client.write(wheel.drive, at.torque_enable, &[0], "Torque Enable = 0")?;
-            client.write(wheel.drive, at.operating_mode, &[profile.operating_modes.velocity], "Operating Mode = velocity")?;
+            client.write(wheel.drive, at.operating_mode, &[at.velocity_mode], "Operating Mode = velocity")?;
             client.write(wheel.drive, at.torque_enable, &[1], "Torque Enable = 1")?;
             client.write(wheel.magnet, at.torque_enable, &[0], "Torque Enable = 0")?;
         }
@@ -245,8 +258,8 @@ impl ReferenceController {
     }
 
     /// One control period at time `now`; `line` is the latest valid line measurement, if any.
-    pub fn tick<L: BusLink>(&mut self, link: &mut L, profile: &FirmwareProfile, now: Duration, line: Option<LineError>) -> Result<&ControlSample, ControlError> {
-        let at = Self::addresses(profile);
+    pub fn tick<L: BusLink>(&mut self, link: &mut L, now: Duration, line: Option<LineError>) -> Result<&ControlSample, ControlError> {
+        let at = self.addresses;
         let dt = self.last_tick.map_or(0.0, |last| (now - last).as_secs_f64());
         self.last_tick = Some(now);
 

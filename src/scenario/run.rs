@@ -367,7 +367,7 @@ pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<Run
     sim.run(Duration::from_millis(1));
     let mut observer = Observer::new(scenario, robot, sim.world())?;
     let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;
-    controller.start(&mut sim, &profile)?;
+    controller.start(&mut sim)?;
     let period = config.period();
     let end = Duration::from_secs_f64(scenario.world.duration_s);
     while sim.now() < end {
@@ -376,7 +376,7 @@ pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<Run
         observer.apply_events(t_s, sim.world_mut())?;
         controller.set_target_speed(observer.target_speed_m_s(t_s));
         let line = observer.sense(sim.world(), now);
-        let sample = *controller.tick(&mut sim, &profile, now, line)?;
+        let sample = *controller.tick(&mut sim, now, line)?;
         observer.capture(t_s, sim.world(), Some(&sample))?;
         sim.run(period);
     }
