@@ -359,11 +359,7 @@ impl RobotWorld {
     /// The terrain surface straight below (x, z): point and outward normal, from a ray cast down
     /// from high above (the robot is not in the terrain group, so it never hides the ground).
     pub fn surface_below(&self, x: f32, z: f32) -> Option<(Vector, Vector)> {
-        const ABOVE: f32 = 100.0;
-        let ray = Ray::new(Vector::new(x, ABOVE, z), -Vector::Y);
-        let filter = QueryFilter::default().groups(robot_groups());
-        let (_, hit) = self.physics.cast_ray_and_get_normal(&ray, 2.0 * ABOVE, true, filter)?;
-        Some((ray.point_at(hit.time_of_impact), hit.normal))
+        surface_below(&self.physics, x, z)
     }
 
     /// The chassis' linear velocity.
@@ -563,11 +559,14 @@ fn find_surface(physics: &PhysicsWorld, centre: Vector, direction: Vector, reach
     Some((hit.witness1, hit.normal1))
 }
 
-/// Height of the terrain under (x, z): a ray cast down from high above.
-fn ground_height(physics: &PhysicsWorld, x: f32, z: f32) -> f32 {
+/// The terrain straight below (x, z): point and outward normal, from a ray cast down from high
+/// above against the terrain group only.
+fn surface_below(physics: &PhysicsWorld, x: f32, z: f32) -> Option<(Vector, Vector)> {
     const ABOVE: f32 = 100.0;
     let ray = Ray::new(Vector::new(x, ABOVE, z), -Vector::Y);
-    physics.cast_ray(&ray, 2.0 * ABOVE, true, QueryFilter::default()).map_or(0.0, |(_, toi)| ABOVE - toi)
+    let filter = QueryFilter::default().groups(robot_groups());
+    let (_, hit) = physics.cast_ray_and_get_normal(&ray, 2.0 * ABOVE, true, filter)?;
+    Some((ray.point_at(hit.time_of_impact), hit.normal))
 }
 
 /// The robot's start frame: origin on the ground under the start point, rotated by the yaw and
@@ -577,7 +576,7 @@ fn start_frame(physics: &PhysicsWorld, start: &StartPose, half_base: f32, half_t
     let yaw = Rotation::from_rotation_y(start.yaw_deg.to_radians());
     let at = |x: f32, z: f32| {
         let p = Vector::new(start.x_m, 0.0, start.z_m) + yaw * Vector::new(x, 0.0, z);
-        ground_height(physics, p.x, p.z)
+        surface_below(physics, p.x, p.z).map_or(0.0, |(point, _)| point.y)
     };
     let (fl, fr, rl, rr) = (at(half_base, half_track), at(half_base, -half_track), at(-half_base, half_track), at(-half_base, -half_track));
     let pitch = ((fl + fr) - (rl + rr)).atan2(4.0 * half_base);
