@@ -15,7 +15,6 @@ use tracing::{info, warn};
 use climbsim::bus::{Timing, TraceWriter};
 use climbsim::robot::RobotDescription;
 use climbsim::scenario::Scenario;
-use climbsim::sim::RobotWorld;
 use climbsim::transport::{BusHandle, TcpServer, VirtualPort, parse_tcp_addr, serve_stream};
 
 #[derive(Debug, Parser)]
@@ -129,7 +128,7 @@ pub fn run(cli: Cli) -> Result<()> {
             let robot = RobotDescription::load(&robot)?;
             let overrides = batch::parse_overrides(&set)?;
             let loaded = Scenario::load_with(&scenario, &overrides)?;
-            let out_dir = realtime::out_dir_or_default(out, &scenario);
+            let out_dir = out.unwrap_or_else(|| batch::default_out_dir(&scenario));
             let outcome = match &loaded.controller {
                 climbsim::scenario::ControllerSection::Builtin(_) => batch::run_builtin(&loaded, &robot, &out_dir)?,
                 climbsim::scenario::ControllerSection::External(external) => realtime::run_external(&loaded, &robot, &external.command, timing_of(timing), link.as_deref(), &out_dir)?,
@@ -181,23 +180,12 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
     // A world with a weld line also gets the camera, the line detector and the sensor server.
-    let mut observer = None;
-    let bus = match &scenario {
+    let (bus, observer) = match &scenario {
         Some(path) => {
-            let scenario = Scenario::load(path)?;
-            let servos = robot.servos(baud)?;
-            let world = RobotWorld::new(&robot, scenario.world_config()?, &servos)?;
-            let mut bus = robot.bus_of(servos, Box::new(world), timing, baud)?;
-            if scenario.line.is_some() {
-                // Rays find nothing before the first step: one tick before draping the line.
-                let period = bus.servos().first().map_or(Duration::from_millis(1), |s| s.control_period());
-                bus.advance(period);
-                let world = bus.plant::<RobotWorld>().context("the bus drives a robot world")?;
-                observer = Some(Arc::new(std::sync::Mutex::new(climbsim::scenario::run::Observer::new(&scenario, &robot, world)?)));
-            }
-            bus
+            let (bus, observer) = realtime::scenario_bus(&Scenario::load(path)?, &robot, timing, baud)?;
+            (bus, observer.map(|o| Arc::new(std::sync::Mutex::new(o))))
         }
-        None => robot.bench_bus(timing, baud)?,
+        None => (robot.bench_bus(timing, baud)?, None),
     };
     let trace = match &trace_bus {
         Some(path) => {

@@ -1,7 +1,7 @@
 //! `climbsim run` with an external controller: the world on the wall clock, the servos on a
 //! pty, the sensor server on localhost, and the controller's own process.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Stdio};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
@@ -12,7 +12,8 @@ use tracing::{info, warn};
 
 use climbsim::bus::Timing;
 use climbsim::robot::RobotDescription;
-use climbsim::scenario::run::{Observer, RunOutcome, settings_json, write_outputs};
+use climbsim::bus::Bus;
+use climbsim::scenario::run::{Observer, RunError, RunOutcome, settings_json, write_outputs};
 use climbsim::scenario::Scenario;
 use climbsim::sensor_server::{SensorFeed, SensorServer};
 use climbsim::sim::RobotWorld;
@@ -30,17 +31,21 @@ fn resolve_command(command: &[String], scenario: &Path) -> Vec<String> {
     command.iter().map(|arg| if arg.starts_with("./") || arg.starts_with("../") { base.join(arg).display().to_string() } else { arg.clone() }).collect()
 }
 
+/// The bus of `scenario`'s world, and the observer (camera, detector, capture) when the scenario
+/// has a weld line: what `serve SCENARIO` and `run` with an external controller both serve.
+/// `RobotWorld::new` has already updated the query structures, so the line drapes at once.
+pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Option<Observer>)> {
+    let servos = robot.servos(baud)?;
+    let world = RobotWorld::new(robot, scenario.world_config()?, &servos)?;
+    let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;
+    Ok((robot.bus_of(servos, Box::new(world), timing, baud)?, observer))
+}
+
 /// Run `scenario` in real time with the external controller `command`.
 pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[String], timing: Timing, link: Option<&Path>, out_dir: &Path) -> Result<RunOutcome> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
-    let servos = robot.servos(None)?;
-    let world = RobotWorld::new(robot, scenario.world_config()?, &servos)?;
-    let mut bus = robot.bus_of(servos, Box::new(world), timing, None)?;
-    let period = bus.servos().first().map_or(Duration::from_millis(1), |s| s.control_period());
-    // Rays find nothing before the first step: one tick before draping the line.
-    bus.advance(period);
-    let world = bus.plant::<RobotWorld>().context("the bus drives a robot world")?;
-    let observer = Arc::new(Mutex::new(Observer::new(scenario, robot, world)?));
+    let (bus, observer) = scenario_bus(scenario, robot, timing, None)?;
+    let observer = Arc::new(Mutex::new(observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?));
     let handle = BusHandle::new(bus, None);
     let feed = Arc::new(SensorFeed::default());
 
@@ -48,11 +53,9 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
     let (port, sensors_url) = runtime.block_on(async {
         let url = start_sensor_server(Arc::clone(&feed)).await?;
         let port = Arc::new(VirtualPort::open(link)?);
-        let session = Arc::clone(&port);
-        let bus = Arc::clone(&handle);
+        let session = tokio::spawn(super::serve_pty(Arc::clone(&port), Arc::clone(&handle)));
         tokio::spawn(async move {
-            let line = session.line();
-            if let Err(error) = climbsim::transport::serve_stream(session.stream(), bus, &line).await {
+            if let Ok(Err(error)) = session.await {
                 warn!(%error, "pty session ended");
             }
         });
@@ -181,9 +184,4 @@ fn stop_child(child: &mut Child) -> Result<Option<std::process::ExitStatus>> {
     warn!("the controller ignored SIGTERM for {STOP_GRACE:?}; killing it");
     child.kill()?;
     Ok(Some(child.wait()?))
-}
-
-/// Where outputs go.
-pub fn out_dir_or_default(out: Option<PathBuf>, scenario: &Path) -> PathBuf {
-    out.unwrap_or_else(|| super::batch::default_out_dir(scenario))
 }
