@@ -15,7 +15,6 @@ use thiserror::Error;
 use tracing::info_span;
 
 use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
-use crate::device::{FirmwareProfile, ProfileError};
 use crate::metrics::{self, StepOptions};
 use crate::report::{self, Summary, TimeSeries};
 use crate::robot::{RobotDescription, WheelPosition};
@@ -31,8 +30,6 @@ pub enum RunError {
     Scenario(#[from] ScenarioError),
     #[error(transparent)]
     Sim(#[from] SimError),
-    #[error(transparent)]
-    Profile(#[from] ProfileError),
     #[error("scenario {path}: [line]: {source}")]
     Line { path: PathBuf, source: WeldLineError },
     #[error("scenario {path}: [camera]: {message}")]
@@ -361,9 +358,12 @@ pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<Run
     };
     let _span = info_span!("scenario", path = %scenario.path.display()).entered();
     let started = Instant::now();
-    let profile = FirmwareProfile::load(&robot.profile_path())?;
     let mut sim = Lockstep::new(robot, scenario.world_config()?)?;
-    // Rays find nothing before the first step: let the world settle one tick before draping.
+    // The servos' own profile, not a second parse of the file.
+    let profile = sim.bus().servos().first().map(|s| std::sync::Arc::clone(s.profile())).ok_or(ControlError::MissingServo("servo on the bus"))?;
+    // Runs start one firmware tick in, with the world settled for a step (the recorded figures
+    // come from such runs). Draping does not need it: RobotWorld::new already made the terrain
+    // queryable.
     sim.run(Duration::from_millis(1));
     let mut observer = Observer::new(scenario, robot, sim.world())?;
     let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;
