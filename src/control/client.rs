@@ -3,7 +3,7 @@
 
 use thiserror::Error;
 
-use crate::protocol::{ALERT_BIT, RawPacket, encode_instruction, opcode};
+use crate::protocol::{RawPacket, encode_instruction, opcode};
 use crate::sim::Lockstep;
 
 /// Something that carries instruction bytes to the servos and returns their status packets.
@@ -72,14 +72,11 @@ impl<'a, L: BusLink> ServoClient<'a, L> {
     }
 }
 
-/// The data of a status reply, if it came, carries no error (the alert bit alone is a latched
-/// hardware error, not a failed instruction) and holds `expected` bytes.
+/// The data of a status reply, if it came, carries no error (see [`RawPacket::status_data`]) and
+/// holds `expected` bytes.
 fn check<'p>(reply: Option<&'p RawPacket>, id: u8, what: &'static str, expected: usize) -> Result<&'p [u8], ControlError> {
     let reply = reply.ok_or(ControlError::NoReply { id, what })?;
-    let (&error, data) = reply.params.split_first().ok_or(ControlError::NoReply { id, what })?;
-    if error & !ALERT_BIT != 0 {
-        return Err(ControlError::Status { id, what, error });
-    }
+    let data = reply.status_data().map_err(|error| error.map_or(ControlError::NoReply { id, what }, |error| ControlError::Status { id, what, error }))?;
     if data.len() != expected {
         return Err(ControlError::Length { id, what, got: data.len(), expected });
     }

@@ -32,6 +32,19 @@ pub struct RawPacket {
     pub bytes: Vec<u8>,
 }
 
+impl RawPacket {
+    /// A status packet's data, if its error byte reports no failure: `Err(None)` for a packet
+    /// without an error byte, `Err(Some(error))` otherwise. The alert bit alone (a latched
+    /// hardware error) does not fail the instruction.
+    pub fn status_data(&self) -> Result<&[u8], Option<u8>> {
+        match self.params.split_first() {
+            Some((&error, data)) if error & !super::ALERT_BIT == 0 => Ok(data),
+            Some((&error, _)) => Err(Some(error)),
+            None => Err(None),
+        }
+    }
+}
+
 /// Something in the byte stream that was not a valid packet. None of these stop the decoder.
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
 pub enum FrameError {

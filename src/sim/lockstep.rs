@@ -72,13 +72,8 @@ impl Lockstep {
 
     fn single(&mut self, id: u8, code: u8, params: &[u8]) -> Result<Vec<u8>, ReplyError> {
         let replies = self.transact(&encode_instruction(id, code, params));
-        let reply = replies.into_iter().next().ok_or(ReplyError::NoReply)?;
-        match reply.params.split_first() {
-            // The alert bit alone (a latched hardware error) does not fail the instruction.
-            Some((&error, data)) if error & !crate::protocol::ALERT_BIT == 0 => Ok(data.to_vec()),
-            Some((&error, _)) => Err(ReplyError::Status(error)),
-            None => Err(ReplyError::NoReply),
-        }
+        let reply = replies.first().ok_or(ReplyError::NoReply)?;
+        reply.status_data().map(<[u8]>::to_vec).map_err(|error| error.map_or(ReplyError::NoReply, ReplyError::Status))
     }
 
     pub fn write(&mut self, id: u8, address: u16, data: &[u8]) -> Result<(), ReplyError> {
