@@ -65,8 +65,12 @@ pub struct ServoSpec {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SectionSpec {
+    /// Collision box.
     pub half_extents_m: [f32; 3],
     pub mass_kg: f32,
+    /// Principal moments of inertia about the section's centre, along x (roll), y (yaw) and z
+    /// (pitch), in kg·m².
+    pub inertia_kgm2: [f32; 3],
 }
 
 #[derive(Debug, Clone, Deserialize)]

@@ -268,3 +268,23 @@ fn same_scenario_and_seed_give_a_bit_identical_trajectory() {
     assert_eq!(first, second);
     assert_ne!(first, run_scenario("scenarios/flat.toml", 3), "a different world gives a different trajectory");
 }
+
+#[test]
+fn passive_magnets_carry_the_robot_from_the_floor_up_a_filleted_wall() {
+    // The floor-to-wall transition: the wall stands 0.5 m ahead behind a 150 mm fillet; the wheels
+    // drive at Goal Velocity 100 (3.6 rev/min, 19 mm/s) with the magnet servos' torque off, so
+    // each magnet swings on its own toward the surface it faces.
+    let wall = TerrainSpec::Wall { wall_distance_m: 0.5, wall_height_m: 1.5, width_m: 2.0, fillet_radius_m: 0.15, segments: 24 };
+    let mut sim = world(wall, Vector::new(0.0, -G, 0.0), true);
+    drive_wheels(&mut sim, 100);
+    sim.run(Duration::from_secs(10));
+    let world = sim.world();
+    let forward = world.chassis_pose().rotation * Vector::X;
+    let pitch = forward.y.atan2(forward.x).to_degrees();
+    assert!(pitch > 88.0, "the robot stands on the wall: pitch {pitch:.1}°");
+    let rear = world.wheel_centre(WheelPosition::RearLeft);
+    assert!(rear.y > 0.4, "the rear axle has left the fillet and climbs: {:.3} m up", rear.y);
+    for (wheel, sample) in WheelPosition::ALL.iter().zip(world.adhesion()) {
+        assert!(sample.force_n > 0.9 * robot().magnet.pull_at_contact_n, "{wheel:?} holds: {sample:?}");
+    }
+}

@@ -642,7 +642,7 @@ impl Servo {
         let dt = self.period.as_secs_f64();
         self.shaft = shaft;
         self.next_tick = now + self.period;
-        let torque = self.last_drive.electrical_torque(shaft.velocity_rad_s);
+        let torque = self.last_drive.electrical_torque(shaft.back_emf_velocity());
         let current_a = self.motor.current_for_torque(torque);
         self.update_thermal(current_a, dt);
         self.publish_state(now);
@@ -685,7 +685,7 @@ impl Servo {
         let modes = self.profile().operating_modes;
         let mode = self.operating_mode() as u8;
         let percent = self.units.percent_per_pwm / 100.0;
-        let omega = self.direction() * self.shaft.velocity_rad_s;
+        let omega = self.direction() * self.shaft.back_emf_velocity();
         let current_duty = |servo: &Self, current_units: f64| {
             let torque = servo.motor.torque_for_current(current_units * servo.units.ma_per_current / 1000.0);
             servo.motor.duty_for_torque(torque, omega, servo.supply_voltage_v)

@@ -9,7 +9,20 @@
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct ShaftState {
     pub position_rad: f64,
+    /// The rate the encoder sees: what Present Velocity reports and the velocity loop closes on.
     pub velocity_rad_s: f64,
+    /// The rate at which the load actually took the motor's torque, when the owner of the shaft
+    /// knows it differs from the encoder's (None: they are the same). A physics engine that
+    /// corrects positions in a separate pass moves the shaft by more than its solved velocity;
+    /// the torque it applied, and so the current the motor drew, follow the solved velocity.
+    pub back_emf_velocity_rad_s: Option<f64>,
+}
+
+impl ShaftState {
+    /// The speed that sets the motor's back-EMF, and with it torque and current.
+    pub fn back_emf_velocity(&self) -> f64 {
+        self.back_emf_velocity_rad_s.unwrap_or(self.velocity_rad_s)
+    }
 }
 
 /// What the motor does to the shaft during one tick.

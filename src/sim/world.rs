@@ -158,9 +158,11 @@ impl std::fmt::Debug for RobotWorld {
 
 fn section_collider(spec: &SectionSpec) -> ColliderBuilder {
     let [x, y, z] = spec.half_extents_m;
-    ColliderBuilder::cuboid(x, y, z)
-        .mass(spec.mass_kg)
-        .collision_groups(robot_groups())
+    let [ix, iy, iz] = spec.inertia_kgm2;
+    // The frame's box is only its collision shape: the servos that carry most of the mass sit
+    // elsewhere than a uniform box would put them, so the description gives the inertia.
+    let mass = MassProperties::new(Vector::ZERO, spec.mass_kg, Vector::new(ix, iy, iz));
+    ColliderBuilder::cuboid(x, y, z).mass_properties(mass).collision_groups(robot_groups())
 }
 
 impl RobotWorld {
@@ -464,11 +466,15 @@ impl RobotWorld {
                     // pull, with the wheels scrubbing in a turn, the two differed by up to 60 %
                     // (the wheel turned faster than its reported rate). The servo's velocity loop
                     // must close on what the shaft actually does.
-                    ShaftState { position_rad: joint.angle, velocity_rad_s: delta / dt }
+                    // The torque rapier applied follows its solved (relaxed) rate, and so does
+                    // the current: from the encoder's rate, a climbing wheel that the position
+                    // pass pushes ahead would read less current than the load it carries.
+                    let solved = joint_rate(&self.physics, joint) as f64;
+                    ShaftState { position_rad: joint.angle, velocity_rad_s: delta / dt, back_emf_velocity_rad_s: Some(solved) }
                 }
                 ServoLink::Magnet { wheel, zero_rad } => {
                     let shaft = self.magnets[*wheel].load.state();
-                    ShaftState { position_rad: *zero_rad + shaft.position_rad, velocity_rad_s: shaft.velocity_rad_s }
+                    ShaftState { position_rad: *zero_rad + shaft.position_rad, ..shaft }
                 }
             };
             servo.sense(self.time, state);
