@@ -7,6 +7,7 @@
 //! reply is due at once.
 
 mod trace;
+pub mod wire;
 
 use std::time::Duration;
 
@@ -48,6 +49,11 @@ pub struct Transaction {
     /// When the instruction's last byte was on the wire.
     pub instruction_end: Duration,
     pub replies: Vec<Reply>,
+    /// Time the instruction and its replies occupy the wire at the line's baud (also with
+    /// [`Timing::Off`]: what a real bus would have spent), for bus utilisation.
+    pub wire_busy: Duration,
+    /// The line's baud differs from every servo's: nobody could decode the packet.
+    pub baud_mismatch: bool,
 }
 
 #[derive(Debug, Error)]
@@ -69,6 +75,8 @@ pub struct Bus {
     /// Baud assumed when the transport has none (TCP, in-memory).
     default_baud: u32,
     wire_free_at: Duration,
+    /// The line baud last reported as matching no servo, so the warning is logged once.
+    mismatch_warned_for: Option<u32>,
 }
 
 impl std::fmt::Debug for Bus {
@@ -90,7 +98,7 @@ impl Bus {
             }
         }
         let bits_per_byte = servos.first().map_or(10, |s| s.profile().model.bits_per_byte);
-        Ok(Self { servos, plant, timing, bits_per_byte, default_baud, wire_free_at: Duration::ZERO })
+        Ok(Self { servos, plant, timing, bits_per_byte, default_baud, wire_free_at: Duration::ZERO, mismatch_warned_for: None })
     }
 
     pub fn servos(&self) -> &[Servo] {
@@ -124,6 +132,12 @@ impl Bus {
         Duration::from_secs_f64(bytes as f64 * f64::from(self.bits_per_byte) / f64::from(baud.max(1)))
     }
 
+    /// Time one byte takes on the line (`line_baud`, or the bus's default where the transport has
+    /// no baud).
+    pub fn byte_time(&self, line_baud: Option<u32>) -> Duration {
+        self.wire_time(1, line_baud.unwrap_or(self.default_baud))
+    }
+
     /// Advance the servos' physics to `now` without any packet (e.g. on a timer).
     pub fn advance(&mut self, now: Duration) {
         self.plant.advance(&mut self.servos, now);
@@ -143,7 +157,8 @@ impl Bus {
         };
         self.plant.advance(&mut self.servos, instruction_end);
         let instruction = Instruction::parse(packet.instruction, &packet.params);
-        let mut transaction = Transaction { packet, instruction, received_at, instruction_end, replies: Vec::new() };
+        let wire_busy = self.wire_time(packet.wire_len, baud);
+        let mut transaction = Transaction { packet, instruction, received_at, instruction_end, replies: Vec::new(), wire_busy, baud_mismatch: false };
         if transaction.packet.instruction == protocol::STATUS_INSTRUCTION {
             return transaction; // another device's status packet: nothing to do
         }
@@ -164,14 +179,41 @@ impl Bus {
         if hearing.len() < self.servos.len() && line_baud.is_some() {
             trace_event!(hearing = hearing.len(), baud, "some servos do not hear this baud or are booting");
         }
+        if let Some(bps) = line_baud {
+            transaction.baud_mismatch = self.note_baud_mismatch(bps);
+        }
         let pending = self.route(transaction.packet.id, instruction, &hearing, instruction_end);
         transaction.replies = self.schedule(pending, reply_base, baud);
+        transaction.wire_busy += transaction.replies.iter().map(|r| self.wire_time(r.bytes.len(), baud)).sum::<Duration>();
         if let Some(last) = transaction.replies.last() {
             self.wire_free_at = last.end;
         } else {
             self.wire_free_at = instruction_end;
         }
         transaction
+    }
+
+    /// Whether no servo listens at `line_bps`. A real servo's UART samples such a packet as
+    /// garbage and never answers; the controller sees only timeouts, so say why, once per baud.
+    fn note_baud_mismatch(&mut self, line_bps: u32) -> bool {
+        let listening: Vec<u32> = self.servos.iter().filter_map(Servo::baud_bps).collect();
+        if listening.contains(&line_bps) {
+            self.mismatch_warned_for = None;
+            return false;
+        }
+        if self.mismatch_warned_for != Some(line_bps) {
+            self.mismatch_warned_for = Some(line_bps);
+            let mut bauds = listening;
+            bauds.sort_unstable();
+            bauds.dedup();
+            warn!(
+                controller_bps = line_bps,
+                servo_bps = ?bauds,
+                "baud mismatch: the controller's port is at {line_bps} bps but the servos listen at {bauds:?} bps; \
+                 as on hardware they hear garbage and do not answer (set the port to the servos' baud)"
+            );
+        }
+        true
     }
 
     /// Execute the instruction on every servo it concerns; return the replies (unscheduled).
@@ -341,7 +383,7 @@ impl Bus {
                 && previous.from[0] == reply.from[0]
             {
                 warn!(id = reply.from[0], "two servos answered with the same ID: collision on the wire");
-                collide(&mut previous.bytes, &reply.bytes);
+                wire::overlay(&mut previous.bytes, &reply.bytes);
                 continue;
             }
             let (start, end) = match self.timing {
@@ -368,16 +410,6 @@ struct PendingReply {
 impl PendingReply {
     fn single(index: usize, id: u8, bytes: Vec<u8>) -> Self {
         Self { first_sender: index, from: vec![id], bytes }
-    }
-}
-
-/// Two drivers on one half-duplex line: a 0 bit wins (dominant low), so bytes AND together.
-fn collide(into: &mut Vec<u8>, other: &[u8]) {
-    for (i, &b) in other.iter().enumerate() {
-        match into.get_mut(i) {
-            Some(existing) => *existing &= b,
-            None => into.push(b),
-        }
     }
 }
 

@@ -170,6 +170,8 @@ pub struct Servo {
     booting_until: Option<Duration>,
     last_packet_at: Duration,
     watchdog_tripped: bool,
+    /// Times the bus watchdog has expired since power-on (for the timing report).
+    watchdog_expiries: u64,
     /// Set when a Shutdown-mask error forced torque off; only a reboot clears it.
     shutdown_latched: bool,
     loops: LoopState,
@@ -209,6 +211,7 @@ impl Servo {
             booting_until: None,
             last_packet_at: Duration::ZERO,
             watchdog_tripped: false,
+            watchdog_expiries: 0,
             shutdown_latched: false,
             loops: LoopState::default(),
             last_drive: ShaftDrive::default(),
@@ -284,6 +287,11 @@ impl Servo {
 
     pub fn operating_mode(&self) -> i64 {
         self.get(self.keys.operating_mode)
+    }
+
+    /// Times the bus watchdog has expired since power-on.
+    pub fn watchdog_expiries(&self) -> u64 {
+        self.watchdog_expiries
     }
 
     pub fn shaft(&self) -> ShaftState {
@@ -872,6 +880,7 @@ impl Servo {
         let timeout = Duration::from_secs_f64(setting as f64 * self.units.ms_per_watchdog / 1000.0);
         if now.saturating_sub(self.last_packet_at) > timeout {
             self.watchdog_tripped = true;
+            self.watchdog_expiries += 1;
             self.table.set(keys.bus_watchdog, WATCHDOG_TRIPPED);
             // Stop as if both profile values were 0: hold here, or zero speed/effort.
             self.table.set(keys.profile_velocity, 0);

@@ -3,8 +3,10 @@
 
 pub mod memory;
 mod pty;
+pub mod stats;
 mod tcp;
 
+use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
@@ -12,10 +14,11 @@ use thiserror::Error;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tracing::{debug, info_span, trace, warn, Instrument};
 
-use crate::bus::{Bus, Timing, TraceWriter, Transaction};
+use crate::bus::{Bus, Reply, Timing, TraceWriter, Transaction, wire};
 use crate::protocol::{DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};
 
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
+pub use stats::{LineStats, LoopKey, ReportExtras, TimingReport};
 pub use tcp::{TcpServer, parse_tcp_addr};
 
 #[derive(Debug, Error)]
@@ -53,12 +56,13 @@ impl Clock {
 pub struct BusHandle {
     bus: Mutex<Bus>,
     trace: Mutex<Option<TraceWriter>>,
+    stats: Mutex<LineStats>,
     clock: Clock,
 }
 
 impl BusHandle {
     pub fn new(bus: Bus, trace: Option<TraceWriter>) -> Arc<Self> {
-        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), clock: Clock::default() })
+        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock: Clock::default() })
     }
 
     pub fn clock(&self) -> Clock {
@@ -72,8 +76,23 @@ impl BusHandle {
         f(&mut bus)
     }
 
+    /// Run `f` on the line statistics.
+    pub fn with_stats<R>(&self, f: impl FnOnce(&mut LineStats) -> R) -> R {
+        let mut stats = self.stats.lock().unwrap_or_else(PoisonError::into_inner);
+        f(&mut stats)
+    }
+
+    /// The timing report so far; `physics` is the pacer's (ticks, overruns), if a world runs.
+    pub fn timing_report(&self, physics: (u64, u64)) -> TimingReport {
+        let watchdog_expiries = self.with_bus(|bus| bus.servos().iter().map(|s| s.watchdog_expiries()).sum());
+        let extra = ReportExtras { watchdog_expiries, physics_ticks: physics.0, physics_overruns: physics.1 };
+        self.with_stats(|stats| stats.report(extra))
+    }
+
     fn handle(&self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>) -> Transaction {
+        let key = LoopKey { instruction: packet.instruction, id: packet.id };
         let transaction = self.with_bus(|bus| bus.handle(packet, received_at, line_baud));
+        self.with_stats(|stats| stats.request(received_at, key, transaction.wire_busy, transaction.baud_mismatch));
         let mut trace = self.trace.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(writer) = trace.as_mut()
             && let Err(error) = writer.record(&transaction)
@@ -89,6 +108,17 @@ impl BusHandle {
 pub trait LineSettings: Send + Sync {
     /// The baud the controller's port is set to, if the transport has such a thing.
     fn baud(&self) -> Option<u32>;
+
+    /// Bytes the controller has written that the emulator has not read yet, where the transport
+    /// can tell without reading (a pty). Lets a spinning wait notice a request sent early.
+    fn waiting_from_controller(&self) -> Option<usize> {
+        None
+    }
+
+    /// Reply bytes delivered that the controller has not read yet (a pty can tell).
+    fn unread_by_controller(&self) -> Option<usize> {
+        None
+    }
 }
 
 /// A transport without a baud (TCP, in-memory): every servo hears every packet.
@@ -101,10 +131,12 @@ impl LineSettings for NoLine {
     }
 }
 
-/// Sleep until `deadline` with microsecond precision: the timer wheel gets us close (it has 1 ms
-/// resolution), a spin finishes the job.
+/// The timer wheel has 1 ms resolution: sleep to this much before a deadline, spin the rest.
+const SPIN_MARGIN: Duration = Duration::from_micros(1500);
+
+/// Sleep until `deadline` with microsecond precision: the timer wheel gets us close, a spin
+/// finishes the job.
 pub async fn sleep_until_precise(deadline: Instant) {
-    const SPIN_MARGIN: Duration = Duration::from_micros(1500);
     let now = Instant::now();
     if deadline > now + SPIN_MARGIN {
         tokio::time::sleep_until((deadline - SPIN_MARGIN).into()).await;
@@ -115,55 +147,187 @@ pub async fn sleep_until_precise(deadline: Instant) {
 }
 
 /// Serve one controller connection until it closes: decode instructions, hand them to the bus,
-/// write the replies when the wire model says they have arrived.
-pub async fn serve_stream<S>(mut stream: S, handle: Arc<BusHandle>, line: &dyn LineSettings) -> Result<(), TransportError>
+/// write the replies when the wire model says they have arrived. While a reply is still on the
+/// (modelled) half-duplex wire the line is watched: bytes the controller sends then collide
+/// with it, and both arrive corrupted, as on hardware.
+pub async fn serve_stream<S>(stream: S, handle: Arc<BusHandle>, line: &dyn LineSettings) -> Result<(), TransportError>
 where
     S: AsyncRead + AsyncWrite + Unpin,
 {
     let (gap, timing) = handle.with_bus(|bus| (bus.inter_byte_timeout(), bus.timing()));
-    let mut decoder = Decoder::new(gap, DEFAULT_MAX_LEN);
-    let clock = handle.clock();
-    let mut buf = vec![0u8; 4096];
-    loop {
-        // A partial packet waits for at most the inter-byte gap: if the line stays quiet that
-        // long, drop it (and find any packet that was hidden behind a false header).
-        let read = if decoder.pending() > 0 {
-            tokio::time::timeout(gap, stream.read(&mut buf)).await.ok()
-        } else {
-            Some(stream.read(&mut buf).await)
-        };
-        let now = clock.now();
-        let results = match read {
-            None => decoder.flush(),
-            Some(read) => match read? {
-                0 => return Ok(()),
-                n => decoder.push(now, &buf[..n]),
-            },
-        };
-        for result in results {
-            match result {
-                Ok(packet) => {
-                    let span = info_span!("packet", id = packet.id, instruction = packet.instruction);
-                    let transaction = span.in_scope(|| handle.handle(packet, now, line.baud()));
-                    write_replies(&mut stream, &transaction, timing, clock).instrument(span).await?;
+    let mut session = Session {
+        stream,
+        clock: handle.clock(),
+        handle: Arc::clone(&handle),
+        line,
+        timing,
+        gap,
+        decoder: Decoder::new(gap, DEFAULT_MAX_LEN),
+        buf: vec![0u8; 4096],
+        decoded: VecDeque::new(),
+        last_reply_lens: Vec::new(),
+    };
+    session.run().await
+}
+
+/// One controller connection.
+struct Session<'a, S> {
+    stream: S,
+    handle: Arc<BusHandle>,
+    clock: Clock,
+    line: &'a dyn LineSettings,
+    timing: Timing,
+    gap: Duration,
+    decoder: Decoder,
+    buf: Vec<u8>,
+    /// Framed packets (or framing errors) not handled yet, with when their bytes arrived.
+    decoded: VecDeque<(Result<RawPacket, FrameError>, Duration)>,
+    /// Lengths of the replies last delivered, to count unread ones.
+    last_reply_lens: Vec<usize>,
+}
+
+impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
+    async fn run(&mut self) -> Result<(), TransportError> {
+        loop {
+            // A partial packet waits for at most the inter-byte gap: if the line stays quiet that
+            // long, drop it (and find any packet that was hidden behind a false header).
+            let read = if self.decoder.pending() > 0 {
+                tokio::time::timeout(self.gap, self.stream.read(&mut self.buf)).await.ok()
+            } else {
+                Some(self.stream.read(&mut self.buf).await)
+            };
+            let now = self.clock.now();
+            match read {
+                None => {
+                    self.handle.with_stats(LineStats::inter_byte_gap);
+                    let flushed = self.decoder.flush();
+                    self.decoded.extend(flushed.into_iter().map(|r| (r, now)));
                 }
-                // A bad CRC gets no reply (no error 0x03): ROBOTIS's own slave code drops such
-                // packets; unverified on XM firmware (reference §7), listed in the README.
-                Err(error) => log_frame_error(&error),
+                Some(read) => match read? {
+                    0 => return Ok(()),
+                    n => {
+                        let framed = self.decoder.push(now, &self.buf[..n]);
+                        self.decoded.extend(framed.into_iter().map(|r| (r, now)));
+                    }
+                },
+            }
+            if self.handle_decoded().await? {
+                return Ok(());
             }
         }
     }
-}
 
-async fn write_replies<S: AsyncWrite + Unpin>(stream: &mut S, transaction: &Transaction, timing: Timing, clock: Clock) -> std::io::Result<()> {
-    for reply in &transaction.replies {
-        if timing == Timing::Wire {
-            sleep_until_precise(clock.instant(reply.end)).await;
+    /// Handle every framed packet in order; true if the controller closed meanwhile.
+    async fn handle_decoded(&mut self) -> Result<bool, TransportError> {
+        while let Some((result, at)) = self.decoded.pop_front() {
+            match result {
+                Ok(packet) => {
+                    self.count_unread();
+                    let span = info_span!("packet", id = packet.id, instruction = packet.instruction);
+                    let transaction = span.in_scope(|| self.handle.handle(packet, at, self.line.baud()));
+                    if self.deliver(transaction).instrument(span).await? {
+                        return Ok(true);
+                    }
+                }
+                // A bad CRC gets no reply (no error 0x03): ROBOTIS's own slave code drops such
+                // packets; unverified on XM firmware (reference §7), listed in the README.
+                Err(error) => {
+                    self.handle.with_stats(LineStats::frame_error);
+                    log_frame_error(&error);
+                }
+            }
         }
-        stream.write_all(&reply.bytes).await?;
-        trace!(from = ?reply.from, bytes = reply.bytes.len(), "reply written");
+        Ok(false)
     }
-    stream.flush().await
+
+    /// A request while earlier replies sit unread: the controller moved on without them.
+    fn count_unread(&mut self) {
+        let Some(bytes) = self.line.unread_by_controller().filter(|&b| b > 0) else { return };
+        let mut left = bytes;
+        let mut replies = 0;
+        for &len in self.last_reply_lens.iter().rev() {
+            if left == 0 {
+                break;
+            }
+            replies += 1;
+            left = left.saturating_sub(len);
+        }
+        self.handle.with_stats(|stats| stats.unread(replies.max(1), bytes as u64));
+        debug!(bytes, "request sent while earlier replies were unread");
+    }
+
+    /// Hand the transaction's replies over when the wire model says they have arrived, watching
+    /// for bytes the controller sends meanwhile. True if the controller closed.
+    async fn deliver(&mut self, transaction: Transaction) -> Result<bool, TransportError> {
+        let mut replies = transaction.replies;
+        if replies.is_empty() {
+            return Ok(false);
+        }
+        let mut closed = false;
+        for index in 0..replies.len() {
+            if self.timing == Timing::Wire {
+                let due = replies[index].end;
+                closed |= self.wait_watching(&mut replies[index..], due).await?;
+            }
+            self.stream.write_all(&replies[index].bytes).await?;
+            trace!(from = ?replies[index].from, bytes = replies[index].bytes.len(), "reply written");
+        }
+        self.stream.flush().await?;
+        let now = self.clock.now();
+        let last = &replies[replies.len() - 1];
+        let name = transaction.instruction.as_ref().map_or("Malformed", |i| i.name());
+        let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(last.end));
+        self.handle.with_stats(|stats| stats.answered(name, replies.len(), latency, late, now));
+        self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
+        Ok(closed)
+    }
+
+    /// Wait until `due`, reading whatever the controller sends meanwhile: bytes that overlap
+    /// `undelivered` replies on the wire collide with them. True if the controller closed.
+    async fn wait_watching(&mut self, undelivered: &mut [Reply], due: Duration) -> Result<bool, TransportError> {
+        loop {
+            let now = self.clock.now();
+            if now >= due {
+                return Ok(false);
+            }
+            let read = if due - now > SPIN_MARGIN {
+                let wake = self.clock.instant(due) - SPIN_MARGIN;
+                tokio::select! {
+                    _ = tokio::time::sleep_until(wake.into()) => None,
+                    read = self.stream.read(&mut self.buf) => Some(read?),
+                }
+            } else {
+                match self.line.waiting_from_controller() {
+                    Some(0) => {
+                        std::hint::spin_loop();
+                        None
+                    }
+                    Some(_) => Some(self.stream.read(&mut self.buf).await?),
+                    // No cheap readiness check: poll the stream once without waiting.
+                    None => tokio::time::timeout(Duration::ZERO, self.stream.read(&mut self.buf)).await.ok().transpose()?,
+                }
+            };
+            match read {
+                None => {}
+                Some(0) => return Ok(true),
+                Some(n) => self.early_bytes(n, undelivered),
+            }
+        }
+    }
+
+    /// `n` bytes in the buffer arrived while replies were still due.
+    fn early_bytes(&mut self, n: usize, undelivered: &mut [Reply]) {
+        let at = self.clock.now();
+        let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
+        let sent = &mut self.buf[..n];
+        let collided = wire::collide_in_time(sent, at, undelivered, byte_time);
+        if collided > 0 {
+            self.handle.with_stats(|stats| stats.collision(collided));
+            debug!(bytes = n, collided, "controller sent while a reply was on the wire: both corrupted");
+        }
+        let framed = self.decoder.push(at, &self.buf[..n]);
+        self.decoded.extend(framed.into_iter().map(|r| (r, at)));
+    }
 }
 
 fn log_frame_error(error: &FrameError) {

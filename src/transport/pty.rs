@@ -86,10 +86,7 @@ impl VirtualPort {
 
     /// Bytes written to the controller that it has not read yet.
     pub fn unread_by_controller(&self) -> usize {
-        let mut pending: libc::c_int = 0;
-        // SAFETY: FIONREAD writes one c_int through the pointer, which is valid for the call.
-        let rc = unsafe { libc::ioctl(self.slave.as_raw_fd(), libc::FIONREAD, &mut pending) };
-        if rc == 0 { pending.max(0) as usize } else { 0 }
+        queued_bytes(self.slave.as_raw_fd()).unwrap_or(0)
     }
 
     /// Wait (up to `limit`) until the controller has read every reply, so that closing the master
@@ -103,7 +100,7 @@ impl VirtualPort {
 
     /// A handle reporting the baud the controller set on the port.
     pub fn line(&self) -> PtyLine {
-        PtyLine { slave: self.slave.as_raw_fd() }
+        PtyLine { slave: self.slave.as_raw_fd(), master: self.master.get_ref().as_raw_fd() }
     }
 
     /// Remove the link if it still points at this port (idempotent).
@@ -194,6 +191,15 @@ fn make_link(link: &Path, target: &Path) -> Result<(), PtyError> {
 #[derive(Debug, Clone, Copy)]
 pub struct PtyLine {
     slave: i32,
+    master: i32,
+}
+
+/// Bytes queued for reading on `fd` (FIONREAD).
+fn queued_bytes(fd: i32) -> Option<usize> {
+    let mut pending: libc::c_int = 0;
+    // SAFETY: FIONREAD writes one c_int through the pointer, which is valid for the call.
+    let rc = unsafe { libc::ioctl(fd, libc::FIONREAD, &mut pending) };
+    (rc == 0).then_some(pending.max(0) as usize)
 }
 
 impl LineSettings for PtyLine {
@@ -202,6 +208,14 @@ impl LineSettings for PtyLine {
         let mut termios: libc::termios2 = unsafe { std::mem::zeroed() };
         let rc = unsafe { libc::ioctl(self.slave, libc::TCGETS2, &mut termios) };
         (rc == 0).then_some(termios.c_ospeed)
+    }
+
+    fn waiting_from_controller(&self) -> Option<usize> {
+        queued_bytes(self.master)
+    }
+
+    fn unread_by_controller(&self) -> Option<usize> {
+        queued_bytes(self.slave)
     }
 }
 
