@@ -57,6 +57,11 @@ pub enum Command {
         /// Power-on baud of every servo, overriding the robot description.
         #[arg(long)]
         baud: Option<u32>,
+        /// On exit write the timing report here (JSON: loop period and jitter, request→reply
+        /// latencies, bus utilisation, collisions, unread replies, inter-byte gaps, watchdog
+        /// expiries, physics overruns) and its plot beside it (STEM-latency.png/.svg).
+        #[arg(long)]
+        report: Option<PathBuf>,
     },
     /// Run a scenario and write its time series, summary, workbook and plots. A built-in
     /// controller runs in lockstep, faster than real time; an external one (`command = [...]`)
@@ -120,8 +125,8 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, timing, trace_bus, robot, baud } => {
-            let options = ServeOptions { scenario, link, tcp, timing, trace_bus, baud };
+        Command::Serve { scenario, link, tcp, timing, trace_bus, robot, baud, report } => {
+            let options = ServeOptions { scenario, link, tcp, timing, trace_bus, baud, report };
             serve(options, &robot)
         }
         Command::Run { scenario, out, set, timing, link, robot } => {
@@ -172,10 +177,11 @@ struct ServeOptions {
     timing: TimingArg,
     trace_bus: Option<PathBuf>,
     baud: Option<u32>,
+    report: Option<PathBuf>,
 }
 
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
-    let ServeOptions { scenario, link, tcp, timing, trace_bus, baud } = options;
+    let ServeOptions { scenario, link, tcp, timing, trace_bus, baud, report } = options;
     let robot = RobotDescription::load(robot_path)?;
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
@@ -252,16 +258,32 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         }
         // Let the controller read the last reply before the master closes.
         port.drain(Duration::from_secs(1)).await;
+        let mut physics = (0, 0);
         if let Some(pacer) = pacer {
             let (ticks, overruns) = pacer.stop();
             info!(ticks, overruns, "world pacing: firmware ticks run on the wall clock, deadlines missed");
             if overruns > 0 {
                 eprintln!("climbsim: the world missed {overruns} of {ticks} wall-clock deadlines (it ran slower than real time)");
             }
+            physics = (ticks, overruns);
         }
+        finish_timing_report(&handle, physics, report.as_deref())?;
         Ok::<_, anyhow::Error>(port)
     })
     .map(|port| port.remove_link())
+}
+
+/// Print the session's timing summary and, if asked, write the report and its plot.
+fn finish_timing_report(handle: &BusHandle, physics: (u64, u64), path: Option<&std::path::Path>) -> Result<()> {
+    let report = handle.timing_report(physics);
+    eprintln!("{}", report.human_summary());
+    if let Some(path) = path {
+        let files = climbsim::report::write_timing_report(path, &report).with_context(|| format!("cannot write the timing report {}", path.display()))?;
+        for file in files {
+            eprintln!("  wrote {}", file.display());
+        }
+    }
+    Ok(())
 }
 
 /// Serve the pty until the process ends. The port outlives every controller connection.

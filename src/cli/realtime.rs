@@ -42,6 +42,9 @@ pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timin
 }
 
 /// Run `scenario` in real time with the external controller `command`.
+/// The external controller's bus timing report in a run's output folder.
+const TIMING_JSON: &str = "timing.json";
+
 pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[String], timing: Timing, link: Option<&Path>, out_dir: &Path) -> Result<RunOutcome> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
     let (bus, observer) = scenario_bus(scenario, robot, timing, None)?;
@@ -97,6 +100,7 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
     runtime.block_on(port.drain(Duration::from_millis(200)));
     let (ticks, overruns) = pacer.stop();
     port.remove_link();
+    super::finish_timing_report(&handle, (ticks, overruns), Some(&out_dir.join(TIMING_JSON)))?;
     let wall_s = started.elapsed().as_secs_f64();
     if let Some(status) = exited_early {
         eprintln!("climbsim: the controller exited after {wall_s:.1} s with {status}; see {}", log_path.display());

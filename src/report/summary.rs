@@ -101,7 +101,7 @@ pub fn write_settings_json(out_dir: &Path, settings: &Value) -> Result<PathBuf, 
     write_json(&out_dir.join(SETTINGS_JSON), settings)
 }
 
-fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<PathBuf, ReportError> {
+pub(super) fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<PathBuf, ReportError> {
     let mut text = serde_json::to_vec_pretty(value).map_err(|source| ReportError::Json {
         path: path.to_path_buf(),
         source,

@@ -166,6 +166,7 @@ where
         buf: vec![0u8; 4096],
         decoded: VecDeque::new(),
         last_reply_lens: Vec::new(),
+        controller_tx_free_at: Duration::ZERO,
     };
     session.run().await
 }
@@ -184,6 +185,9 @@ struct Session<'a, S> {
     decoded: VecDeque<(Result<RawPacket, FrameError>, Duration)>,
     /// Lengths of the replies last delivered, to count unread ones.
     last_reply_lens: Vec<usize>,
+    /// When the controller's own transmitter has shifted out everything it was given: a UART
+    /// sends a second packet only after the first, however soon the program wrote it.
+    controller_tx_free_at: Duration,
 }
 
 impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
@@ -225,6 +229,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                     self.count_unread();
                     let span = info_span!("packet", id = packet.id, instruction = packet.instruction);
                     let transaction = span.in_scope(|| self.handle.handle(packet, at, self.line.baud()));
+                    self.controller_tx_free_at = self.controller_tx_free_at.max(transaction.instruction_end);
                     if self.deliver(transaction).instrument(span).await? {
                         return Ok(true);
                     }
@@ -263,22 +268,29 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         if replies.is_empty() {
             return Ok(false);
         }
+        if self.timing == Timing::Wire {
+            self.collide_queued(&mut replies);
+        }
         let mut closed = false;
+        let last = replies.len() - 1;
         for index in 0..replies.len() {
             if self.timing == Timing::Wire {
                 let due = replies[index].end;
                 closed |= self.wait_watching(&mut replies[index..], due).await?;
             }
+            if index == last {
+                // Counted just before the hand-over (a write to the kernel takes microseconds):
+                // once written, the controller may act on it, even end the session.
+                let now = self.clock.now();
+                let name = transaction.instruction.as_ref().map_or("Malformed", |i| i.name());
+                let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(replies[last].end));
+                self.handle.with_stats(|stats| stats.answered(name, replies.len(), latency, late, now));
+                self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
+            }
             self.stream.write_all(&replies[index].bytes).await?;
             trace!(from = ?replies[index].from, bytes = replies[index].bytes.len(), "reply written");
         }
         self.stream.flush().await?;
-        let now = self.clock.now();
-        let last = &replies[replies.len() - 1];
-        let name = transaction.instruction.as_ref().map_or("Malformed", |i| i.name());
-        let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(last.end));
-        self.handle.with_stats(|stats| stats.answered(name, replies.len(), latency, late, now));
-        self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
         Ok(closed)
     }
 
@@ -315,12 +327,43 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         }
     }
 
+    /// Packets that arrived in the same read as the one just handled were written before its
+    /// replies came back: on the wire they follow it out of the controller's transmitter and
+    /// may meet the replies. Those that do are corrupted and framed again.
+    fn collide_queued(&mut self, replies: &mut [Reply]) {
+        let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
+        let mut reframed = VecDeque::with_capacity(self.decoded.len());
+        while let Some((result, at)) = self.decoded.pop_front() {
+            let Ok(packet) = result else {
+                reframed.push_back((result, at));
+                continue;
+            };
+            let on_wire = at.max(self.controller_tx_free_at);
+            self.controller_tx_free_at = on_wire + byte_time * packet.bytes.len() as u32;
+            let mut bytes = packet.bytes.clone();
+            let collided = wire::collide_in_time(&mut bytes, on_wire, replies, byte_time);
+            if collided == 0 {
+                reframed.push_back((Ok(packet), at));
+                continue;
+            }
+            self.handle.with_stats(|stats| stats.collision(collided));
+            debug!(bytes = bytes.len(), collided, "controller sent while a reply was on the wire: both corrupted");
+            let mut decoder = Decoder::new(self.gap, DEFAULT_MAX_LEN);
+            let mut framed = decoder.push(at, &bytes);
+            framed.extend(decoder.flush());
+            reframed.extend(framed.into_iter().map(|r| (r, at)));
+        }
+        self.decoded = reframed;
+    }
+
     /// `n` bytes in the buffer arrived while replies were still due.
     fn early_bytes(&mut self, n: usize, undelivered: &mut [Reply]) {
         let at = self.clock.now();
         let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
+        let on_wire = at.max(self.controller_tx_free_at);
+        self.controller_tx_free_at = on_wire + byte_time * n as u32;
         let sent = &mut self.buf[..n];
-        let collided = wire::collide_in_time(sent, at, undelivered, byte_time);
+        let collided = wire::collide_in_time(sent, on_wire, undelivered, byte_time);
         if collided > 0 {
             self.handle.with_stats(|stats| stats.collision(collided));
             debug!(bytes = n, collided, "controller sent while a reply was on the wire: both corrupted");

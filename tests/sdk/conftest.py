@@ -118,7 +118,7 @@ def climbsim_bin() -> Path:
 class Emulator:
     """One ``climbsim serve`` process and the pty link it publishes."""
 
-    def __init__(self, timing: str | None):
+    def __init__(self, timing: str | None, extra_args: tuple[str, ...] = ()):
         binary = climbsim_bin()
         if not binary.is_file() or not os.access(binary, os.X_OK):
             pytest.fail(
@@ -133,6 +133,7 @@ class Emulator:
         self.args = [str(binary), "serve", "--link", str(self.link)]
         if timing is not None:
             self.args += ["--timing", timing]
+        self.args += list(extra_args)
         self._stdout = open(self.stdout_path, "wb")
         self._stderr = open(self.stderr_path, "wb")
         self.proc = subprocess.Popen(
@@ -241,13 +242,13 @@ def _stop_and_check(emu: Emulator):
 
 @pytest.fixture
 def start_emulator(request):
-    """Factory: ``start_emulator(timing="off") -> Emulator``. Every emulator it started is
+    """Factory: ``start_emulator(timing="off", extra_args=()) -> Emulator``. Every emulator it started is
     stopped with SIGTERM at teardown, which asserts exit code 0 and that the link is gone."""
     started: list[Emulator] = []
     request.node._climbsim_emulators = started
 
-    def start(timing: str | None = "off") -> Emulator:
-        emu = Emulator(timing)
+    def start(timing: str | None = "off", extra_args: tuple[str, ...] = ()) -> Emulator:
+        emu = Emulator(timing, extra_args)
         started.append(emu)
         return emu
 
