@@ -55,7 +55,7 @@ impl CanId {
     pub fn from_raw(raw: u32) -> Option<Self> {
         match raw {
             0..=Self::STANDARD_MAX => Some(Self::Standard(raw as u16)),
-            0..=Self::EXTENDED_MAX => Some(Self::Extended(raw)),
+            0x800..=Self::EXTENDED_MAX => Some(Self::Extended(raw)),
             _ => None,
         }
     }
