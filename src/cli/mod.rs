@@ -15,6 +15,7 @@ use tracing::{info, warn};
 use climbsim::bus::{Timing, TraceWriter};
 use climbsim::robot::RobotDescription;
 use climbsim::scenario::Scenario;
+use climbsim::transport::can::CanIds;
 use climbsim::transport::{BusHandle, TcpServer, VirtualPort, parse_tcp_addr, serve_stream};
 
 #[derive(Debug, Parser)]
@@ -45,6 +46,18 @@ pub enum Command {
         /// Also listen for controllers on TCP: PORT or HOST:PORT (a bare port binds 127.0.0.1).
         #[arg(long, value_parser = parse_tcp_addr)]
         tcp: Option<std::net::SocketAddr>,
+        /// Also serve the bus on this SocketCAN interface (e.g. can0, vcan0): each Dynamixel
+        /// packet is one ISO-TP (ISO 15765-2) message. Linux, `can` feature.
+        #[arg(long, value_name = "IFACE")]
+        can: Option<String>,
+        /// The bus's CAN ID pair: REQUEST,RESPONSE (controller to bus, bus to controller).
+        /// Up to 0x7FF an 11-bit ID, above a 29-bit one.
+        #[arg(long, value_name = "REQ,RESP", value_parser = parse_can_ids, default_value = "0x7E0,0x7E8")]
+        can_ids: CanIds,
+        /// Pad every CAN frame the bus sends to 8 bytes with this byte, or `off` for the shortest
+        /// frames. Received frames are accepted padded or not.
+        #[arg(long, value_name = "BYTE|off", value_parser = parse_can_padding, default_value = "0xCC")]
+        can_padding: CanPadding,
         /// Reply timing.
         #[arg(long, value_enum, default_value = "wire")]
         timing: TimingArg,
@@ -125,8 +138,9 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, timing, trace_bus, robot, baud, report } => {
-            let options = ServeOptions { scenario, link, tcp, timing, trace_bus, baud, report };
+        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, timing, trace_bus, robot, baud, report } => {
+            let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
+            let options = ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report };
             serve(options, &robot)
         }
         Command::Run { scenario, out, set, timing, link, robot } => {
@@ -170,10 +184,38 @@ fn timing_of(timing: TimingArg) -> Timing {
     }
 }
 
+fn parse_can_ids(text: &str) -> Result<CanIds, String> {
+    CanIds::parse(text).map_err(|e| e.to_string())
+}
+
+/// `--can-padding`: a byte, or `off`.
+#[derive(Debug, Clone, Copy)]
+pub struct CanPadding(Option<u8>);
+
+fn parse_can_padding(text: &str) -> Result<CanPadding, String> {
+    if text.eq_ignore_ascii_case("off") || text.eq_ignore_ascii_case("none") {
+        return Ok(CanPadding(None));
+    }
+    let byte = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => u8::from_str_radix(hex, 16),
+        None => text.parse::<u8>(),
+    };
+    byte.map(|b| CanPadding(Some(b))).map_err(|_| format!("`{text}` is not a byte (0x00-0xFF) or `off`"))
+}
+
+#[derive(Debug, Clone)]
+#[cfg_attr(not(all(feature = "can", target_os = "linux")), allow(dead_code))]
+struct CanOptions {
+    iface: String,
+    ids: CanIds,
+    padding: Option<u8>,
+}
+
 struct ServeOptions {
     scenario: Option<PathBuf>,
     link: Option<PathBuf>,
     tcp: Option<std::net::SocketAddr>,
+    can: Option<CanOptions>,
     timing: TimingArg,
     trace_bus: Option<PathBuf>,
     baud: Option<u32>,
@@ -181,7 +223,7 @@ struct ServeOptions {
 }
 
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
-    let ServeOptions { scenario, link, tcp, timing, trace_bus, baud, report } = options;
+    let ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report } = options;
     let robot = RobotDescription::load(robot_path)?;
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
@@ -208,10 +250,18 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             Some(addr) => Some(TcpServer::bind(addr).await.with_context(|| format!("cannot listen on {addr}"))?),
             None => None,
         };
+        // The CAN socket is open (and hears requests) before the port is announced.
+        let can_thread = match &can {
+            Some(options) => Some(start_can(options.clone(), Arc::clone(&handle)).await?),
+            None => None,
+        };
         let mut stdout = std::io::stdout().lock();
         writeln!(stdout, "port: {}", port.path().display())?;
         if let Some(server) = &tcp_server {
             writeln!(stdout, "tcp: {}", server.local_addr()?)?;
+        }
+        if let Some(options) = &can {
+            writeln!(stdout, "can: {} request {} response {}", options.iface, options.ids.request, options.ids.response)?;
         }
         stdout.flush()?;
         drop(stdout);
@@ -256,6 +306,9 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         if pty_thread.is_finished() {
             warn!("the pty session had stopped before shutdown");
         }
+        if can_thread.as_ref().is_some_and(|thread| thread.is_finished()) {
+            warn!("the CAN session had stopped before shutdown");
+        }
         // Let the controller read the last reply before the master closes.
         port.drain(Duration::from_secs(1)).await;
         let mut physics = (0, 0);
@@ -284,6 +337,42 @@ fn finish_timing_report(handle: &BusHandle, physics: (u64, u64), path: Option<&s
         }
     }
     Ok(())
+}
+
+/// Open the CAN interface on a thread of its own (precise reply timing spins, like the pty's) and
+/// serve the bus there; returns once the socket is open.
+#[cfg(all(feature = "can", target_os = "linux"))]
+async fn start_can(options: CanOptions, handle: Arc<BusHandle>) -> Result<std::thread::JoinHandle<()>> {
+    use climbsim::transport::can::{SocketCanPort, isotp, serve_can};
+    let (opened_tx, opened_rx) = tokio::sync::oneshot::channel();
+    let thread = std::thread::Builder::new().name("can".into()).spawn(move || {
+        let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+            Ok(runtime) => runtime,
+            Err(error) => return drop(opened_tx.send(Err(anyhow::Error::from(error)))),
+        };
+        runtime.block_on(async move {
+            // The socket registers with this thread's runtime, so it is opened here.
+            let port = match SocketCanPort::open(&options.iface, options.ids.request) {
+                Ok(port) => port,
+                Err(error) => return drop(opened_tx.send(Err(error.into()))),
+            };
+            let _ = opened_tx.send(Ok(()));
+            let config = isotp::Config { padding: options.padding, ..isotp::Config::default() };
+            let session = tokio::spawn(serve_can(port, options.ids, config, handle));
+            match session.await {
+                Ok(Ok(())) => info!(iface = options.iface, "CAN session ended"),
+                Ok(Err(error)) => warn!(iface = options.iface, %error, "CAN session ended"),
+                Err(error) => warn!(iface = options.iface, %error, "CAN session failed"),
+            }
+        });
+    })?;
+    opened_rx.await.context("the CAN thread ended before opening its socket")??;
+    Ok(thread)
+}
+
+#[cfg(not(all(feature = "can", target_os = "linux")))]
+async fn start_can(_options: CanOptions, _handle: Arc<BusHandle>) -> Result<std::thread::JoinHandle<()>> {
+    anyhow::bail!("--can needs SocketCAN: this climbsim was built without the `can` feature or not for Linux")
 }
 
 /// Serve the pty until the process ends. The port outlives every controller connection.

@@ -1,6 +1,8 @@
-//! Byte transports between a controller and the bus: a pseudo-terminal, TCP, or an in-memory
-//! duplex ([`memory`]). All of them run the same [`serve_stream`] over any `AsyncRead + AsyncWrite`.
+//! Byte transports between a controller and the bus: a pseudo-terminal, TCP, an in-memory
+//! duplex ([`memory`]), or CAN with ISO-TP ([`can`]). All of them run the same [`serve_stream`]
+//! over any `AsyncRead + AsyncWrite`.
 
+pub mod can;
 pub mod memory;
 mod pty;
 pub mod stats;
@@ -29,6 +31,8 @@ pub enum TransportError {
     Tcp(std::io::Error),
     #[error("bus I/O: {0}")]
     Io(#[from] std::io::Error),
+    #[error(transparent)]
+    Can(#[from] can::CanError),
 }
 
 /// The emulator's monotonic time base: every timestamp is a `Duration` since `origin`.
