@@ -18,13 +18,12 @@
 mod support;
 
 use std::fs::{File, OpenOptions};
-use std::io::{Read, Write};
 use std::os::fd::{AsFd, OwnedFd};
 use std::os::unix::fs::OpenOptionsExt;
 use std::time::Instant;
 
 use climbsim::protocol::{crc16, encode_instruction};
-use nix::sys::termios::{BaudRate, SetArg, SpecialCharacterIndices, cfmakeraw, cfsetspeed, tcgetattr, tcsetattr};
+use nix::sys::termios::BaudRate;
 use support::Emulator;
 
 const READ: u8 = 0x02;
@@ -52,7 +51,7 @@ fn main() {
     set_cloexec(&pty.master);
     set_cloexec(&pty.slave);
     let echo_client = File::from(pty.slave);
-    configure_raw(&echo_client);
+    support::configure_raw(&echo_client, BaudRate::B57600);
     let master = pty.master;
     let echo = std::thread::Builder::new()
         .name("echo".into())
@@ -67,18 +66,18 @@ fn main() {
         .custom_flags(libc::O_NOCTTY)
         .open(emulator.port())
         .unwrap_or_else(|e| panic!("open {}: {e}", emulator.port().display()));
-    configure_raw(&sim_client);
+    support::configure_raw(&sim_client, BaudRate::B57600);
 
     let mut buf = [0u8; 64];
     // Check both paths answer what they should before timing anything.
-    round_trip(&echo_client, &request, request.len(), &mut buf);
+    support::round_trip(&echo_client, &request, request.len(), &mut buf);
     assert_eq!(&buf[..request.len()], &request[..], "echo returned other bytes");
-    round_trip(&sim_client, &request, REPLY_LEN, &mut buf);
+    support::round_trip(&sim_client, &request, REPLY_LEN, &mut buf);
     check_reply(&buf[..REPLY_LEN]);
 
     for _ in 0..cfg.warmup {
-        round_trip(&echo_client, &request, request.len(), &mut buf);
-        round_trip(&sim_client, &request, REPLY_LEN, &mut buf);
+        support::round_trip(&echo_client, &request, request.len(), &mut buf);
+        support::round_trip(&sim_client, &request, REPLY_LEN, &mut buf);
     }
     let mut echo_ns = Vec::with_capacity(cfg.blocks * cfg.per_block);
     let mut sim_ns = Vec::with_capacity(cfg.blocks * cfg.per_block);
@@ -89,9 +88,9 @@ fn main() {
         for is_echo in order {
             for _ in 0..cfg.per_block {
                 if is_echo {
-                    echo_ns.push(round_trip(&echo_client, &request, request.len(), &mut buf));
+                    echo_ns.push(support::round_trip(&echo_client, &request, request.len(), &mut buf));
                 } else {
-                    sim_ns.push(round_trip(&sim_client, &request, REPLY_LEN, &mut buf));
+                    sim_ns.push(support::round_trip(&sim_client, &request, REPLY_LEN, &mut buf));
                     // Spot-check: every reply is the full, valid status packet.
                     check_reply(&buf[..REPLY_LEN]);
                 }
@@ -148,32 +147,6 @@ fn set_cloexec(fd: &OwnedFd) {
     // SAFETY: fcntl on a descriptor we own.
     let rc = unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_SETFD, libc::FD_CLOEXEC) };
     assert_eq!(rc, 0, "fcntl(FD_CLOEXEC)");
-}
-
-/// Raw mode, 57600 baud, blocking reads that return as soon as one byte is there.
-fn configure_raw(port: &File) {
-    let mut t = tcgetattr(port).expect("tcgetattr");
-    cfmakeraw(&mut t);
-    cfsetspeed(&mut t, BaudRate::B57600).expect("cfsetspeed");
-    t.control_chars[SpecialCharacterIndices::VMIN as usize] = 1;
-    t.control_chars[SpecialCharacterIndices::VTIME as usize] = 0;
-    tcsetattr(port, SetArg::TCSANOW, &t).expect("tcsetattr");
-}
-
-/// Write `request`, read until `expect` bytes have arrived; the elapsed nanoseconds.
-fn round_trip(mut port: &File, request: &[u8], expect: usize, buf: &mut [u8]) -> u64 {
-    let t0 = Instant::now();
-    port.write_all(request).expect("write request");
-    let mut got = 0;
-    while got < expect {
-        match port.read(&mut buf[got..expect]) {
-            Ok(0) => panic!("port closed after {got} of {expect} bytes"),
-            Ok(n) => got += n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => panic!("read: {e}"),
-        }
-    }
-    t0.elapsed().as_nanos() as u64
 }
 
 fn check_reply(reply: &[u8]) {

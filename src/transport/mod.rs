@@ -123,6 +123,13 @@ pub trait LineSettings: Send + Sync {
     fn unread_by_controller(&self) -> Option<usize> {
         None
     }
+
+    /// Block the calling thread until the controller has written something or `timeout` has
+    /// passed, on a precise timer: Some(true) if bytes are waiting. None: the transport cannot,
+    /// and the caller waits on the runtime's timer instead.
+    fn wait_for_controller(&self, _timeout: Duration) -> Option<bool> {
+        None
+    }
 }
 
 /// A transport without a baud (TCP, in-memory): every servo hears every packet.
@@ -137,6 +144,9 @@ impl LineSettings for NoLine {
 
 /// The timer wheel has 1 ms resolution: sleep to this much before a deadline, spin the rest.
 const SPIN_MARGIN: Duration = Duration::from_micros(1500);
+/// With a precise timer (a transport's own `wait_for_controller`), the spin that absorbs its
+/// wake-up latency.
+const FINAL_SPIN: Duration = Duration::from_micros(200);
 
 /// Sleep until `deadline` with microsecond precision: the timer wheel gets us close, a spin
 /// finishes the job.
@@ -306,7 +316,11 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             if now >= due {
                 return Ok(false);
             }
-            let read = if due - now > SPIN_MARGIN {
+            let remaining = due - now;
+            let precise_wait = if remaining > FINAL_SPIN { self.line.wait_for_controller(remaining - FINAL_SPIN) } else { None };
+            let read = if let Some(ready) = precise_wait {
+                if ready { Some(self.stream.read(&mut self.buf).await?) } else { None }
+            } else if remaining > SPIN_MARGIN {
                 let wake = self.clock.instant(due) - SPIN_MARGIN;
                 tokio::select! {
                     _ = tokio::time::sleep_until(wake.into()) => None,

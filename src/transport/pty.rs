@@ -217,6 +217,16 @@ impl LineSettings for PtyLine {
     fn unread_by_controller(&self) -> Option<usize> {
         queued_bytes(self.slave)
     }
+
+    fn wait_for_controller(&self, timeout: Duration) -> Option<bool> {
+        // ppoll(2) sleeps on a high-resolution timer (tens of µs late, not the 1 ms of tokio's
+        // timer wheel); the pty's own thread has nothing else to do meanwhile.
+        let mut fds = [libc::pollfd { fd: self.master, events: libc::POLLIN, revents: 0 }];
+        let timeout = libc::timespec { tv_sec: timeout.as_secs() as libc::time_t, tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32) };
+        // SAFETY: one valid pollfd for the call's duration, a valid timespec, no signal mask.
+        let rc = unsafe { libc::ppoll(fds.as_mut_ptr(), 1, &timeout, std::ptr::null()) };
+        Some(rc > 0 && fds[0].revents & libc::POLLIN != 0)
+    }
 }
 
 impl AsyncRead for PortStream {

@@ -276,3 +276,31 @@ pub fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     values[values.len() / 2]
 }
+
+/// Raw mode at `baud`, blocking reads that return as soon as one byte is there.
+pub fn configure_raw(port: &std::fs::File, baud: nix::sys::termios::BaudRate) {
+    use nix::sys::termios::{SetArg, SpecialCharacterIndices, cfmakeraw, cfsetspeed, tcgetattr, tcsetattr};
+    let mut t = tcgetattr(port).expect("tcgetattr");
+    cfmakeraw(&mut t);
+    cfsetspeed(&mut t, baud).expect("cfsetspeed");
+    t.control_chars[SpecialCharacterIndices::VMIN as usize] = 1;
+    t.control_chars[SpecialCharacterIndices::VTIME as usize] = 0;
+    tcsetattr(port, SetArg::TCSANOW, &t).expect("tcsetattr");
+}
+
+/// Write `request`, read until `expect` bytes have arrived in `buf`; the elapsed nanoseconds.
+pub fn round_trip(mut port: &std::fs::File, request: &[u8], expect: usize, buf: &mut [u8]) -> u64 {
+    use std::io::{Read, Write};
+    let t0 = Instant::now();
+    port.write_all(request).expect("write request");
+    let mut got = 0;
+    while got < expect {
+        match port.read(&mut buf[got..expect]) {
+            Ok(0) => panic!("port closed after {got} of {expect} bytes"),
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => panic!("read: {e}"),
+        }
+    }
+    t0.elapsed().as_nanos() as u64
+}
