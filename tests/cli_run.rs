@@ -186,3 +186,32 @@ fn serve_with_a_line_starts_the_sensor_server() {
     assert!(line["d"].as_f64().is_some_and(|d| (d + 0.05).abs() < 0.003), "{line}");
     assert!(png.starts_with(b"HTTP/1.1 200") && png.windows(4).any(|w| w == b"\x89PNG"), "camera.png");
 }
+
+#[test]
+fn a_run_stopped_by_sigterm_writes_complete_outputs_of_the_part_it_ran() {
+    let out = support::scratch_dir("run-interrupted");
+    let out_arg = out.display().to_string();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["run", "scenarios/flat-line.toml", "--out", &out_arg, "--set", "world.duration_s=100000", "--set", "expect={}"])
+        .current_dir(repo())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start climbsim run");
+    // Long enough to be well into the run on any machine; the scenario would take hours.
+    std::thread::sleep(std::time::Duration::from_secs(3));
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
+    let output = child.wait_with_output().expect("wait");
+    assert!(!output.status.success(), "an interrupted run exits non-zero: {}", text(&output));
+    assert!(text(&output).contains("interrupted at t ="), "{}", text(&output));
+    let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("summary.json")).expect("summary.json")).expect("summary is JSON");
+    let stopped_at = summary["interrupted_at_s"].as_f64().unwrap_or_else(|| panic!("no interrupted_at_s: {summary}"));
+    assert!(stopped_at > 0.0 && stopped_at < 100000.0, "{stopped_at}");
+    let series = climbsim::report::read_timeseries_csv(&out.join("timeseries.csv")).expect("timeseries.csv reads back");
+    let t = series.column("t_s").expect("t_s");
+    assert!(!t.is_empty() && t.last().is_some_and(|&last| last <= stopped_at + 1e-9), "{} rows up to {:?}", t.len(), t.last());
+    for file in ["settings.json", "report.xlsx", "distance.png", "speed.png"] {
+        assert!(std::fs::metadata(out.join(file)).is_ok_and(|m| m.len() > 0), "{file}");
+    }
+    assert!(std::fs::read_dir(&out).expect("out").all(|e| !e.expect("entry").file_name().to_string_lossy().ends_with(".tmp")));
+}

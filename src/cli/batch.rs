@@ -14,7 +14,7 @@ use serde_json::Value;
 use climbsim::report::junit::{JunitCase, write_junit};
 use climbsim::report::{self, PlotLabels, PlotSeries, TimeSeries};
 use climbsim::robot::RobotDescription;
-use climbsim::scenario::run::{RunOutcome, run_lockstep, write_outputs};
+use climbsim::scenario::run::{RunOutcome, run_lockstep_until, write_outputs};
 use climbsim::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
@@ -34,8 +34,11 @@ pub fn print_summary(outcome: &RunOutcome, out_dir: &Path) {
 
 /// `climbsim run SCENARIO` with a built-in controller.
 pub fn run_builtin(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path) -> Result<RunOutcome> {
-    let outcome = run_lockstep(scenario, robot)?;
+    let outcome = run_lockstep_until(scenario, robot, super::interrupt::flag())?;
     write_outputs(&outcome, out_dir).with_context(|| format!("writing outputs to {}", out_dir.display()))?;
+    if let Some(at) = outcome.summary.get("interrupted_at_s") {
+        bail!("interrupted at t = {at} s; the outputs in {} cover the run up to then", out_dir.display());
+    }
     Ok(outcome)
 }
 
@@ -67,6 +70,9 @@ pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit
     }
     let mut cases = Vec::new();
     for file in &files {
+        if super::interrupt::requested() {
+            bail!("interrupted; {} of {} scenarios were checked", cases.len(), files.len());
+        }
         let started = Instant::now();
         let name = file.display().to_string();
         let failures = match Scenario::load(file) {
@@ -142,6 +148,10 @@ pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, rob
         for _ in 0..jobs.max(1) {
             scope.spawn(|| {
                 while let Some((point, scenario)) = scenarios.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    // Interrupted: the runs under way stop and write; no new ones start.
+                    if super::interrupt::requested() {
+                        break;
+                    }
                     let run_dir = out_dir.join("runs").join(point.label());
                     match run_builtin(scenario, robot, &run_dir) {
                         Ok(outcome) => {

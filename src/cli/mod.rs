@@ -1,6 +1,7 @@
 //! Command-line interface: `climbsim serve`, `run`, `check` and `sweep`.
 
 mod batch;
+mod interrupt;
 mod realtime;
 
 use std::io::Write as _;
@@ -144,6 +145,7 @@ pub fn run(cli: Cli) -> Result<()> {
             serve(options, &robot)
         }
         Command::Run { scenario, out, set, timing, link, robot } => {
+            interrupt::install()?;
             let robot = RobotDescription::load(&robot)?;
             let overrides = batch::parse_overrides(&set)?;
             let loaded = Scenario::load_with(&scenario, &overrides)?;
@@ -160,10 +162,12 @@ pub fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Check { paths, junit, out, robot } => {
+            interrupt::install()?;
             let robot = RobotDescription::load(&robot)?;
             batch::check(&paths, &robot, &out, junit.as_deref())
         }
         Command::Sweep { scenario, set, jobs, shard, merge, out, robot } => {
+            interrupt::install()?;
             if !merge.is_empty() {
                 return batch::merge(&merge, &out);
             }

@@ -89,7 +89,7 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
 
     let duration = Duration::from_secs_f64(scenario.world.duration_s);
     let mut exited_early = None;
-    while started.elapsed() < duration {
+    while started.elapsed() < duration && !super::interrupt::requested() {
         if let Some(status) = child.try_wait()? {
             exited_early = Some(status);
             break;
@@ -115,8 +115,15 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
     summary.insert("physics_ticks".to_owned(), json!(ticks));
     summary.insert("physics_overruns".to_owned(), json!(overruns));
     summary.insert("controller_exit".to_owned(), json!(status.map(|s| s.to_string())));
+    let interrupted = super::interrupt::requested();
+    if interrupted {
+        summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
+    }
     let outcome = RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s };
     write_outputs(&outcome, out_dir)?;
+    if interrupted {
+        anyhow::bail!("interrupted at t = {sim_s:.1} s; the outputs in {} cover the run up to then", out_dir.display());
+    }
     Ok(outcome)
 }
 

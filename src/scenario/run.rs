@@ -7,6 +7,7 @@
 //! external controller on the virtual port.
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use rapier3d::prelude::Vector;
@@ -353,6 +354,12 @@ pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
 
 /// Run a scenario with the built-in controller in lockstep, as fast as the CPU allows.
 pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<RunOutcome, RunError> {
+    run_lockstep_until(scenario, robot, &AtomicBool::new(false))
+}
+
+/// [`run_lockstep`], ending early when `stop` is set (e.g. by SIGINT): the outcome then covers
+/// the run up to that moment and its summary says where it stopped (`interrupted_at_s`).
+pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &AtomicBool) -> Result<RunOutcome, RunError> {
     let ControllerSection::Builtin(config) = &scenario.controller else {
         return Err(RunError::NeedsRealTime { path: scenario.path.clone() });
     };
@@ -370,7 +377,12 @@ pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<Run
     controller.start(&mut sim)?;
     let period = config.period();
     let end = Duration::from_secs_f64(scenario.world.duration_s);
+    let mut interrupted = false;
     while sim.now() < end {
+        if stop.load(Ordering::Relaxed) {
+            interrupted = true;
+            break;
+        }
         let now = sim.now();
         let t_s = now.as_secs_f64();
         observer.apply_events(t_s, sim.world_mut())?;
@@ -384,6 +396,9 @@ pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<Run
     let sim_s = sim.now().as_secs_f64();
     let mut summary = observer.summary(scenario.capture.on_line_tolerance_m);
     summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
+    if interrupted {
+        summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
+    }
     Ok(RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s })
 }
 
