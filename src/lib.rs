@@ -7,6 +7,7 @@
 pub mod protocol;
 pub mod source_location;
 pub mod device;
+pub mod fault;
 pub mod bus;
 pub mod robot;
 pub mod scenario;

@@ -28,12 +28,16 @@ pub enum ServoRole {
 }
 
 /// Which wheel a servo belongs to.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WheelPosition {
+    #[serde(alias = "fl")]
     FrontLeft,
+    #[serde(alias = "fr")]
     FrontRight,
+    #[serde(alias = "rl")]
     RearLeft,
+    #[serde(alias = "rr")]
     RearRight,
 }
 

@@ -6,6 +6,7 @@
 //! the end of what preceded it and occupies the wire for its own bytes. With [`Timing::Off`] every
 //! reply is due at once.
 
+mod faults;
 mod trace;
 pub mod wire;
 
@@ -17,6 +18,7 @@ use tracing::{debug, trace as trace_event, warn};
 use crate::device::{Addressing, FirmwareProfile, Outcome, Plant, Request, Servo};
 use crate::protocol::{self, BROADCAST_ID, FastReplyBuilder, Instruction, RawPacket, encode_status};
 
+pub use faults::{BusFaults, FaultCounts};
 pub use trace::{TraceWriter, transaction_json};
 
 /// Whether replies are paced like a real wire.
@@ -77,6 +79,7 @@ pub struct Bus {
     wire_free_at: Duration,
     /// The line baud last reported as matching no servo, so the warning is logged once.
     mismatch_warned_for: Option<u32>,
+    faults: BusFaults,
 }
 
 impl std::fmt::Debug for Bus {
@@ -98,7 +101,7 @@ impl Bus {
             }
         }
         let bits_per_byte = servos.first().map_or(10, |s| s.profile().model.bits_per_byte);
-        Ok(Self { servos, plant, timing, bits_per_byte, default_baud, wire_free_at: Duration::ZERO, mismatch_warned_for: None })
+        Ok(Self { servos, plant, timing, bits_per_byte, default_baud, wire_free_at: Duration::ZERO, mismatch_warned_for: None, faults: BusFaults::default() })
     }
 
     pub fn servos(&self) -> &[Servo] {
@@ -140,6 +143,7 @@ impl Bus {
 
     /// Advance the servos' physics to `now` without any packet (e.g. on a timer).
     pub fn advance(&mut self, now: Duration) {
+        self.apply_faults_until(now);
         self.plant.advance(&mut self.servos, now);
     }
 
@@ -155,10 +159,14 @@ impl Bus {
             }
             Timing::Off => (received_at, received_at),
         };
+        self.apply_faults_until(instruction_end);
         self.plant.advance(&mut self.servos, instruction_end);
         let instruction = Instruction::parse(packet.instruction, &packet.params);
         let wire_busy = self.wire_time(packet.wire_len, baud);
         let mut transaction = Transaction { packet, instruction, received_at, instruction_end, replies: Vec::new(), wire_busy, baud_mismatch: false };
+        if self.faults.instruction_corrupted(transaction.packet.wire_len, self.bits_per_byte) {
+            return transaction; // bit errors: every servo's CRC check fails, nobody answers
+        }
         if transaction.packet.instruction == protocol::STATUS_INSTRUCTION {
             return transaction; // another device's status packet: nothing to do
         }
@@ -175,6 +183,7 @@ impl Bus {
                     && servo.speaks_protocol_2()
                     && line_baud.is_none_or(|bps| servo.baud_bps() == Some(bps))
             })
+            .filter(|&i| !self.faults.is_silent(self.servos[i].id()))
             .collect();
         if hearing.len() < self.servos.len() && line_baud.is_some() {
             trace_event!(hearing = hearing.len(), baud, "some servos do not hear this baud or are booting");
@@ -184,6 +193,7 @@ impl Bus {
         }
         let pending = self.route(transaction.packet.id, instruction, &hearing, instruction_end);
         transaction.replies = self.schedule(pending, reply_base, baud);
+        self.faults.on_replies(&mut transaction.replies);
         transaction.wire_busy += transaction.replies.iter().map(|r| self.wire_time(r.bytes.len(), baud)).sum::<Duration>();
         if let Some(last) = transaction.replies.last() {
             self.wire_free_at = last.end;

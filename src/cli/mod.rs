@@ -14,6 +14,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use tracing::{info, warn};
 
 use climbsim::bus::{Timing, TraceWriter};
+use climbsim::fault::ScheduledFault;
 use climbsim::robot::RobotDescription;
 use climbsim::scenario::Scenario;
 use climbsim::transport::can::CanIds;
@@ -76,6 +77,11 @@ pub enum Command {
         /// expiries, physics overruns) and its plot beside it (STEM-latency.png/.svg).
         #[arg(long)]
         report: Option<PathBuf>,
+        /// Inject a fault: KIND[:key=value,...] with `at`/`until` in seconds, e.g.
+        /// `overload:id=2,at=5` or `late_replies:id=3,delay_ms=4,until=10` (repeatable; the keys
+        /// of a scenario's `fault` table, see scenarios/README.md).
+        #[arg(long = "fault", value_name = "SPEC", value_parser = parse_fault)]
+        faults: Vec<ScheduledFault>,
     },
     /// Run a scenario and write its time series, summary, workbook and plots. A built-in
     /// controller runs in lockstep, faster than real time; an external one (`command = [...]`)
@@ -98,6 +104,9 @@ pub enum Command {
         link: Option<PathBuf>,
         #[arg(long, default_value_os_t = RobotDescription::default_path())]
         robot: PathBuf,
+        /// Inject a fault, as `serve --fault` (added to the scenario's events; repeatable).
+        #[arg(long = "fault", value_name = "SPEC", value_parser = parse_fault)]
+        faults: Vec<ScheduledFault>,
     },
     /// Run scenarios and test their `[expect]` thresholds; exit non-zero if any fails.
     Check {
@@ -139,16 +148,17 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, timing, trace_bus, robot, baud, report } => {
+        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, timing, trace_bus, robot, baud, report, faults } => {
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
-            let options = ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report };
+            let options = ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults };
             serve(options, &robot)
         }
-        Command::Run { scenario, out, set, timing, link, robot } => {
+        Command::Run { scenario, out, set, timing, link, robot, faults } => {
             interrupt::install()?;
             let robot = RobotDescription::load(&robot)?;
             let overrides = batch::parse_overrides(&set)?;
-            let loaded = Scenario::load_with(&scenario, &overrides)?;
+            let mut loaded = Scenario::load_with(&scenario, &overrides)?;
+            add_fault_events(&mut loaded, faults);
             let out_dir = out.unwrap_or_else(|| batch::default_out_dir(&scenario));
             let outcome = match &loaded.controller {
                 climbsim::scenario::ControllerSection::Builtin(_) => batch::run_builtin(&loaded, &robot, &out_dir)?,
@@ -224,20 +234,45 @@ struct ServeOptions {
     trace_bus: Option<PathBuf>,
     baud: Option<u32>,
     report: Option<PathBuf>,
+    faults: Vec<ScheduledFault>,
+}
+
+/// `--fault SPEC`, parsed by the code that reads a scenario's `fault` table.
+fn parse_fault(spec: &str) -> Result<ScheduledFault, String> {
+    ScheduledFault::parse(spec).map_err(|e| e.to_string())
+}
+
+/// Append `--fault` faults to a scenario as events.
+fn add_fault_events(scenario: &mut Scenario, faults: Vec<ScheduledFault>) {
+    scenario.events.extend(faults.into_iter().map(|f| climbsim::scenario::Event {
+        at_s: f.at_s,
+        set_speed_mm_min: None,
+        line_offset_m: None,
+        magnets: None,
+        fault: Some(f.fault),
+        until_s: f.until_s,
+    }));
 }
 
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
-    let ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report } = options;
+    let ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults } = options;
     let robot = RobotDescription::load(robot_path)?;
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
     // A world with a weld line also gets the camera, the line detector and the sensor server.
     let (bus, observer) = match &scenario {
         Some(path) => {
-            let (bus, observer) = realtime::scenario_bus(&Scenario::load(path)?, &robot, timing, baud)?;
+            let mut loaded = Scenario::load(path)?;
+            add_fault_events(&mut loaded, faults);
+            let (bus, observer) = realtime::scenario_bus(&loaded, &robot, timing, baud)?;
             (bus, observer.map(|o| Arc::new(std::sync::Mutex::new(o))))
         }
-        None => (robot.bench_bus(timing, baud)?, None),
+        None => {
+            let mut bus = robot.bench_bus(timing, baud)?;
+            // The bench has no scenario seed: its faults draw from seed 0.
+            bus.set_faults(climbsim::bus::BusFaults::new(faults, 0));
+            (bus, None)
+        }
     };
     let trace = match &trace_bus {
         Some(path) => {

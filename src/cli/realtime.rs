@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use serde_json::json;
 use tracing::{info, warn};
 
-use climbsim::bus::Timing;
+use climbsim::bus::{BusFaults, Timing};
 use climbsim::robot::RobotDescription;
 use climbsim::bus::Bus;
 use climbsim::scenario::run::{Observer, RunError, RunOutcome, settings_json, write_outputs};
@@ -38,7 +38,9 @@ pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timin
     let servos = robot.servos(baud)?;
     let world = RobotWorld::new(robot, scenario.world_config()?, &servos)?;
     let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;
-    Ok((robot.bus_of(servos, Box::new(world), timing, baud)?, observer))
+    let mut bus = robot.bus_of(servos, Box::new(world), timing, baud)?;
+    bus.set_faults(BusFaults::new(scenario.faults(), scenario.world.seed));
+    Ok((bus, observer))
 }
 
 /// Run `scenario` in real time with the external controller `command`.
@@ -115,6 +117,7 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
     summary.insert("physics_ticks".to_owned(), json!(ticks));
     summary.insert("physics_overruns".to_owned(), json!(overruns));
     summary.insert("controller_exit".to_owned(), json!(status.map(|s| s.to_string())));
+    summary.extend(handle.with_bus(|bus| climbsim::scenario::run::fault_summary(bus)));
     let interrupted = super::interrupt::requested();
     if interrupted {
         summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
@@ -172,7 +175,7 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
                 "d_err_m": truth.d_err_m, "psi_err_rad": truth.psi_err_rad, "speed_m_s": truth.speed_m_s,
             }));
         }
-        if let Err(error) = observer.capture(t_s, world, None) {
+        if let Err(error) = observer.capture(t_s, bus, None) {
             keep(error.to_string());
         }
     })

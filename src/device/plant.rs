@@ -12,6 +12,11 @@ pub trait Plant: Send {
     /// For callers that know the concrete plant (tests, sensors) to reach it through the bus.
     fn as_any(&self) -> &dyn std::any::Any;
     fn as_any_mut(&mut self) -> &mut dyn std::any::Any;
+    /// Start (`active`) or end a fault that acts on the plant (a magnet, the terrain); `key`
+    /// tells apart faults of the same kind. False if this plant has nothing it could act on.
+    fn inject_fault(&mut self, _key: usize, _fault: &crate::fault::Fault, _active: bool) -> bool {
+        false
+    }
 }
 
 /// Each servo on the bench, driving only its own rotor (and an optional extra inertia).

@@ -182,9 +182,21 @@ pub struct Servo {
     /// Multiple of a turn subtracted from the raw multi-turn count (single-turn re-basing).
     turn_base: i64,
     temperature_c: f64,
+    /// Air around the servo (°C): the profile's ambient unless a fault heats it.
+    ambient_c: f64,
     overload_s: f64,
     supply_voltage_v: f64,
+    /// Noise on what the encoder reads (a fault), with its own seeded generator.
+    encoder_noise: Option<EncoderNoise>,
     next_tick: Duration,
+}
+
+/// Gaussian encoder noise: position (pulses) and speed estimate (Present Velocity units).
+#[derive(Debug, Clone)]
+struct EncoderNoise {
+    position_std_pulses: f64,
+    velocity_std: f64,
+    rng: crate::fault::SplitMix64,
 }
 
 impl Servo {
@@ -219,8 +231,10 @@ impl Servo {
             shaft: ShaftState::default(),
             turn_base: 0,
             temperature_c: profile.motor.ambient_temperature_c,
+            ambient_c: profile.motor.ambient_temperature_c,
             overload_s: 0.0,
             supply_voltage_v,
+            encoder_noise: None,
             next_tick: Duration::ZERO,
         };
         servo.boot(Duration::ZERO, false);
@@ -301,6 +315,41 @@ impl Servo {
     /// The supply voltage at the servo's connector (a fault may change it).
     pub fn set_supply_voltage(&mut self, volts: f64) {
         self.supply_voltage_v = volts;
+    }
+
+    pub fn supply_voltage(&self) -> f64 {
+        self.supply_voltage_v
+    }
+
+    /// Winding temperature (°C) of the thermal model (Present Temperature is it rounded).
+    pub fn temperature_c(&self) -> f64 {
+        self.temperature_c
+    }
+
+    /// The air temperature around the servo (a fault); `None` restores the profile's ambient.
+    pub fn set_ambient_temperature(&mut self, celsius: Option<f64>) {
+        self.ambient_c = celsius.unwrap_or(self.motor.spec().ambient_temperature_c);
+    }
+
+    /// Gaussian noise on what the encoder reads: position (standard deviation in pulses) and
+    /// speed estimate (in Present Velocity units), from a generator seeded with `seed`; `None`
+    /// for a clean encoder.
+    pub fn set_encoder_noise(&mut self, noise: Option<(f64, f64)>, seed: u64) {
+        self.encoder_noise = noise.map(|(position_std_pulses, velocity_std)| EncoderNoise { position_std_pulses, velocity_std, rng: crate::fault::SplitMix64::new(seed) });
+    }
+
+    /// What the encoder reports for the true `shaft`: the shaft itself, or with noise on the
+    /// position and speed. Noise is what the sensor reads, not what the motor feels: the back-EMF
+    /// speed stays the true one.
+    fn read_encoder(&mut self, shaft: ShaftState) -> ShaftState {
+        let Some(noise) = &mut self.encoder_noise else { return shaft };
+        let position = noise.position_std_pulses * noise.rng.next_gaussian() * self.units.rad_per_pulse();
+        let velocity = noise.velocity_std * noise.rng.next_gaussian() * self.units.rpm_per_velocity * TAU / 60.0;
+        ShaftState {
+            position_rad: shaft.position_rad + position,
+            velocity_rad_s: shaft.velocity_rad_s + velocity,
+            back_emf_velocity_rad_s: Some(shaft.back_emf_velocity()),
+        }
     }
 
     /// The status error byte for an outcome: error number plus the alert bit.
@@ -648,9 +697,9 @@ impl Servo {
     /// Take the shaft state after the tick, update every Present register and the protections.
     pub fn sense(&mut self, now: Duration, shaft: ShaftState) {
         let dt = self.period.as_secs_f64();
-        self.shaft = shaft;
+        self.shaft = self.read_encoder(shaft);
         self.next_tick = now + self.period;
-        let torque = self.last_drive.electrical_torque(shaft.back_emf_velocity());
+        let torque = self.last_drive.electrical_torque(self.shaft.back_emf_velocity());
         let current_a = self.motor.current_for_torque(torque);
         self.update_thermal(current_a, dt);
         self.publish_state(now);
@@ -826,7 +875,7 @@ impl Servo {
 
     fn update_thermal(&mut self, current_a: f64, dt: f64) {
         let spec = self.motor.spec();
-        let steady = spec.ambient_temperature_c + self.motor.copper_loss_w(current_a) * spec.thermal_resistance_c_per_w;
+        let steady = self.ambient_c + self.motor.copper_loss_w(current_a) * spec.thermal_resistance_c_per_w;
         self.temperature_c += (steady - self.temperature_c) * (dt / spec.thermal_time_constant_s).min(1.0);
     }
 
@@ -903,7 +952,7 @@ impl Servo {
     pub fn skip_idle_until(&mut self, now: Duration) {
         let spec = self.motor.spec();
         let elapsed = now.saturating_sub(self.next_tick).as_secs_f64();
-        let ambient = spec.ambient_temperature_c;
+        let ambient = self.ambient_c;
         self.temperature_c = ambient + (self.temperature_c - ambient) * (-elapsed / spec.thermal_time_constant_s).exp();
         self.next_tick = now;
         self.publish_state(now);

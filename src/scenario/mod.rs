@@ -17,6 +17,7 @@ pub mod sweep;
 pub use overrides::{Override, OverrideError, parse_value, split_values};
 
 use crate::control::ReferenceConfig;
+use crate::fault::{Fault, ScheduledFault};
 use crate::sim::LineCameraSettings;
 use crate::sim::terrain::{TerrainError, TerrainSpec, generate};
 use crate::sim::{StartPose, WorldConfig};
@@ -30,6 +31,8 @@ pub enum ScenarioError {
     Override { path: PathBuf, set: String, message: String },
     #[error("scenario {path}: terrain: {source}")]
     Terrain { path: PathBuf, source: TerrainError },
+    #[error("scenario {path}: [[events]] at_s = {at_s}: {message}")]
+    Event { path: PathBuf, at_s: f64, message: String },
 }
 
 fn default_gravity() -> [f32; 3] {
@@ -163,6 +166,19 @@ pub struct Event {
     /// Magnets on or off.
     #[serde(default)]
     pub magnets: Option<bool>,
+    /// A fault that starts at `at_s` (see [`crate::fault::Fault`]).
+    #[serde(default)]
+    pub fault: Option<Fault>,
+    /// When the fault ends (it lasts to the end of the run without).
+    #[serde(default)]
+    pub until_s: Option<f64>,
+}
+
+impl Event {
+    /// The event's fault with its window, if it has one.
+    pub fn scheduled_fault(&self) -> Option<ScheduledFault> {
+        self.fault.clone().map(|fault| ScheduledFault { at_s: self.at_s, until_s: self.until_s, fault })
+    }
 }
 
 fn default_capture_hz() -> f64 {
@@ -246,7 +262,26 @@ impl Scenario {
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
         let mut scenario: Self = load_toml("scenario", path)?;
         scenario.path = path.to_owned();
+        scenario.check_events()?;
         Ok(scenario)
+    }
+
+    /// What serde cannot check in `[[events]]`: a fault's ranges and window.
+    fn check_events(&self) -> Result<(), ScenarioError> {
+        for event in &self.events {
+            let fail = |message: String| ScenarioError::Event { path: self.path.clone(), at_s: event.at_s, message };
+            match event.scheduled_fault() {
+                Some(fault) => fault.validate().map_err(|e| fail(e.to_string()))?,
+                None if event.until_s.is_some() => return Err(fail("until_s needs a fault in the same event".into())),
+                None => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// The faults the events schedule, in file order.
+    pub fn faults(&self) -> Vec<ScheduledFault> {
+        self.events.iter().filter_map(Event::scheduled_fault).collect()
     }
 
     /// Load with `--set` overrides applied. Without overrides this is [`Scenario::load`] (whose
@@ -265,6 +300,7 @@ impl Scenario {
         }
         let mut scenario = Self::deserialize(table).map_err(|e| fail(e.to_string()))?;
         scenario.path = path.to_owned();
+        scenario.check_events()?;
         Ok(scenario)
     }
 

@@ -15,6 +15,8 @@ use serde_json::{Value, json};
 use thiserror::Error;
 use tracing::info_span;
 
+use crate::bus::{Bus, BusFaults};
+use crate::device::Servo;
 use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
 use crate::metrics::{self, StepOptions};
 use crate::report::{self, Summary, TimeSeries};
@@ -77,7 +79,48 @@ pub const COLUMNS: &[&str] = &[
     "x_m",
     "y_m",
     "z_m",
+    // Faults (issue #5): Hardware Error Status, winding temperature and supply of servos 1-8
+    // (NaN for an ID not on the bus), tread slip per wheel, active faults, bus-fault tally.
+    "hw_error_1",
+    "hw_error_2",
+    "hw_error_3",
+    "hw_error_4",
+    "hw_error_5",
+    "hw_error_6",
+    "hw_error_7",
+    "hw_error_8",
+    "temperature_1_c",
+    "temperature_2_c",
+    "temperature_3_c",
+    "temperature_4_c",
+    "temperature_5_c",
+    "temperature_6_c",
+    "temperature_7_c",
+    "temperature_8_c",
+    "input_voltage_1_v",
+    "input_voltage_2_v",
+    "input_voltage_3_v",
+    "input_voltage_4_v",
+    "input_voltage_5_v",
+    "input_voltage_6_v",
+    "input_voltage_7_v",
+    "input_voltage_8_v",
+    "torque_on_1",
+    "torque_on_2",
+    "torque_on_3",
+    "torque_on_4",
+    "wheel_slip_fl_m_s",
+    "wheel_slip_fr_m_s",
+    "wheel_slip_rl_m_s",
+    "wheel_slip_rr_m_s",
+    "faults_active",
+    "bus_faults",
 ];
+
+/// Servo IDs with per-servo fault columns.
+const FAULT_COLUMN_IDS: std::ops::RangeInclusive<u8> = 1..=8;
+/// Wheel servo IDs with a torque column.
+const TORQUE_COLUMN_IDS: std::ops::RangeInclusive<u8> = 1..=4;
 
 /// The robot's pose relative to the line: what a perfect sensor would say.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -218,10 +261,11 @@ impl Observer {
 
     /// Record a row if one is due at `t_s`. `control` is the built-in controller's view (an
     /// external controller's is unknown: its columns are NaN).
-    pub fn capture(&mut self, t_s: f64, world: &RobotWorld, control: Option<&ControlSample>) -> Result<(), RunError> {
+    pub fn capture(&mut self, t_s: f64, bus: &Bus, control: Option<&ControlSample>) -> Result<(), RunError> {
         if t_s + 1e-9 < self.next_capture_s {
             return Ok(());
         }
+        let Some(world) = bus.plant::<RobotWorld>() else { return Ok(()) };
         self.next_capture_s += self.capture_period_s;
         let truth = self.ground_truth(world);
         let target = self.target_speed_m_s(t_s);
@@ -247,6 +291,16 @@ impl Observer {
         row.extend(WheelPosition::ALL.map(|w| f64::from(world.magnet_angle(w))));
         row.extend(adhesion.iter().map(|a| f64::from(a.force_n)));
         row.extend([position.x, position.y, position.z].map(f64::from));
+        let servo = |id: u8| bus.servos().iter().find(|s| s.id() == id);
+        row.extend(FAULT_COLUMN_IDS.map(|id| servo(id).map_or(f64::NAN, |s| f64::from(s.hardware_error_status()))));
+        row.extend(FAULT_COLUMN_IDS.map(|id| servo(id).map_or(f64::NAN, Servo::temperature_c)));
+        row.extend(FAULT_COLUMN_IDS.map(|id| servo(id).map_or(f64::NAN, Servo::supply_voltage)));
+        row.extend(TORQUE_COLUMN_IDS.map(|id| servo(id).map_or(f64::NAN, |s| f64::from(u8::from(s.torque_on())))));
+        row.extend(WheelPosition::ALL.map(|w| f64::from(world.wheel_slip(w))));
+        let faults = bus.faults();
+        let counts = faults.counts();
+        row.push(faults.active().count() as f64);
+        row.push((counts.instructions_corrupted + counts.replies_corrupted + counts.replies_dropped + counts.replies_delayed + counts.instructions_unheard) as f64);
         self.series.push_row(&row)?;
         Ok(())
     }
@@ -349,7 +403,31 @@ pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
             ControllerSection::External(external) => json!({ "command": external.command }),
         },
         "robot": robot.path.display().to_string(),
+        "faults": scenario.faults(),
     })
+}
+
+/// The summary's fault keys: how many faults were scheduled and what the bus-level ones did.
+pub fn fault_summary(bus: &Bus) -> Vec<(String, Value)> {
+    let faults = bus.faults();
+    let counts = faults.counts();
+    let mut entries = vec![("faults.scheduled".to_owned(), json!(faults.scheduled().len()))];
+    if faults.is_empty() {
+        return entries;
+    }
+    let kinds: Vec<String> = faults.scheduled().iter().map(|f| f.fault.kind().to_owned()).collect();
+    entries.extend([
+        ("faults.kinds".to_owned(), json!(kinds.join(","))),
+        ("faults.instructions_corrupted".to_owned(), json!(counts.instructions_corrupted)),
+        ("faults.replies_corrupted".to_owned(), json!(counts.replies_corrupted)),
+        ("faults.replies_dropped".to_owned(), json!(counts.replies_dropped)),
+        ("faults.replies_delayed".to_owned(), json!(counts.replies_delayed)),
+        ("faults.instructions_unheard".to_owned(), json!(counts.instructions_unheard)),
+    ]);
+    for servo in bus.servos() {
+        entries.push((format!("faults.hw_error_{}", servo.id()), json!(servo.hardware_error_status())));
+    }
+    entries
 }
 
 /// Run a scenario with the built-in controller in lockstep, as fast as the CPU allows.
@@ -366,6 +444,9 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     let _span = info_span!("scenario", path = %scenario.path.display()).entered();
     let started = Instant::now();
     let mut sim = Lockstep::new(robot, scenario.world_config()?)?;
+    sim.bus_mut().set_faults(BusFaults::new(scenario.faults(), scenario.world.seed));
+    let mut controller_errors = 0u64;
+    let mut last_sample = ControlSample::default();
     // The servos' own profile, not a second parse of the file.
     let profile = sim.bus().servos().first().map(|s| std::sync::Arc::clone(s.profile())).ok_or(ControlError::MissingServo("servo on the bus"))?;
     // Runs start one firmware tick in, with the world settled for a step (the recorded figures
@@ -388,8 +469,20 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
         observer.apply_events(t_s, sim.world_mut())?;
         controller.set_target_speed(observer.target_speed_m_s(t_s));
         let line = observer.sense(sim.world(), now);
-        let sample = *controller.tick(&mut sim, now, line)?;
-        observer.capture(t_s, sim.world(), Some(&sample))?;
+        let sample = match controller.tick(&mut sim, now, line) {
+            Ok(sample) => *sample,
+            // With faults on the bus a lost or corrupted reply is expected: the controller skips
+            // the period (its wheels keep the last command) and tries again next period, as a
+            // real one that times out would. Without faults a failed read is still a bug.
+            Err(error) if !sim.bus().faults().is_empty() => {
+                controller_errors += 1;
+                tracing::debug!(%error, t_s, "control period skipped");
+                last_sample
+            }
+            Err(error) => return Err(error.into()),
+        };
+        last_sample = sample;
+        observer.capture(t_s, sim.bus(), Some(&sample))?;
         sim.run(period);
     }
     let wall_s = started.elapsed().as_secs_f64();
@@ -398,6 +491,10 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
     if interrupted {
         summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
+    }
+    summary.extend(fault_summary(sim.bus()));
+    if !sim.bus().faults().is_empty() {
+        summary.insert("faults.control_periods_skipped".to_owned(), json!(controller_errors));
     }
     Ok(RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s })
 }

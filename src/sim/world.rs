@@ -99,6 +99,46 @@ struct WheelParts {
     /// Joint axes in the section's frame (positive servo rotation).
     wheel_axis: Vector,
     magnet_axis: Vector,
+    /// The tread's collider (slip patches act on its contacts).
+    collider: ColliderHandle,
+}
+
+/// A rectangle of terrain (x and z ranges, world frame) with its own tread friction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SlipArea {
+    key: usize,
+    x_m: [f32; 2],
+    z_m: [f32; 2],
+    friction: f32,
+}
+
+impl SlipArea {
+    fn contains(&self, p: Vector) -> bool {
+        (self.x_m[0]..=self.x_m[1]).contains(&p.x) && (self.z_m[0]..=self.z_m[1]).contains(&p.z)
+    }
+}
+
+/// Lowers the friction of a wheel's contact manifold where it touches a slip patch. rapier
+/// combines the two colliders' friction per manifold; the hook overrides that combination. Pairs
+/// with hooks are never recycled, so the hook runs on every step.
+#[derive(Debug, Clone, Default)]
+struct SlipPatches {
+    areas: Vec<SlipArea>,
+}
+
+impl PhysicsHooks for SlipPatches {
+    fn modify_solver_contacts(&self, context: &mut ContactModificationContext) {
+        let Some(manifold) = context.rigid_mut() else { return };
+        let n = manifold.solver_contacts.len();
+        if n == 0 {
+            return;
+        }
+        // The manifold's contact centre (world anchors while inside the hook).
+        let centre = manifold.solver_contacts.iter().fold(Vector::ZERO, |sum, c| sum + c.anchor1) / n as f32;
+        for area in self.areas.iter().filter(|a| a.contains(centre)) {
+            *manifold.friction = manifold.friction.min(area.friction);
+        }
+    }
 }
 
 /// A magnet assembly: one rotational degree of freedom about its wheel's axle, relative to the
@@ -144,6 +184,9 @@ pub struct RobotWorld {
     magnets: [MagnetShaft; 4],
     robot: RobotDescription,
     magnets_on: bool,
+    /// Fraction of its pull each magnet keeps (1 unless a magnet-failure fault).
+    magnet_pull: [f32; 4],
+    slip: SlipPatches,
     adhesion: [AdhesionSample; 4],
     period: Duration,
     time: Duration,
@@ -255,7 +298,7 @@ impl RobotWorld {
             // its rotation is the magnet shaft's own degree of freedom (`MagnetShaft`).
             let wheel_mass = MassProperties::new(Vector::ZERO, wheel.mass_kg + robot.magnet.mass_kg, Vector::new(ring_cross, ring_cross, ring + rotor_inertia));
             let wheel_body = physics.insert_body(RigidBodyBuilder::dynamic().pose(Pose::from_parts(centre, yaw)).additional_mass_properties(wheel_mass));
-            physics.insert_collider(
+            let collider = physics.insert_collider(
                 ColliderBuilder::ball(wheel.outer_radius_m)
                     .density(0.0)
                     .friction(friction)
@@ -270,7 +313,7 @@ impl RobotWorld {
                 RevoluteJointBuilder::new(axis).local_anchor1(anchor).local_anchor2(Vector::ZERO).motor_model(MotorModel::ForceBased)
             };
             let wheel_joint = physics.insert_impulse_joint(section, wheel_body, revolute(wheel_axis));
-            wheels.push(WheelParts { section, wheel: wheel_body, wheel_joint, wheel_axis, magnet_axis });
+            wheels.push(WheelParts { section, wheel: wheel_body, wheel_joint, wheel_axis, magnet_axis, collider });
         }
         let wheels: [WheelParts; 4] = [wheels[0], wheels[1], wheels[2], wheels[3]];
 
@@ -309,6 +352,8 @@ impl RobotWorld {
             magnets,
             robot: robot.clone(),
             magnets_on: config.magnets_on,
+            magnet_pull: [1.0; 4],
+            slip: SlipPatches::default(),
             adhesion: [AdhesionSample::default(); 4],
             period,
             time: Duration::ZERO,
@@ -344,6 +389,41 @@ impl RobotWorld {
 
     pub fn set_gravity(&mut self, gravity: Vector) {
         self.physics.gravity = gravity;
+    }
+
+    /// Fraction of its pull the magnet of `wheel` keeps (1 = healthy, 0 = failed).
+    pub fn set_magnet_pull(&mut self, wheel: WheelPosition, fraction: f32) {
+        self.magnet_pull[wheel.index()] = fraction;
+    }
+
+    pub fn magnet_pull(&self, wheel: WheelPosition) -> f32 {
+        self.magnet_pull[wheel.index()]
+    }
+
+    /// Start (`Some`) or end (`None`) slip patch `key`: tread friction `friction` over the x and z
+    /// ranges. The wheel colliders ask for the contact hook only while a patch exists, so a world
+    /// without one steps exactly as before.
+    pub fn set_slip_patch(&mut self, key: usize, patch: Option<([f32; 2], [f32; 2], f32)>) {
+        self.slip.areas.retain(|a| a.key != key);
+        if let Some((x_m, z_m, friction)) = patch {
+            self.slip.areas.push(SlipArea { key, x_m, z_m, friction });
+        }
+        let hooks = if self.slip.areas.is_empty() { ActiveHooks::empty() } else { ActiveHooks::MODIFY_SOLVER_CONTACTS };
+        for parts in self.wheels {
+            if let Some(collider) = self.physics.colliders.get_mut(parts.collider) {
+                collider.set_active_hooks(hooks);
+            }
+        }
+    }
+
+    /// How much faster the tread turns than its centre moves over the ground (m/s): wheel rate
+    /// × outer radius − the wheel centre's speed along its section's forward axis. Near 0 when
+    /// rolling; large when the wheel spins on a slippery patch.
+    pub fn wheel_slip(&self, wheel: WheelPosition) -> f32 {
+        let parts = self.wheels[wheel.index()];
+        let forward = self.physics.bodies[parts.section].rotation() * Vector::X;
+        let ground = self.physics.bodies[parts.wheel].linvel().dot(forward);
+        self.wheel_rate(wheel) * self.robot.wheel.outer_radius_m - ground
     }
 
     /// The middle section's pose (the robot's reference frame).
@@ -452,7 +532,11 @@ impl RobotWorld {
             "magnet pull (N)"
         );
         self.step_magnets();
-        self.physics.step();
+        if self.slip.areas.is_empty() {
+            self.physics.step();
+        } else {
+            self.physics.step_with_events(&self.slip, &());
+        }
         self.time += self.period;
         let dt = self.period.as_secs_f64();
         self.steps += 1;
@@ -540,7 +624,7 @@ impl RobotWorld {
             let gap = ((centre - contact).dot(normal) - outer).max(0.0);
             let misalignment = direction.dot(pull_direction).clamp(-1.0, 1.0).acos();
             let alignment = misalignment.cos().max(0.0).powf(magnet.alignment_exponent);
-            let force = magnet.pull_at_contact_n / (1.0 + gap / magnet.decay_length_m).powi(2) * alignment;
+            let force = magnet.pull_at_contact_n / (1.0 + gap / magnet.decay_length_m).powi(2) * alignment * self.magnet_pull[index];
             self.physics.bodies[parts.wheel].add_force(pull_direction * force, true);
             // Aligning torque on the magnet: its lever pulled toward the surface.
             let aligning = (direction * magnet.lever_m).cross(pull_direction * force).dot(axis);
@@ -661,5 +745,15 @@ impl Plant for RobotWorld {
 
     fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
         self
+    }
+
+    fn inject_fault(&mut self, key: usize, fault: &crate::fault::Fault, active: bool) -> bool {
+        use crate::fault::Fault;
+        match *fault {
+            Fault::MagnetFailure { wheel, pull } => self.set_magnet_pull(wheel, if active { pull } else { 1.0 }),
+            Fault::SlipPatch { x_m, z_m, friction } => self.set_slip_patch(key, active.then_some((x_m, z_m, friction))),
+            _ => return false,
+        }
+        true
     }
 }
