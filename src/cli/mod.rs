@@ -412,10 +412,7 @@ impl Pacer {
                 if deadline > now {
                     std::thread::sleep(deadline - now);
                 }
-                handle.with_bus(|bus| {
-                    bus.advance(deadline);
-                    hook(bus, deadline);
-                });
+                handle.tick(deadline, |bus| hook(bus, deadline));
                 ticks += 1;
                 // Late by more than a tick: the world cannot keep up with real time here.
                 if clock.now() > deadline + period {
