@@ -31,14 +31,9 @@ fn resolve_command(command: &[String], scenario: &Path) -> Vec<String> {
     command.iter().map(|arg| if arg.starts_with("./") || arg.starts_with("../") { base.join(arg).display().to_string() } else { arg.clone() }).collect()
 }
 
-/// The bus of `scenario`'s world, and the observer (camera, detector, capture) when the scenario
-/// has a weld line: what `serve SCENARIO` and `run` with an external controller both serve.
-/// `RobotWorld::new` has already updated the query structures, so the line drapes at once.
+/// The bus of `scenario`'s world and its observer (see [`climbsim::scenario::run::scenario_bus`]).
 pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Option<Observer>)> {
-    let servos = robot.servos(baud)?;
-    let world = RobotWorld::new(robot, scenario.world_config()?, &servos)?;
-    let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;
-    Ok((robot.bus_of(servos, Box::new(world), timing, baud)?, observer))
+    Ok(climbsim::scenario::run::scenario_bus(scenario, robot, timing, baud)?)
 }
 
 /// Run `scenario` in real time with the external controller `command`.
@@ -140,15 +135,11 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
         let Some(world) = bus.plant_mut::<RobotWorld>() else { return };
         let mut observer = observer.lock().unwrap_or_else(PoisonError::into_inner);
         let t_s = now.as_secs_f64();
-        let keep = |error: String| {
-            errors.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(error);
-        };
-        if let Err(error) = observer.apply_events(t_s, world) {
-            keep(error.to_string());
+        let observation = observer.on_tick(world, now);
+        if let Some(error) = observation.error {
+            errors.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(error.to_string());
         }
-        let frames_before = observer.frames_seen();
-        observer.sense(world, now);
-        if observer.frames_seen() != frames_before {
+        if observation.new_frame {
             if let Some(latest) = observer.latest().copied() {
                 feed.publish_line(t_s, f64::from(latest.d_m), f64::from(latest.psi_rad), latest.valid);
             }
@@ -164,9 +155,6 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
                 "x": pose.translation.x, "y": pose.translation.y, "z": pose.translation.z,
                 "d_err_m": truth.d_err_m, "psi_err_rad": truth.psi_err_rad, "speed_m_s": truth.speed_m_s,
             }));
-        }
-        if let Err(error) = observer.capture(t_s, world, None) {
-            keep(error.to_string());
         }
     })
 }

@@ -14,6 +14,7 @@ use serde_json::{Value, json};
 use thiserror::Error;
 use tracing::info_span;
 
+use crate::bus::{Bus, Timing};
 use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
 use crate::metrics::{self, StepOptions};
 use crate::report::{self, Summary, TimeSeries};
@@ -87,6 +88,26 @@ pub struct GroundTruth {
     pub psi_err_rad: f64,
     /// Ground speed along the body's forward axis (m/s).
     pub speed_m_s: f64,
+}
+
+/// What [`Observer::on_tick`] saw.
+#[derive(Debug)]
+pub struct TickObservation {
+    /// The camera delivered a frame this tick.
+    pub new_frame: bool,
+    pub error: Option<RunError>,
+}
+
+/// The bus of `scenario`'s world (servos at the robot's baud or `baud`), and the observer
+/// (camera, detector, capture) when the scenario has a weld line: what `serve SCENARIO`, `run`
+/// with an external controller and `replay` all drive. `RobotWorld::new` has already updated
+/// the query structures, so the line drapes at once.
+pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Option<Observer>), RunError> {
+    let servos = robot.servos(baud).map_err(SimError::from)?;
+    let world = RobotWorld::new(robot, scenario.world_config()?, &servos).map_err(SimError::from)?;
+    let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;
+    let bus = robot.bus_of(servos, Box::new(world), timing, baud).map_err(SimError::from)?;
+    Ok((bus, observer))
 }
 
 /// Everything that watches the world during a run.
@@ -248,6 +269,20 @@ impl Observer {
         row.extend([position.x, position.y, position.z].map(f64::from));
         self.series.push_row(&row)?;
         Ok(())
+    }
+
+    /// What every firmware tick of a wall-clock run (and of its replay) does after advancing the
+    /// world: apply due events, render and detect, capture a row. An error in one step does not
+    /// skip the others (the live run keeps going); the first is returned.
+    pub fn on_tick(&mut self, world: &mut RobotWorld, now: Duration) -> TickObservation {
+        let t_s = now.as_secs_f64();
+        let mut error = self.apply_events(t_s, world).err();
+        let frames_before = self.frames_seen;
+        self.sense(world, now);
+        if let Err(capture) = self.capture(t_s, world, None) {
+            error.get_or_insert(capture);
+        }
+        TickObservation { new_frame: self.frames_seen != frames_before, error }
     }
 
     pub fn series(&self) -> &TimeSeries {
