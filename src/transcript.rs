@@ -193,6 +193,9 @@ struct Inner {
     last_flush: Instant,
     /// The first write error; recording stops there and [`Recorder::finish`] reports it.
     failed: Option<io::Error>,
+    /// The `end` line is written: the session is over for the transcript, even if a transport
+    /// still handles the last bytes the controller sent (after the world stopped).
+    finished: bool,
 }
 
 impl std::fmt::Debug for Recorder {
@@ -209,7 +212,7 @@ impl Recorder {
         let mut line = serde_json::to_vec(header).map_err(|e| io_error(e.into()))?;
         line.push(b'\n');
         file.write_all(&line).map_err(io_error)?;
-        Ok(Self { path: path.to_owned(), inner: Mutex::new(Inner { file, pending: Vec::with_capacity(64 * 1024), last_flush: Instant::now(), failed: None }) })
+        Ok(Self { path: path.to_owned(), inner: Mutex::new(Inner { file, pending: Vec::with_capacity(64 * 1024), last_flush: Instant::now(), failed: None, finished: false }) })
     }
 
     pub fn path(&self) -> &Path {
@@ -246,6 +249,7 @@ impl Recorder {
     pub fn finish(&self, t: Duration, ticks: u64, overruns: u64) -> Result<(), TranscriptError> {
         self.append(&Record::End { t: nanos(t), ticks, overruns });
         let mut inner = self.lock();
+        inner.finished = true;
         inner.flush();
         match inner.failed.take() {
             Some(source) => Err(TranscriptError::Io { path: self.path.clone(), source }),
@@ -259,7 +263,7 @@ impl Recorder {
 
     fn append(&self, record: &Record) {
         let mut inner = self.lock();
-        if inner.failed.is_some() {
+        if inner.failed.is_some() || inner.finished {
             return;
         }
         // ok: a Record always serialises (no maps with non-string keys, no foreign types).
@@ -381,6 +385,7 @@ mod tests {
         recorder.sensor_read(Duration::from_millis(2), "/line", 200, "application/json", br#"{"d":0.01}"#);
         recorder.sensor_read(Duration::from_millis(3), "/camera.png", 200, "image/png", b"\x89PNG");
         recorder.finish(Duration::from_millis(4), 1, 0).expect("finished");
+        recorder.tick(Duration::from_millis(5)); // after the end: not recorded
         drop(recorder);
         let read = Transcript::read(&path).expect("reads");
         assert_eq!(read.header, header());

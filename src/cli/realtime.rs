@@ -19,6 +19,7 @@ use climbsim::sensor_server::{SensorFeed, SensorServer};
 use climbsim::sim::RobotWorld;
 use climbsim::transport::{BusHandle, VirtualPort};
 
+use super::replay::RecordSpec;
 use super::{Pacer, TickHook};
 
 /// How long a controller gets to stop after SIGTERM before it is killed.
@@ -40,12 +41,14 @@ pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timin
 /// The external controller's bus timing report in a run's output folder.
 const TIMING_JSON: &str = "timing.json";
 
-pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[String], timing: Timing, link: Option<&Path>, out_dir: &Path) -> Result<RunOutcome> {
+pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[String], timing: Timing, link: Option<&Path>, out_dir: &Path, record: Option<&RecordSpec>) -> Result<RunOutcome> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
     let (bus, observer) = scenario_bus(scenario, robot, timing, None)?;
     let observer = Arc::new(Mutex::new(observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?));
-    let handle = BusHandle::new(bus, None);
+    let recorder = record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, None)).transpose()?;
+    let handle = BusHandle::recording(bus, None, recorder);
     let feed = Arc::new(SensorFeed::default());
+    super::replay::record_sensor_reads(&handle, &feed);
 
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
     let (port, sensors_url) = runtime.block_on(async {
@@ -96,6 +99,7 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
     let (ticks, overruns) = pacer.stop();
     port.remove_link();
     super::finish_timing_report(&handle, (ticks, overruns), Some(&out_dir.join(TIMING_JSON)))?;
+    super::replay::finish_recording(&handle, (ticks, overruns))?;
     let wall_s = started.elapsed().as_secs_f64();
     if let Some(status) = exited_early {
         eprintln!("climbsim: the controller exited after {wall_s:.1} s with {status}; see {}", log_path.display());
