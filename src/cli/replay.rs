@@ -96,7 +96,7 @@ pub fn diff_command(a: &Path, b: &Path, tolerances: &[String], rel: Option<f64>)
         let (key, value) = Tolerances::parse_abs(text).map_err(|e| anyhow::anyhow!("--tolerance {e}"))?;
         given.abs.insert(key, value);
     }
-    if rel.is_some_and(|r| !(r >= 0.0)) {
+    if rel.is_some_and(|r| r.is_nan() || r < 0.0) {
         anyhow::bail!("--rel must be a non-negative number");
     }
     let (run_a, run_b) = (diff::load_run(a)?, diff::load_run(b)?);
