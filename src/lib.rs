@@ -14,6 +14,7 @@ pub mod scenario;
 pub mod sim;
 pub mod control;
 pub mod sensor_server;
+pub mod transcript;
 pub mod transport;
 pub mod metrics;
 pub mod report;

@@ -43,21 +43,38 @@ struct Snapshot {
     state: Option<serde_json::Value>,
 }
 
+/// Told of every read the server answers: (path, HTTP status code, content type, body). For
+/// `--record`, which keeps what the controller was shown.
+pub type ReadHook = Box<dyn Fn(&str, u16, &str, &[u8]) + Send + Sync>;
+
 /// What the simulation publishes and the server serves.
-#[derive(Debug)]
 pub struct SensorFeed {
     snapshot: Mutex<Snapshot>,
     /// Bumped on every new frame; MJPEG streams wait on it.
     frames: watch::Sender<u64>,
+    on_read: std::sync::OnceLock<ReadHook>,
+}
+
+impl std::fmt::Debug for SensorFeed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SensorFeed").field("recording_reads", &self.on_read.get().is_some()).finish_non_exhaustive()
+    }
 }
 
 impl Default for SensorFeed {
     fn default() -> Self {
-        Self { snapshot: Mutex::default(), frames: watch::channel(0).0 }
+        Self { snapshot: Mutex::default(), frames: watch::channel(0).0, on_read: std::sync::OnceLock::new() }
     }
 }
 
 impl SensorFeed {
+    /// Call `hook` on every read answered from now on (set once; later calls are ignored).
+    pub fn on_read(&self, hook: ReadHook) {
+        if self.on_read.set(hook).is_err() {
+            warn!("sensor read hook already set; the new one is ignored");
+        }
+    }
+
     fn snapshot(&self) -> Snapshot {
         self.snapshot.lock().unwrap_or_else(PoisonError::into_inner).clone()
     }
@@ -155,26 +172,34 @@ async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Resu
     }
     // Query strings (e.g. cache busters) are ignored.
     let path = target.split('?').next().unwrap_or_default();
+    if path == "/camera.mjpg" {
+        return stream_mjpeg(stream, feed).await;
+    }
     let snapshot = feed.snapshot();
     let not_yet = |what: &str| format!("no {what} yet\n").into_bytes();
-    match path {
+    let json = |value: Option<serde_json::Value>, what: &str| match value {
+        Some(value) => (200, "application/json", value.to_string().into_bytes()),
+        None => (503, "text/plain", not_yet(what)),
+    };
+    let (status, content_type, body): (u16, &str, Vec<u8>) = match path {
         "/camera.png" => match snapshot.png {
-            Some(png) => respond(&mut stream, "200 OK", "image/png", &png).await,
-            None => respond(&mut stream, "503 Service Unavailable", "text/plain", &not_yet("camera frame")).await,
+            Some(png) => (200, "image/png", png.to_vec()),
+            None => (503, "text/plain", not_yet("camera frame")),
         },
-        "/line" => json_or_503(&mut stream, snapshot.line, &not_yet("line measurement")).await,
-        "/state" => json_or_503(&mut stream, snapshot.state, &not_yet("state")).await,
-        "/camera.mjpg" => stream_mjpeg(stream, feed).await,
-        "/" => respond(&mut stream, "200 OK", "text/plain", b"climbsim sensors: /camera.png /camera.mjpg /line /state\n").await,
-        _ => respond(&mut stream, "404 Not Found", "text/plain", b"not found\n").await,
+        "/line" => json(snapshot.line, "line measurement"),
+        "/state" => json(snapshot.state, "state"),
+        "/" => (200, "text/plain", b"climbsim sensors: /camera.png /camera.mjpg /line /state\n".to_vec()),
+        _ => (404, "text/plain", b"not found\n".to_vec()),
+    };
+    if let Some(hook) = feed.on_read.get() {
+        hook(path, status, content_type, &body);
     }
-}
-
-async fn json_or_503(stream: &mut TcpStream, value: Option<serde_json::Value>, missing: &[u8]) -> std::io::Result<()> {
-    match value {
-        Some(value) => respond(stream, "200 OK", "application/json", value.to_string().as_bytes()).await,
-        None => respond(stream, "503 Service Unavailable", "text/plain", missing).await,
-    }
+    let reason = match status {
+        200 => "200 OK",
+        503 => "503 Service Unavailable",
+        _ => "404 Not Found",
+    };
+    respond(&mut stream, reason, content_type, &body).await
 }
 
 async fn respond(stream: &mut TcpStream, status: &str, content_type: &str, body: &[u8]) -> std::io::Result<()> {

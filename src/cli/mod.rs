@@ -1,8 +1,9 @@
-//! Command-line interface: `climbsim serve`, `run`, `check` and `sweep`.
+//! Command-line interface: `climbsim serve`, `run`, `check`, `sweep`, `replay` and `diff`.
 
 mod batch;
 mod interrupt;
 mod realtime;
+mod replay;
 
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -82,6 +83,10 @@ pub enum Command {
         /// of a scenario's `fault` table, see scenarios/README.md).
         #[arg(long = "fault", value_name = "SPEC", value_parser = parse_fault)]
         faults: Vec<ScheduledFault>,
+        /// Record the session (packets, world ticks, sensor reads) for `climbsim replay`. Needs
+        /// a scenario.
+        #[arg(long, value_name = "FILE", requires = "scenario")]
+        record: Option<PathBuf>,
     },
     /// Run a scenario and write its time series, summary, workbook and plots. A built-in
     /// controller runs in lockstep, faster than real time; an external one (`command = [...]`)
@@ -107,6 +112,10 @@ pub enum Command {
         /// Inject a fault, as `serve --fault` (added to the scenario's events; repeatable).
         #[arg(long = "fault", value_name = "SPEC", value_parser = parse_fault)]
         faults: Vec<ScheduledFault>,
+        /// Record the session (packets, world ticks, sensor reads) for `climbsim replay`
+        /// (external controllers only: a built-in one is deterministic already).
+        #[arg(long, value_name = "FILE")]
+        record: Option<PathBuf>,
     },
     /// Run scenarios and test their `[expect]` thresholds; exit non-zero if any fails.
     Check {
@@ -121,6 +130,40 @@ pub enum Command {
         out: PathBuf,
         #[arg(long, default_value_os_t = RobotDescription::default_path())]
         robot: PathBuf,
+    },
+    /// Re-enact a `--record` transcript without its controller: the same scenario, world ticks
+    /// and instruction packets in lockstep, deterministically; writes the same outputs as `run`.
+    Replay {
+        /// The transcript.
+        transcript: PathBuf,
+        /// Output folder (default: results/replay/<transcript name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Scenario file (default: the recorded path).
+        #[arg(long)]
+        scenario: Option<PathBuf>,
+        /// Robot description (default: the recorded path).
+        #[arg(long)]
+        robot: Option<PathBuf>,
+        /// Replay even if the scenario, robot description or firmware profile differs from the
+        /// recording's.
+        #[arg(long)]
+        force: bool,
+    },
+    /// Compare two runs (output folders, or their timeseries.csv / summary.json): max |A-B| per
+    /// time-series column (aligned on t_s) and per summary metric; exit non-zero if any exceeds
+    /// its tolerance. Defaults by unit: _m 1e-4, _rad 1e-3, _m_s 1e-4, _rad_s 1e-2, _n 0.5,
+    /// _s 0.02, _pct 0.5, _fraction 5e-3, line_valid 0, others 1e-9; t_s (the span) 1.5 capture
+    /// periods; realtime_factor and physics_overruns are not compared.
+    Diff {
+        a: PathBuf,
+        b: PathBuf,
+        /// Absolute tolerance of a column or metric (repeatable); `inf` ignores it.
+        #[arg(long = "tolerance", value_name = "KEY=ABS")]
+        tolerance: Vec<String>,
+        /// Relative tolerance for every key: |A-B| <= R * max |value| also passes.
+        #[arg(long, value_name = "R")]
+        rel: Option<f64>,
     },
     /// Run a scenario over a grid of parameters (in parallel), or merge sweeps' shards.
     Sweep {
@@ -148,21 +191,30 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, timing, trace_bus, robot, baud, report, faults } => {
+        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, timing, trace_bus, robot, baud, report, faults, record } => {
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
-            let options = ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults };
+            let options = ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults, record };
             serve(options, &robot)
         }
-        Command::Run { scenario, out, set, timing, link, robot, faults } => {
+        Command::Run { scenario, out, set, timing, link, robot, faults, record } => {
             interrupt::install()?;
+            refuse_recorded_cli_faults(&faults, record.as_deref())?;
             let robot = RobotDescription::load(&robot)?;
             let overrides = batch::parse_overrides(&set)?;
             let mut loaded = Scenario::load_with(&scenario, &overrides)?;
             add_fault_events(&mut loaded, faults);
             let out_dir = out.unwrap_or_else(|| batch::default_out_dir(&scenario));
             let outcome = match &loaded.controller {
-                climbsim::scenario::ControllerSection::Builtin(_) => batch::run_builtin(&loaded, &robot, &out_dir)?,
-                climbsim::scenario::ControllerSection::External(external) => realtime::run_external(&loaded, &robot, &external.command, timing_of(timing), link.as_deref(), &out_dir)?,
+                climbsim::scenario::ControllerSection::Builtin(_) => {
+                    if record.is_some() {
+                        anyhow::bail!("--record is for external controllers; a built-in controller's run is deterministic already (run it again)");
+                    }
+                    batch::run_builtin(&loaded, &robot, &out_dir)?
+                }
+                climbsim::scenario::ControllerSection::External(external) => {
+                    let record = record.map(|path| replay::RecordSpec { path, overrides: set.clone() });
+                    realtime::run_external(&loaded, &robot, &external.command, timing_of(timing), link.as_deref(), &out_dir, record.as_ref())?
+                }
             };
             batch::print_summary(&outcome, &out_dir);
             let failures = loaded.failed_expectations(&outcome.summary);
@@ -176,6 +228,8 @@ pub fn run(cli: Cli) -> Result<()> {
             let robot = RobotDescription::load(&robot)?;
             batch::check(&paths, &robot, &out, junit.as_deref())
         }
+        Command::Replay { transcript, out, scenario, robot, force } => replay::replay_command(&transcript, out, &climbsim::scenario::replay::ReplaySources { scenario, robot, force }),
+        Command::Diff { a, b, tolerance, rel } => replay::diff_command(&a, &b, &tolerance, rel),
         Command::Sweep { scenario, set, jobs, shard, merge, out, robot } => {
             interrupt::install()?;
             if !merge.is_empty() {
@@ -235,6 +289,7 @@ struct ServeOptions {
     baud: Option<u32>,
     report: Option<PathBuf>,
     faults: Vec<ScheduledFault>,
+    record: Option<PathBuf>,
 }
 
 /// `--fault SPEC`, parsed by the code that reads a scenario's `fault` table.
@@ -254,24 +309,35 @@ fn add_fault_events(scenario: &mut Scenario, faults: Vec<ScheduledFault>) {
     }));
 }
 
+/// A transcript replays the scenario's text; faults given on the command line are not in it.
+fn refuse_recorded_cli_faults(faults: &[ScheduledFault], record: Option<&std::path::Path>) -> Result<()> {
+    if !faults.is_empty() && record.is_some() {
+        anyhow::bail!("--fault and --record together: a replay rebuilds the scenario from its text, so put the faults in the scenario's [[events]] to record them");
+    }
+    Ok(())
+}
+
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
-    let ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults } = options;
+    let ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults, record } = options;
+    refuse_recorded_cli_faults(&faults, record.as_deref())?;
     let robot = RobotDescription::load(robot_path)?;
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
     // A world with a weld line also gets the camera, the line detector and the sensor server.
-    let (bus, observer) = match &scenario {
+    let (bus, observer, recorder) = match &scenario {
         Some(path) => {
             let mut loaded = Scenario::load(path)?;
             add_fault_events(&mut loaded, faults);
             let (bus, observer) = realtime::scenario_bus(&loaded, &robot, timing, baud)?;
-            (bus, observer.map(|o| Arc::new(std::sync::Mutex::new(o))))
+            let spec = record.map(|path| replay::RecordSpec { path, overrides: Vec::new() });
+            let recorder = spec.map(|spec| replay::start_recording(&spec, "serve", &loaded, &robot, &bus, baud)).transpose()?;
+            (bus, observer.map(|o| Arc::new(std::sync::Mutex::new(o))), recorder)
         }
         None => {
             let mut bus = robot.bench_bus(timing, baud)?;
             // The bench has no scenario seed: its faults draw from seed 0.
             bus.set_faults(climbsim::bus::BusFaults::new(faults, 0));
-            (bus, None)
+            (bus, None, None)
         }
     };
     let trace = match &trace_bus {
@@ -281,7 +347,7 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         }
         None => None,
     };
-    let handle = BusHandle::new(bus, trace);
+    let handle = BusHandle::recording(bus, trace, recorder);
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async move {
         let port = Arc::new(VirtualPort::open(link.as_deref())?);
@@ -321,6 +387,7 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         let pacer = match observer {
             Some(observer) => {
                 let feed = Arc::new(climbsim::sensor_server::SensorFeed::default());
+                replay::record_sensor_reads(&handle, &feed);
                 let url = realtime::start_sensor_server(Arc::clone(&feed)).await?;
                 println!("sensors: {url}");
                 std::io::stdout().flush()?;
@@ -360,6 +427,7 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             physics = (ticks, overruns);
         }
         finish_timing_report(&handle, physics, report.as_deref())?;
+        replay::finish_recording(&handle, physics)?;
         Ok::<_, anyhow::Error>(port)
     })
     .map(|port| port.remove_link())
@@ -451,10 +519,7 @@ impl Pacer {
                 if deadline > now {
                     std::thread::sleep(deadline - now);
                 }
-                handle.with_bus(|bus| {
-                    bus.advance(deadline);
-                    hook(bus, deadline);
-                });
+                handle.tick(deadline, |bus| hook(bus, deadline));
                 ticks += 1;
                 // Late by more than a tick: the world cannot keep up with real time here.
                 if clock.now() > deadline + period {

@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use serde_json::json;
 use tracing::{info, warn};
 
-use climbsim::bus::{BusFaults, Timing};
+use climbsim::bus::Timing;
 use climbsim::robot::RobotDescription;
 use climbsim::bus::Bus;
 use climbsim::scenario::run::{Observer, RunError, RunOutcome, settings_json, write_outputs};
@@ -19,6 +19,7 @@ use climbsim::sensor_server::{SensorFeed, SensorServer};
 use climbsim::sim::RobotWorld;
 use climbsim::transport::{BusHandle, VirtualPort};
 
+use super::replay::RecordSpec;
 use super::{Pacer, TickHook};
 
 /// How long a controller gets to stop after SIGTERM before it is killed.
@@ -31,28 +32,23 @@ fn resolve_command(command: &[String], scenario: &Path) -> Vec<String> {
     command.iter().map(|arg| if arg.starts_with("./") || arg.starts_with("../") { base.join(arg).display().to_string() } else { arg.clone() }).collect()
 }
 
-/// The bus of `scenario`'s world, and the observer (camera, detector, capture) when the scenario
-/// has a weld line: what `serve SCENARIO` and `run` with an external controller both serve.
-/// `RobotWorld::new` has already updated the query structures, so the line drapes at once.
+/// The bus of `scenario`'s world and its observer (see [`climbsim::scenario::run::scenario_bus`]).
 pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Option<Observer>)> {
-    let servos = robot.servos(baud)?;
-    let world = RobotWorld::new(robot, scenario.world_config()?, &servos)?;
-    let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;
-    let mut bus = robot.bus_of(servos, Box::new(world), timing, baud)?;
-    bus.set_faults(BusFaults::new(scenario.faults(), scenario.world.seed));
-    Ok((bus, observer))
+    Ok(climbsim::scenario::run::scenario_bus(scenario, robot, timing, baud)?)
 }
 
 /// Run `scenario` in real time with the external controller `command`.
 /// The external controller's bus timing report in a run's output folder.
 const TIMING_JSON: &str = "timing.json";
 
-pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[String], timing: Timing, link: Option<&Path>, out_dir: &Path) -> Result<RunOutcome> {
+pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[String], timing: Timing, link: Option<&Path>, out_dir: &Path, record: Option<&RecordSpec>) -> Result<RunOutcome> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
     let (bus, observer) = scenario_bus(scenario, robot, timing, None)?;
     let observer = Arc::new(Mutex::new(observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?));
-    let handle = BusHandle::new(bus, None);
+    let recorder = record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, None)).transpose()?;
+    let handle = BusHandle::recording(bus, None, recorder);
     let feed = Arc::new(SensorFeed::default());
+    super::replay::record_sensor_reads(&handle, &feed);
 
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
     let (port, sensors_url) = runtime.block_on(async {
@@ -103,6 +99,7 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
     let (ticks, overruns) = pacer.stop();
     port.remove_link();
     super::finish_timing_report(&handle, (ticks, overruns), Some(&out_dir.join(TIMING_JSON)))?;
+    super::replay::finish_recording(&handle, (ticks, overruns))?;
     let wall_s = started.elapsed().as_secs_f64();
     if let Some(status) = exited_early {
         eprintln!("climbsim: the controller exited after {wall_s:.1} s with {status}; see {}", log_path.display());
@@ -147,18 +144,14 @@ pub async fn start_sensor_server(feed: Arc<SensorFeed>) -> Result<String> {
 /// first error is kept in `errors` (the pacer thread cannot return one).
 pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, errors: Arc<Mutex<Option<String>>>) -> TickHook {
     Box::new(move |bus, now| {
-        let Some(world) = bus.plant_mut::<RobotWorld>() else { return };
         let mut observer = observer.lock().unwrap_or_else(PoisonError::into_inner);
         let t_s = now.as_secs_f64();
-        let keep = |error: String| {
-            errors.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(error);
-        };
-        if let Err(error) = observer.apply_events(t_s, world) {
-            keep(error.to_string());
+        let observation = observer.on_tick(bus, now);
+        let Some(world) = bus.plant::<RobotWorld>() else { return };
+        if let Some(error) = observation.error {
+            errors.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(error.to_string());
         }
-        let frames_before = observer.frames_seen();
-        observer.sense(world, now);
-        if observer.frames_seen() != frames_before {
+        if observation.new_frame {
             if let Some(latest) = observer.latest().copied() {
                 feed.publish_line(t_s, f64::from(latest.d_m), f64::from(latest.psi_rad), latest.valid);
             }
@@ -174,9 +167,6 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
                 "x": pose.translation.x, "y": pose.translation.y, "z": pose.translation.z,
                 "d_err_m": truth.d_err_m, "psi_err_rad": truth.psi_err_rad, "speed_m_s": truth.speed_m_s,
             }));
-        }
-        if let Err(error) = observer.capture(t_s, bus, None) {
-            keep(error.to_string());
         }
     })
 }

@@ -7,6 +7,7 @@
 //! directory; the caller does, once.
 
 mod atomic;
+pub mod diff;
 pub mod junit;
 mod plot;
 mod summary;

@@ -11,6 +11,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 mod overrides;
+pub mod replay;
 pub mod run;
 pub mod sweep;
 

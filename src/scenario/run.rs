@@ -15,7 +15,7 @@ use serde_json::{Value, json};
 use thiserror::Error;
 use tracing::info_span;
 
-use crate::bus::{Bus, BusFaults};
+use crate::bus::{Bus, BusFaults, Timing};
 use crate::device::Servo;
 use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
 use crate::metrics::{self, StepOptions};
@@ -131,6 +131,27 @@ pub struct GroundTruth {
     pub psi_err_rad: f64,
     /// Ground speed along the body's forward axis (m/s).
     pub speed_m_s: f64,
+}
+
+/// What [`Observer::on_tick`] saw.
+#[derive(Debug)]
+pub struct TickObservation {
+    /// The camera delivered a frame this tick.
+    pub new_frame: bool,
+    pub error: Option<RunError>,
+}
+
+/// The bus of `scenario`'s world (servos at the robot's baud or `baud`), and the observer
+/// (camera, detector, capture) when the scenario has a weld line: what `serve SCENARIO`, `run`
+/// with an external controller and `replay` all drive. `RobotWorld::new` has already updated
+/// the query structures, so the line drapes at once.
+pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Option<Observer>), RunError> {
+    let servos = robot.servos(baud).map_err(SimError::from)?;
+    let world = RobotWorld::new(robot, scenario.world_config()?, &servos).map_err(SimError::from)?;
+    let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;
+    let mut bus = robot.bus_of(servos, Box::new(world), timing, baud).map_err(SimError::from)?;
+    bus.set_faults(BusFaults::new(scenario.faults(), scenario.world.seed));
+    Ok((bus, observer))
 }
 
 /// Everything that watches the world during a run.
@@ -303,6 +324,21 @@ impl Observer {
         row.push((counts.instructions_corrupted + counts.replies_corrupted + counts.replies_dropped + counts.replies_delayed + counts.instructions_unheard) as f64);
         self.series.push_row(&row)?;
         Ok(())
+    }
+
+    /// What every firmware tick of a wall-clock run (and of its replay) does after advancing the
+    /// world: apply due events, render and detect, capture a row. An error in one step does not
+    /// skip the others (the live run keeps going); the first is returned.
+    pub fn on_tick(&mut self, bus: &mut Bus, now: Duration) -> TickObservation {
+        let t_s = now.as_secs_f64();
+        let Some(world) = bus.plant_mut::<RobotWorld>() else { return TickObservation { new_frame: false, error: None } };
+        let mut error = self.apply_events(t_s, world).err();
+        let frames_before = self.frames_seen;
+        self.sense(world, now);
+        if let Err(capture) = self.capture(t_s, bus, None) {
+            error.get_or_insert(capture);
+        }
+        TickObservation { new_frame: self.frames_seen != frames_before, error }
     }
 
     pub fn series(&self) -> &TimeSeries {

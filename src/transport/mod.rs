@@ -18,6 +18,7 @@ use tracing::{debug, info_span, trace, warn, Instrument};
 
 use crate::bus::{Bus, Reply, Timing, TraceWriter, Transaction, wire};
 use crate::protocol::{DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};
+use crate::transcript::Recorder;
 
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
 pub use stats::{LineStats, LoopKey, ReportExtras, TimingReport};
@@ -62,11 +63,36 @@ pub struct BusHandle {
     trace: Mutex<Option<TraceWriter>>,
     stats: Mutex<LineStats>,
     clock: Clock,
+    /// `--record`: packets and ticks, appended under the bus lock so that their order in the
+    /// transcript is the order the bus saw them in.
+    recorder: Option<Arc<Recorder>>,
 }
 
 impl BusHandle {
     pub fn new(bus: Bus, trace: Option<TraceWriter>) -> Arc<Self> {
-        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock: Clock::default() })
+        Self::recording(bus, trace, None)
+    }
+
+    /// Like [`BusHandle::new`], recording the session into `recorder` if there is one.
+    pub fn recording(bus: Bus, trace: Option<TraceWriter>, recorder: Option<Arc<Recorder>>) -> Arc<Self> {
+        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock: Clock::default(), recorder })
+    }
+
+    pub fn recorder(&self) -> Option<&Arc<Recorder>> {
+        self.recorder.as_ref()
+    }
+
+    /// One firmware tick of a world on the wall clock: advance the bus to `at`, run `observe` on
+    /// it, and record the tick, all under one lock.
+    pub fn tick<R>(&self, at: Duration, observe: impl FnOnce(&mut Bus) -> R) -> R {
+        self.with_bus(|bus| {
+            bus.advance(at);
+            let result = observe(bus);
+            if let Some(recorder) = &self.recorder {
+                recorder.tick(at);
+            }
+            result
+        })
     }
 
     pub fn clock(&self) -> Clock {
@@ -95,7 +121,13 @@ impl BusHandle {
 
     fn handle(&self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>) -> Transaction {
         let key = LoopKey { instruction: packet.instruction, id: packet.id };
-        let transaction = self.with_bus(|bus| bus.handle(packet, received_at, line_baud));
+        let transaction = self.with_bus(|bus| {
+            let transaction = bus.handle(packet, received_at, line_baud);
+            if let Some(recorder) = &self.recorder {
+                recorder.packet(&transaction, line_baud);
+            }
+            transaction
+        });
         self.with_stats(|stats| stats.request(received_at, key, transaction.wire_busy, transaction.baud_mismatch));
         let mut trace = self.trace.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(writer) = trace.as_mut()

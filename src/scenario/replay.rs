@@ -1,0 +1,239 @@
+//! `climbsim replay`: re-enact a recorded session ([`crate::transcript`]) without its controller.
+//!
+//! The world and bus are rebuilt from the same scenario (same seed, overrides, baud, timing) and
+//! driven in lockstep through the transcript's records in their recorded order: each `tick`
+//! advances the bus to its time and runs the observer (events, camera, capture) exactly as the
+//! pacer did; each `rx` hands the packet to the bus at its recorded arrival time and line baud,
+//! so `Bus::handle` advances the plant to the same instruction end and the servos see the same
+//! `now`. The sequence of calls on the bus is the live run's, so the replay reproduces it to the
+//! bit wherever the model is unchanged, and anything that differs is a change in the model.
+//!
+//! The recorded replies and wire-end times are compared with the replay's as it goes: a
+//! mismatch means the model (or the scenario, when forced) answers differently now.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use serde_json::json;
+use thiserror::Error;
+use tracing::{info_span, warn};
+
+use super::run::{RunError, RunOutcome, scenario_bus, settings_json};
+use super::{Override, Scenario, ScenarioError};
+use crate::bus::Timing;
+use crate::protocol::{Decoder, RawPacket};
+use crate::robot::{RobotDescription, RobotError};
+use crate::transcript::{Record, Transcript, TranscriptError, crc64_hex, from_hex, to_hex};
+
+#[derive(Debug, Error)]
+pub enum ReplayError {
+    #[error(transparent)]
+    Transcript(#[from] TranscriptError),
+    #[error(transparent)]
+    Run(#[from] RunError),
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error(transparent)]
+    Robot(#[from] RobotError),
+    #[error("cannot read {}: {source}", path.display())]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error(
+        "{what} {} differs from the copy in the recording {}: first at line {line}: recorded `{recorded}`, now `{now}` (pass --force to replay with the current file anyway)",
+        path.display(), transcript.display()
+    )]
+    Differs { what: &'static str, path: PathBuf, transcript: PathBuf, line: usize, recorded: String, now: String },
+    #[error(
+        "firmware profile {} differs from the one recorded in {} (CRC-64 {recorded}, now {now}; pass --force to replay anyway)",
+        path.display(), transcript.display()
+    )]
+    ProfileDiffers { path: PathBuf, transcript: PathBuf, recorded: String, now: String },
+    #[error("{}:1: the recorded --set `{set}` does not parse: {message}", path.display())]
+    Override { path: PathBuf, set: String, message: String },
+    #[error("{}:1: unknown timing `{timing}` (wire or off)", path.display())]
+    Timing { path: PathBuf, timing: String },
+    #[error("{}:{line}: {message}", path.display())]
+    Packet { path: PathBuf, line: usize, message: String },
+}
+
+/// What the replay saw besides the run's outputs.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ReplayStats {
+    pub ticks: u64,
+    pub packets: u64,
+    pub sensor_reads: u64,
+    /// Packets whose replies differ from the recorded ones, and the first one's line.
+    pub reply_mismatches: u64,
+    pub first_reply_mismatch_line: Option<usize>,
+    /// Packets whose end on the modelled wire differs from the recorded one.
+    pub wire_end_mismatches: u64,
+    /// The transcript ended cleanly (else a prefix was replayed).
+    pub complete: bool,
+}
+
+/// A replay's outputs (as a run's) and what it checked.
+pub struct Replayed {
+    pub outcome: RunOutcome,
+    pub stats: ReplayStats,
+}
+
+/// Where the scenario and robot description come from, and whether differences from the
+/// recorded copies are accepted.
+#[derive(Debug, Clone, Default)]
+pub struct ReplaySources {
+    /// The scenario file (default: the recorded path).
+    pub scenario: Option<PathBuf>,
+    /// The robot description (default: the recorded path).
+    pub robot: Option<PathBuf>,
+    pub force: bool,
+}
+
+/// Re-enact `transcript` (see the module documentation).
+pub fn replay(transcript: &Transcript, sources: &ReplaySources) -> Result<Replayed, ReplayError> {
+    let header = &transcript.header;
+    let scenario_path = sources.scenario.clone().unwrap_or_else(|| header.scenario.path.clone());
+    let robot_path = sources.robot.clone().unwrap_or_else(|| header.robot.path.clone());
+    let _span = info_span!("replay", transcript = %transcript.path.display(), scenario = %scenario_path.display()).entered();
+    let started = Instant::now();
+
+    let scenario_text = read_text(&scenario_path)?;
+    let robot_text = read_text(&robot_path)?;
+    if !sources.force {
+        same_text("scenario", &scenario_path, &transcript.path, &header.scenario.text, &scenario_text)?;
+        same_text("robot description", &robot_path, &transcript.path, &header.robot.text, &robot_text)?;
+    }
+    let overrides = header
+        .scenario
+        .overrides
+        .iter()
+        .map(|set| Override::parse(set).map_err(|e| ReplayError::Override { path: transcript.path.clone(), set: set.clone(), message: e.to_string() }))
+        .collect::<Result<Vec<_>, _>>()?;
+    let scenario = Scenario::load_with(&scenario_path, &overrides)?;
+    let robot = RobotDescription::load(&robot_path)?;
+    let profile_path = robot.profile_path();
+    let profile_crc = crc64_hex(read_text(&profile_path)?.as_bytes());
+    if !sources.force && profile_crc != header.robot.profile_crc64 {
+        return Err(ReplayError::ProfileDiffers { path: profile_path, transcript: transcript.path.clone(), recorded: header.robot.profile_crc64.clone(), now: profile_crc });
+    }
+    if scenario.world.seed != header.seed {
+        warn!(recorded = header.seed, now = scenario.world.seed, "the scenario's seed differs from the recording's");
+    }
+    let timing = match header.bus.timing.as_str() {
+        "wire" => Timing::Wire,
+        "off" => Timing::Off,
+        other => return Err(ReplayError::Timing { path: transcript.path.clone(), timing: other.to_owned() }),
+    };
+
+    let (mut bus, observer) = scenario_bus(&scenario, &robot, timing, header.bus.baud_override)?;
+    let mut observer = observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?;
+    let mut stats = ReplayStats { complete: transcript.complete, ..ReplayStats::default() };
+    let mut last_t = Duration::ZERO;
+    let packet_error = |line: usize, message: String| ReplayError::Packet { path: transcript.path.clone(), line, message };
+    for (line, record) in &transcript.records {
+        match record {
+            Record::Tick { t } => {
+                let at = Duration::from_nanos(*t);
+                bus.advance(at);
+                if let Some(error) = observer.on_tick(&mut bus, at).error {
+                    return Err(error.into());
+                }
+                stats.ticks += 1;
+                last_t = last_t.max(at);
+            }
+            Record::Rx { t, baud, hex, end, replies } => {
+                let packet = decode_packet(hex).map_err(|message| packet_error(*line, message))?;
+                let at = Duration::from_nanos(*t);
+                let transaction = bus.handle(packet, at, *baud);
+                stats.packets += 1;
+                if end.is_some_and(|end| Duration::from_nanos(end) != transaction.instruction_end) {
+                    stats.wire_end_mismatches += 1;
+                }
+                if let Some(recorded) = replies {
+                    let now: Vec<String> = transaction.replies.iter().map(|r| to_hex(&r.bytes)).collect();
+                    if &now != recorded {
+                        stats.reply_mismatches += 1;
+                        if stats.first_reply_mismatch_line.is_none() {
+                            warn!(line, ?recorded, ?now, "the replay answered this packet differently from the recording");
+                            stats.first_reply_mismatch_line = Some(*line);
+                        }
+                    }
+                }
+                last_t = last_t.max(at);
+            }
+            Record::Sensor { .. } => stats.sensor_reads += 1,
+            Record::End { .. } => {}
+        }
+    }
+    if !transcript.complete {
+        warn!(path = %transcript.path.display(), "the transcript has no `end` line (a killed run?): replayed the prefix it holds");
+    }
+
+    let sim_s = last_t.as_secs_f64();
+    let mut summary = observer.summary(scenario.capture.on_line_tolerance_m);
+    summary.insert("physics_ticks".to_owned(), json!(stats.ticks));
+    summary.insert("replay.packets".to_owned(), json!(stats.packets));
+    summary.insert("replay.reply_mismatches".to_owned(), json!(stats.reply_mismatches));
+    summary.insert("replay.wire_end_mismatches".to_owned(), json!(stats.wire_end_mismatches));
+    summary.insert("replay.complete".to_owned(), json!(stats.complete));
+    let mut settings = settings_json(&scenario, &robot);
+    settings["replay_of"] = json!(transcript.path.display().to_string());
+    settings["overrides"] = json!(header.scenario.overrides);
+    let outcome = RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings, sim_s, wall_s: started.elapsed().as_secs_f64() };
+    Ok(Replayed { outcome, stats })
+}
+
+fn read_text(path: &Path) -> Result<String, ReplayError> {
+    std::fs::read_to_string(path).map_err(|source| ReplayError::Read { path: path.to_owned(), source })
+}
+
+/// Refuse a file whose text is not the recorded copy, naming the first line that differs.
+fn same_text(what: &'static str, path: &Path, transcript: &Path, recorded: &str, now: &str) -> Result<(), ReplayError> {
+    if recorded == now {
+        return Ok(());
+    }
+    let (mut old, mut new) = (recorded.lines(), now.lines());
+    let mut line = 1;
+    loop {
+        match (old.next(), new.next()) {
+            (Some(a), Some(b)) if a == b => line += 1,
+            (a, b) => {
+                let show = |l: Option<&str>| l.map_or_else(|| "<end of file>".to_owned(), str::to_owned);
+                return Err(ReplayError::Differs { what, path: path.to_owned(), transcript: transcript.to_owned(), line, recorded: show(a), now: show(b) });
+            }
+        }
+    }
+}
+
+/// The one packet `hex` holds.
+fn decode_packet(hex: &str) -> Result<RawPacket, String> {
+    let bytes = from_hex(hex)?;
+    let mut framed = Decoder::default().push(Duration::ZERO, &bytes).into_iter();
+    match (framed.next(), framed.next()) {
+        (Some(Ok(packet)), None) if packet.bytes.len() == bytes.len() => Ok(packet),
+        (Some(Err(error)), _) => Err(format!("the recorded packet does not frame: {error}")),
+        _ => Err(format!("the recorded bytes are not exactly one packet ({} bytes)", bytes.len())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_differing_line_is_named() {
+        let error = same_text("scenario", Path::new("s.toml"), Path::new("t.jsonl"), "a\nb = 1\nc\n", "a\nb = 2\nc\n").expect_err("differs");
+        let text = error.to_string();
+        assert!(text.contains("line 2") && text.contains("`b = 1`") && text.contains("`b = 2`") && text.contains("s.toml"), "{text}");
+        let error = same_text("scenario", Path::new("s.toml"), Path::new("t.jsonl"), "a\n", "a\nb\n").expect_err("longer");
+        assert!(error.to_string().contains("line 2: recorded `<end of file>`"), "{error}");
+        assert!(same_text("scenario", Path::new("s.toml"), Path::new("t.jsonl"), "a\n", "a\n").is_ok());
+    }
+
+    #[test]
+    fn a_recorded_packet_must_be_one_whole_packet() {
+        let ping = "FFFFFD0001030001194E";
+        assert_eq!(decode_packet(ping).map(|p| p.id), Ok(1));
+        assert!(decode_packet(&ping[..12]).is_err(), "a partial packet");
+        assert!(decode_packet(&format!("{ping}{ping}")).is_err(), "two packets");
+        assert!(decode_packet("FFFFFD0001030001194F").is_err(), "a bad CRC");
+    }
+}
