@@ -1,22 +1,12 @@
 //! `climbsim run`, `check` and `sweep` as a user runs them: the binary, real files, exit codes;
 //! and the reference external controller on the official SDK over a real pty.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
+use std::process::Command;
 
 mod support;
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn climbsim(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(repo()).output().expect("run climbsim")
-}
-
-fn text(output: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr))
-}
+use support::{climbsim, output_text as text, repo};
 
 fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
     let body = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
@@ -191,7 +181,7 @@ fn serve_with_a_line_starts_the_sensor_server() {
 fn a_run_stopped_by_sigterm_writes_complete_outputs_of_the_part_it_ran() {
     let out = support::scratch_dir("run-interrupted");
     let out_arg = out.display().to_string();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+    let child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
         .args(["run", "scenarios/flat-line.toml", "--out", &out_arg, "--set", "world.duration_s=100000", "--set", "expect={}"])
         .current_dir(repo())
         .stdout(std::process::Stdio::piped())

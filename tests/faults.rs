@@ -10,34 +10,28 @@ use climbsim::bus::{Bus, BusFaults, Timing, Transaction};
 use climbsim::device::{Plant, Servo, ShaftState};
 use climbsim::fault::ScheduledFault;
 use climbsim::protocol::{ALERT_BIT, Decoder, RawPacket, encode_instruction, opcode};
-use climbsim::robot::{RobotDescription, WheelPosition};
+use climbsim::robot::WheelPosition;
 use climbsim::scenario::Scenario;
-use climbsim::sim::terrain::{TerrainSpec, generate};
-use climbsim::sim::{Lockstep, StartPose, WorldConfig};
+use climbsim::sim::terrain::TerrainSpec;
+use climbsim::sim::Lockstep;
 use rapier3d::prelude::Vector;
 
-const G: f32 = 9.81;
-const OPERATING_MODE: u16 = 11;
+mod support;
+use support::physics::*;
+
 const SHUTDOWN: u16 = 63;
-const TORQUE_ENABLE: u16 = 64;
 const LED: u16 = 65;
 const HARDWARE_ERROR_STATUS: u16 = 70;
 const GOAL_PWM: u16 = 100;
-const GOAL_VELOCITY: u16 = 104;
 const PRESENT_VELOCITY: u16 = 128;
 const PRESENT_POSITION: u16 = 132;
 const PRESENT_INPUT_VOLTAGE: u16 = 144;
 const PRESENT_TEMPERATURE: u16 = 146;
 const TEMPERATURE_LIMIT: u16 = 31;
-const VELOCITY_MODE: u8 = 1;
 const PWM_MODE: u8 = 16;
 const OVERLOAD_BIT: u8 = 1 << 5;
 const OVERHEATING_BIT: u8 = 1 << 2;
 const VOLTAGE_BIT: u8 = 1 << 0;
-
-fn robot() -> RobotDescription {
-    RobotDescription::load(&RobotDescription::default_path()).expect("robot description")
-}
 
 fn faults(specs: &[&str], seed: u64) -> BusFaults {
     BusFaults::new(specs.iter().map(|s| ScheduledFault::parse(s).expect("fault spec")).collect(), seed)
@@ -379,29 +373,9 @@ fn encoder_noise_shows_in_present_position_and_velocity_and_replays_with_the_see
 // World faults
 
 fn world(terrain: TerrainSpec, gravity: Vector, specs: &[&str]) -> Lockstep {
-    let terrain = generate(&terrain, 7, Path::new(".")).expect("terrain");
-    let config = WorldConfig { gravity, terrain, start: StartPose::default(), friction: None, magnets_on: true, payload_kg: 0.0 };
-    let mut sim = Lockstep::new(&robot(), config).expect("world");
+    let mut sim = world_with_payload(terrain, gravity, true, 0.0);
     sim.bus_mut().set_faults(faults(specs, 7));
     sim
-}
-
-fn flat() -> TerrainSpec {
-    TerrainSpec::Flat { size_m: 20.0 }
-}
-
-/// Gravity for a surface tilted by `deg`, the robot facing uphill (as in tests/physics.rs).
-fn tilted_gravity(deg: f32) -> Vector {
-    let a = deg.to_radians();
-    Vector::new(-G * a.sin(), -G * a.cos(), 0.0)
-}
-
-fn drive_wheels(sim: &mut Lockstep, goal: i32) {
-    for id in 1..=4 {
-        sim.write(id, OPERATING_MODE, &[VELOCITY_MODE]).expect("velocity mode");
-        sim.write(id, TORQUE_ENABLE, &[1]).expect("torque on");
-        sim.write(id, GOAL_VELOCITY, &goal.to_le_bytes()).expect("goal velocity");
-    }
 }
 
 /// Hold at zero speed on a vertical wall for 10 s after the fault at 0.5 s; the drift (m, + up).

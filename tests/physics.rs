@@ -3,56 +3,18 @@
 use std::path::Path;
 use std::time::Duration;
 
-use climbsim::robot::{RobotDescription, WheelPosition};
-use climbsim::sim::terrain::{TerrainSpec, generate};
-use climbsim::sim::{Lockstep, StartPose, WorldConfig};
+use climbsim::robot::WheelPosition;
+use climbsim::sim::terrain::TerrainSpec;
+use climbsim::sim::Lockstep;
 use rapier3d::prelude::Vector;
 
-const G: f32 = 9.81;
-const OPERATING_MODE: u16 = 11;
-const TORQUE_ENABLE: u16 = 64;
-const GOAL_VELOCITY: u16 = 104;
-const PRESENT_CURRENT: u16 = 126;
-const VELOCITY_MODE: u8 = 1;
+mod support;
+use support::physics::*;
 
-fn robot() -> RobotDescription {
-    RobotDescription::load(&RobotDescription::default_path()).expect("robot description")
-}
+const PRESENT_CURRENT: u16 = 126;
 
 fn world(terrain: TerrainSpec, gravity: Vector, magnets_on: bool) -> Lockstep {
     world_with_payload(terrain, gravity, magnets_on, 0.0)
-}
-
-fn world_with_payload(terrain: TerrainSpec, gravity: Vector, magnets_on: bool, payload_kg: f32) -> Lockstep {
-    let terrain = generate(&terrain, 7, Path::new(".")).expect("terrain");
-    let config = WorldConfig { gravity, terrain, start: StartPose::default(), friction: None, magnets_on, payload_kg };
-    Lockstep::new(&robot(), config).expect("world")
-}
-
-fn flat() -> TerrainSpec {
-    TerrainSpec::Flat { size_m: 20.0 }
-}
-
-/// Gravity for a surface tilted by `deg` with the robot facing uphill (+x up the slope): the
-/// same physics as a tilted terrain under vertical gravity.
-fn tilted_gravity(deg: f32) -> Vector {
-    let a = deg.to_radians();
-    Vector::new(-G * a.sin(), -G * a.cos(), 0.0)
-}
-
-/// All wheel servos in velocity mode with torque on, at `goal` (0.229 rev/min units).
-fn drive_wheels(sim: &mut Lockstep, goal: i32) {
-    for id in 1..=4 {
-        sim.write(id, OPERATING_MODE, &[VELOCITY_MODE]).expect("velocity mode");
-        sim.write(id, TORQUE_ENABLE, &[1]).expect("torque on");
-    }
-    set_wheel_goal(sim, goal);
-}
-
-fn set_wheel_goal(sim: &mut Lockstep, goal: i32) {
-    for id in 1..=4 {
-        sim.write(id, GOAL_VELOCITY, &goal.to_le_bytes()).expect("goal velocity");
-    }
 }
 
 fn chassis_x(sim: &Lockstep) -> f32 {

@@ -24,17 +24,7 @@ const LIVE_S: &str = "4";
 const TRAJECTORY_TOLERANCE: f64 = 1e-6;
 const TRAJECTORY: &[&str] = &["x_m", "z_m", "psi_true_rad", "d_true_m"];
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn climbsim(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(repo()).output().expect("run climbsim")
-}
-
-fn text(output: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr))
-}
+use support::{climbsim, output_text as text, repo};
 
 fn s(path: &Path) -> String {
     path.display().to_string()
