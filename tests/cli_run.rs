@@ -98,16 +98,8 @@ fn a_malformed_scenario_names_file_line_and_key() {
 /// real pty and the sensor server, started, timed and stopped by `climbsim run`.
 #[test]
 fn the_python_reference_controller_follows_the_line_over_a_pty() {
-    let python = support::sdk_python();
-    let bin = python.parent().expect("python's folder").to_owned();
-    let path = std::env::join_paths(std::iter::once(bin).chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()))).expect("PATH");
     let out = support::scratch_dir("external");
-    let output = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["run", "scenarios/external-line-follower.toml", "--set", "world.duration_s=8", "--timing", "off", "--out", &out.display().to_string()])
-        .env("PATH", path)
-        .current_dir(repo())
-        .output()
-        .expect("run climbsim");
+    let output = support::climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--set", "world.duration_s=8", "--timing", "off", "--out", &out.display().to_string()]);
     let log = std::fs::read_to_string(out.join("controller.log")).unwrap_or_default();
     assert!(output.status.success(), "{}\ncontroller.log:\n{log}", text(&output));
     assert!(log.contains("control periods"), "the controller ran and stopped cleanly:\n{log}");

@@ -5,7 +5,7 @@
 //! One live run is shared by every test here (it is the slow part: real time plus start-up).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use std::sync::OnceLock;
 
 mod support;
@@ -53,18 +53,10 @@ fn summary(dir: &Path) -> serde_json::Value {
 fn live() -> &'static (PathBuf, PathBuf) {
     static LIVE: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     LIVE.get_or_init(|| {
-        let python = support::sdk_python();
-        let bin = python.parent().expect("python's folder").to_owned();
-        let path = std::env::join_paths(std::iter::once(bin).chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()))).expect("PATH");
         let dir = support::scratch_dir("replay-live");
         let (out, transcript) = (dir.join("live"), dir.join("live.jsonl"));
         let duration = format!("world.duration_s={LIVE_S}");
-        let output = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-            .args(["run", "scenarios/external-line-follower.toml", "--set", &duration, "--out", &s(&out), "--record", &s(&transcript)])
-            .env("PATH", path)
-            .current_dir(repo())
-            .output()
-            .expect("run climbsim");
+        let output = support::climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--set", &duration, "--out", &s(&out), "--record", &s(&transcript)]);
         let log = std::fs::read_to_string(out.join("controller.log")).unwrap_or_default();
         assert!(output.status.success(), "{}\ncontroller.log:\n{log}", text(&output));
         (out, transcript)
