@@ -44,7 +44,9 @@ fn main() {
     println!("|---:|---|---:|---:|---:|---:|---:|---:|---|");
     for (bps, baud) in bauds {
         let bps_text = bps.to_string();
-        let mut emulator = Emulator::start(&["--baud", &bps_text]);
+        let report = support::scratch_dir("timing-fidelity").join(format!("timing-{bps}.json"));
+        let report_text = report.display().to_string();
+        let mut emulator = Emulator::start(&["--baud", &bps_text, "--report", &report_text]);
         let port = OpenOptions::new()
             .read(true)
             .write(true)
@@ -75,6 +77,12 @@ fn main() {
         }
         drop(port);
         assert!(emulator.stop(), "climbsim did not exit 0 on SIGTERM");
+        // The emulator's own part of the error: how long after the wire model's due time it
+        // handed replies to the pty (the rest is the pty and the client waking up).
+        let timing: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).expect("timing report")).expect("report JSON");
+        let lateness = &timing["delivery_lateness_us"];
+        println!("|   | emulator's hand-over after the due time (all {bps} bps replies) | {} | | p50 {:.1} | p99 {:.1} | | | |", lateness["count"], lateness["p50_us"].as_f64().unwrap_or(f64::NAN), lateness["p99_us"].as_f64().unwrap_or(f64::NAN));
+        rows.push(serde_json::json!({ "baud": bps, "emulator_handover_lateness_us": lateness }));
     }
     if full {
         let json = serde_json::json!({ "bench": "timing_fidelity", "return_delay_us": RETURN_DELAY_S * 1e6, "rows": rows });
