@@ -2,21 +2,33 @@
 //! every instruction's execution and reply scheduling must never panic.
 #![no_main]
 
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
-use climbsim::bus::Timing;
+use climbsim::bus::{Bus, Timing, servos_from_profile};
+use climbsim::device::{BenchPlant, FirmwareProfile};
 use climbsim::protocol::{DEFAULT_MAX_LEN, Decoder};
 use climbsim::robot::RobotDescription;
 use libfuzzer_sys::fuzz_target;
 
-fn robot() -> &'static RobotDescription {
-    static ROBOT: OnceLock<RobotDescription> = OnceLock::new();
-    ROBOT.get_or_init(|| RobotDescription::load(&RobotDescription::default_path()).expect("hil/robot.toml"))
+/// The robot and its servos' profile, parsed once: a fresh bus per input is then cheap.
+fn setup() -> &'static (RobotDescription, Arc<FirmwareProfile>) {
+    static SETUP: OnceLock<(RobotDescription, Arc<FirmwareProfile>)> = OnceLock::new();
+    SETUP.get_or_init(|| {
+        let robot = RobotDescription::load(&RobotDescription::default_path()).expect("hil/robot.toml");
+        let profile = Arc::new(FirmwareProfile::load(&robot.profile_path()).expect("firmware profile"));
+        (robot, profile)
+    })
+}
+
+fn fresh_bus() -> Option<Bus> {
+    let (robot, profile) = setup();
+    let servos = servos_from_profile(profile, &robot.ids(), robot.bus.baud_bps, robot.bus.supply_voltage_v).ok()?;
+    robot.bus_of(servos, Box::new(BenchPlant::default()), Timing::Wire, None).ok()
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(mut bus) = robot().bench_bus(Timing::Wire, None) else { return };
+    let Some(mut bus) = fresh_bus() else { return };
     let mut decoder = Decoder::new(bus.inter_byte_timeout(), DEFAULT_MAX_LEN);
     let mut now = Duration::ZERO;
     let mut rest = data;
