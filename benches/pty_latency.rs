@@ -17,9 +17,8 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::os::fd::{AsFd, OwnedFd};
-use std::os::unix::fs::OpenOptionsExt;
 use std::time::Instant;
 
 use climbsim::protocol::{crc16, encode_instruction};
@@ -60,13 +59,7 @@ fn main() {
 
     // (b) climbsim.
     let mut emulator = Emulator::start(&["--timing", "off"]);
-    let sim_client = OpenOptions::new()
-        .read(true)
-        .write(true)
-        .custom_flags(libc::O_NOCTTY)
-        .open(emulator.port())
-        .unwrap_or_else(|e| panic!("open {}: {e}", emulator.port().display()));
-    support::configure_raw(&sim_client, BaudRate::B57600);
+    let sim_client = support::open_raw_port(emulator.port(), BaudRate::B57600);
 
     let mut buf = [0u8; 64];
     // Check both paths answer what they should before timing anything.

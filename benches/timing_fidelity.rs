@@ -14,8 +14,6 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use std::fs::OpenOptions;
-use std::os::unix::fs::OpenOptionsExt;
 
 use climbsim::protocol::encode_instruction;
 use nix::sys::termios::BaudRate;
@@ -47,13 +45,7 @@ fn main() {
         let report = support::scratch_dir("timing-fidelity").join(format!("timing-{bps}.json"));
         let report_text = report.display().to_string();
         let mut emulator = Emulator::start(&["--baud", &bps_text, "--report", &report_text]);
-        let port = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .custom_flags(libc::O_NOCTTY)
-            .open(emulator.port())
-            .unwrap_or_else(|e| panic!("open {}: {e}", emulator.port().display()));
-        support::configure_raw(&port, baud);
+        let port = support::open_raw_port(emulator.port(), baud);
         let mut buf = [0u8; 64];
         for case in &cases {
             // Round trips take 0.6–5.5 ms: a few seconds per case when measuring.

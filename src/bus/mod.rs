@@ -206,14 +206,14 @@ impl Bus {
     /// Whether no servo listens at `line_bps`. A real servo's UART samples such a packet as
     /// garbage and never answers; the controller sees only timeouts, so say why, once per baud.
     fn note_baud_mismatch(&mut self, line_bps: u32) -> bool {
-        let listening: Vec<u32> = self.servos.iter().filter_map(Servo::baud_bps).collect();
-        if listening.contains(&line_bps) {
+        // Every packet passes here: the usual answer without allocating.
+        if self.servos.iter().any(|s| s.baud_bps() == Some(line_bps)) {
             self.mismatch_warned_for = None;
             return false;
         }
         if self.mismatch_warned_for != Some(line_bps) {
             self.mismatch_warned_for = Some(line_bps);
-            let mut bauds = listening;
+            let mut bauds: Vec<u32> = self.servos.iter().filter_map(Servo::baud_bps).collect();
             bauds.sort_unstable();
             bauds.dedup();
             warn!(

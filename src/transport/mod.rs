@@ -381,23 +381,17 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     /// replies came back: on the wire they follow it out of the controller's transmitter and
     /// may meet the replies. Those that do are corrupted and framed again.
     fn collide_queued(&mut self, replies: &mut [Reply]) {
-        let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
         let mut reframed = VecDeque::with_capacity(self.decoded.len());
         while let Some((result, at)) = self.decoded.pop_front() {
             let Ok(packet) = result else {
                 reframed.push_back((result, at));
                 continue;
             };
-            let on_wire = at.max(self.controller_tx_free_at);
-            self.controller_tx_free_at = on_wire + byte_time * packet.bytes.len() as u32;
             let mut bytes = packet.bytes.clone();
-            let collided = wire::collide_in_time(&mut bytes, on_wire, replies, byte_time);
-            if collided == 0 {
+            if self.put_on_wire(&mut bytes, at, replies) == 0 {
                 reframed.push_back((Ok(packet), at));
                 continue;
             }
-            self.handle.with_stats(|stats| stats.collision(collided));
-            debug!(bytes = bytes.len(), collided, "controller sent while a reply was on the wire: both corrupted");
             let mut decoder = Decoder::new(self.gap, DEFAULT_MAX_LEN);
             let mut framed = decoder.push(at, &bytes);
             framed.extend(decoder.flush());
@@ -409,17 +403,26 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     /// `n` bytes in the buffer arrived while replies were still due.
     fn early_bytes(&mut self, n: usize, undelivered: &mut [Reply]) {
         let at = self.clock.now();
+        // A copy: rare (only a controller that does not wait), and `put_on_wire` needs `self`.
+        let mut sent = self.buf[..n].to_vec();
+        self.put_on_wire(&mut sent, at, undelivered);
+        let framed = self.decoder.push(at, &sent);
+        self.decoded.extend(framed.into_iter().map(|r| (r, at)));
+    }
+
+    /// The controller wrote `bytes` at `at`: its transmitter sends them once it has sent what it
+    /// was given before; where they meet `replies` on the wire both are corrupted. Returns how
+    /// many byte pairs collided.
+    fn put_on_wire(&mut self, bytes: &mut [u8], at: Duration, replies: &mut [Reply]) -> usize {
         let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
         let on_wire = at.max(self.controller_tx_free_at);
-        self.controller_tx_free_at = on_wire + byte_time * n as u32;
-        let sent = &mut self.buf[..n];
-        let collided = wire::collide_in_time(sent, on_wire, undelivered, byte_time);
+        self.controller_tx_free_at = on_wire + byte_time * bytes.len() as u32;
+        let collided = wire::collide_in_time(bytes, on_wire, replies, byte_time);
         if collided > 0 {
             self.handle.with_stats(|stats| stats.collision(collided));
-            debug!(bytes = n, collided, "controller sent while a reply was on the wire: both corrupted");
+            debug!(bytes = bytes.len(), collided, "controller sent while a reply was on the wire: both corrupted");
         }
-        let framed = self.decoder.push(at, &self.buf[..n]);
-        self.decoded.extend(framed.into_iter().map(|r| (r, at)));
+        collided
     }
 }
 

@@ -277,6 +277,19 @@ pub fn median(values: &mut [f64]) -> f64 {
     values[values.len() / 2]
 }
 
+/// Open a serial port (an emulator's pty) as a controller would, raw at `baud`.
+pub fn open_raw_port(path: &Path, baud: nix::sys::termios::BaudRate) -> std::fs::File {
+    use std::os::unix::fs::OpenOptionsExt;
+    let port = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY)
+        .open(path)
+        .unwrap_or_else(|e| panic!("open {}: {e}", path.display()));
+    configure_raw(&port, baud);
+    port
+}
+
 /// Raw mode at `baud`, blocking reads that return as soon as one byte is there.
 pub fn configure_raw(port: &std::fs::File, baud: nix::sys::termios::BaudRate) {
     use nix::sys::termios::{SetArg, SpecialCharacterIndices, cfmakeraw, cfsetspeed, tcgetattr, tcsetattr};
