@@ -1,6 +1,9 @@
 //! Real-time factor of the full robot (eight servo models, adhesion, rapier) on a 256×256 Perlin
 //! terrain in lockstep, against the same bodies and joints stepped by bare rapier, at 1 kHz and
-//! 500 Hz; and peak memory of a world on a 1024×1024 terrain (in a child process).
+//! 500 Hz and for several solver settings; and peak memory of a world on a 1024×1024 terrain (in
+//! a child process). Two bare baselines: rapier stepping untouched, and rapier with the last
+//! step's forces, torques and joint motors written back each step (what any rapier program that
+//! drives a robot pays; see `RobotWorld::step_physics_with_held_inputs`).
 //! `cargo bench --bench world_rtf`; results in target/bench-results/world_rtf.json.
 
 #[path = "../tests/support/mod.rs"]
@@ -11,8 +14,7 @@ use std::time::{Duration, Instant};
 
 use climbsim::robot::RobotDescription;
 use climbsim::sim::terrain::{TerrainSpec, generate};
-use climbsim::sim::{Lockstep, RobotWorld, StartPose, WorldConfig};
-use rapier3d::prelude::Vector;
+use climbsim::sim::{Lockstep, RobotWorld, SolverSettings, WorldConfig};
 
 const MEMORY_PROBE: &str = "--memory-probe";
 
@@ -20,9 +22,16 @@ fn perlin(resolution: u32) -> TerrainSpec {
     TerrainSpec::Perlin { size_m: 16.0, resolution, max_height_m: 0.04, noise_scale: 100.0 }
 }
 
-fn config(resolution: u32) -> WorldConfig {
+fn config(resolution: u32, solver: SolverSettings) -> WorldConfig {
     let terrain = generate(&perlin(resolution), 42, Path::new(".")).expect("terrain");
-    WorldConfig { gravity: Vector::new(0.0, -9.81, 0.0), terrain, start: StartPose::default(), friction: None, magnets_on: true, payload_kg: 0.0 }
+    WorldConfig { solver, ..WorldConfig::on(terrain) }
+}
+
+/// Medians (µs per step) of one configuration.
+struct Timing {
+    full: f64,
+    bare: f64,
+    bare_with_inputs: f64,
 }
 
 /// The robot description with the firmware tick (= physics step) set to `period_us`.
@@ -38,11 +47,11 @@ fn robot_with_period(period_us: u64, dir: &Path) -> RobotDescription {
     RobotDescription::load(&robot_path).expect("robot copy")
 }
 
-/// Median µs per step for the full robot and for bare rapier: `blocks` alternating blocks of
-/// `steps_per_block` steps each after a warm-up, so that both see the same machine conditions
-/// (this VM's neighbours make single runs vary by ±30 %).
-fn measure(robot: &RobotDescription, blocks: u32, steps_per_block: u32) -> (f64, f64) {
-    let mut sim = Lockstep::new(robot, config(256)).expect("world");
+/// Median µs per step for the full robot and the two bare baselines: `blocks` alternating
+/// blocks of `steps_per_block` steps each after a warm-up, so that all three see the same machine
+/// conditions (this VM's neighbours make single runs vary by ±30 %).
+fn measure(robot: &RobotDescription, solver: SolverSettings, blocks: u32, steps_per_block: u32) -> Timing {
+    let mut sim = Lockstep::new(robot, config(256, solver)).expect("world");
     for id in 1..=4 {
         sim.write(id, 11, &[1]).expect("velocity mode");
         sim.write(id, 64, &[1]).expect("torque on");
@@ -50,19 +59,25 @@ fn measure(robot: &RobotDescription, blocks: u32, steps_per_block: u32) -> (f64,
     }
     let tick = sim.bus().servos()[0].control_period();
     sim.run(tick * 200); // warm-up
-    let (mut full, mut bare) = (Vec::new(), Vec::new());
+    let per_step = |started: Instant| started.elapsed().as_secs_f64() * 1e6 / f64::from(steps_per_block);
+    let (mut full, mut bare, mut bare_with_inputs) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..blocks {
         let started = Instant::now();
         sim.run(tick * steps_per_block);
-        full.push(started.elapsed().as_secs_f64() * 1e6 / f64::from(steps_per_block));
+        full.push(per_step(started));
         let world: &mut RobotWorld = sim.world_mut();
         let started = Instant::now();
         for _ in 0..steps_per_block {
             world.step_physics_only();
         }
-        bare.push(started.elapsed().as_secs_f64() * 1e6 / f64::from(steps_per_block));
+        bare.push(per_step(started));
+        let started = Instant::now();
+        for _ in 0..steps_per_block {
+            world.step_physics_with_held_inputs();
+        }
+        bare_with_inputs.push(per_step(started));
     }
-    (support::median(&mut full), support::median(&mut bare))
+    Timing { full: support::median(&mut full), bare: support::median(&mut bare), bare_with_inputs: support::median(&mut bare_with_inputs) }
 }
 
 fn peak_rss_mb() -> f64 {
@@ -74,7 +89,7 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     if args.iter().any(|a| a == MEMORY_PROBE) {
         let robot = RobotDescription::load(&RobotDescription::default_path()).expect("robot");
-        let mut sim = Lockstep::new(&robot, config(1024)).expect("world");
+        let mut sim = Lockstep::new(&robot, config(1024, SolverSettings::default())).expect("world");
         sim.run(Duration::from_millis(100));
         println!("{:.1}", peak_rss_mb());
         return;
@@ -84,12 +99,15 @@ fn main() {
     let steps = blocks * steps_per_block;
     let dir = std::env::temp_dir().join(format!("climbsim-rtf-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
+    let default = SolverSettings::default();
+    let mut configurations = vec![(1000u32, 1000u64, default), (500, 2000, default)];
+    if full_run {
+        configurations.extend([(1000, 1000, SolverSettings::new(4, 2)), (1000, 1000, SolverSettings::new(2, 2))].into_iter().filter(|c| c.2 != default));
+    }
     let mut rows = Vec::new();
-    for (hz, period_us) in [(1000u32, 1000u64), (500, 2000)] {
+    for (hz, period_us, solver) in configurations {
         let robot = robot_with_period(period_us, &dir);
-        let (full, bare) = measure(&robot, blocks, steps_per_block);
-        let dt_us = period_us as f64;
-        rows.push((hz, full, bare, dt_us / full, dt_us / bare, full / bare));
+        rows.push((hz, period_us as f64, solver, measure(&robot, solver, blocks, steps_per_block)));
     }
     let _ = std::fs::remove_dir_all(&dir);
     let exe = std::env::current_exe().expect("current exe");
@@ -97,22 +115,25 @@ fn main() {
     let peak_mb: f64 = String::from_utf8_lossy(&memory.stdout).trim().parse().unwrap_or(f64::NAN);
 
     println!("\nrobot world, 256×256 Perlin terrain, lockstep, one core (medians of {blocks} alternating blocks of {steps_per_block} steps{})", if full_run { "" } else { ", smoke run" });
-    println!("| step rate | full µs/step | bare rapier µs/step | full × real time | bare × real time | overhead full/bare |");
-    println!("|----------:|-------------:|--------------------:|-----------------:|-----------------:|-------------------:|");
-    for (hz, full, bare, rtf, bare_rtf, ratio) in &rows {
-        println!("| {hz} Hz | {full:.1} | {bare:.1} | {rtf:.1} | {bare_rtf:.1} | {ratio:.2} |");
+    println!("| step rate | solver | full µs/step | bare rapier µs/step | bare rapier + held inputs µs/step | full × real time | overhead full/bare | overhead full/(bare + inputs) |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (hz, dt_us, solver, t) in &rows {
+        println!("| {hz} Hz | {solver}{} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} |", if *solver == default { " (default)" } else { "" }, t.full, t.bare, t.bare_with_inputs, dt_us / t.full, t.full / t.bare, t.full / t.bare_with_inputs);
     }
     println!("peak memory (VmHWM) of a world on a 1024×1024 terrain: {peak_mb:.1} MB (target < 200 MB)");
     if full_run {
-        let json = format!(
-            "{{\"steps\":{steps},\"rows\":[{}],\"peak_memory_1024_mb\":{peak_mb:.1}}}\n",
-            rows.iter()
-                .map(|(hz, full, bare, rtf, bare_rtf, ratio)| format!("{{\"hz\":{hz},\"full_us\":{full:.2},\"bare_us\":{bare:.2},\"rtf\":{rtf:.2},\"bare_rtf\":{bare_rtf:.2},\"overhead\":{ratio:.3}}}"))
-                .collect::<Vec<_>>()
-                .join(",")
-        );
+        let json = rows
+            .iter()
+            .map(|(hz, dt_us, solver, t)| {
+                format!(
+                    "{{\"hz\":{hz},\"iterations\":{},\"internal_iterations\":{},\"full_us\":{:.2},\"bare_us\":{:.2},\"bare_with_inputs_us\":{:.2},\"rtf\":{:.2},\"overhead\":{:.3},\"overhead_vs_inputs\":{:.3}}}",
+                    solver.iterations, solver.internal_iterations, t.full, t.bare, t.bare_with_inputs, dt_us / t.full, t.full / t.bare, t.full / t.bare_with_inputs
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(",");
         let path: PathBuf = support::results_dir().join("world_rtf.json");
-        std::fs::write(&path, json).expect("write results");
+        std::fs::write(&path, format!("{{\"steps\":{steps},\"rows\":[{json}],\"peak_memory_1024_mb\":{peak_mb:.1}}}\n")).expect("write results");
         println!("results: {}", path.display());
     }
 }

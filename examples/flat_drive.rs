@@ -8,13 +8,12 @@ use climbsim::bus::Timing;
 use climbsim::protocol::{Decoder, encode_instruction, opcode};
 use climbsim::robot::RobotDescription;
 use climbsim::sim::terrain::{TerrainSpec, generate};
-use climbsim::sim::{RobotWorld, StartPose, WorldConfig};
-use rapier3d::prelude::Vector;
+use climbsim::sim::{RobotWorld, WorldConfig};
 
 fn main() {
     let robot = RobotDescription::load(&RobotDescription::default_path()).expect("robot");
     let terrain = generate(&TerrainSpec::Flat { size_m: 20.0 }, 1, Path::new(".")).expect("terrain");
-    let config = WorldConfig { gravity: Vector::new(0.0, -9.81, 0.0), terrain, start: StartPose::default(), friction: None, magnets_on: true, payload_kg: 0.0 };
+    let config = WorldConfig::on(terrain);
     let servos = robot.servos(None).expect("servos");
     let world = RobotWorld::new(&robot, config, &servos).expect("world");
     let mut bus = robot.bus_of(servos, Box::new(world), Timing::Off, None).expect("bus");

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::time::Duration;
 use climbsim::robot::{RobotDescription, WheelPosition};
 use climbsim::sim::terrain::{TerrainSpec, generate};
-use climbsim::sim::{Lockstep, StartPose, WorldConfig};
+use climbsim::sim::{Lockstep, WorldConfig};
 use rapier3d::prelude::Vector;
 
 fn main() {
@@ -17,7 +17,7 @@ fn main() {
     let robot = RobotDescription::load(&robot_path).expect("robot");
     let spec = TerrainSpec::Wall { wall_distance_m: 0.5, wall_height_m: 1.5, width_m: 2.0, fillet_radius_m: fillet, segments: 24 };
     let terrain = generate(&spec, 1, Path::new(".")).expect("terrain");
-    let config = WorldConfig { gravity: Vector::new(0.0, -9.81, 0.0), terrain, start: StartPose::default(), friction: None, magnets_on: true, payload_kg: 0.0 };
+    let config = WorldConfig::on(terrain);
     let mut sim = Lockstep::new(&robot, config).unwrap();
     for id in 1..=4u8 {
         sim.write(id, 11, &[1]).unwrap();

@@ -5,47 +5,26 @@ use std::time::Duration;
 
 use climbsim::robot::WheelPosition;
 use climbsim::sim::terrain::TerrainSpec;
-use climbsim::sim::Lockstep;
+use climbsim::sim::{Lockstep, SolverSettings};
 use rapier3d::prelude::Vector;
 
 mod support;
 use support::physics::*;
 
-const PRESENT_CURRENT: u16 = 126;
-
 fn world(terrain: TerrainSpec, gravity: Vector, magnets_on: bool) -> Lockstep {
     world_with_payload(terrain, gravity, magnets_on, 0.0)
 }
 
-fn chassis_x(sim: &Lockstep) -> f32 {
-    sim.world().chassis_pose().translation.x
-}
-
 #[test]
 fn flat_ground_speed_matches_goal_velocity_times_radius() {
-    let mut sim = world(flat(), Vector::new(0.0, -G, 0.0), true);
-    let goal = 50;
-    drive_wheels(&mut sim, goal);
-    sim.run(Duration::from_secs(4)); // ramp
-    let x0 = chassis_x(&sim);
-    sim.run(Duration::from_secs(2));
-    let speed = (chassis_x(&sim) - x0) / 2.0;
-    let radius = robot().wheel.outer_radius_m;
-    let expected = goal as f32 * 0.229 / 60.0 * std::f32::consts::TAU * radius;
+    let (speed, expected, lateral) = flat_ground_speed(SolverSettings::default());
     let error = (speed - expected).abs() / expected;
     assert!(error < 0.03, "ground speed {speed:.5} m/s vs v·R {expected:.5} m/s ({:.1} %)", error * 100.0);
-    let lateral = sim.world().chassis_pose().translation.z.abs();
     assert!(lateral < 0.005, "drove straight: {lateral} m sideways");
 }
 
-/// Settle, then hold with torque on at zero velocity for 10 s; return the chassis' displacement.
 fn drift_while_holding_on(terrain: TerrainSpec, gravity: Vector, magnets_on: bool) -> Vector {
-    let mut sim = world(terrain, gravity, magnets_on);
-    drive_wheels(&mut sim, 0);
-    sim.run(Duration::from_millis(500));
-    let p0 = sim.world().chassis_pose().translation;
-    sim.run(Duration::from_secs(10));
-    sim.world().chassis_pose().translation - p0
+    support::physics::drift_while_holding(terrain, gravity, magnets_on, SolverSettings::default())
 }
 
 fn drift_while_holding(gravity: Vector, magnets_on: bool) -> f32 {
@@ -54,16 +33,14 @@ fn drift_while_holding(gravity: Vector, magnets_on: bool) -> f32 {
 
 #[test]
 fn magnets_hold_on_a_30_degree_slope() {
-    let slope = TerrainSpec::Slope { size_m: 8.0, resolution: 64, slope_x_deg: 30.0, slope_z_deg: 0.0 };
-    let drift = drift_while_holding_on(slope, Vector::new(0.0, -G, 0.0), true);
+    let drift = drift_while_holding_on(slope(30.0), Vector::new(0.0, -G, 0.0), true);
     assert!(drift.length() < 0.001, "drift {:.2} mm in 10 s", drift.length() * 1000.0);
 }
 
 #[test]
 fn friction_alone_holds_a_stopped_robot_on_a_30_degree_slope() {
     // Friction 0.6 alone holds at 30° (tan 30° = 0.58); what the magnets add shows on a wall.
-    let slope = TerrainSpec::Slope { size_m: 8.0, resolution: 64, slope_x_deg: 30.0, slope_z_deg: 0.0 };
-    let drift = drift_while_holding_on(slope, Vector::new(0.0, -G, 0.0), false);
+    let drift = drift_while_holding_on(slope(30.0), Vector::new(0.0, -G, 0.0), false);
     assert!(drift.length() < 0.005, "friction alone holds at 30°: drift {:.2} mm", drift.length() * 1000.0);
 }
 
@@ -90,66 +67,17 @@ fn magnets_pull_every_wheel_on_flat_ground() {
     }
 }
 
-/// Total Present Current of the wheel servos after 3 s at Goal Velocity 50 on a surface tilted by
-/// `deg` (2.69 mA units).
-fn total_wheel_current(deg: f32) -> i64 {
-    let mut sim = world(flat(), tilted_gravity(deg), true);
-    drive_wheels(&mut sim, 50);
-    sim.run(Duration::from_secs(2));
-    // The mean of 20 readings over a second: one instant of a PI-controlled current rides on the
-    // velocity loop's ripple.
-    let mut total = 0;
-    for _ in 0..20 {
-        sim.run(Duration::from_millis(50));
-        total += (1..=4).map(|id| sim.read_signed(id, PRESENT_CURRENT, 2).expect("current")).sum::<i64>();
-    }
-    total / 20
-}
-
 #[test]
 fn climbing_current_matches_the_weight_the_wheels_lift() {
-    let extra = (total_wheel_current(60.0) - total_wheel_current(0.0)) as f32;
-    // Traction torque = m·g·sin(60°)·R over the four wheels; current = torque / 10.6 N·m × 4.4 A.
-    let robot = robot();
-    let mass = robot.body.front.mass_kg + robot.body.middle.mass_kg + robot.body.rear.mass_kg + 4.0 * (robot.wheel.mass_kg + robot.magnet.mass_kg);
-    let torque = mass * G * 60f32.to_radians().sin() * robot.wheel.outer_radius_m;
-    let expected = torque / 10.6 * 4.4 / 2.69e-3;
+    let (extra, expected) = climbing_current(SolverSettings::default());
     assert!((extra - expected).abs() / expected < 0.2, "extra current {extra} units, expected {expected:.0}");
-}
-
-
-
-/// Encoder reading of a magnet servo as an angle from straight down (rad, positive forward).
-fn magnet_encoder_angle(sim: &mut Lockstep, id: u8) -> f32 {
-    let pulses = sim.read_signed(id, 132, 4).expect("magnet position");
-    (pulses - i64::from(robot().magnet.encoder_at_down_pulses)) as f32 * std::f32::consts::TAU / 4096.0
 }
 
 #[test]
 fn passive_magnet_reads_the_contact_angle_over_a_bump() {
-    // A 30 mm bump under the left wheels' track, on fine cells (4 mm) so that the facets'
-    // normals change in steps well under a degree. The robot inches over it with the magnet
-    // servos' torque off; at each stop the magnet has settled, and its encoder (the seed's
-    // potentiometer) must read the geometric contact angle.
-    let bump = TerrainSpec::Bump { size_m: 2.0, resolution: 512, height_m: 0.03, radius_m: 0.2, x_m: 0.5, z_m: -0.13 };
-    let mut sim = world(bump, Vector::new(0.0, -G, 0.0), true);
-    let mut worst = (0.0f32, 0.0f32, 0.0f32);
-    let mut steepest = 0.0f32;
-    drive_wheels(&mut sim, 0);
-    for _ in 0..30 {
-        set_wheel_goal(&mut sim, 40);
-        sim.run(Duration::from_millis(400));
-        set_wheel_goal(&mut sim, 0);
-        sim.run(Duration::from_millis(600));
-        let geometric = sim.world().contact_angle(WheelPosition::FrontLeft).expect("terrain under the wheel");
-        let encoder = magnet_encoder_angle(&mut sim, 5);
-        steepest = steepest.max(geometric.abs());
-        if (encoder - geometric).abs() > worst.0 {
-            worst = ((encoder - geometric).abs(), encoder, geometric);
-        }
-    }
+    let (worst, encoder, geometric, steepest) = magnet_versus_contact_over_a_bump(SolverSettings::default());
     assert!(steepest.to_degrees() > 8.0, "the wheel crossed the bump's flanks (steepest contact {:.1}°)", steepest.to_degrees());
-    assert!(worst.0.to_degrees() < 2.0, "magnet {:.2}° vs contact {:.2}°", worst.1.to_degrees(), worst.2.to_degrees());
+    assert!(worst.to_degrees() < 2.0, "magnet {:.2}° vs contact {:.2}°", encoder.to_degrees(), geometric.to_degrees());
 }
 
 #[test]
@@ -181,8 +109,7 @@ fn rocker_keeps_all_four_wheels_on_a_one_sided_step() {
 /// chassis' travel along the slope (m), the wheels' mean Present Current (2.69 mA units), and the
 /// simulation for more checks.
 fn climb_with_payload(deg: f32, payload_kg: f32) -> (f32, i64, Lockstep) {
-    let slope = TerrainSpec::Slope { size_m: 8.0, resolution: 64, slope_x_deg: deg, slope_z_deg: 0.0 };
-    let mut sim = world_with_payload(slope, Vector::new(0.0, -G, 0.0), true, payload_kg);
+    let mut sim = world_with_payload(slope(deg), Vector::new(0.0, -G, 0.0), true, payload_kg);
     drive_wheels(&mut sim, 0);
     sim.run(Duration::from_millis(300));
     let start = sim.world().chassis_pose().translation;
@@ -233,20 +160,12 @@ fn same_scenario_and_seed_give_a_bit_identical_trajectory() {
 
 #[test]
 fn passive_magnets_carry_the_robot_from_the_floor_up_a_filleted_wall() {
-    // The floor-to-wall transition: the wall stands 0.5 m ahead behind a 150 mm fillet; the wheels
-    // drive at Goal Velocity 100 (3.6 rev/min, 19 mm/s) with the magnet servos' torque off, so
-    // each magnet swings on its own toward the surface it faces.
-    let wall = TerrainSpec::Wall { wall_distance_m: 0.5, wall_height_m: 1.5, width_m: 2.0, fillet_radius_m: 0.15, segments: 24 };
-    let mut sim = world(wall, Vector::new(0.0, -G, 0.0), true);
-    drive_wheels(&mut sim, 100);
-    sim.run(Duration::from_secs(10));
-    let world = sim.world();
-    let forward = world.chassis_pose().rotation * Vector::X;
-    let pitch = forward.y.atan2(forward.x).to_degrees();
+    let sim = floor_to_wall(SolverSettings::default());
+    let pitch = pitch_deg(&sim);
     assert!(pitch > 88.0, "the robot stands on the wall: pitch {pitch:.1}°");
-    let rear = world.wheel_centre(WheelPosition::RearLeft);
+    let rear = sim.world().wheel_centre(WheelPosition::RearLeft);
     assert!(rear.y > 0.4, "the rear axle has left the fillet and climbs: {:.3} m up", rear.y);
-    for (wheel, sample) in WheelPosition::ALL.iter().zip(world.adhesion()) {
+    for (wheel, sample) in WheelPosition::ALL.iter().zip(sim.world().adhesion()) {
         assert!(sample.force_n > 0.9 * robot().magnet.pull_at_contact_n, "{wheel:?} holds: {sample:?}");
     }
 }

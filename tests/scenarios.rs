@@ -44,3 +44,19 @@ fn bad_scenario_names_file_line_and_key() {
     let error = scenario.world_config().unwrap_err().to_string();
     assert!(error.contains("bad.toml") && error.contains("100"), "{error}");
 }
+
+#[test]
+fn the_solver_setting_is_read_from_the_world_table_and_a_zero_names_the_key() {
+    let dir = std::env::temp_dir().join(format!("climbsim-solver-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("solver.toml");
+    let base = "[world]\nseed = 1\nduration_s = 1.0\n";
+    let terrain = "\n[terrain]\nkind = \"flat\"\nsize_m = 4.0\n";
+    std::fs::write(&path, format!("{base}solver = {{ iterations = 5 }}\n{terrain}")).unwrap();
+    let solver = Scenario::load(&path).expect("parses").world_config().expect("world").solver;
+    assert_eq!((solver.iterations.get(), solver.internal_iterations.get()), (5, climbsim::sim::SolverSettings::default().internal_iterations.get()));
+    std::fs::write(&path, format!("{base}solver = {{ iterations = 0, internal_iterations = 2 }}\n{terrain}")).unwrap();
+    let error = Scenario::load(&path).unwrap_err().to_string();
+    assert!(error.contains(&format!("{}:4:", path.display())) && error.contains("nonzero"), "{error}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

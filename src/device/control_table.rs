@@ -71,7 +71,15 @@ impl ControlTable {
         let item = &self.profile.items[index];
         let start = usize::from(item.address());
         let bytes = value.to_le_bytes();
-        self.mem[start..item.end()].copy_from_slice(&bytes[..item.size()]);
+        // Constant-length copies for the sizes items have: the Present registers are stored
+        // every firmware tick, and a length-generic copy is a call into memcpy.
+        let target = &mut self.mem[start..item.end()];
+        match target.len() {
+            1 => target[0] = bytes[0],
+            2 => target.copy_from_slice(&bytes[..2]),
+            4 => target.copy_from_slice(&bytes[..4]),
+            n => target.copy_from_slice(&bytes[..n]),
+        }
     }
 
     /// Raw bytes of the whole table (for backup).
@@ -243,9 +251,16 @@ impl ControlTable {
 
 /// Little-endian item bytes (1..=4) as a value, sign-extended for signed items.
 pub fn decode(bytes: &[u8], signed: bool) -> i64 {
-    let mut raw = [0u8; 8];
-    raw[..bytes.len()].copy_from_slice(bytes);
-    let unsigned = u64::from_le_bytes(raw);
+    let unsigned = match *bytes {
+        [b0] => u64::from(b0),
+        [b0, b1] => u64::from(u16::from_le_bytes([b0, b1])),
+        [b0, b1, b2, b3] => u64::from(u32::from_le_bytes([b0, b1, b2, b3])),
+        _ => {
+            let mut raw = [0u8; 8];
+            raw[..bytes.len()].copy_from_slice(bytes);
+            u64::from_le_bytes(raw)
+        }
+    };
     if signed {
         let shift = 64 - 8 * bytes.len() as u32;
         ((unsigned << shift) as i64) >> shift

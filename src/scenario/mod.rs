@@ -21,7 +21,7 @@ use crate::control::ReferenceConfig;
 use crate::fault::{Fault, ScheduledFault};
 use crate::sim::LineCameraSettings;
 use crate::sim::terrain::{TerrainError, TerrainSpec, generate};
-use crate::sim::{StartPose, WorldConfig};
+use crate::sim::{SolverSettings, StartPose, WorldConfig};
 use crate::source_location::{DataFileError, load_toml};
 
 #[derive(Debug, Error)]
@@ -64,6 +64,11 @@ pub struct WorldSection {
     /// Extra mass carried on the middle section (kg), e.g. a towed welding carriage.
     #[serde(default)]
     pub payload_kg: f32,
+    /// rapier's solver effort per step, `{ iterations = 3, internal_iterations = 2 }` by default:
+    /// raise it to check that a result does not depend on the solver, lower it (2 × 2) for
+    /// faster sweeps that do not read servo current.
+    #[serde(default)]
+    pub solver: SolverSettings,
 }
 
 /// Where the robot starts. Without a line: at (`x_m`, `z_m`) facing `yaw_deg` (0 = +x).
@@ -354,6 +359,7 @@ impl Scenario {
             friction: self.world.friction,
             magnets_on: self.world.magnets,
             payload_kg: self.world.payload_kg,
+            solver: self.world.solver,
         })
     }
 }

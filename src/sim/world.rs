@@ -8,6 +8,7 @@
 //! drives its shaft; after it the angles and rates flow back through [`Servo::sense`]. The same
 //! device code serves the bench and the world.
 
+use std::num::NonZeroUsize;
 use std::time::Duration;
 
 use rapier3d::parry::query::ShapeCastOptions;
@@ -31,13 +32,6 @@ fn robot_groups() -> InteractionGroups {
 /// Gain of the velocity motor that emulates dry friction on a coasting joint (N·m·s/rad); the
 /// motor's force limit is the friction torque itself.
 const FRICTION_MOTOR_GAIN: f32 = 1.0e3;
-/// Solver iterations per step (rapier's default is 4, with 1 internal PGS iteration). With the
-/// default, wheel friction creeps under the traction a 60° climb needs: the rear wheels slipped
-/// 6 % and the four velocity loops fought (front wheels braking, rear ones driving). Two internal
-/// PGS iterations fix it at 36 µs/step; 8 outer iterations fix it too, at 56 µs/step (measured
-/// with `cargo bench --bench world_rtf`).
-const SOLVER_ITERATIONS: usize = 4;
-const INTERNAL_PGS_ITERATIONS: usize = 2;
 /// Natural frequency of wheel-on-terrain contact springs (rapier's default is 60 Hz).
 const STATIC_CONTACT_HZ: f32 = 240.0;
 
@@ -76,6 +70,55 @@ pub struct WorldConfig {
     pub magnets_on: bool,
     /// Extra mass on the middle section (kg).
     pub payload_kg: f32,
+    /// How hard rapier's solver works per step.
+    pub solver: SolverSettings,
+}
+
+impl WorldConfig {
+    /// A world on `terrain` with everything else at its default: Earth gravity along −y, the
+    /// default start pose, the robot's own tread friction, magnets on, no payload.
+    pub fn on(terrain: TerrainGeometry) -> Self {
+        Self { gravity: Vector::new(0.0, -9.81, 0.0), terrain, start: StartPose::default(), friction: None, magnets_on: true, payload_kg: 0.0, solver: SolverSettings::default() }
+    }
+}
+
+/// rapier's solver effort per physics step: `iterations` substeps (rapier's
+/// `num_solver_iterations`), each with `internal_iterations` projected Gauss–Seidel passes
+/// (`num_internal_pgs_iterations`). rapier's defaults are 4 and 1.
+///
+/// `cargo bench --bench solver_fidelity` measures what each setting buys against an 8 × 2
+/// reference (table in the README). The one quantity that moves is the wheel current on a 60°
+/// climb: the fewer the passes, the less of the traction the joint motors carry (rapier's
+/// position correction does the rest), and the less current the servos read: −0.5 % at 8 × 2,
+/// −2.5 % at 4 × 2, −4.8 % at 3 × 2, −12.8 % at 2 × 2, −56 % at 2 × 1. The default, 3 × 2, keeps
+/// that error under 5 %; 2 × 2 is 15 % faster and still inside every physics test's tolerance,
+/// for sweeps where current does not matter. Ground speed, holding drift, the magnets' contact
+/// angles and the wall transition agree with the reference at every setting down to 2 × 2.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SolverSettings {
+    pub iterations: NonZeroUsize,
+    pub internal_iterations: NonZeroUsize,
+}
+
+impl SolverSettings {
+    /// `iterations` × `internal_iterations` (each at least 1).
+    pub fn new(iterations: usize, internal_iterations: usize) -> Self {
+        let at_least_one = |n: usize| NonZeroUsize::new(n).unwrap_or(NonZeroUsize::MIN);
+        Self { iterations: at_least_one(iterations), internal_iterations: at_least_one(internal_iterations) }
+    }
+}
+
+impl Default for SolverSettings {
+    fn default() -> Self {
+        Self::new(3, 2)
+    }
+}
+
+impl std::fmt::Display for SolverSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} × {}", self.iterations, self.internal_iterations)
+    }
 }
 
 /// One magnet's pull in the last step (for logs and tests).
@@ -177,7 +220,8 @@ enum ServoLink {
 pub struct RobotWorld {
     physics: PhysicsWorld,
     terrain: ColliderHandle,
-    sections: [RigidBodyHandle; 3],
+    /// The front section and the middle one (which carries the bolted rear section).
+    sections: [RigidBodyHandle; 2],
     wheels: [WheelParts; 4],
     /// Per servo (in bus order): what it drives.
     links: Vec<ServoLink>,
@@ -229,8 +273,8 @@ impl RobotWorld {
         // magnet pull a wheel sank 2.6 mm (5 % of its radius, so 5 % of ground speed). Stiffer,
         // still well inside the 1 kHz step's stability: the sink drops below 0.2 mm.
         physics.integration_parameters.static_contact_softness.natural_frequency = STATIC_CONTACT_HZ;
-        physics.integration_parameters.num_solver_iterations = SOLVER_ITERATIONS;
-        physics.integration_parameters.num_internal_pgs_iterations = INTERNAL_PGS_ITERATIONS;
+        physics.integration_parameters.num_solver_iterations = config.solver.iterations.get();
+        physics.integration_parameters.num_internal_pgs_iterations = config.solver.internal_iterations.get();
 
         let terrain_body = physics.insert_body(RigidBodyBuilder::fixed());
         let friction = config.friction.unwrap_or(robot.wheel.friction);
@@ -252,15 +296,20 @@ impl RobotWorld {
         let place = |local: Vector| origin + attitude * local;
         let yaw = attitude;
 
-        let mut section_at = |spec: &SectionSpec, x: f32| {
+        let section_at = |physics: &mut PhysicsWorld, spec: &SectionSpec, x: f32| {
             let rb = RigidBodyBuilder::dynamic().pose(Pose::from_parts(place(Vector::new(x, centre_y, 0.0)), yaw));
             let handle = physics.insert_body(rb);
             physics.insert_collider(section_collider(spec), Some(handle));
             handle
         };
-        let front = section_at(&body.front, half_base);
-        let middle = section_at(&body.middle, 0.0);
-        let rear = section_at(&body.rear, -half_base);
+        let front = section_at(&mut physics, &body.front, half_base);
+        let middle = section_at(&mut physics, &body.middle, 0.0);
+        // The rear section is bolted to the middle one: one rigid body with two colliders, each
+        // carrying its section's mass and inertia (rapier sums them about the body's centre of
+        // mass). A fixed joint in its place costs the solver a sixth joint every step (8.5 % of
+        // the step's instructions) to keep two bodies together that never move apart.
+        let rear_collider = section_collider(&body.rear).position(Pose::from_translation(Vector::new(-half_base, 0.0, 0.0)));
+        physics.insert_collider(rear_collider, Some(middle));
         if config.payload_kg > 0.0 {
             // A compact payload (radius of gyration 0.1 m) on the middle section.
             let payload = MassProperties::new(Vector::ZERO, config.payload_kg, Vector::splat(config.payload_kg * 0.01));
@@ -269,11 +318,7 @@ impl RobotWorld {
             }
         }
 
-        // Rear bolted to the middle; front rolls about x against it (the rocker).
-        let middle_to_rear = FixedJointBuilder::new()
-            .local_anchor1(Vector::new(-half_base / 2.0, 0.0, 0.0))
-            .local_anchor2(Vector::new(half_base / 2.0, 0.0, 0.0));
-        physics.insert_impulse_joint(middle, rear, middle_to_rear);
+        // The front section rolls about x against the middle one (the rocker).
         let limit = body.rocker.limit_deg.to_radians();
         let rocker = RevoluteJointBuilder::new(Vector::X)
             .local_anchor1(Vector::new(half_base / 2.0, 0.0, 0.0))
@@ -283,11 +328,14 @@ impl RobotWorld {
 
         let mut wheels = Vec::with_capacity(4);
         for position in WheelPosition::ALL {
-            let section = if position.is_front() { front } else { rear };
+            let section = if position.is_front() { front } else { middle };
             // z points to the robot's right (x forward × y up), so the left wheels sit at −z.
             let side = if position.is_left() { -1.0 } else { 1.0 };
             let anchor = Vector::new(0.0, -body.axle_drop_m, side * body.track_m / 2.0);
             let section_x = if position.is_front() { half_base } else { -half_base };
+            // Axle anchor in the carrying body's frame: the rear axle sits half a wheelbase
+            // behind the middle body's origin.
+            let anchor = if position.is_front() { anchor } else { anchor + Vector::new(-half_base, 0.0, 0.0) };
             let centre = place(Vector::new(section_x, axle_y, side * body.track_m / 2.0));
 
             // Hollow wheel: a ball collider rolls robustly on heightfields; its mass properties
@@ -346,7 +394,7 @@ impl RobotWorld {
         let world = Self {
             physics,
             terrain,
-            sections: [front, middle, rear],
+            sections: [front, middle],
             wheels,
             links,
             magnets,
@@ -509,8 +557,36 @@ impl RobotWorld {
         });
     }
 
+    /// Step the rapier world alone, re-applying the last step's inputs unchanged: each body's
+    /// force and torque and each wheel joint's motor are written back through rapier's API before
+    /// the step, as any program that drives a rapier robot and holds it with forces must do every
+    /// step. rapier re-stages its joint solver whenever a jointed body or a joint is accessed
+    /// mutably, so this baseline costs more than [`Self::step_physics_only`]; the difference is
+    /// rapier's price for per-step inputs, not climbsim's models.
+    pub fn step_physics_with_held_inputs(&mut self) {
+        let bodies = self.sections.iter().copied().chain(self.wheels.iter().map(|w| w.wheel));
+        for handle in bodies {
+            let body = &mut self.physics.bodies[handle];
+            let (force, torque) = (body.user_force(), body.user_torque());
+            body.reset_forces(false);
+            body.reset_torques(false);
+            body.add_force(force, true);
+            body.add_torque(torque, true);
+        }
+        for parts in self.wheels {
+            if let Some(joint) = self.physics.impulse_joints.get_mut(parts.wheel_joint, true) {
+                if let Some(motor) = joint.data.motor(JointAxis::AngX).copied() {
+                    joint.data.set_motor_velocity(JointAxis::AngX, motor.target_vel, motor.damping);
+                    joint.data.set_motor_max_force(JointAxis::AngX, motor.max_force);
+                }
+            }
+        }
+        self.step_physics_only();
+    }
+
     /// Advance one step with the servos in bus order.
     pub fn step(&mut self, servos: &mut [Servo]) {
+        self.reset_applied_loads();
         for (servo, link) in servos.iter_mut().zip(&self.links) {
             let drive = servo.drive();
             match *link {
@@ -587,21 +663,26 @@ impl RobotWorld {
         }
     }
 
+    /// Forces and torques added to bodies persist until reset: every step starts from zero.
+    fn reset_applied_loads(&mut self) {
+        for section in self.sections {
+            self.physics.bodies[section].reset_torques(false);
+        }
+        for parts in self.wheels {
+            self.physics.bodies[parts.wheel].reset_forces(false);
+        }
+    }
+
     /// Per wheel: sweep a small sphere from the wheel centre along the magnet's direction to find
     /// the surface and its normal; pull the wheel toward the surface by the gap law, scaled by the
     /// magnet's alignment with the normal, and turn the magnet toward the normal with the same
     /// pull on its lever.
     fn apply_adhesion(&mut self) {
-        let magnet = self.robot.magnet.clone();
+        let magnet = &self.robot.magnet;
         let outer = self.robot.wheel.outer_radius_m;
-        // Forces and torques added to bodies persist until reset: start every step from zero.
-        for section in self.sections {
-            self.physics.bodies[section].reset_torques(false);
-        }
         let gravity = self.physics.gravity;
         for index in 0..4 {
             let parts = self.wheels[index];
-            self.physics.bodies[parts.wheel].reset_forces(false);
             self.adhesion[index] = AdhesionSample::default();
             let direction = self.magnet_direction_at(index);
             let axis = self.physics.bodies[parts.section].rotation() * parts.magnet_axis;
@@ -613,7 +694,7 @@ impl RobotWorld {
             }
             let centre = self.physics.bodies[parts.wheel].translation();
             let filter = QueryFilter::default().groups(robot_groups());
-            let Some((contact, normal)) = find_surface(&self.physics, centre, direction, outer + magnet.range_m, magnet.probe_radius_m, filter) else {
+            let Some((contact, normal)) = find_surface(&self.physics, self.terrain, centre, direction, outer + magnet.range_m, magnet.probe_radius_m, filter) else {
                 continue;
             };
             // The magnet pulls toward the steel, i.e. against the surface normal; the gap is the
@@ -639,9 +720,14 @@ impl RobotWorld {
 /// through a grid vertex or edge can miss, and then the seed's sphere cast (radius `probe`)
 /// finds the surface. The sphere cast is not the first choice because parry's shape cast
 /// against a fine heightfield returned normals tilted by up to 20° on flat cells (measured).
-fn find_surface(physics: &PhysicsWorld, centre: Vector, direction: Vector, reach: f32, probe: f32, filter: QueryFilter<'_>) -> Option<(Vector, Vector)> {
+///
+/// The ray goes straight to the terrain collider's shape: the terrain is the only collider in
+/// the magnets' filter, and skipping the query pipeline's tree walk halves the cast's cost
+/// (it runs four times a step).
+fn find_surface(physics: &PhysicsWorld, terrain: ColliderHandle, centre: Vector, direction: Vector, reach: f32, probe: f32, filter: QueryFilter<'_>) -> Option<(Vector, Vector)> {
     let ray = Ray::new(centre, direction);
-    if let Some((_, hit)) = physics.cast_ray_and_get_normal(&ray, reach, true, filter) {
+    let terrain = physics.colliders.get(terrain)?;
+    if let Some(hit) = terrain.shape().cast_ray_and_get_normal(terrain.position(), &ray, reach, true) {
         return Some((ray.point_at(hit.time_of_impact), hit.normal));
     }
     let options = ShapeCastOptions { max_time_of_impact: reach, target_distance: 0.0, stop_at_penetration: true, compute_impact_geometry_on_penetration: true };
@@ -680,6 +766,11 @@ fn start_frame(physics: &PhysicsWorld, start: &StartPose, half_base: f32, half_t
 /// ω_target = τ₀/b, limited to the stall torque; gearbox Coulomb friction opposes the motion.
 /// A coasting servo (torque off, b = 0) becomes a stiff velocity-zero motor whose force limit is
 /// the friction torque: dry friction with stiction.
+///
+/// Rewriting the motor every step makes rapier re-stage its joint solver (a mutable joint access
+/// bumps its assembly epoch). Splitting τ₀ off as an external torque pair would keep the motor
+/// constant, but it saves only 1 % of the step: the adhesion forces mutate the same bodies every
+/// step, and rapier re-stages for any mutated jointed body anyway (measured with callgrind).
 fn set_joint_motor(physics: &mut PhysicsWorld, handle: ImpulseJointHandle, drive: &ShaftDrive, omega: f64) {
     let Some(joint) = physics.impulse_joints.get_mut(handle, true) else { return };
     let damping = drive.back_emf_damping + drive.viscous_friction;

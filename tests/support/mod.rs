@@ -333,58 +333,9 @@ pub fn output_text(output: &std::process::Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr))
 }
 
-/// The robot of `hil/robot.toml` in a rapier world, driven through the bus in lockstep.
-pub mod physics {
-    use std::path::Path;
-
-    use climbsim::robot::RobotDescription;
-    use climbsim::sim::terrain::{TerrainSpec, generate};
-    use climbsim::sim::{Lockstep, StartPose, WorldConfig};
-    use rapier3d::prelude::Vector;
-
-    pub const G: f32 = 9.81;
-    pub const OPERATING_MODE: u16 = 11;
-    pub const TORQUE_ENABLE: u16 = 64;
-    pub const GOAL_VELOCITY: u16 = 104;
-    pub const VELOCITY_MODE: u8 = 1;
-
-    pub fn robot() -> RobotDescription {
-        RobotDescription::load(&RobotDescription::default_path()).expect("robot description")
-    }
-
-    /// The robot resting on `terrain` (seed 7) under `gravity`.
-    pub fn world_with_payload(terrain: TerrainSpec, gravity: Vector, magnets_on: bool, payload_kg: f32) -> Lockstep {
-        let terrain = generate(&terrain, 7, Path::new(".")).expect("terrain");
-        let config = WorldConfig { gravity, terrain, start: StartPose::default(), friction: None, magnets_on, payload_kg };
-        Lockstep::new(&robot(), config).expect("world")
-    }
-
-    pub fn flat() -> TerrainSpec {
-        TerrainSpec::Flat { size_m: 20.0 }
-    }
-
-    /// Gravity for a surface tilted by `deg` with the robot facing uphill (+x up the slope): the
-    /// same physics as a tilted terrain under vertical gravity.
-    pub fn tilted_gravity(deg: f32) -> Vector {
-        let a = deg.to_radians();
-        Vector::new(-G * a.sin(), -G * a.cos(), 0.0)
-    }
-
-    /// All wheel servos in velocity mode with torque on, at `goal` (0.229 rev/min units).
-    pub fn drive_wheels(sim: &mut Lockstep, goal: i32) {
-        for id in 1..=4 {
-            sim.write(id, OPERATING_MODE, &[VELOCITY_MODE]).expect("velocity mode");
-            sim.write(id, TORQUE_ENABLE, &[1]).expect("torque on");
-        }
-        set_wheel_goal(sim, goal);
-    }
-
-    pub fn set_wheel_goal(sim: &mut Lockstep, goal: i32) {
-        for id in 1..=4 {
-            sim.write(id, GOAL_VELOCITY, &goal.to_le_bytes()).expect("goal velocity");
-        }
-    }
-}
+/// The robot of `hil/robot.toml` in a rapier world, driven through the bus in lockstep, and the
+/// measurements the physics tests and the solver-fidelity bench share.
+pub mod physics;
 
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
 /// controller (`command = ["python", ...]`) runs in the venv.

@@ -1,0 +1,87 @@
+//! What rapier's solver effort buys: the physics tests' measurements and the flat line-following
+//! scenario for each solver setting (iterations × internal PGS iterations), against an 8 × 2
+//! reference. The default setting (`SolverSettings::default`) is the cheapest row that stays
+//! inside every physics test's tolerance.
+//! `cargo bench --bench solver_fidelity`; results in target/bench-results/solver_fidelity.json.
+
+#[path = "../tests/support/mod.rs"]
+mod support;
+
+use climbsim::robot::WheelPosition;
+use climbsim::scenario::run::run_lockstep;
+use climbsim::scenario::{Override, Scenario};
+use climbsim::sim::SolverSettings;
+use rapier3d::prelude::Vector;
+use support::physics::*;
+
+struct Row {
+    solver: SolverSettings,
+    speed_error_pct: f32,
+    wall_drift_mm: f32,
+    slope_drift_mm: f32,
+    climbing_current_pct: f32,
+    magnet_error_deg: f32,
+    wall_pitch_deg: f32,
+    wall_weakest_pull_pct: f32,
+    line_settling_s: f64,
+    line_sse_mm: f64,
+}
+
+fn measure(solver: SolverSettings) -> Row {
+    let (speed, expected, _) = flat_ground_speed(solver);
+    let wall_drift = drift_while_holding(flat(), tilted_gravity(90.0), true, solver).length();
+    let slope_drift = drift_while_holding(slope(30.0), Vector::new(0.0, -G, 0.0), true, solver).length();
+    let (extra, needed) = climbing_current(solver);
+    let (magnet_error, ..) = magnet_versus_contact_over_a_bump(solver);
+    let wall = floor_to_wall(solver);
+    let pull = robot().magnet.pull_at_contact_n;
+    let weakest = WheelPosition::ALL.iter().zip(wall.world().adhesion()).map(|(_, s)| s.force_n).fold(f32::INFINITY, f32::min);
+    let sets = [format!("world.solver.iterations={}", solver.iterations), format!("world.solver.internal_iterations={}", solver.internal_iterations)];
+    let overrides: Vec<Override> = sets.iter().map(|s| Override::parse(s).expect("override")).collect();
+    let scenario = Scenario::load_with(&support::repo().join("scenarios/flat-line.toml"), &overrides).expect("flat-line scenario");
+    let outcome = run_lockstep(&scenario, &robot()).expect("flat-line run");
+    let metric = |key: &str| outcome.summary.get(key).and_then(serde_json::Value::as_f64).unwrap_or(f64::NAN);
+    Row {
+        solver,
+        speed_error_pct: (speed / expected - 1.0) * 100.0,
+        wall_drift_mm: wall_drift * 1000.0,
+        slope_drift_mm: slope_drift * 1000.0,
+        climbing_current_pct: (extra / needed - 1.0) * 100.0,
+        magnet_error_deg: magnet_error.to_degrees(),
+        wall_pitch_deg: pitch_deg(&wall),
+        wall_weakest_pull_pct: weakest / pull * 100.0,
+        line_settling_s: metric("distance.settling_time_s"),
+        line_sse_mm: metric("distance.steady_state_error_m") * 1000.0,
+    }
+}
+
+fn main() {
+    let full_run = std::env::args().any(|a| a == "--bench");
+    let settings: &[(usize, usize)] = if full_run { &[(8, 2), (4, 2), (4, 1), (3, 2), (2, 2), (2, 1), (1, 2)] } else { &[(2, 2)] };
+    let rows: Vec<Row> = settings.iter().map(|&(i, j)| measure(SolverSettings::new(i, j))).collect();
+    println!("\nsolver fidelity (tolerances of tests/physics.rs in the header; the flat-line scenario's expect: settles, |SSE| ≤ 2 mm)");
+    println!("| solver | flat speed vs v·R (±3 %) | wall drift 10 s (< 1 mm) | 30° drift 10 s (< 1 mm) | 60° climbing current vs weight (±20 %) | magnet vs contact angle (< 2°) | wall transition pitch (> 88°) | weakest pull on the wall (> 90 %) | flat-line settling (s) | flat-line SSE (mm) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for r in &rows {
+        println!(
+            "| {} | {:+.2} % | {:.3} mm | {:.3} mm | {:+.1} % | {:.2}° | {:.1}° | {:.0} % | {:.1} | {:+.2} |",
+            r.solver, r.speed_error_pct, r.wall_drift_mm, r.slope_drift_mm, r.climbing_current_pct, r.magnet_error_deg, r.wall_pitch_deg, r.wall_weakest_pull_pct, r.line_settling_s, r.line_sse_mm
+        );
+    }
+    if full_run {
+        let json = rows
+            .iter()
+            .map(|r| {
+                format!(
+                    "{{\"iterations\":{},\"internal_iterations\":{},\"speed_error_pct\":{:.3},\"wall_drift_mm\":{:.4},\"slope_drift_mm\":{:.4},\"climbing_current_pct\":{:.2},\"magnet_error_deg\":{:.3},\"wall_pitch_deg\":{:.2},\"wall_weakest_pull_pct\":{:.1},\"line_settling_s\":{},\"line_sse_mm\":{:.3}}}",
+                    r.solver.iterations, r.solver.internal_iterations, r.speed_error_pct, r.wall_drift_mm, r.slope_drift_mm, r.climbing_current_pct, r.magnet_error_deg, r.wall_pitch_deg, r.wall_weakest_pull_pct,
+                    if r.line_settling_s.is_finite() { format!("{:.2}", r.line_settling_s) } else { "null".into() }, r.line_sse_mm
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(",");
+        let path = support::results_dir().join("solver_fidelity.json");
+        std::fs::write(&path, format!("{{\"rows\":[{json}]}}\n")).expect("write results");
+        println!("results: {}", path.display());
+    }
+}
