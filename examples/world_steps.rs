@@ -1,31 +1,43 @@
 //! Step the robot on a 256×256 Perlin terrain in lockstep for N steps (default 2000), for
 //! profilers: `valgrind --tool=callgrind target/release/examples/world_steps 2000`. With `bare`
-//! after N, the same world steps by bare rapier after a 200-step warm-up (the world_rtf bench's
-//! baseline), so that the two profiles can be compared function by function.
+//! (or `held`) after N, the same world steps by bare rapier (or bare rapier with the last step's
+//! inputs written back) after a 200-step warm-up: the world_rtf bench's baselines, so that the
+//! profiles can be compared function by function. Then optionally the solver's iterations and
+//! internal iterations (default: `SolverSettings::default()`).
 
 use std::path::Path;
 use std::time::Duration;
 
 use climbsim::robot::RobotDescription;
 use climbsim::sim::terrain::{TerrainSpec, generate};
-use climbsim::sim::{Lockstep, WorldConfig};
+use climbsim::sim::{Lockstep, SolverSettings, WorldConfig};
 
 fn main() {
     let steps: u32 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(2000);
     let robot = RobotDescription::load(&RobotDescription::default_path()).expect("robot");
     let spec = TerrainSpec::Perlin { size_m: 16.0, resolution: 256, max_height_m: 0.04, noise_scale: 100.0 };
     let terrain = generate(&spec, 42, Path::new(".")).expect("terrain");
-    let config = WorldConfig::on(terrain);
+    let arg = |n: usize| std::env::args().nth(n);
+    let solver = match (arg(3).and_then(|a| a.parse().ok()), arg(4).and_then(|a| a.parse().ok())) {
+        (Some(iterations), Some(internal)) => SolverSettings::new(iterations, internal),
+        _ => SolverSettings::default(),
+    };
+    let config = WorldConfig { solver, ..WorldConfig::on(terrain) };
     let mut sim = Lockstep::new(&robot, config).expect("world");
     for id in 1..=4 {
         sim.write(id, 11, &[1]).expect("velocity mode");
         sim.write(id, 64, &[1]).expect("torque on");
         sim.write(id, 104, &50i32.to_le_bytes()).expect("goal velocity");
     }
-    if std::env::args().nth(2).as_deref() == Some("bare") {
+    let mode = arg(2);
+    if matches!(mode.as_deref(), Some("bare" | "held")) {
         sim.run(Duration::from_millis(200));
         for _ in 0..steps {
-            sim.world_mut().step_physics_only();
+            if mode.as_deref() == Some("held") {
+                sim.world_mut().step_physics_with_held_inputs();
+            } else {
+                sim.world_mut().step_physics_only();
+            }
         }
     } else {
         sim.run(Duration::from_millis(u64::from(steps)));
