@@ -86,3 +86,22 @@ fn captured_signals_select_the_columns_and_unknown_ones_are_named() {
     let error = run_lockstep(&scenario, &robot()).err().expect("unknown signal").to_string();
     assert!(error.contains("flat-line.toml") && error.contains("`d_mm`"), "{error}");
 }
+
+/// A weld line that curves with a 1 m radius: the seed's proportional law needs a standing
+/// distance error to hold the turn (ω = K_d·d_err = V/R, about 2 mm here), and integral action
+/// (`controller.integral_pole_rad_s`) removes it. Both are measured by the robot's own camera.
+#[test]
+fn integral_action_removes_the_standing_error_on_a_curved_line() {
+    let radius = 1.0f64;
+    let arc: Vec<String> = (1..=60).map(|i| f64::from(i) * 0.05).map(|a| format!("[{:.4}, {:.4}]", radius * a.sin(), radius * (1.0 - a.cos()))).collect();
+    let points = format!("line.points=[[-0.5, 0.0], [0.0, 0.0], {}]", arc.join(", "));
+    let standing_error = |pole: &str| {
+        let outcome = run("scenarios/flat-line.toml", &[&points, &format!("controller.integral_pole_rad_s={pole}"), "world.duration_s=150", "expect={}"]);
+        let (t, d) = (outcome.series.column("t_s").expect("t"), outcome.series.column("d_m").expect("d_m"));
+        let tail: Vec<f64> = t.iter().zip(&d).filter(|(t, _)| **t >= 100.0).map(|(_, d)| *d).collect();
+        tail.iter().sum::<f64>() / tail.len() as f64
+    };
+    let (proportional, integral) = (standing_error("0"), standing_error("0.1"));
+    assert!(proportional.abs() > 0.0015, "the proportional law holds the turn with a standing error: {proportional} m");
+    assert!(integral.abs() < 0.0003, "integral action removes it: {integral} m (proportional: {proportional} m)");
+}

@@ -22,7 +22,7 @@ use crate::device::FirmwareProfile;
 use crate::robot::{RobotDescription, ServoRole, WheelPosition};
 
 use super::client::{BusLink, ControlError, ServoClient};
-use super::line_follower::LineFollowerGains;
+use super::line_follower::{LineFollower, LineFollowerGains};
 use super::pid::{Pid, PidGains};
 
 fn default_period_s() -> f64 {
@@ -62,6 +62,10 @@ pub struct ReferenceConfig {
     pub zeta: f64,
     #[serde(default = "default_omega_n")]
     pub omega_n: f64,
+    /// Integral action on the distance error: its pole p (rad/s), 0 = none (the seed's law).
+    /// See [`LineFollowerGains`].
+    #[serde(default)]
+    pub integral_pole_rad_s: f64,
     /// Largest yaw-rate command (rad/s).
     #[serde(default = "default_max_yaw_rate")]
     pub max_yaw_rate_rad_s: f64,
@@ -93,6 +97,7 @@ impl Default for ReferenceConfig {
             follow_line: true,
             zeta: default_zeta(),
             omega_n: default_omega_n(),
+            integral_pole_rad_s: 0.0,
             max_yaw_rate_rad_s: default_max_yaw_rate(),
             feedforward: true,
             kp: default_kp(),
@@ -154,6 +159,7 @@ pub struct ReferenceController {
     magnet_zero_pulses: i64,
     target_speed_m_s: f64,
     pid: Pid,
+    line_follower: LineFollower,
     /// (time, wheel positions in pulses), oldest first, spanning the speed window.
     history: VecDeque<(Duration, [i64; 4])>,
     dither_residual: [f64; 4],
@@ -207,6 +213,7 @@ impl ReferenceController {
         let top_speed = velocity_limit_units * rpm_per_velocity_unit / 60.0 * TAU * radius_m;
         Ok(Self {
             pid: Pid::new(PidGains { kp: config.kp, ki: config.ki, kd: config.kd }, top_speed),
+            line_follower: LineFollower::new(LineFollowerGains { zeta: config.zeta, omega_n: config.omega_n, integral_pole_rad_s: config.integral_pole_rad_s }),
             config,
             wheels,
             radius_m,
@@ -304,8 +311,7 @@ impl ReferenceController {
 
         let yaw_rate = match line {
             Some(error) if self.config.follow_line && self.target_speed_m_s > 0.0 => {
-                let gains = LineFollowerGains { zeta: self.config.zeta, omega_n: self.config.omega_n };
-                gains.yaw_rate(self.target_speed_m_s, error.d_err_m, error.psi_err_rad).clamp(-self.config.max_yaw_rate_rad_s, self.config.max_yaw_rate_rad_s)
+                self.line_follower.yaw_rate(self.target_speed_m_s, error.d_err_m, error.psi_err_rad, dt, self.config.max_yaw_rate_rad_s)
             }
             _ => 0.0,
         };
