@@ -57,7 +57,15 @@ fn measure(solver: SolverSettings) -> Row {
 
 fn main() {
     let full_run = std::env::args().any(|a| a == "--bench");
-    let settings: &[(usize, usize)] = if full_run { &[(8, 2), (4, 2), (4, 1), (3, 2), (2, 2), (2, 1), (1, 2)] } else { &[(2, 2)] };
+    // Settings named on the command line (`-- --bench 3x1 5x1`) replace the standard list.
+    let named: Vec<(usize, usize)> = std::env::args().filter_map(|a| a.split_once('x').and_then(|(i, j)| Some((i.parse().ok()?, j.parse().ok()?)))).collect();
+    let settings: &[(usize, usize)] = if !named.is_empty() {
+        &named
+    } else if full_run {
+        &[(8, 2), (4, 2), (4, 1), (3, 2), (2, 2), (2, 1), (1, 2)]
+    } else {
+        &[(3, 2)]
+    };
     let rows: Vec<Row> = settings.iter().map(|&(i, j)| measure(SolverSettings::new(i, j))).collect();
     println!("\nsolver fidelity (tolerances of tests/physics.rs in the header; the flat-line scenario's expect: settles, |SSE| ≤ 2 mm)");
     println!("| solver | flat speed vs v·R (±3 %) | wall drift 10 s (< 1 mm) | 30° drift 10 s (< 1 mm) | 60° climbing current vs weight (±20 %) | magnet vs contact angle (< 2°) | wall transition pitch (> 88°) | weakest pull on the wall (> 90 %) | flat-line settling (s) | flat-line SSE (mm) |");
