@@ -14,7 +14,9 @@ The algorithm is the built-in reference controller's (src/control/reference.rs):
     step is 29 % of 250 mm/min on a 50 mm wheel);
   - speed = mean of rate x R / cos(alpha) with normal compensation (alpha = magnet angle);
   - speed PID -> commanded speed; line follower yaw rate = K_d d_err + K_psi psi_err with
-    K_psi = -2 zeta omega_n, K_d = -omega_n^2 / V;
+    K_psi = -2 zeta omega_n, K_d = -omega_n^2 / V, or with --integral-pole p > 0 also
+    + K_i * integral(d_err) with K_psi = -(2 zeta omega_n + p), K_d = -(omega_n^2 + 2 zeta omega_n p) / V,
+    K_i = -omega_n^2 p / V (integrated only while the command is inside the limit);
   - skid steering, Goal Velocity (104) dithered (rounding residual carried over), Sync Write.
 
 It runs until SIGTERM/SIGINT, then stops the wheels and turns their torque off.
@@ -59,6 +61,7 @@ def parse_args():
     p.add_argument("--zeta", type=float, default=0.7)
     p.add_argument("--omega-n", type=float, default=0.3)
     p.add_argument("--max-yaw-rate", type=float, default=0.2)
+    p.add_argument("--integral-pole", type=float, default=0.0, help="integral action's pole p (rad/s); 0 = none")
     p.add_argument("--kp", type=float, default=4.0)
     p.add_argument("--ki", type=float, default=0.0)
     p.add_argument("--kd", type=float, default=0.0)
@@ -121,6 +124,7 @@ def main():
     history = collections.deque()
     residual = [0.0] * 4
     integral = 0.0
+    line_integral = 0.0
     last_error = None
     last_time = None
     next_tick = time.monotonic()
@@ -159,8 +163,14 @@ def main():
             line = read_line(sensors) if sensors else None
             if line is not None and target > 0:
                 d_err, psi_err = -line["d"], -line["psi"]
-                k_d, k_psi = -args.omega_n ** 2 / target, -2 * args.zeta * args.omega_n
-                yaw_rate = max(-args.max_yaw_rate, min(args.max_yaw_rate, k_d * d_err + k_psi * psi_err))
+                w, pole = args.omega_n, args.integral_pole
+                damping = 2 * args.zeta * w
+                k_d, k_psi, k_i = -(w ** 2 + damping * pole) / target, -(damping + pole), -(w ** 2) * pole / target
+                proportional = k_d * d_err + k_psi * psi_err
+                candidate = line_integral + d_err * max(dt, 0.0)
+                if abs(proportional + k_i * candidate) <= args.max_yaw_rate:
+                    line_integral = candidate
+                yaw_rate = max(-args.max_yaw_rate, min(args.max_yaw_rate, proportional + k_i * line_integral))
 
             writer.clearParam()
             for i, dxl in enumerate(WHEELS):
