@@ -7,7 +7,6 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use climbsim::robot::WheelPosition;
 use climbsim::scenario::run::run_lockstep;
 use climbsim::scenario::{Override, Scenario};
 use climbsim::sim::SolverSettings;
@@ -35,7 +34,7 @@ fn measure(solver: SolverSettings) -> Row {
     let (magnet_error, ..) = magnet_versus_contact_over_a_bump(solver);
     let wall = floor_to_wall(solver);
     let pull = robot().magnet.pull_at_contact_n;
-    let weakest = WheelPosition::ALL.iter().zip(wall.world().adhesion()).map(|(_, s)| s.force_n).fold(f32::INFINITY, f32::min);
+    let weakest = wall.world().adhesion().iter().map(|s| s.force_n).fold(f32::INFINITY, f32::min);
     let sets = [format!("world.solver.iterations={}", solver.iterations), format!("world.solver.internal_iterations={}", solver.internal_iterations)];
     let overrides: Vec<Override> = sets.iter().map(|s| Override::parse(s).expect("override")).collect();
     let scenario = Scenario::load_with(&support::repo().join("scenarios/flat-line.toml"), &overrides).expect("flat-line scenario");

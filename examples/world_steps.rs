@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use climbsim::robot::RobotDescription;
 use climbsim::sim::terrain::{TerrainSpec, generate};
-use climbsim::sim::{Lockstep, SolverSettings, WorldConfig};
+use climbsim::sim::{Lockstep, RobotWorld, SolverSettings, WorldConfig};
 
 fn main() {
     let steps: u32 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(2000);
@@ -29,15 +29,15 @@ fn main() {
         sim.write(id, 64, &[1]).expect("torque on");
         sim.write(id, 104, &50i32.to_le_bytes()).expect("goal velocity");
     }
-    let mode = arg(2);
-    if matches!(mode.as_deref(), Some("bare" | "held")) {
+    let bare_step: Option<fn(&mut RobotWorld)> = match arg(2).as_deref() {
+        Some("bare") => Some(RobotWorld::step_physics_only),
+        Some("held") => Some(RobotWorld::step_physics_with_held_inputs),
+        _ => None,
+    };
+    if let Some(bare_step) = bare_step {
         sim.run(Duration::from_millis(200));
         for _ in 0..steps {
-            if mode.as_deref() == Some("held") {
-                sim.world_mut().step_physics_with_held_inputs();
-            } else {
-                sim.world_mut().step_physics_only();
-            }
+            bare_step(sim.world_mut());
         }
     } else {
         sim.run(Duration::from_millis(u64::from(steps)));

@@ -331,11 +331,11 @@ impl RobotWorld {
             let section = if position.is_front() { front } else { middle };
             // z points to the robot's right (x forward × y up), so the left wheels sit at −z.
             let side = if position.is_left() { -1.0 } else { 1.0 };
-            let anchor = Vector::new(0.0, -body.axle_drop_m, side * body.track_m / 2.0);
             let section_x = if position.is_front() { half_base } else { -half_base };
-            // Axle anchor in the carrying body's frame: the rear axle sits half a wheelbase
-            // behind the middle body's origin.
-            let anchor = if position.is_front() { anchor } else { anchor + Vector::new(-half_base, 0.0, 0.0) };
+            // Axle anchor in the carrying body's frame: the front section's origin is over the
+            // front axle, the middle body's half a wheelbase ahead of the rear axle.
+            let carrier_x = if position.is_front() { half_base } else { 0.0 };
+            let anchor = Vector::new(section_x - carrier_x, -body.axle_drop_m, side * body.track_m / 2.0);
             let centre = place(Vector::new(section_x, axle_y, side * body.track_m / 2.0));
 
             // Hollow wheel: a ball collider rolls robustly on heightfields; its mass properties
