@@ -1,5 +1,6 @@
-//! The `climbsim` binary. Errors become one `climbsim: ...` line and exit code 1; `anyhow` lives
-//! only here, the library has a `thiserror` enum per layer.
+//! The `climbsim` binary. Errors become one `climbsim: ...` line and an exit code that says what
+//! happened: 0 passed, 1 a run failed, 2 bad input or environment, 130 interrupted
+//! (`docs/exit-codes.md`). `anyhow` lives only here, the library has a `thiserror` enum per layer.
 
 mod cli;
 
@@ -16,7 +17,9 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("climbsim: {}", describe(&error));
-            std::process::ExitCode::FAILURE
+            // Anything that is not a run's verdict (bad input, an unusable path or program) is 2,
+            // like a usage error.
+            std::process::ExitCode::from(error.downcast_ref::<cli::Verdict>().map_or(2, cli::Verdict::exit_code))
         }
     }
 }

@@ -1,5 +1,5 @@
-//! `climbsim run` (built-in controller), `climbsim check` and `climbsim sweep`: headless runs in
-//! lockstep, faster than real time.
+//! `climbsim run` (built-in controller), `climbsim check` and `climbsim sweep`: headless runs,
+//! built-in controllers in lockstep and external ones on a (possibly sped-up) wall clock.
 
 use std::collections::BTreeMap;
 use std::io::Write as _;
@@ -17,6 +17,12 @@ use climbsim::robot::RobotDescription;
 use climbsim::scenario::run::{RunOutcome, run_lockstep_until, write_outputs};
 use climbsim::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
 use climbsim::scenario::{ControllerSection, Override, Scenario};
+
+use super::Verdict;
+use super::realtime::{ExternalRun, Pace, run_external};
+
+/// How much of an external controller's log goes into its JUnit case's `<system-out>`.
+const SYSTEM_OUT_BYTES: u64 = 64 * 1024;
 
 /// Where a run's outputs go without `--out`: `results/<scenario stem>`.
 pub fn default_out_dir(scenario: &Path) -> PathBuf {
@@ -37,9 +43,48 @@ pub fn run_builtin(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path
     let outcome = run_lockstep_until(scenario, robot, super::interrupt::flag())?;
     write_outputs(&outcome, out_dir).with_context(|| format!("writing outputs to {}", out_dir.display()))?;
     if let Some(at) = outcome.summary.get("interrupted_at_s") {
-        bail!("interrupted at t = {at} s; the outputs in {} cover the run up to then", out_dir.display());
+        return Err(Verdict::Interrupted(format!("interrupted at t = {at} s; the outputs in {} cover the run up to then", out_dir.display())).into());
     }
     Ok(outcome)
+}
+
+/// Run `scenario` with whichever controller it names (an external one quietly, on its own port).
+fn run_any(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path, pace: Pace) -> Result<RunOutcome> {
+    match &scenario.controller {
+        ControllerSection::Builtin(_) => run_builtin(scenario, robot, out_dir),
+        ControllerSection::External(external) => {
+            let options = ExternalRun { timing: climbsim::bus::Timing::Wire, link: None, record: None, pace, announce: false };
+            run_external(scenario, external, robot, &options, out_dir)
+        }
+    }
+}
+
+/// Why a run failed besides its thresholds (controller, world, pace), as its summary records it
+/// under `failures`.
+pub fn recorded_failures(summary: &BTreeMap<String, Value>) -> Vec<String> {
+    summary.get("failures").and_then(Value::as_array).map(|list| list.iter().map(|v| v.as_str().map_or_else(|| v.to_string(), str::to_owned)).collect()).unwrap_or_default()
+}
+
+/// Fail now, not after minutes of simulation, if `dir` cannot be created or written.
+pub fn preflight_dir(dir: &Path, flag: &str) -> Result<()> {
+    if dir.exists() && !dir.is_dir() {
+        bail!("{flag} {}: exists and is not a folder", dir.display());
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("{flag} {}: cannot create the folder", dir.display()))?;
+    let probe = dir.join(format!(".climbsim-write-check-{}", std::process::id()));
+    std::fs::OpenOptions::new().write(true).create(true).truncate(true).open(&probe).with_context(|| format!("{flag} {}: cannot write in the folder", dir.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Fail now if the file `path` could not be written at the end: its folder must exist (or be
+/// creatable) and be writable, and the path must not be a folder.
+pub fn preflight_file(path: &Path, flag: &str) -> Result<()> {
+    if path.is_dir() {
+        bail!("{flag} {}: is a folder, not a file", path.display());
+    }
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    preflight_dir(parent, flag)
 }
 
 /// Scenario files named by `paths` (a folder stands for its `*.toml` files with an `[expect]`).
@@ -62,43 +107,77 @@ fn scenario_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// `climbsim check PATH...`: run each scenario, test its `[expect]` thresholds.
-pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit: Option<&Path>) -> Result<()> {
+/// `climbsim check PATH...`: run each scenario, test its `[expect]` thresholds and the run's own
+/// verdict (controller, world, pace). Exit: 0 all passed, 1 a run failed, 2 a scenario could not
+/// be loaded or run, 130 interrupted (JUnit then holds the cases run and the interrupted one).
+pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit: Option<&Path>, pace: Pace) -> Result<()> {
     let files = scenario_files(paths)?;
     if files.is_empty() {
         bail!("no scenario files with an [expect] section in {}", paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "));
     }
     let mut cases = Vec::new();
+    let (mut broken, mut interrupted) = (0, None);
     for file in &files {
         if super::interrupt::requested() {
-            bail!("interrupted; {} of {} scenarios were checked", cases.len(), files.len());
+            break;
         }
         let started = Instant::now();
         let name = file.display().to_string();
+        let out_dir = out_root.join(default_out_dir(file).file_name().unwrap_or_default());
+        let mut system_out = None;
         let failures = match Scenario::load(file) {
-            Err(error) => vec![error.to_string()],
-            Ok(scenario) if scenario.expect.is_empty() => vec![format!("{name} has no [expect] thresholds")],
+            Err(error) => {
+                broken += 1;
+                vec![error.to_string()]
+            }
+            Ok(scenario) if scenario.expect.is_empty() => {
+                broken += 1;
+                vec![format!("{name} has no [expect] thresholds")]
+            }
             Ok(scenario) => {
-                let out_dir = out_root.join(default_out_dir(file).file_name().unwrap_or_default());
-                match run_builtin(&scenario, robot, &out_dir) {
-                    Ok(outcome) => scenario.failed_expectations(&outcome.summary),
-                    Err(error) => vec![format!("{error:#}")],
+                let result = run_any(&scenario, robot, &out_dir, pace);
+                if matches!(scenario.controller, ControllerSection::External(_)) {
+                    system_out = super::controller::read_tail(&out_dir.join("controller.log"), SYSTEM_OUT_BYTES);
+                }
+                match result {
+                    Ok(outcome) => {
+                        let mut failures = recorded_failures(&outcome.summary);
+                        failures.extend(scenario.failed_expectations(&outcome.summary));
+                        failures
+                    }
+                    Err(error) => {
+                        match error.downcast_ref::<Verdict>() {
+                            Some(Verdict::Interrupted(message)) => interrupted = Some(message.clone()),
+                            _ => broken += 1,
+                        }
+                        vec![format!("{error:#}")]
+                    }
                 }
             }
         };
-        let verdict = if failures.is_empty() { "PASS" } else { "FAIL" };
+        let verdict = if failures.is_empty() { "PASS" } else if interrupted.is_some() { "INTERRUPTED" } else { "FAIL" };
         println!("{verdict} {name} ({:.1} s)", started.elapsed().as_secs_f64());
         for failure in &failures {
             println!("    {failure}");
         }
-        cases.push(JunitCase { name, time_s: started.elapsed().as_secs_f64(), failure_messages: failures });
+        cases.push(JunitCase { name, time_s: started.elapsed().as_secs_f64(), failure_messages: failures, system_out });
+        if interrupted.is_some() {
+            break;
+        }
     }
     if let Some(path) = junit {
         write_junit(path, "climbsim check", &cases)?;
     }
     let failed = cases.iter().filter(|c| !c.failure_messages.is_empty()).count();
+    if super::interrupt::requested() {
+        let message = interrupted.unwrap_or_else(|| "interrupted".to_owned());
+        return Err(Verdict::Interrupted(format!("{message}; {} of {} scenarios were checked", cases.len(), files.len())).into());
+    }
+    if broken > 0 {
+        bail!("{failed} of {} scenarios failed, {broken} of them could not be loaded or run", cases.len());
+    }
     if failed > 0 {
-        bail!("{failed} of {} scenarios failed", cases.len());
+        return Err(Verdict::Failed(format!("{failed} of {} scenarios failed", cases.len())).into());
     }
     println!("all {} scenarios passed", cases.len());
     Ok(())
@@ -112,6 +191,17 @@ struct SweepRow {
     /// Swept key → value as TOML text.
     parameters: BTreeMap<String, String>,
     summary: BTreeMap<String, Value>,
+    /// `completed`, `failed` (the run's own verdict or an error: see `error`), `interrupted`
+    /// (stopped part way, its outputs cover what ran) or `not_run` (an interrupted sweep never
+    /// started it). Older tables have no status: their rows were completed.
+    #[serde(default = "completed")]
+    status: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+}
+
+fn completed() -> String {
+    "completed".to_owned()
 }
 
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -121,61 +211,67 @@ struct SweepFile {
     rows: Vec<SweepRow>,
 }
 
-/// `climbsim sweep SCENARIO --set KEY=V1,V2 ...`.
-pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, robot: &RobotDescription, out_dir: &Path) -> Result<()> {
+/// `climbsim sweep SCENARIO --set KEY=V1,V2 ...`. Every grid point gets a row in `sweep.csv` and
+/// `sweep.json`, whether it completed, failed, was interrupted or never ran.
+pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, robot: &RobotDescription, out_dir: &Path, pace: Pace) -> Result<()> {
     let points = shard.select(grid(axes));
     if points.is_empty() {
         bail!("shard {}/{} of this grid is empty", shard.index, shard.count);
     }
     // Check every grid point loads before spending minutes on the first ones.
-    let scenarios: Vec<(GridPoint, Scenario)> = points
-        .into_iter()
-        .map(|point| {
-            let scenario = Scenario::load_with(scenario_path, &point.overrides)?;
-            if matches!(scenario.controller, ControllerSection::External(_)) {
-                bail!("{}: sweeps run the built-in controller in lockstep; this scenario has an external one", scenario_path.display());
-            }
-            Ok((point, scenario))
-        })
-        .collect::<Result<_>>()?;
+    let scenarios: Vec<(GridPoint, Scenario)> = points.into_iter().map(|point| Ok((point.clone(), Scenario::load_with(scenario_path, &point.overrides)?))).collect::<Result<_>>()?;
     let progress = indicatif::ProgressBar::new(scenarios.len() as u64);
     progress.set_style(indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} runs, {elapsed} elapsed, ETA {eta} {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
     let started = Instant::now();
     let next = AtomicUsize::new(0);
     let rows: Mutex<Vec<SweepRow>> = Mutex::new(Vec::new());
-    let errors: Mutex<Vec<String>> = Mutex::new(Vec::new());
     std::thread::scope(|scope| {
         for _ in 0..jobs.max(1) {
             scope.spawn(|| {
                 while let Some((point, scenario)) = scenarios.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
+                    let mut row = SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: None };
                     // Interrupted: the runs under way stop and write; no new ones start.
-                    if super::interrupt::requested() {
-                        break;
-                    }
-                    let run_dir = out_dir.join("runs").join(point.label());
-                    match run_builtin(scenario, robot, &run_dir) {
-                        Ok(outcome) => {
-                            let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
-                            let row = SweepRow { index: point.index, label: point.label(), parameters, summary: outcome.summary };
-                            rows.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(row);
+                    if !super::interrupt::requested() {
+                        let run_dir = out_dir.join("runs").join(point.label());
+                        match run_any(scenario, robot, &run_dir, pace) {
+                            Ok(outcome) => {
+                                let failures = recorded_failures(&outcome.summary);
+                                row.status = if failures.is_empty() { "completed" } else { "failed" }.to_owned();
+                                row.error = (!failures.is_empty()).then(|| failures.join("; "));
+                                row.summary = outcome.summary;
+                            }
+                            Err(error) => {
+                                let interrupted = matches!(error.downcast_ref::<Verdict>(), Some(Verdict::Interrupted(_)));
+                                row.status = if interrupted { "interrupted" } else { "failed" }.to_owned();
+                                row.error = Some(format!("{error:#}"));
+                                // An interrupted run wrote its outputs: keep what its summary says.
+                                if let Ok(text) = std::fs::read_to_string(run_dir.join("summary.json")) {
+                                    row.summary = serde_json::from_str(&text).unwrap_or_default();
+                                }
+                            }
                         }
-                        Err(error) => errors.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(format!("{}: {error:#}", point.label())),
+                        progress.inc(1);
                     }
-                    progress.inc(1);
+                    rows.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(row);
                 }
             });
         }
     });
     progress.finish_with_message("done");
     let wall_s = started.elapsed().as_secs_f64();
-    let errors = errors.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
     let mut rows = rows.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
     rows.sort_by_key(|r| r.index);
     let file = SweepFile { scenario: scenario_path.display().to_string(), axes: axes.iter().map(|a| a.key.clone()).collect(), rows };
     write_sweep(&file, out_dir)?;
-    println!("{} runs in {wall_s:.1} s with {} jobs; table: {}", file.rows.len(), jobs.max(1), out_dir.join("sweep.csv").display());
-    if !errors.is_empty() {
-        bail!("{} runs failed:\n  {}", errors.len(), errors.join("\n  "));
+    let count = |status: &str| file.rows.iter().filter(|r| r.status == status).count();
+    println!("{} of {} runs completed in {wall_s:.1} s with {} jobs; table: {}", count("completed"), file.rows.len(), jobs.max(1), out_dir.join("sweep.csv").display());
+    if super::interrupt::requested() {
+        return Err(Verdict::Interrupted(format!("interrupted: {} runs interrupted, {} not run; sweep.csv marks them", count("interrupted"), count("not_run"))).into());
+    }
+    let failed: Vec<String> = file.rows.iter().filter(|r| r.status == "failed").map(|r| format!("{}: {}", r.label, r.error.as_deref().unwrap_or("failed"))).collect();
+    if !failed.is_empty() {
+        return Err(Verdict::Failed(format!("{} runs failed:\n  {}", failed.len(), failed.join("\n  "))).into());
     }
     Ok(())
 }
@@ -241,12 +337,15 @@ fn write_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
     let axes: Vec<Axis> = file.axes.iter().map(|key| Axis { key: key.clone(), values: Vec::new() }).collect();
     let summaries: Vec<BTreeMap<String, Value>> = file.rows.iter().map(|r| r.summary.clone()).collect();
     let columns = table_columns(&axes, &summaries);
-    let mut csv = columns.join(",");
+    let mut csv = columns[..1 + file.axes.len()].join(",");
+    csv.push_str(",status,");
+    csv.push_str(&columns[1 + file.axes.len()..].join(","));
     csv.push('\n');
     for row in &file.rows {
         let mut cells = vec![row.index.to_string()];
         cells.extend(file.axes.iter().map(|k| row.parameters.get(k).cloned().unwrap_or_default().replace(',', ";")));
-        cells.extend(columns[1 + file.axes.len()..].iter().map(|k| row.summary.get(k).map_or(String::new(), |v| v.to_string())));
+        cells.push(row.status.clone());
+        cells.extend(columns[1 + file.axes.len()..].iter().map(|k| row.summary.get(k).map_or(String::new(), |v| v.to_string().replace(',', ";"))));
         csv.push_str(&cells.join(","));
         csv.push('\n');
     }

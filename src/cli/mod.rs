@@ -1,7 +1,9 @@
 //! Command-line interface: `climbsim serve`, `run`, `check`, `sweep`, `replay` and `diff`.
 
 mod batch;
+mod controller;
 mod interrupt;
+mod pacer;
 mod realtime;
 mod replay;
 
@@ -19,7 +21,72 @@ use climbsim::fault::ScheduledFault;
 use climbsim::robot::RobotDescription;
 use climbsim::scenario::Scenario;
 use climbsim::transport::can::CanIds;
-use climbsim::transport::{BusHandle, TcpServer, VirtualPort, parse_tcp_addr, serve_stream};
+use climbsim::transport::{BusHandle, Clock, PhysicsPace, TcpServer, TimingReport, VirtualPort, parse_tcp_addr, serve_stream};
+
+use pacer::Pacer;
+
+/// How a command failed, for its exit code: 1 for a failed run, 130 for an interruption; any
+/// other error (bad input, an unusable path or program) exits 2. `docs/exit-codes.md`.
+#[derive(Debug, thiserror::Error)]
+pub enum Verdict {
+    /// A run failed: its `[expect]` thresholds, its controller, its world or its pace.
+    #[error("{0}")]
+    Failed(String),
+    /// A signal stopped the work; the outputs cover the part that ran and say so.
+    #[error("{0}")]
+    Interrupted(String),
+}
+
+impl Verdict {
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            Self::Failed(_) => 1,
+            Self::Interrupted(_) => 130,
+        }
+    }
+}
+
+/// `--speed` and `--pace-tolerance-ms`, shared by `run`, `check`, `sweep` and `serve`.
+#[derive(Debug, Clone, Copy, clap::Args)]
+pub struct PaceArgs {
+    /// Run the world, the bus's wire timing and an external controller's clocks (libfaketime)
+    /// at N times the wall clock, so an unchanged controller runs faster than real time.
+    #[arg(long, value_name = "N", default_value = "1", value_parser = parse_speed)]
+    speed: f64,
+    /// Fail a wall-clock run whose world ticks or replies come later than this (simulated
+    /// milliseconds, 99th percentile): the machine could not keep the pace.
+    #[arg(long, value_name = "MS", default_value = "2", value_parser = parse_tolerance_ms)]
+    pace_tolerance_ms: f64,
+}
+
+impl PaceArgs {
+    fn pace(&self) -> realtime::Pace {
+        realtime::Pace { speed: self.speed, tolerance: Duration::from_secs_f64(self.pace_tolerance_ms / 1e3) }
+    }
+
+    fn is_default(&self) -> bool {
+        self.speed == 1.0
+    }
+}
+
+/// The highest `--speed`: beyond it a firmware tick is shorter on the wall clock than a sleep.
+const MAX_SPEED: f64 = 1000.0;
+
+fn parse_speed(text: &str) -> Result<f64, String> {
+    let speed: f64 = text.trim().parse().map_err(|_| format!("`{text}` is not a number (times real time)"))?;
+    if !(speed.is_finite() && (0.01..=MAX_SPEED).contains(&speed)) {
+        return Err(format!("{text} is outside 0.01-{MAX_SPEED} (times real time)"));
+    }
+    Ok(speed)
+}
+
+fn parse_tolerance_ms(text: &str) -> Result<f64, String> {
+    let ms: f64 = text.trim().parse().map_err(|_| format!("`{text}` is not a number of milliseconds"))?;
+    if !(ms.is_finite() && ms > 0.0 && ms <= 60_000.0) {
+        return Err(format!("{text} ms is outside (0, 60000] ms"));
+    }
+    Ok(ms)
+}
 
 #[derive(Debug, Parser)]
 #[command(name = "climbsim", version, about = "Hardware-in-the-loop simulator for a magnetic wall-climbing welding robot")]
@@ -87,6 +154,8 @@ pub enum Command {
         /// a scenario.
         #[arg(long, value_name = "FILE", requires = "scenario")]
         record: Option<PathBuf>,
+        #[command(flatten)]
+        pace: PaceArgs,
     },
     /// Run a scenario and write its time series, summary, workbook and plots. A built-in
     /// controller runs in lockstep, faster than real time; an external one (`command = [...]`)
@@ -101,9 +170,9 @@ pub enum Command {
         /// Override a scenario key, e.g. `--set controller.zeta=0.5` (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
-        /// Reply timing on the pty (external controllers only).
-        #[arg(long, value_enum, default_value = "wire")]
-        timing: TimingArg,
+        /// Reply timing on the pty (external controllers only; default wire).
+        #[arg(long, value_enum)]
+        timing: Option<TimingArg>,
         /// Also create this symlink to the pty (external controllers only).
         #[arg(long)]
         link: Option<PathBuf>,
@@ -116,6 +185,8 @@ pub enum Command {
         /// (external controllers only: a built-in one is deterministic already).
         #[arg(long, value_name = "FILE")]
         record: Option<PathBuf>,
+        #[command(flatten)]
+        pace: PaceArgs,
     },
     /// Run scenarios and test their `[expect]` thresholds; exit non-zero if any fails.
     Check {
@@ -130,6 +201,10 @@ pub enum Command {
         out: PathBuf,
         #[arg(long, default_value_os_t = RobotDescription::default_path())]
         robot: PathBuf,
+        /// `--speed` applies to scenarios with an external controller; built-in ones always run
+        /// in lockstep, as fast as the CPU allows.
+        #[command(flatten)]
+        pace: PaceArgs,
     },
     /// Re-enact a `--record` transcript without its controller: the same scenario, world ticks
     /// and instruction packets in lockstep, deterministically; writes the same outputs as `run`.
@@ -186,17 +261,20 @@ pub enum Command {
         out: PathBuf,
         #[arg(long, default_value_os_t = RobotDescription::default_path())]
         robot: PathBuf,
+        /// For an external controller: each point on its own port, at this speed.
+        #[command(flatten)]
+        pace: PaceArgs,
     },
 }
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, timing, trace_bus, robot, baud, report, faults, record } => {
+        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, timing, trace_bus, robot, baud, report, faults, record, pace } => {
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
-            let options = ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults, record };
+            let options = ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults, record, pace };
             serve(options, &robot)
         }
-        Command::Run { scenario, out, set, timing, link, robot, faults, record } => {
+        Command::Run { scenario, out, set, timing, link, robot, faults, record, pace } => {
             interrupt::install()?;
             refuse_recorded_cli_faults(&faults, record.as_deref())?;
             let robot = RobotDescription::load(&robot)?;
@@ -204,34 +282,49 @@ pub fn run(cli: Cli) -> Result<()> {
             let mut loaded = Scenario::load_with(&scenario, &overrides)?;
             add_fault_events(&mut loaded, faults);
             let out_dir = out.unwrap_or_else(|| batch::default_out_dir(&scenario));
+            // Every output path is checked before minutes of simulation, not after.
+            batch::preflight_dir(&out_dir, "--out")?;
+            if let Some(path) = &record {
+                batch::preflight_file(path, "--record")?;
+            }
             let outcome = match &loaded.controller {
                 climbsim::scenario::ControllerSection::Builtin(_) => {
-                    if record.is_some() {
-                        anyhow::bail!("--record is for external controllers; a built-in controller's run is deterministic already (run it again)");
+                    // Flags that only an external controller's wall-clock run uses are refused,
+                    // not silently ignored.
+                    let ignored = [(record.is_some(), "--record (a built-in controller's run is deterministic already: run it again)"), (link.is_some(), "--link (a built-in controller has no port)"), (timing.is_some(), "--timing (a built-in controller talks to the bus in lockstep)"), (!pace.is_default(), "--speed (a built-in controller runs in lockstep, as fast as the CPU allows)")];
+                    if let Some((_, flag)) = ignored.iter().find(|(given, _)| *given) {
+                        anyhow::bail!("{}: the scenario's controller is built in, so {flag}", scenario.display());
                     }
                     batch::run_builtin(&loaded, &robot, &out_dir)?
                 }
                 climbsim::scenario::ControllerSection::External(external) => {
                     let record = record.map(|path| replay::RecordSpec { path, overrides: set.clone() });
-                    realtime::run_external(&loaded, &robot, &external.command, timing_of(timing), link.as_deref(), &out_dir, record.as_ref())?
+                    let options = realtime::ExternalRun { timing: timing_of(timing.unwrap_or(TimingArg::Wire)), link: link.as_deref(), record: record.as_ref(), pace: pace.pace(), announce: true };
+                    realtime::run_external(&loaded, external, &robot, &options, &out_dir)?
                 }
             };
             batch::print_summary(&outcome, &out_dir);
-            let failures = loaded.failed_expectations(&outcome.summary);
-            if !loaded.expect.is_empty() && !failures.is_empty() {
-                anyhow::bail!("{} of {} [expect] thresholds failed:\n  {}", failures.len(), loaded.expect.len(), failures.join("\n  "));
+            let mut failures = batch::recorded_failures(&outcome.summary);
+            failures.extend(loaded.failed_expectations(&outcome.summary));
+            if !failures.is_empty() {
+                return Err(Verdict::Failed(format!("the run failed ({} in {}):\n  {}", failures.len(), out_dir.display(), failures.join("\n  "))).into());
             }
             Ok(())
         }
-        Command::Check { paths, junit, out, robot } => {
+        Command::Check { paths, junit, out, robot, pace } => {
             interrupt::install()?;
             let robot = RobotDescription::load(&robot)?;
-            batch::check(&paths, &robot, &out, junit.as_deref())
+            batch::preflight_dir(&out, "--out")?;
+            if let Some(path) = &junit {
+                batch::preflight_file(path, "--junit")?;
+            }
+            batch::check(&paths, &robot, &out, junit.as_deref(), pace.pace())
         }
         Command::Replay { transcript, out, scenario, robot, force } => replay::replay_command(&transcript, out, &climbsim::scenario::replay::ReplaySources { scenario, robot, force }),
         Command::Diff { a, b, tolerance, rel } => replay::diff_command(&a, &b, &tolerance, rel),
-        Command::Sweep { scenario, set, jobs, shard, merge, out, robot } => {
+        Command::Sweep { scenario, set, jobs, shard, merge, out, robot, pace } => {
             interrupt::install()?;
+            batch::preflight_dir(&out, "--out")?;
             if !merge.is_empty() {
                 return batch::merge(&merge, &out);
             }
@@ -240,7 +333,7 @@ pub fn run(cli: Cli) -> Result<()> {
             let axes = set.iter().map(|s| climbsim::scenario::sweep::Axis::parse(s)).collect::<Result<Vec<_>, _>>()?;
             let shard = shard.as_deref().map(climbsim::scenario::sweep::Shard::parse).transpose()?.unwrap_or(climbsim::scenario::sweep::Shard::ALL);
             let jobs = jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from));
-            batch::sweep(&scenario, &axes, jobs, shard, &robot, &out)
+            batch::sweep(&scenario, &axes, jobs, shard, &robot, &out, pace.pace())
         }
     }
 }
@@ -290,6 +383,7 @@ struct ServeOptions {
     report: Option<PathBuf>,
     faults: Vec<ScheduledFault>,
     record: Option<PathBuf>,
+    pace: PaceArgs,
 }
 
 /// `--fault SPEC`, parsed by the code that reads a scenario's `fault` table.
@@ -318,8 +412,18 @@ fn refuse_recorded_cli_faults(faults: &[ScheduledFault], record: Option<&std::pa
 }
 
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
-    let ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults, record } = options;
+    let ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults, record, pace } = options;
     refuse_recorded_cli_faults(&faults, record.as_deref())?;
+    if !pace.is_default() && can.is_some() {
+        anyhow::bail!("--speed with --can: a CAN bus is a real bus whose other nodes keep real time; serve it at --speed 1");
+    }
+    for (path, flag) in [(&report, "--report"), (&trace_bus, "--trace-bus"), (&record, "--record")] {
+        if let Some(path) = path {
+            batch::preflight_file(path, flag)?;
+        }
+    }
+    // Said before anything starts: a controller must be started with these to keep the pace.
+    let faketime = if pace.is_default() { None } else { Some(controller::faketime_env(pace.speed).with_context(|| format!("--speed {}", pace.speed))?) };
     let robot = RobotDescription::load(robot_path)?;
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
@@ -347,7 +451,7 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         }
         None => None,
     };
-    let handle = BusHandle::recording(bus, trace, recorder);
+    let handle = BusHandle::with_clock(bus, trace, recorder, Clock::scaled(pace.speed));
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async move {
         let port = Arc::new(VirtualPort::open(link.as_deref())?);
@@ -367,6 +471,10 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         }
         if let Some(options) = &can {
             writeln!(stdout, "can: {} request {} response {}", options.iface, options.ids.request, options.ids.response)?;
+        }
+        if let Some(env) = &faketime {
+            let assignments: Vec<String> = env.iter().map(|(k, v)| format!("{k}='{v}'")).collect();
+            writeln!(stdout, "speed: {}x; start your controller with its clocks scaled alike: {} <command>", pace.speed, assignments.join(" "))?;
         }
         stdout.flush()?;
         drop(stdout);
@@ -417,25 +525,27 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         }
         // Let the controller read the last reply before the master closes.
         port.drain(Duration::from_secs(1)).await;
-        let mut physics = (0, 0);
+        let mut pace_kept = PhysicsPace::default();
         if let Some(pacer) = pacer {
-            let (ticks, overruns) = pacer.stop();
-            info!(ticks, overruns, "world pacing: firmware ticks run on the wall clock, deadlines missed");
-            if overruns > 0 {
-                eprintln!("climbsim: the world missed {overruns} of {ticks} wall-clock deadlines (it ran slower than real time)");
+            pace_kept = pacer.stop();
+            info!(ticks = pace_kept.ticks, overruns = pace_kept.overruns, "world pacing: firmware ticks run on the wall clock, deadlines missed");
+            if pace_kept.overruns > 0 {
+                eprintln!("climbsim: the world missed {} of {} wall-clock deadlines (it ran slower than {}x real time)", pace_kept.overruns, pace_kept.ticks, pace.speed);
             }
-            physics = (ticks, overruns);
         }
-        finish_timing_report(&handle, physics, report.as_deref())?;
-        replay::finish_recording(&handle, physics)?;
+        let timing_report = finish_timing_report(&handle, &pace_kept, report.as_deref())?;
+        for problem in timing_report.pace_problems(pace.pace().tolerance) {
+            eprintln!("climbsim: {problem}");
+        }
+        replay::finish_recording(&handle, &pace_kept)?;
         Ok::<_, anyhow::Error>(port)
     })
     .map(|port| port.remove_link())
 }
 
 /// Print the session's timing summary and, if asked, write the report and its plot.
-fn finish_timing_report(handle: &BusHandle, physics: (u64, u64), path: Option<&std::path::Path>) -> Result<()> {
-    let report = handle.timing_report(physics);
+fn finish_timing_report(handle: &BusHandle, pace: &PhysicsPace, path: Option<&std::path::Path>) -> Result<TimingReport> {
+    let report = handle.timing_report(pace);
     eprintln!("{}", report.human_summary());
     if let Some(path) = path {
         let files = climbsim::report::write_timing_report(path, &report).with_context(|| format!("cannot write the timing report {}", path.display()))?;
@@ -443,7 +553,7 @@ fn finish_timing_report(handle: &BusHandle, physics: (u64, u64), path: Option<&s
             eprintln!("  wrote {}", file.display());
         }
     }
-    Ok(())
+    Ok(report)
 }
 
 /// Open the CAN interface on a thread of its own (precise reply timing spins, like the pty's) and
@@ -487,54 +597,4 @@ async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>) -> Result<()>
     let line = port.line();
     serve_stream(port.stream(), handle, &line).await?;
     Ok(())
-}
-
-/// Called on the pacer thread after every firmware tick, with the bus locked and the tick's time.
-pub type TickHook = Box<dyn FnMut(&mut climbsim::bus::Bus, Duration) + Send>;
-
-/// Advances the bus (and so the world) on the wall clock, one firmware tick per deadline.
-pub struct Pacer {
-    stop: Arc<std::sync::atomic::AtomicBool>,
-    thread: std::thread::JoinHandle<(u64, u64)>,
-}
-
-impl Pacer {
-    pub fn start(handle: Arc<BusHandle>) -> Self {
-        Self::start_with(handle, Box::new(|_, _| {}))
-    }
-
-    /// Like [`Pacer::start`], calling `hook` after every tick (camera, capture, events).
-    pub fn start_with(handle: Arc<BusHandle>, mut hook: TickHook) -> Self {
-        use std::sync::atomic::{AtomicBool, Ordering};
-        let stop = Arc::new(AtomicBool::new(false));
-        let stopping = Arc::clone(&stop);
-        let period = handle.with_bus(|bus| bus.servos().first().map_or(Duration::from_millis(1), |s| s.control_period()));
-        let thread = std::thread::spawn(move || {
-            let clock = handle.clock();
-            let (mut ticks, mut overruns) = (0u64, 0u64);
-            let mut deadline = clock.now();
-            while !stopping.load(Ordering::Relaxed) {
-                deadline += period;
-                let now = clock.now();
-                if deadline > now {
-                    std::thread::sleep(deadline - now);
-                }
-                handle.tick(deadline, |bus| hook(bus, deadline));
-                ticks += 1;
-                // Late by more than a tick: the world cannot keep up with real time here.
-                if clock.now() > deadline + period {
-                    overruns += 1;
-                    deadline = clock.now();
-                }
-            }
-            (ticks, overruns)
-        });
-        Self { stop, thread }
-    }
-
-    /// Stop; (ticks run, deadlines missed).
-    pub fn stop(self) -> (u64, u64) {
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        self.thread.join().unwrap_or((0, 0))
-    }
 }

@@ -1,8 +1,9 @@
-//! `climbsim run` with an external controller: the world on the wall clock, the servos on a
-//! pty, the sensor server on localhost, and the controller's own process.
+//! An external controller's run (`run`, `check`, `sweep`): the world on the wall clock (or N ×
+//! it with `--speed N`), the servos on a pty, the sensor server on localhost, and the
+//! controller's own process, watched: a controller that dies, a world that could not keep its
+//! pace, or a capture that failed is a failed run.
 
 use std::path::Path;
-use std::process::{Child, Stdio};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
@@ -14,22 +15,38 @@ use climbsim::bus::Timing;
 use climbsim::robot::RobotDescription;
 use climbsim::bus::Bus;
 use climbsim::scenario::run::{Observer, RunError, RunOutcome, settings_json, write_outputs};
-use climbsim::scenario::Scenario;
+use climbsim::scenario::{ExternalController, Scenario};
 use climbsim::sensor_server::{SensorFeed, SensorServer};
 use climbsim::sim::RobotWorld;
-use climbsim::transport::{BusHandle, VirtualPort};
+use climbsim::transport::{BusHandle, Clock, VirtualPort};
 
+use super::controller::{Controller, Launch, param_env, resolve_command};
+use super::pacer::{Pacer, TickHook};
 use super::replay::RecordSpec;
-use super::{Pacer, TickHook};
 
-/// How long a controller gets to stop after SIGTERM before it is killed.
-const STOP_GRACE: Duration = Duration::from_secs(3);
+/// The external controller's bus timing report in a run's output folder.
+const TIMING_JSON: &str = "timing.json";
+/// How often the controller process is polled for an early exit (wall clock).
+const EXIT_POLL: Duration = Duration::from_millis(5);
 
-/// Resolve `./` and `../` arguments against the scenario's folder, so a scenario can name a
-/// controller beside it whatever the working directory.
-fn resolve_command(command: &[String], scenario: &Path) -> Vec<String> {
-    let base = scenario.parent().unwrap_or(Path::new("."));
-    command.iter().map(|arg| if arg.starts_with("./") || arg.starts_with("../") { base.join(arg).display().to_string() } else { arg.clone() }).collect()
+/// How fast a wall-clock world runs, and how late it may fall behind before the run fails.
+#[derive(Debug, Clone, Copy)]
+pub struct Pace {
+    /// Simulated seconds per wall-clock second (`--speed`).
+    pub speed: f64,
+    /// The 99th-percentile lateness (simulated time) of the world's ticks and of replies beyond
+    /// which the run did not keep its pace (`--pace-tolerance-ms`).
+    pub tolerance: Duration,
+}
+
+/// An external controller's run besides its scenario.
+pub struct ExternalRun<'a> {
+    pub timing: Timing,
+    pub link: Option<&'a Path>,
+    pub record: Option<&'a RecordSpec>,
+    pub pace: Pace,
+    /// Print the port, sensor URL and controller as they start (`run`; not `check`/`sweep`).
+    pub announce: bool,
 }
 
 /// The bus of `scenario`'s world and its observer (see [`climbsim::scenario::run::scenario_bus`]).
@@ -37,23 +54,32 @@ pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timin
     Ok(climbsim::scenario::run::scenario_bus(scenario, robot, timing, baud)?)
 }
 
-/// Run `scenario` in real time with the external controller `command`.
-/// The external controller's bus timing report in a run's output folder.
-const TIMING_JSON: &str = "timing.json";
+/// How the controller's process ended, and when (simulated seconds).
+struct Exit {
+    status: std::process::ExitStatus,
+    at_s: f64,
+    /// It ended by itself before the run's end (not stopped by climbsim).
+    early: bool,
+}
 
-pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[String], timing: Timing, link: Option<&Path>, out_dir: &Path, record: Option<&RecordSpec>) -> Result<RunOutcome> {
+/// Run `scenario` with its external controller; writes the outputs into `out_dir`. The summary's
+/// `failures` lists why the run failed (controller, pace), if it did; an interruption is an error
+/// after the outputs are written.
+pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &RobotDescription, options: &ExternalRun<'_>, out_dir: &Path) -> Result<RunOutcome> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
-    let (bus, observer) = scenario_bus(scenario, robot, timing, None)?;
+    let baud = scenario.bus.baud_bps;
+    let (bus, observer) = scenario_bus(scenario, robot, options.timing, baud)?;
     let observer = Arc::new(Mutex::new(observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?));
-    let recorder = record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, None)).transpose()?;
-    let handle = BusHandle::recording(bus, None, recorder);
+    let recorder = options.record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;
+    let clock = Clock::scaled(options.pace.speed);
+    let handle = BusHandle::with_clock(bus, None, recorder, clock);
     let feed = Arc::new(SensorFeed::default());
     super::replay::record_sensor_reads(&handle, &feed);
 
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
     let (port, sensors_url) = runtime.block_on(async {
         let url = start_sensor_server(Arc::clone(&feed)).await?;
-        let port = Arc::new(VirtualPort::open(link)?);
+        let port = Arc::new(VirtualPort::open(options.link)?);
         let session = tokio::spawn(super::serve_pty(Arc::clone(&port), Arc::clone(&handle)));
         tokio::spawn(async move {
             if let Ok(Err(error)) = session.await {
@@ -63,68 +89,114 @@ pub fn run_external(scenario: &Scenario, robot: &RobotDescription, command: &[St
         Ok::<_, anyhow::Error>((port, url))
     })?;
 
+    let command = external.substituted_command().map_err(|message| anyhow::anyhow!("scenario {}: [controller]: {message}", scenario.path.display()))?;
+    let command = resolve_command(&command, &scenario.path);
+    let log_path = out_dir.join("controller.log");
+    let mut env = vec![
+        ("DXL_PORT".to_owned(), port.path().display().to_string()),
+        ("DXL_BAUD".to_owned(), baud.unwrap_or(robot.bus.baud_bps).to_string()),
+        ("CLIMBSIM_SENSORS".to_owned(), sensors_url.clone()),
+        ("CLIMBSIM_TARGET_SPEED_MM_MIN".to_owned(), scenario.speed.target_mm_min.to_string()),
+        ("CLIMBSIM_DURATION_S".to_owned(), scenario.world.duration_s.to_string()),
+        ("CLIMBSIM_SPEED".to_owned(), options.pace.speed.to_string()),
+        ("CLIMBSIM_OUT".to_owned(), out_dir.display().to_string()),
+    ];
+    env.extend(param_env(&external.param_text()));
+    let launch = Launch { command: &command, env, speed: options.pace.speed, log_path: &log_path };
+    // The world starts with the controller: a controller that cannot start leaves no half run.
     let capture_errors = Arc::new(Mutex::new(None::<String>));
     let pacer = Pacer::start_with(Arc::clone(&handle), observer_hook(Arc::clone(&observer), Arc::clone(&feed), Arc::clone(&capture_errors)));
-
-    let command = resolve_command(command, &scenario.path);
-    let (program, args) = command.split_first().context("the external controller's command is empty")?;
-    let log_path = out_dir.join("controller.log");
-    let log = std::fs::File::create(&log_path).with_context(|| format!("cannot create {}", log_path.display()))?;
+    let mut controller = match Controller::start(&launch) {
+        Ok(controller) => controller,
+        Err(error) => {
+            pacer.stop();
+            port.remove_link();
+            return Err(error);
+        }
+    };
     let started = Instant::now();
-    let mut child = std::process::Command::new(program)
-        .args(args)
-        .env("DXL_PORT", port.path())
-        .env("DXL_BAUD", robot.bus.baud_bps.to_string())
-        .env("CLIMBSIM_SENSORS", &sensors_url)
-        .env("CLIMBSIM_TARGET_SPEED_MM_MIN", scenario.speed.target_mm_min.to_string())
-        .stdin(Stdio::null())
-        .stdout(log.try_clone()?)
-        .stderr(log)
-        .spawn()
-        .with_context(|| format!("cannot start the controller `{}`", command.join(" ")))?;
-    info!(pid = child.id(), port = %port.path().display(), sensors = %sensors_url, "controller started");
-    println!("port: {}\nsensors: {sensors_url}\ncontroller: {} (pid {})", port.path().display(), command.join(" "), child.id());
+    info!(pid = controller.id(), port = %port.path().display(), sensors = %sensors_url, speed = options.pace.speed, "controller started");
+    if options.announce {
+        println!("port: {}\nsensors: {sensors_url}\ncontroller: {} (pid {})", port.path().display(), controller.description, controller.id());
+    }
 
     let duration = Duration::from_secs_f64(scenario.world.duration_s);
-    let mut exited_early = None;
-    while started.elapsed() < duration && !super::interrupt::requested() {
-        if let Some(status) = child.try_wait()? {
-            exited_early = Some(status);
+    let mut early_exit = None;
+    while clock.now() < duration && !super::interrupt::requested() {
+        if let Some(status) = controller.try_wait()? {
+            early_exit = Some(Exit { status, at_s: clock.now().as_secs_f64(), early: true });
             break;
         }
-        std::thread::sleep(Duration::from_millis(20));
+        std::thread::sleep(EXIT_POLL);
     }
-    let status = stop_child(&mut child)?;
+    // The world (and its capture) ends here; only then is the controller stopped, so that the
+    // series never holds a robot whose controller was already gone.
+    let pace = pacer.stop();
+    let sim_s = clock.now().as_secs_f64();
+    let exit = match early_exit {
+        Some(exit) => exit,
+        None => Exit { status: controller.stop()?, at_s: sim_s, early: false },
+    };
     runtime.block_on(port.drain(Duration::from_millis(200)));
-    let (ticks, overruns) = pacer.stop();
     port.remove_link();
-    super::finish_timing_report(&handle, (ticks, overruns), Some(&out_dir.join(TIMING_JSON)))?;
-    super::replay::finish_recording(&handle, (ticks, overruns))?;
+    let report = super::finish_timing_report(&handle, &pace, Some(&out_dir.join(TIMING_JSON)))?;
+    super::replay::finish_recording(&handle, &pace)?;
     let wall_s = started.elapsed().as_secs_f64();
-    if let Some(status) = exited_early {
-        eprintln!("climbsim: the controller exited after {wall_s:.1} s with {status}; see {}", log_path.display());
-    }
     if let Some(error) = capture_errors.lock().unwrap_or_else(PoisonError::into_inner).take() {
         anyhow::bail!("capturing the run failed: {error}");
     }
     let observer = Arc::try_unwrap(observer).ok().context("observer still shared")?.into_inner().unwrap_or_else(PoisonError::into_inner);
-    let sim_s = handle.clock().now().as_secs_f64();
     let mut summary = observer.summary(scenario.capture.on_line_tolerance_m);
     summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
-    summary.insert("physics_ticks".to_owned(), json!(ticks));
-    summary.insert("physics_overruns".to_owned(), json!(overruns));
-    summary.insert("controller_exit".to_owned(), json!(status.map(|s| s.to_string())));
+    summary.insert("physics_ticks".to_owned(), json!(pace.ticks));
+    summary.insert("physics_overruns".to_owned(), json!(pace.overruns));
+    summary.insert("controller_exit".to_owned(), json!(exit.status.to_string()));
+    summary.insert("controller_exit_code".to_owned(), json!(exit.status.code()));
+    summary.insert("controller_exited_at_s".to_owned(), json!(exit.at_s));
+    let pace_problems = report.pace_problems(options.pace.tolerance);
+    summary.insert("pace.speed".to_owned(), json!(options.pace.speed));
+    summary.insert("pace.tolerance_ms".to_owned(), json!(options.pace.tolerance.as_secs_f64() * 1e3));
+    summary.insert("pace.tick_late_p99_ms".to_owned(), json!(report.physics_lateness_us.map(|q| q.p99_us / 1e3)));
+    summary.insert("pace.reply_late_p99_ms".to_owned(), json!(report.delivery_lateness_us.map(|q| q.p99_us / 1e3)));
+    summary.insert("pace.kept".to_owned(), json!(pace_problems.is_empty()));
     summary.extend(handle.with_bus(|bus| climbsim::scenario::run::fault_summary(bus)));
     let interrupted = super::interrupt::requested();
     if interrupted {
         summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
     }
+    let mut failures = controller_failures(&exit, external, scenario.world.duration_s, &controller.log_tail(), &log_path);
+    if !interrupted {
+        failures.extend(pace_problems);
+    }
+    if !failures.is_empty() {
+        summary.insert("failures".to_owned(), json!(failures));
+        summary.insert("failure_at_s".to_owned(), json!(exit.at_s));
+    }
     let outcome = RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s };
     write_outputs(&outcome, out_dir)?;
     if interrupted {
-        anyhow::bail!("interrupted at t = {sim_s:.1} s; the outputs in {} cover the run up to then", out_dir.display());
+        return Err(super::Verdict::Interrupted(format!("interrupted at t = {sim_s:.1} s; the outputs in {} cover the run up to then", out_dir.display())).into());
     }
     Ok(outcome)
+}
+
+/// Why the controller's exit fails the run: any early exit of a controller that should run to
+/// the end, a non-zero exit or a signal of one that ends by itself.
+fn controller_failures(exit: &Exit, external: &ExternalController, duration_s: f64, log_tail: &str, log_path: &Path) -> Vec<String> {
+    if !exit.early {
+        return Vec::new();
+    }
+    if external.ends_by_itself && exit.status.success() {
+        return Vec::new();
+    }
+    let why = if external.ends_by_itself { "failed" } else { "ended before the scenario did" };
+    let mut message = format!("controller {why}: {} at t = {:.2} s of {duration_s} s (simulated)", exit.status, exit.at_s);
+    if log_tail.trim().is_empty() {
+        message.push_str(&format!("; {} is empty", log_path.display()));
+    } else {
+        message.push_str(&format!("; last lines of {}:\n      {}", log_path.display(), log_tail.lines().collect::<Vec<_>>().join("\n      ")));
+    }
+    vec![message]
 }
 
 /// Serve `feed` on an ephemeral localhost port (on the current runtime); its base URL.
@@ -169,23 +241,4 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
             }));
         }
     })
-}
-
-/// SIGTERM, a grace period, then SIGKILL; the exit status if it could be had.
-fn stop_child(child: &mut Child) -> Result<Option<std::process::ExitStatus>> {
-    if let Some(status) = child.try_wait()? {
-        return Ok(Some(status));
-    }
-    let pid = nix::unistd::Pid::from_raw(i32::try_from(child.id()).context("pid out of range")?);
-    let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-    let deadline = Instant::now() + STOP_GRACE;
-    while Instant::now() < deadline {
-        if let Some(status) = child.try_wait()? {
-            return Ok(Some(status));
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    warn!("the controller ignored SIGTERM for {STOP_GRACE:?}; killing it");
-    child.kill()?;
-    Ok(Some(child.wait()?))
 }

@@ -14,7 +14,7 @@ use climbsim::scenario::replay::{ReplaySources, replay};
 use climbsim::scenario::run::write_outputs;
 use climbsim::sensor_server::SensorFeed;
 use climbsim::transcript::{BusSettings, Header, Recorder, RobotCopy, ScenarioCopy, Transcript, crc64_hex, nanos};
-use climbsim::transport::BusHandle;
+use climbsim::transport::{BusHandle, PhysicsPace};
 
 /// What `--record` needs besides the loaded scenario: the file, and the `--set` overrides as
 /// given (the replay applies them to the scenario file again).
@@ -57,9 +57,9 @@ pub fn record_sensor_reads(handle: &Arc<BusHandle>, feed: &SensorFeed) {
 }
 
 /// Write the transcript's `end` line; say where it is.
-pub fn finish_recording(handle: &BusHandle, physics: (u64, u64)) -> Result<()> {
+pub fn finish_recording(handle: &BusHandle, pace: &PhysicsPace) -> Result<()> {
     let Some(recorder) = handle.recorder() else { return Ok(()) };
-    recorder.finish(handle.clock().now(), physics.0, physics.1)?;
+    recorder.finish(handle.clock().now(), pace.ticks, pace.overruns)?;
     eprintln!("climbsim: recorded the session in {}", recorder.path().display());
     Ok(())
 }

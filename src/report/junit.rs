@@ -17,6 +17,8 @@ pub struct JunitCase {
     /// One message per unmet expectation, e.g. `distance.overshoot_pct = 12.3 > 10`; empty if
     /// the scenario passed.
     pub failure_messages: Vec<String>,
+    /// What the case printed (an external controller's log), as `<system-out>`.
+    pub system_out: Option<String>,
 }
 
 /// The JUnit XML document for one suite of cases:
@@ -60,17 +62,22 @@ pub fn junit_xml(suite_name: &str, cases: &[JunitCase]) -> String {
             escape_attribute(&case.name),
             seconds(case.time_s)
         );
-        if case.failure_messages.is_empty() {
+        if case.failure_messages.is_empty() && case.system_out.is_none() {
             let _ = writeln!(xml, "{opening}/>");
             continue;
         }
         let _ = writeln!(xml, "{opening}>");
-        let _ = writeln!(
-            xml,
-            r#"      <failure message="{}" type="expectation">{}</failure>"#,
-            escape_attribute(&case.failure_messages.join("; ")),
-            escape_text(&case.failure_messages.join("\n"))
-        );
+        if !case.failure_messages.is_empty() {
+            let _ = writeln!(
+                xml,
+                r#"      <failure message="{}" type="expectation">{}</failure>"#,
+                escape_attribute(&case.failure_messages.join("; ")),
+                escape_text(&case.failure_messages.join("\n"))
+            );
+        }
+        if let Some(out) = &case.system_out {
+            let _ = writeln!(xml, "      <system-out>{}</system-out>", escape_text(out));
+        }
         let _ = writeln!(xml, "    </testcase>");
     }
     xml.push_str("  </testsuite>\n</testsuites>\n");
@@ -129,6 +136,7 @@ mod tests {
             name: name.to_owned(),
             time_s: 1.25,
             failure_messages: failures.iter().map(|&message| message.to_owned()).collect(),
+            system_out: None,
         }
     }
 
@@ -224,6 +232,19 @@ mod tests {
             xml.contains(">a&lt;b &amp; \"c\" 'd'\nline\u{FFFD}</failure>"),
             "{xml}"
         );
+    }
+
+    #[test]
+    fn a_controllers_output_is_the_cases_system_out() {
+        let mut failed = case("external", &["controller ended before the scenario did"]);
+        failed.system_out = Some("Traceback <stdin>\nKeyError: & 'x'".to_owned());
+        let mut passed = case("external-ok", &[]);
+        passed.system_out = Some("line_follower: 500 control periods".to_owned());
+        let xml = junit_xml("climbsim check", &[failed, passed]);
+        let names: Vec<String> = parse(&xml).into_iter().map(|(name, _)| name).collect();
+        assert_eq!(names.iter().filter(|n| *n == "system-out").count(), 2, "{xml}");
+        assert_eq!(names.iter().filter(|n| *n == "failure").count(), 1, "{xml}");
+        assert!(xml.contains("Traceback &lt;stdin&gt;\nKeyError: &amp; 'x'"), "{xml}");
     }
 
     #[test]

@@ -34,6 +34,8 @@ pub enum ScenarioError {
     Terrain { path: PathBuf, source: TerrainError },
     #[error("scenario {path}: [[events]] at_s = {at_s}: {message}")]
     Event { path: PathBuf, at_s: f64, message: String },
+    #[error("scenario {path}: [controller]: {message}")]
+    Controller { path: PathBuf, message: String },
 }
 
 fn default_gravity() -> [f32; 3] {
@@ -155,7 +157,62 @@ impl Default for ControllerSection {
 #[serde(deny_unknown_fields)]
 pub struct ExternalController {
     /// Program and arguments; a relative program path is resolved against the scenario's folder.
+    /// `{name}` in an argument is replaced by `params.name`.
     pub command: Vec<String>,
+    /// The program ends by itself (a scripted task): exiting with status 0 then ends the run
+    /// there, and only a non-zero exit or a signal fails it. Without this, a controller that
+    /// ends before the scenario does fails the run, whatever its exit status.
+    #[serde(default)]
+    pub ends_by_itself: bool,
+    /// Values for the program: each is `{name}` in `command` and `CLIMBSIM_PARAM_<NAME>` in its
+    /// environment, so sweeps (`--set controller.params.zeta=0.5,1.0`) reach an unchanged program.
+    #[serde(default)]
+    pub params: BTreeMap<String, toml::Value>,
+}
+
+impl ExternalController {
+    /// `params` as the text a program receives (strings without quotes).
+    pub fn param_text(&self) -> BTreeMap<String, String> {
+        self.params.iter().map(|(name, value)| (name.clone(), value.as_str().map_or_else(|| value.to_string(), str::to_owned))).collect()
+    }
+
+    /// `command` with every `{name}` replaced by its parameter; an error names a placeholder
+    /// without a parameter or a parameter that is not a plain value.
+    pub fn substituted_command(&self) -> Result<Vec<String>, String> {
+        if self.command.is_empty() {
+            return Err("command is empty: name the program and its arguments".into());
+        }
+        for (name, value) in &self.params {
+            if matches!(value, toml::Value::Array(_) | toml::Value::Table(_)) {
+                return Err(format!("params.{name}: a parameter is a number, string or boolean, not {}", value.type_str()));
+            }
+        }
+        let text = self.param_text();
+        self.command.iter().map(|arg| substitute(arg, &text)).collect()
+    }
+}
+
+/// Replace `{name}` (letters, digits, `_`) in `arg` by `params[name]`.
+fn substitute(arg: &str, params: &BTreeMap<String, String>) -> Result<String, String> {
+    let mut out = String::with_capacity(arg.len());
+    let mut rest = arg;
+    while let Some(open) = rest.find('{') {
+        out.push_str(&rest[..open]);
+        let after = &rest[open + 1..];
+        let name_len = after.find(|c: char| !(c.is_ascii_alphanumeric() || c == '_')).unwrap_or(after.len());
+        if name_len == 0 || !after[name_len..].starts_with('}') {
+            // Not a placeholder (e.g. JSON in an argument): keep the brace.
+            out.push('{');
+            rest = after;
+            continue;
+        }
+        let name = &after[..name_len];
+        let value = params.get(name).ok_or_else(|| format!("command argument `{arg}` uses {{{name}}}, but [controller] params has no `{name}` (it has: {})", params.keys().cloned().collect::<Vec<_>>().join(", ")))?;
+        out.push_str(value);
+        rest = &after[name_len + 1..];
+    }
+    out.push_str(rest);
+    Ok(out)
 }
 
 /// A scripted change at `at_s`. Each key present takes effect.
@@ -237,10 +294,23 @@ pub struct Threshold {
     pub max: Option<f64>,
 }
 
+/// The servo bus as the robot was configured before the run.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BusSection {
+    /// Every servo's Baud Rate at power-on (bps), if not the robot description's factory
+    /// 57600: a controller that needs a faster bus than the factory one is run on a robot that
+    /// was set up for it (`DXL_BAUD` tells the program).
+    #[serde(default)]
+    pub baud_bps: Option<u32>,
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Scenario {
     pub world: WorldSection,
+    #[serde(default)]
+    pub bus: BusSection,
     pub terrain: TerrainSpec,
     #[serde(default)]
     pub line: Option<LineSection>,
@@ -272,8 +342,12 @@ impl Scenario {
         Ok(scenario)
     }
 
-    /// What serde cannot check in `[[events]]`: a fault's ranges and window.
+    /// What serde cannot check in `[[events]]` (a fault's ranges and window) and in an external
+    /// controller (its command's placeholders).
     fn check_events(&self) -> Result<(), ScenarioError> {
+        if let ControllerSection::External(external) = &self.controller {
+            external.substituted_command().map_err(|message| ScenarioError::Controller { path: self.path.clone(), message })?;
+        }
         for event in &self.events {
             let fail = |message: String| ScenarioError::Event { path: self.path.clone(), at_s: event.at_s, message };
             match event.scheduled_fault() {
@@ -361,5 +435,30 @@ impl Scenario {
             payload_kg: self.world.payload_kg,
             solver: self.world.solver,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn external(command: &[&str], params: &str) -> ExternalController {
+        let params: toml::Table = params.parse().expect("toml");
+        ExternalController { command: command.iter().map(|s| (*s).to_owned()).collect(), ends_by_itself: false, params: params.into_iter().collect() }
+    }
+
+    #[test]
+    fn command_placeholders_take_the_params() {
+        let controller = external(&["./ctl.py", "--zeta", "{zeta}", "--name={name}", "{\"json\": 1}", "{}"], "zeta = 0.5\nname = \"a b\"");
+        assert_eq!(controller.substituted_command().expect("substituted"), ["./ctl.py", "--zeta", "0.5", "--name=a b", "{\"json\": 1}", "{}"]);
+        assert_eq!(controller.param_text()["name"], "a b");
+    }
+
+    #[test]
+    fn unknown_placeholders_and_empty_commands_are_errors() {
+        let error = external(&["ctl", "{omega}"], "zeta = 1").substituted_command().expect_err("unknown");
+        assert!(error.contains("{omega}") && error.contains("zeta"), "{error}");
+        assert!(external(&[], "").substituted_command().is_err());
+        assert!(external(&["ctl"], "gains = [1, 2]").substituted_command().expect_err("array").contains("params.gains"));
     }
 }

@@ -141,11 +141,13 @@ pub struct TickObservation {
     pub error: Option<RunError>,
 }
 
-/// The bus of `scenario`'s world (servos at the robot's baud or `baud`), and the observer
+/// The bus of `scenario`'s world (servos at `baud`, the scenario's or the robot's), and the observer
 /// (camera, detector, capture) when the scenario has a weld line: what `serve SCENARIO`, `run`
 /// with an external controller and `replay` all drive. `RobotWorld::new` has already updated
 /// the query structures, so the line drapes at once.
 pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Option<Observer>), RunError> {
+    // `serve --baud` over the scenario's `[bus] baud_bps` over the robot description's.
+    let baud = baud.or(scenario.bus.baud_bps);
     let servos = robot.servos(baud).map_err(SimError::from)?;
     let world = RobotWorld::new(robot, scenario.world_config()?, &servos).map_err(SimError::from)?;
     let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;

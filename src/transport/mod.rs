@@ -21,7 +21,7 @@ use crate::protocol::{DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};
 use crate::transcript::Recorder;
 
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
-pub use stats::{LineStats, LoopKey, ReportExtras, TimingReport};
+pub use stats::{LineStats, LogHistogram, LoopKey, PhysicsPace, ReportExtras, TimingReport};
 pub use tcp::{TcpServer, parse_tcp_addr};
 
 #[derive(Debug, Error)]
@@ -36,24 +36,44 @@ pub enum TransportError {
     Can(#[from] can::CanError),
 }
 
-/// The emulator's monotonic time base: every timestamp is a `Duration` since `origin`.
+/// The emulator's monotonic time base: every timestamp is a `Duration` of simulated time since
+/// `origin`. Simulated time runs `speed` times as fast as the wall clock (`--speed N`, with the
+/// controller's own clocks scaled alike); at the default 1 the two are the same.
 #[derive(Debug, Clone, Copy)]
 pub struct Clock {
     origin: Instant,
+    speed: f64,
 }
 
 impl Default for Clock {
     fn default() -> Self {
-        Self { origin: Instant::now() }
+        Self { origin: Instant::now(), speed: 1.0 }
     }
 }
 
 impl Clock {
-    pub fn now(&self) -> Duration {
-        self.origin.elapsed()
+    /// A clock starting now whose time runs `speed` (> 0, finite) times the wall clock's rate.
+    pub fn scaled(speed: f64) -> Self {
+        let speed = if speed.is_finite() && speed > 0.0 { speed } else { 1.0 };
+        Self { origin: Instant::now(), speed }
     }
+
+    pub fn speed(&self) -> f64 {
+        self.speed
+    }
+
+    pub fn now(&self) -> Duration {
+        self.origin.elapsed().mul_f64(self.speed)
+    }
+
+    /// The wall-clock instant at which simulated time reaches `at`.
     pub fn instant(&self, at: Duration) -> Instant {
-        self.origin + at
+        self.origin + self.wall(at)
+    }
+
+    /// How long a span of simulated time lasts on the wall clock.
+    pub fn wall(&self, simulated: Duration) -> Duration {
+        simulated.div_f64(self.speed)
     }
 }
 
@@ -75,7 +95,12 @@ impl BusHandle {
 
     /// Like [`BusHandle::new`], recording the session into `recorder` if there is one.
     pub fn recording(bus: Bus, trace: Option<TraceWriter>, recorder: Option<Arc<Recorder>>) -> Arc<Self> {
-        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock: Clock::default(), recorder })
+        Self::with_clock(bus, trace, recorder, Clock::default())
+    }
+
+    /// Like [`BusHandle::recording`], on `clock` (e.g. [`Clock::scaled`] for `--speed`).
+    pub fn with_clock(bus: Bus, trace: Option<TraceWriter>, recorder: Option<Arc<Recorder>>, clock: Clock) -> Arc<Self> {
+        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock, recorder })
     }
 
     pub fn recorder(&self) -> Option<&Arc<Recorder>> {
@@ -112,10 +137,11 @@ impl BusHandle {
         f(&mut stats)
     }
 
-    /// The timing report so far; `physics` is the pacer's (ticks, overruns), if a world runs.
-    pub fn timing_report(&self, physics: (u64, u64)) -> TimingReport {
+    /// The timing report so far; `pace` is the pacer's, if a world runs on the wall clock.
+    pub fn timing_report(&self, pace: &PhysicsPace) -> TimingReport {
         let watchdog_expiries = self.with_bus(|bus| bus.servos().iter().map(|s| s.watchdog_expiries()).sum());
-        let extra = ReportExtras { watchdog_expiries, physics_ticks: physics.0, physics_overruns: physics.1 };
+        let pace = PhysicsPace { speed: self.clock.speed(), ..pace.clone() };
+        let extra = ReportExtras { watchdog_expiries, pace };
         self.with_stats(|stats| stats.report(extra))
     }
 
@@ -242,7 +268,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             // A partial packet waits for at most the inter-byte gap: if the line stays quiet that
             // long, drop it (and find any packet that was hidden behind a false header).
             let read = if self.decoder.pending() > 0 {
-                tokio::time::timeout(self.gap, self.stream.read(&mut self.buf)).await.ok()
+                tokio::time::timeout(self.clock.wall(self.gap), self.stream.read(&mut self.buf)).await.ok()
             } else {
                 Some(self.stream.read(&mut self.buf).await)
             };
@@ -349,6 +375,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 return Ok(false);
             }
             let remaining = due - now;
+            // The spin margins are wall-clock time (they absorb wake-up latency); `remaining` is
+            // simulated time.
+            let remaining = self.clock.wall(remaining);
             let precise_wait = if remaining > FINAL_SPIN { self.line.wait_for_controller(remaining - FINAL_SPIN) } else { None };
             let read = if let Some(ready) = precise_wait {
                 if ready { Some(self.stream.read(&mut self.buf).await?) } else { None }

@@ -218,18 +218,30 @@ impl LineStats {
             frame_errors: self.frame_errors,
             baud_mismatch_packets: self.baud_mismatch_packets,
             watchdog_expiries: extra.watchdog_expiries,
-            physics_ticks: extra.physics_ticks,
-            physics_overruns: extra.physics_overruns,
+            speed: if extra.pace.speed > 0.0 { extra.pace.speed } else { 1.0 },
+            physics_ticks: extra.pace.ticks,
+            physics_overruns: extra.pace.overruns,
+            physics_lateness_us: extra.pace.lateness.quantiles(),
         }
     }
 }
 
 /// What the line cannot see.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct ReportExtras {
     pub watchdog_expiries: u64,
-    pub physics_ticks: u64,
-    pub physics_overruns: u64,
+    pub pace: PhysicsPace,
+}
+
+/// How well a world on the wall clock kept its pace: firmware ticks run, ticks handled more
+/// than one tick late (overruns), and how late each tick was handled, in simulated time.
+#[derive(Debug, Clone, Default)]
+pub struct PhysicsPace {
+    /// Simulated seconds per wall-clock second (`--speed`); 1 when the world ran at real time.
+    pub speed: f64,
+    pub ticks: u64,
+    pub overruns: u64,
+    pub lateness: LogHistogram,
 }
 
 /// p1/p50/p99/max/mean in milliseconds.
@@ -287,11 +299,42 @@ pub struct TimingReport {
     pub frame_errors: u64,
     pub baud_mismatch_packets: u64,
     pub watchdog_expiries: u64,
+    /// Simulated seconds per wall-clock second; every time in this report is simulated time.
+    pub speed: f64,
     pub physics_ticks: u64,
     pub physics_overruns: u64,
+    /// How late the world's firmware ticks were handled against their deadlines.
+    pub physics_lateness_us: Option<Quantiles>,
 }
 
 impl TimingReport {
+    /// Why this session did not keep its pace, if it did not: the world's ticks or the replies
+    /// were handed over later than `tolerance` (simulated time) at the 99th percentile. A run that
+    /// could not keep up is not the run the scenario describes, whatever its metrics say.
+    pub fn pace_problems(&self, tolerance: Duration) -> Vec<String> {
+        let limit_us = tolerance.as_secs_f64() * 1e6;
+        let mut problems = Vec::new();
+        if let Some(q) = self.physics_lateness_us.filter(|q| q.p99_us > limit_us) {
+            problems.push(format!(
+                "pace: the world's ticks ran p99 {:.2} ms (max {:.2} ms) behind their deadlines at {}x, over the {:.2} ms tolerance: this machine could not keep up",
+                q.p99_us / 1000.0,
+                q.max_us / 1000.0,
+                self.speed,
+                limit_us / 1000.0
+            ));
+        }
+        if let Some(q) = self.delivery_lateness_us.filter(|q| q.p99_us > limit_us) {
+            problems.push(format!(
+                "pace: replies reached the controller p99 {:.2} ms (max {:.2} ms) later than the wire model at {}x, over the {:.2} ms tolerance: this machine could not keep up",
+                q.p99_us / 1000.0,
+                q.max_us / 1000.0,
+                self.speed,
+                limit_us / 1000.0
+            ));
+        }
+        problems
+    }
+
     /// A few lines for the terminal.
     pub fn human_summary(&self) -> String {
         let mut out = format!("timing: {} requests, {} replies in {:.1} s; bus {:.1} % busy\n", self.requests, self.replies, self.duration_s, self.bus_utilisation_pct);
@@ -306,6 +349,9 @@ impl TimingReport {
             "  collisions {}, unread replies {}, inter-byte gaps {}, frame errors {}, baud mismatches {}, watchdog expiries {}, physics overruns {} of {} ticks",
             self.collisions, self.unread_replies, self.inter_byte_gaps, self.frame_errors, self.baud_mismatch_packets, self.watchdog_expiries, self.physics_overruns, self.physics_ticks
         );
+        if let Some(q) = &self.physics_lateness_us {
+            out += &format!("\n  world at {}x: ticks handled p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs after their deadlines (simulated time)", self.speed, q.p50_us, q.p99_us, q.max_us);
+        }
         out
     }
 }

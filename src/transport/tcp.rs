@@ -14,7 +14,13 @@ pub fn parse_tcp_addr(text: &str) -> Result<SocketAddr, String> {
     if let Ok(port) = text.parse::<u16>() {
         return Ok(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), port));
     }
-    text.parse::<SocketAddr>().map_err(|e| format!("`{text}` is not PORT or HOST:PORT ({e})"))
+    if let Ok(addr) = text.parse::<SocketAddr>() {
+        return Ok(addr);
+    }
+    // A host name (`localhost:5000`): resolved here, once, preferring IPv4 as a bare port does.
+    use std::net::ToSocketAddrs as _;
+    let resolved: Vec<SocketAddr> = text.to_socket_addrs().map_err(|e| format!("`{text}` is not PORT or HOST:PORT ({e})"))?.collect();
+    resolved.iter().find(|a| a.is_ipv4()).or_else(|| resolved.first()).copied().ok_or_else(|| format!("`{text}` resolves to no address"))
 }
 
 pub struct TcpServer {
@@ -55,5 +61,21 @@ impl TcpServer {
                 }
             });
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tcp_addresses_take_a_port_an_address_or_a_host_name() {
+        assert_eq!(parse_tcp_addr("5000"), Ok(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 5000)));
+        assert_eq!(parse_tcp_addr("0.0.0.0:5000"), Ok(SocketAddr::new(IpAddr::V4(Ipv4Addr::UNSPECIFIED), 5000)));
+        // `localhost:5000` was refused: a host name is resolved.
+        let resolved = parse_tcp_addr("localhost:5000").expect("localhost resolves");
+        assert!(resolved.ip().is_loopback() && resolved.port() == 5000, "{resolved}");
+        assert!(parse_tcp_addr("localhost").is_err());
+        assert!(parse_tcp_addr("no-such-host.invalid:1").is_err());
     }
 }

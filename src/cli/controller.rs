@@ -1,0 +1,319 @@
+//! The user's own controller as a child process: finding the program (one clear line when it
+//! cannot start), its environment (port, baud, sensors, parameters), its clocks scaled with
+//! libfaketime for `--speed N`, watching it for an early exit, and stopping it.
+
+use std::collections::BTreeMap;
+use std::io::{Read as _, Seek as _};
+use std::os::unix::process::CommandExt as _;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use tracing::warn;
+
+/// How long a controller gets to stop after SIGTERM before it is killed.
+const STOP_GRACE: Duration = Duration::from_secs(3);
+/// The controller's niceness (see [`Controller::start`]).
+const CONTROLLER_NICE: libc::c_int = 10;
+/// Lines of the controller's log quoted in a failure message.
+const LOG_TAIL_LINES: usize = 15;
+
+/// Where Debian and most distributions put libfaketime; `CLIMBSIM_LIBFAKETIME` overrides.
+const LIBFAKETIME_GLOBS: &[&str] = &["/usr/lib/*/faketime/libfaketimeMT.so.1", "/usr/lib/faketime/libfaketimeMT.so.1", "/usr/local/lib/faketime/libfaketimeMT.so.1", "/usr/lib64/faketime/libfaketimeMT.so.1"];
+
+/// What the controller process is told.
+pub struct Launch<'a> {
+    /// Program and arguments, placeholders already substituted.
+    pub command: &'a [String],
+    pub env: Vec<(String, String)>,
+    /// Simulated seconds per wall-clock second: above 1 the program runs under libfaketime.
+    pub speed: f64,
+    pub log_path: &'a Path,
+}
+
+/// A running controller.
+pub struct Controller {
+    child: Child,
+    pub description: String,
+    log_path: PathBuf,
+}
+
+/// Resolve `./` and `../` arguments against the scenario's folder, so a scenario can name a
+/// controller beside it whatever the working directory.
+pub fn resolve_command(command: &[String], scenario: &Path) -> Vec<String> {
+    let base = scenario.parent().unwrap_or(Path::new("."));
+    command.iter().map(|arg| if arg.starts_with("./") || arg.starts_with("../") { base.join(arg).display().to_string() } else { arg.clone() }).collect()
+}
+
+/// The environment variables that carry a scenario's `[controller] params` to the program:
+/// `CLIMBSIM_PARAM_<NAME>` (upper case).
+pub fn param_env(params: &BTreeMap<String, String>) -> Vec<(String, String)> {
+    params.iter().map(|(name, value)| (format!("CLIMBSIM_PARAM_{}", name.to_ascii_uppercase()), value.clone())).collect()
+}
+
+impl Controller {
+    /// Start the program. A program that cannot be found or run, or cannot be sped up, is one
+    /// clear error naming the command.
+    pub fn start(launch: &Launch<'_>) -> Result<Self> {
+        let description = launch.command.join(" ");
+        let (program, args) = launch.command.split_first().context("the external controller's command is empty")?;
+        let resolved = find_program(program).with_context(|| format!("cannot start the controller `{description}`"))?;
+        let log = std::fs::File::create(launch.log_path).with_context(|| format!("cannot create {}", launch.log_path.display()))?;
+        let mut command = std::process::Command::new(&resolved);
+        command.args(args).envs(launch.env.iter().map(|(k, v)| (k, v))).stdin(Stdio::null()).stdout(log.try_clone()?).stderr(log);
+        if launch.speed != 1.0 {
+            refuse_unpreloadable(&resolved).with_context(|| format!("--speed {} cannot scale the clocks of `{description}`", launch.speed))?;
+            command.envs(faketime_env(launch.speed).with_context(|| format!("--speed {} for `{description}`", launch.speed))?);
+        }
+        // The emulated servos are the hardware: on a machine with few cores a busy controller
+        // (the SDK polls the port in a tight loop) must not delay their replies or the world's
+        // ticks by a scheduler time slice. A lower priority lets climbsim's threads preempt it
+        // when they wake; the controller still gets every cycle they leave.
+        // SAFETY: setpriority is async-signal-safe and touches only the child being started.
+        unsafe {
+            command.pre_exec(|| {
+                libc::setpriority(libc::PRIO_PROCESS, 0, CONTROLLER_NICE);
+                Ok(())
+            });
+        }
+        let child = command.spawn().with_context(|| format!("cannot start the controller `{description}`"))?;
+        Ok(Self { child, description, log_path: launch.log_path.to_owned() })
+    }
+
+    pub fn id(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// The exit status if the program has ended.
+    pub fn try_wait(&mut self) -> Result<Option<ExitStatus>> {
+        Ok(self.child.try_wait()?)
+    }
+
+    /// SIGTERM, a grace period, then SIGKILL; the exit status.
+    pub fn stop(&mut self) -> Result<ExitStatus> {
+        if let Some(status) = self.child.try_wait()? {
+            return Ok(status);
+        }
+        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).context("pid out of range")?);
+        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
+        let deadline = Instant::now() + STOP_GRACE;
+        while Instant::now() < deadline {
+            if let Some(status) = self.child.try_wait()? {
+                return Ok(status);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        warn!("the controller ignored SIGTERM for {STOP_GRACE:?}; killing it");
+        self.child.kill()?;
+        Ok(self.child.wait()?)
+    }
+
+    /// The last lines of the controller's output.
+    pub fn log_tail(&self) -> String {
+        log_tail(&self.log_path, LOG_TAIL_LINES)
+    }
+}
+
+/// The environment that runs a dynamically linked program's clocks (time, gettimeofday,
+/// clock_gettime including the monotonic ones) and its sleeps, selects and polls `speed` times
+/// as fast, starting at the real time: an unchanged program sees the same time course as at 1x.
+pub fn faketime_env(speed: f64) -> Result<Vec<(String, String)>> {
+    let library = libfaketime()?;
+    let preload = match std::env::var("LD_PRELOAD") {
+        Ok(existing) if !existing.is_empty() => format!("{}:{existing}", library.display()),
+        _ => library.display().to_string(),
+    };
+    Ok(vec![
+        ("LD_PRELOAD".to_owned(), preload),
+        ("FAKETIME".to_owned(), format!("+0 x{speed}")),
+        ("FAKETIME_DONT_FAKE_MONOTONIC".to_owned(), "0".to_owned()),
+        // Children the controller starts share its clock instead of starting their own.
+        ("FAKETIME_DONT_RESET".to_owned(), "1".to_owned()),
+    ])
+}
+
+/// The last `lines` lines of a log file (at most its last 16 KiB).
+pub fn log_tail(path: &Path, lines: usize) -> String {
+    let text = read_tail(path, 16 * 1024).unwrap_or_default();
+    let all: Vec<&str> = text.lines().collect();
+    all[all.len().saturating_sub(lines)..].join("\n")
+}
+
+/// The last `limit` bytes of a text file, if it has any (read from the end: a log may be long).
+pub fn read_tail(path: &Path, limit: u64) -> Option<String> {
+    let mut file = std::fs::File::open(path).ok()?;
+    let length = file.metadata().ok()?.len();
+    file.seek(std::io::SeekFrom::Start(length.saturating_sub(limit))).ok()?;
+    let mut bytes = Vec::new();
+    file.read_to_end(&mut bytes).ok()?;
+    (!bytes.is_empty()).then(|| String::from_utf8_lossy(&bytes).into_owned())
+}
+
+/// `program` as the OS would run it: a path (checked to exist and be executable) or a name on
+/// PATH.
+fn find_program(program: &str) -> Result<PathBuf> {
+    use std::os::unix::fs::PermissionsExt as _;
+    let executable = |path: &Path| std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0);
+    if program.contains('/') {
+        let path = PathBuf::from(program);
+        let metadata = std::fs::metadata(&path).with_context(|| format!("{program}: not found"))?;
+        if !metadata.is_file() {
+            bail!("{program}: not a file");
+        }
+        if !executable(&path) {
+            bail!("{program}: not executable (chmod +x, or name its interpreter first, e.g. [\"python3\", \"{program}\"])");
+        }
+        return Ok(path);
+    }
+    let path_var = std::env::var_os("PATH").unwrap_or_default();
+    std::env::split_paths(&path_var).map(|dir| dir.join(program)).find(|candidate| executable(candidate)).with_context(|| format!("{program}: not found on PATH"))
+}
+
+/// The libfaketime library: `CLIMBSIM_LIBFAKETIME`, or the multi-threaded build where the
+/// distribution installs it (controllers often have threads: ROS executors, SDK readers).
+fn libfaketime() -> Result<PathBuf> {
+    if let Some(path) = std::env::var_os("CLIMBSIM_LIBFAKETIME") {
+        let path = PathBuf::from(path);
+        if !path.is_file() {
+            bail!("CLIMBSIM_LIBFAKETIME={} is not a file", path.display());
+        }
+        return Ok(path);
+    }
+    for pattern in LIBFAKETIME_GLOBS {
+        if let Some(found) = glob_one(pattern) {
+            return Ok(found);
+        }
+    }
+    bail!("it needs libfaketime to scale the controller's clocks and none was found (Debian/Ubuntu: apt-get install libfaketime; or set CLIMBSIM_LIBFAKETIME to libfaketimeMT.so.1)")
+}
+
+/// The first file matching `pattern`, whose only wildcard is one `*` path component.
+fn glob_one(pattern: &str) -> Option<PathBuf> {
+    let Some((head, tail)) = pattern.split_once("/*/") else {
+        return Path::new(pattern).is_file().then(|| PathBuf::from(pattern));
+    };
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(head).ok()?.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    dirs.sort();
+    dirs.into_iter().map(|dir| dir.join(tail)).find(|p| p.is_file())
+}
+
+/// LD_PRELOAD only reaches dynamically linked programs: refuse a static one (Go, musl, static
+/// Rust) and a set-uid one, following a `#!` script to its interpreter.
+fn refuse_unpreloadable(program: &Path) -> Result<()> {
+    let interpreter = script_interpreter(program)?;
+    let binary = interpreter.as_deref().unwrap_or(program);
+    use std::os::unix::fs::PermissionsExt as _;
+    if std::fs::metadata(binary).is_ok_and(|m| m.permissions().mode() & 0o4000 != 0) {
+        bail!("{} is set-uid, and the loader ignores LD_PRELOAD for it", binary.display());
+    }
+    match elf_is_dynamic(binary)? {
+        Some(true) => Ok(()),
+        Some(false) => bail!("{} is statically linked, so libfaketime cannot be preloaded into it; run it at --speed 1, or link it dynamically", binary.display()),
+        None => bail!("{} is neither an ELF program nor a #! script, so whether libfaketime reaches it cannot be told", binary.display()),
+    }
+}
+
+/// The interpreter of a `#!` script (through `/usr/bin/env NAME`), None for a binary.
+fn script_interpreter(program: &Path) -> Result<Option<PathBuf>> {
+    let mut head = [0u8; 256];
+    let mut file = std::fs::File::open(program).with_context(|| format!("cannot read {}", program.display()))?;
+    let n = file.read(&mut head)?;
+    let Some(line) = head[..n].strip_prefix(b"#!") else { return Ok(None) };
+    let line = String::from_utf8_lossy(line);
+    let line = line.lines().next().unwrap_or_default();
+    let mut words = line.split_whitespace();
+    let first = words.next().with_context(|| format!("{}: empty #! line", program.display()))?;
+    if Path::new(first).file_name().is_some_and(|name| name == "env") {
+        let name = words.find(|w| !w.starts_with('-')).with_context(|| format!("{}: #!{line} names no program", program.display()))?;
+        return find_program(name).map(Some);
+    }
+    Ok(Some(PathBuf::from(first)))
+}
+
+/// Some(true) for a dynamically linked ELF file (it has a PT_INTERP program header, the loader
+/// that honours LD_PRELOAD), Some(false) for a static one, None for a file that is not ELF.
+pub fn elf_is_dynamic(path: &Path) -> Result<Option<bool>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    Ok(elf_has_interpreter(&bytes))
+}
+
+/// The ELF header's program-header table, searched for PT_INTERP (type 3).
+fn elf_has_interpreter(bytes: &[u8]) -> Option<bool> {
+    const PT_INTERP: u32 = 3;
+    if bytes.get(..4)? != b"\x7fELF" {
+        return None;
+    }
+    let wide = match bytes.get(4)? {
+        1 => false,
+        2 => true,
+        _ => return None,
+    };
+    let little = *bytes.get(5)? == 1;
+    let read = |at: usize, len: usize| -> Option<u64> {
+        let field = bytes.get(at..at + len)?;
+        let mut value = 0u64;
+        for (i, &b) in field.iter().enumerate() {
+            let shift = if little { 8 * i } else { 8 * (len - 1 - i) };
+            value |= u64::from(b) << shift;
+        }
+        Some(value)
+    };
+    let (phoff, phentsize, phnum) = if wide { (read(0x20, 8)?, read(0x36, 2)?, read(0x38, 2)?) } else { (read(0x1C, 4)?, read(0x2A, 2)?, read(0x2C, 2)?) };
+    let (phoff, phentsize) = (usize::try_from(phoff).ok()?, usize::try_from(phentsize).ok()?);
+    for index in 0..usize::try_from(phnum).ok()? {
+        let entry = phoff.checked_add(index.checked_mul(phentsize)?)?;
+        if read(entry, 4)? == u64::from(PT_INTERP) {
+            return Some(true);
+        }
+    }
+    Some(false)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dynamic_and_static_programs_are_told_apart() {
+        assert_eq!(elf_is_dynamic(Path::new("/bin/sh")).expect("read /bin/sh"), Some(true));
+        // Debian's ldconfig is a static-pie program: libfaketime cannot reach it.
+        if Path::new("/sbin/ldconfig").is_file() {
+            assert_eq!(elf_is_dynamic(Path::new("/sbin/ldconfig")).expect("read ldconfig"), Some(false));
+        }
+        assert_eq!(elf_has_interpreter(b"#!/bin/sh\n"), None);
+        assert_eq!(elf_has_interpreter(b"\x7fELF\x02"), None, "a truncated header is not ELF");
+    }
+
+    #[test]
+    fn scripts_are_followed_to_their_interpreter() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let script = dir.path().join("controller");
+        std::fs::write(&script, "#!/usr/bin/env sh\necho hi\n").expect("write");
+        let interpreter = script_interpreter(&script).expect("read").expect("a script");
+        assert!(interpreter.ends_with("sh"), "{}", interpreter.display());
+        assert!(refuse_unpreloadable(&script).is_ok());
+    }
+
+    #[test]
+    fn missing_and_unexecutable_programs_are_named() {
+        let error = find_program("./no-such-controller").expect_err("missing");
+        assert!(error.to_string().contains("./no-such-controller: not found"), "{error}");
+        let error = find_program("no-such-controller-on-path").expect_err("missing");
+        assert!(error.to_string().contains("not found on PATH"), "{error}");
+        let dir = tempfile::tempdir().expect("temp dir");
+        let script = dir.path().join("plain.py");
+        std::fs::write(&script, "print(1)\n").expect("write");
+        let error = find_program(&script.display().to_string()).expect_err("not executable");
+        assert!(error.to_string().contains("not executable"), "{error}");
+    }
+
+    #[test]
+    fn log_tails_keep_the_last_lines() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let log = dir.path().join("controller.log");
+        std::fs::write(&log, (1..=40).map(|i| format!("line {i}\n")).collect::<String>()).expect("write");
+        let tail = log_tail(&log, 3);
+        assert_eq!(tail, "line 38\nline 39\nline 40");
+    }
+}
