@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Runs every climbsim test on a fresh machine: makes .venv with the pinned official DynamixelSDK
 # (tests/sdk/requirements.txt), then `cargo test` (unit, golden-vector, property, dynamixel2 and
-# official-SDK tests), then the SocketCAN test if a vcan interface exists. Extra arguments go to
-# the first `cargo test`.
+# official-SDK tests), then `climbsim check scenarios/` (every shipped scenario against its
+# [expect], the external controller at --speed), then the SocketCAN test if a vcan interface
+# exists. Installs Debian's libfaketime (for --speed) when missing and it can (root + apt-get).
+# Extra arguments go to the first `cargo test`.
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$repo"
@@ -18,8 +20,23 @@ if [[ ! -x "$venv/bin/python" || "$(cat "$stamp" 2>/dev/null)" != "$want" ]]; th
 fi
 export CLIMBSIM_PYTHON="$venv/bin/python"
 
+# --speed N runs external controllers under libfaketime (LD_PRELOAD); the tests use it.
+if ! compgen -G "/usr/lib/*/faketime/libfaketimeMT.so.1" > /dev/null && [[ -z "${CLIMBSIM_LIBFAKETIME:-}" ]]; then
+    if [[ $(id -u) == 0 ]] && command -v apt-get > /dev/null; then
+        echo "==> installing Debian's libfaketime (for --speed)"
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libfaketime > /dev/null \
+            || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libfaketime > /dev/null; }
+    else
+        echo "error: libfaketime is missing (apt-get install libfaketime, or set CLIMBSIM_LIBFAKETIME to libfaketimeMT.so.1)" >&2
+        exit 2
+    fi
+fi
+
 echo "==> cargo test"
 cargo test --locked "$@"
+
+echo "==> climbsim check scenarios/"
+cargo run --locked --release --quiet -- check scenarios/ --junit target/check/junit.xml --out target/check
 
 # The SocketCAN test (tests/can_transport.rs, #[ignore]d) needs a CAN interface: run it where one
 # exists (sudo hil/vcan-setup.sh), say so where the kernel has none. The ISO-TP framing itself is

@@ -22,7 +22,7 @@ fn temp_dir(name: &str) -> PathBuf {
 /// Run `climbsim serve` expecting it to fail at start-up; return its stderr.
 fn serve_fails(args: &[&str]) -> String {
     let out = Command::new(BIN).arg("serve").args(args).output().unwrap();
-    assert_eq!(out.status.code(), Some(1), "expected exit 1, stdout: {}", String::from_utf8_lossy(&out.stdout));
+    assert_eq!(out.status.code(), Some(2), "expected exit 2 (bad input), stdout: {}", String::from_utf8_lossy(&out.stdout));
     assert!(out.stdout.is_empty(), "no port line on failure");
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
     assert!(!stderr.contains("panicked"), "{stderr}");
