@@ -118,6 +118,15 @@ impl Fault {
         }
     }
 
+    /// The servo it acts on, for the faults that name one.
+    pub fn servo_id(&self) -> Option<u8> {
+        match *self {
+            Self::DropReplies { id, .. } | Self::LateReplies { id, .. } | Self::Silent { id } | Self::Overload { id } | Self::Overheating { id, .. } | Self::EncoderNoise { id, .. } => Some(id),
+            Self::VoltageSag { id, .. } => id,
+            Self::BitErrors { .. } | Self::MagnetFailure { .. } | Self::SlipPatch { .. } => None,
+        }
+    }
+
     /// Whether it ends by itself at `until_s`. An overload latches until a Reboot.
     pub fn can_end(&self) -> bool {
         !matches!(self, Self::Overload { .. })
@@ -151,6 +160,21 @@ impl Fault {
     }
 }
 
+/// Latest `at`/`until` (s): a million seconds (11.6 days) is beyond any run or serve session,
+/// and keeps the time a [`std::time::Duration`] can hold.
+pub const MAX_FAULT_TIME_S: f64 = 1e6;
+
+/// The first fault in `faults` on a servo ID that is not in `ids` (the robot's bus).
+pub fn check_ids(faults: &[ScheduledFault], ids: &[u8]) -> Result<(), FaultError> {
+    for scheduled in faults {
+        if let Some(id) = scheduled.fault.servo_id().filter(|id| !ids.contains(id)) {
+            let known = ids.iter().map(u8::to_string).collect::<Vec<_>>().join(", ");
+            return Err(FaultError::Invalid { kind: scheduled.fault.kind(), message: format!("servo ID {id} is not on the robot's bus (IDs: {known})") });
+        }
+    }
+    Ok(())
+}
+
 /// A fault and when it acts: from `at_s` until `until_s` (for good without it).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ScheduledFault {
@@ -163,8 +187,11 @@ impl ScheduledFault {
     pub fn validate(&self) -> Result<(), FaultError> {
         self.fault.validate()?;
         let invalid = |message: String| Err(FaultError::Invalid { kind: self.fault.kind(), message });
-        if !(self.at_s.is_finite() && self.at_s >= 0.0) {
-            return invalid(format!("at {} must be >= 0", self.at_s));
+        if !(self.at_s.is_finite() && (0.0..=MAX_FAULT_TIME_S).contains(&self.at_s)) {
+            return invalid(format!("at {} s is outside [0, {MAX_FAULT_TIME_S}] s", self.at_s));
+        }
+        if let Some(until) = self.until_s.filter(|u| !(u.is_finite() && *u <= MAX_FAULT_TIME_S)) {
+            return invalid(format!("until {until} s is outside [at, {MAX_FAULT_TIME_S}] s"));
         }
         match self.until_s {
             Some(_) if !self.fault.can_end() => invalid("it latches until a Reboot; `until` is not allowed".into()),

@@ -59,12 +59,6 @@ fn run_any(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path, pace: 
     }
 }
 
-/// Why a run failed besides its thresholds (controller, world, pace), as its summary records it
-/// under `failures`.
-pub fn recorded_failures(summary: &BTreeMap<String, Value>) -> Vec<String> {
-    summary.get("failures").and_then(Value::as_array).map(|list| list.iter().map(|v| v.as_str().map_or_else(|| v.to_string(), str::to_owned)).collect()).unwrap_or_default()
-}
-
 /// Fail now, not after minutes of simulation, if `dir` cannot be created or written.
 pub fn preflight_dir(dir: &Path, flag: &str) -> Result<()> {
     if dir.exists() && !dir.is_dir() {
@@ -141,7 +135,7 @@ pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit
                 }
                 match result {
                     Ok(outcome) => {
-                        let mut failures = recorded_failures(&outcome.summary);
+                        let mut failures = climbsim::scenario::run::failures(&outcome.summary);
                         failures.extend(scenario.failed_expectations(&outcome.summary));
                         failures
                     }
@@ -236,7 +230,7 @@ pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, rob
                         let run_dir = out_dir.join("runs").join(point.label());
                         match run_any(scenario, robot, &run_dir, pace) {
                             Ok(outcome) => {
-                                let failures = recorded_failures(&outcome.summary);
+                                let failures = climbsim::scenario::run::failures(&outcome.summary);
                                 row.status = if failures.is_empty() { "completed" } else { "failed" }.to_owned();
                                 row.error = (!failures.is_empty()).then(|| failures.join("; "));
                                 row.summary = outcome.summary;

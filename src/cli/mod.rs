@@ -306,7 +306,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 }
             };
             batch::print_summary(&outcome, &out_dir);
-            let mut failures = batch::recorded_failures(&outcome.summary);
+            let mut failures = climbsim::scenario::run::failures(&outcome.summary);
             failures.extend(loaded.failed_expectations(&outcome.summary));
             if !failures.is_empty() {
                 return Err(Verdict::Failed(format!("the run failed ({} in {}):\n  {}", failures.len(), out_dir.display(), failures.join("\n  "))).into());

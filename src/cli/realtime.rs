@@ -127,6 +127,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
             early_exit = Some(Exit { status, at_s: clock.now().as_secs_f64(), early: true });
             break;
         }
+        if observer.lock().unwrap_or_else(PoisonError::into_inner).world_failure().is_some() {
+            break;
+        }
         std::thread::sleep(EXIT_POLL);
     }
     // The world (and its capture) ends here; only then is the controller stopped, so that the
@@ -147,6 +150,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     }
     let observer = Arc::try_unwrap(observer).ok().context("observer still shared")?.into_inner().unwrap_or_else(PoisonError::into_inner);
     let mut summary = observer.summary(scenario.capture.on_line_tolerance_m);
+    if let Some(failure) = observer.world_failure() {
+        climbsim::scenario::run::record_failure(&mut summary, failure);
+    }
     summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
     summary.insert("physics_ticks".to_owned(), json!(pace.ticks));
     summary.insert("physics_overruns".to_owned(), json!(pace.overruns));
@@ -169,8 +175,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         failures.extend(pace_problems);
     }
     if !failures.is_empty() {
+        failures.splice(0..0, climbsim::scenario::run::failures(&summary));
+        summary.entry("failure_at_s".to_owned()).or_insert(json!(exit.at_s));
         summary.insert("failures".to_owned(), json!(failures));
-        summary.insert("failure_at_s".to_owned(), json!(exit.at_s));
     }
     let outcome = RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s };
     write_outputs(&outcome, out_dir)?;

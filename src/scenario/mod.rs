@@ -14,6 +14,8 @@ mod overrides;
 pub mod replay;
 pub mod run;
 pub mod sweep;
+pub mod validate;
+pub mod watch;
 
 pub use overrides::{Override, OverrideError, parse_value, split_values};
 
@@ -36,6 +38,9 @@ pub enum ScenarioError {
     Event { path: PathBuf, at_s: f64, message: String },
     #[error("scenario {path}: [controller]: {message}")]
     Controller { path: PathBuf, message: String },
+    /// A value out of its range (see [`validate`]), at its line in the file when it is written.
+    #[error("scenario {path}{}: {problem}", .line.map_or(String::new(), |l| format!(":{l}")))]
+    Invalid { path: PathBuf, line: Option<usize>, problem: validate::Problem },
 }
 
 fn default_gravity() -> [f32; 3] {
@@ -338,8 +343,22 @@ impl Scenario {
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
         let mut scenario: Self = load_toml("scenario", path)?;
         scenario.path = path.to_owned();
+        scenario.check_ranges(&[])?;
         scenario.check_events()?;
         Ok(scenario)
+    }
+
+    /// Every numeric key in its range ([`validate::check`]). A value an override set is blamed
+    /// on the `--set`; one written in the file on its line there.
+    fn check_ranges(&self, overrides: &[Override]) -> Result<(), ScenarioError> {
+        let Err(problem) = validate::check(self) else { return Ok(()) };
+        let key = problem.key_text();
+        if let Some(set) = overrides.iter().find(|o| key == o.key || key.starts_with(&format!("{}.", o.key)) || key.starts_with(&format!("{}[", o.key))) {
+            return Err(ScenarioError::Override { path: self.path.clone(), set: set.to_string(), message: problem.to_string() });
+        }
+        // The text was read a moment ago; if it cannot be now, the error still names the key.
+        let line = std::fs::read_to_string(&self.path).ok().and_then(|text| problem.line_in(&text));
+        Err(ScenarioError::Invalid { path: self.path.clone(), line, problem })
     }
 
     /// What serde cannot check in `[[events]]` (a fault's ranges and window) and in an external
@@ -380,6 +399,7 @@ impl Scenario {
         }
         let mut scenario = Self::deserialize(table).map_err(|e| fail(e.to_string()))?;
         scenario.path = path.to_owned();
+        scenario.check_ranges(overrides)?;
         scenario.check_events()?;
         Ok(scenario)
     }

@@ -25,6 +25,7 @@ use crate::sim::detector::DetectorError;
 use crate::sim::line::LineError as WeldLineError;
 use crate::sim::{DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, WeldLine};
 
+use super::watch::{self, WorldFailure, WorldWatch};
 use super::{ControllerSection, Event, Scenario, ScenarioError, mm_min_to_m_s};
 
 #[derive(Debug, Error)]
@@ -49,6 +50,10 @@ pub enum RunError {
     NeedsRealTime { path: PathBuf },
     #[error(transparent)]
     Report(#[from] report::ReportError),
+    #[error("scenario {path}: {message}")]
+    Start { path: PathBuf, message: String },
+    #[error("scenario {path}: {source}")]
+    Fault { path: PathBuf, source: crate::fault::FaultError },
 }
 
 /// The time series' columns, in order.
@@ -139,6 +144,15 @@ pub struct TickObservation {
     /// The camera delivered a frame this tick.
     pub new_frame: bool,
     pub error: Option<RunError>,
+    /// The world watch's verdict: the run should stop (see [`watch`]).
+    pub failure: Option<WorldFailure>,
+}
+
+/// Refuse a world the run cannot happen in: a start off the terrain, a fault on a servo the bus
+/// does not have.
+fn check_world(scenario: &Scenario, world: &RobotWorld, ids: &[u8]) -> Result<(), RunError> {
+    watch::check_start(world).map_err(|message| RunError::Start { path: scenario.path.clone(), message })?;
+    crate::fault::check_ids(&scenario.faults(), ids).map_err(|source| RunError::Fault { path: scenario.path.clone(), source })
 }
 
 /// The bus of `scenario`'s world (servos at `baud`, the scenario's or the robot's), and the observer
@@ -150,6 +164,7 @@ pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timin
     let baud = baud.or(scenario.bus.baud_bps);
     let servos = robot.servos(baud).map_err(SimError::from)?;
     let world = RobotWorld::new(robot, scenario.world_config()?, &servos).map_err(SimError::from)?;
+    check_world(scenario, &world, &servos.iter().map(Servo::id).collect::<Vec<_>>())?;
     let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;
     let mut bus = robot.bus_of(servos, Box::new(world), timing, baud).map_err(SimError::from)?;
     bus.set_faults(BusFaults::new(scenario.faults(), scenario.world.seed));
@@ -175,6 +190,7 @@ pub struct Observer {
     events: Vec<Event>,
     next_event: usize,
     scenario_path: PathBuf,
+    watch: WorldWatch,
 }
 
 impl Observer {
@@ -208,6 +224,7 @@ impl Observer {
             events,
             next_event: 0,
             scenario_path: path,
+            watch: WorldWatch::new(),
         })
     }
 
@@ -333,14 +350,20 @@ impl Observer {
     /// skip the others (the live run keeps going); the first is returned.
     pub fn on_tick(&mut self, bus: &mut Bus, now: Duration) -> TickObservation {
         let t_s = now.as_secs_f64();
-        let Some(world) = bus.plant_mut::<RobotWorld>() else { return TickObservation { new_frame: false, error: None } };
+        let Some(world) = bus.plant_mut::<RobotWorld>() else { return TickObservation { new_frame: false, error: None, failure: None } };
         let mut error = self.apply_events(t_s, world).err();
         let frames_before = self.frames_seen;
         self.sense(world, now);
+        let failure = self.watch.check(world, t_s).cloned();
         if let Err(capture) = self.capture(t_s, bus, None) {
             error.get_or_insert(capture);
         }
-        TickObservation { new_frame: self.frames_seen != frames_before, error }
+        TickObservation { new_frame: self.frames_seen != frames_before, error, failure }
+    }
+
+    /// Why the world watch stopped believing in this run (see [`watch`]), once it has.
+    pub fn world_failure(&self) -> Option<&WorldFailure> {
+        self.watch.failure()
     }
 
     pub fn series(&self) -> &TimeSeries {
@@ -416,6 +439,20 @@ pub fn summarise(series: &TimeSeries, speed_step_at_s: f64, on_line_tolerance_m:
     report::summarise(distance.as_ref(), speed_step.as_ref(), tracking.as_ref())
 }
 
+/// Why a run failed other than by its thresholds (`summary.json`'s `failures`, one line each;
+/// empty for a run that went as far as it should).
+pub fn failures(summary: &Summary) -> Vec<String> {
+    summary.get("failures").and_then(Value::as_array).map_or_else(Vec::new, |lines| lines.iter().map(|l| l.as_str().map_or_else(|| l.to_string(), str::to_owned)).collect())
+}
+
+/// Record `failure` in `summary` (`failures` and `failure_at_s`).
+pub fn record_failure(summary: &mut Summary, failure: &WorldFailure) {
+    let mut lines = failures(summary);
+    lines.push(failure.message.clone());
+    summary.insert("failures".to_owned(), json!(lines));
+    summary.insert("failure_at_s".to_owned(), json!(failure.at_s));
+}
+
 /// A finished run.
 pub struct RunOutcome {
     pub series: TimeSeries,
@@ -482,6 +519,12 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     let _span = info_span!("scenario", path = %scenario.path.display()).entered();
     let started = Instant::now();
     let mut sim = Lockstep::new(robot, scenario.world_config()?)?;
+    check_world(scenario, sim.world(), &sim.bus().servos().iter().map(Servo::id).collect::<Vec<_>>())?;
+    // The world advances one physics step (the servos' firmware tick) at a time, so that an
+    // interrupt and the world watch act within a step, not a control period.
+    let tick = sim.bus().servos().first().map_or(Duration::from_millis(1), Servo::control_period);
+    let mut watch = WorldWatch::new();
+    let mut failure = None;
     sim.bus_mut().set_faults(BusFaults::new(scenario.faults(), scenario.world.seed));
     let mut controller_errors = 0u64;
     let mut last_sample = ControlSample::default();
@@ -521,7 +564,15 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
         };
         last_sample = sample;
         observer.capture(t_s, sim.bus(), Some(&sample))?;
-        sim.run(period);
+        let period_end = sim.now() + period;
+        while sim.now() < period_end && !interrupted && failure.is_none() {
+            sim.run(tick.min(period_end - sim.now()));
+            interrupted = stop.load(Ordering::Relaxed);
+            failure = watch.check(sim.world(), sim.now().as_secs_f64()).cloned();
+        }
+        if interrupted || failure.is_some() {
+            break;
+        }
     }
     let wall_s = started.elapsed().as_secs_f64();
     let sim_s = sim.now().as_secs_f64();
@@ -529,6 +580,9 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
     if interrupted {
         summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
+    }
+    if let Some(failure) = &failure {
+        record_failure(&mut summary, failure);
     }
     summary.extend(fault_summary(sim.bus()));
     if !sim.bus().faults().is_empty() {

@@ -525,6 +525,16 @@ impl RobotWorld {
         self.physics.bodies[parts.section].rotation() * local
     }
 
+    /// Gap between a wheel's tread and the nearest terrain (m; 0 when touching), `None` when no
+    /// terrain is within the magnet's range of it.
+    pub fn tread_gap_m(&self, wheel: WheelPosition) -> Option<f32> {
+        let centre = self.physics.bodies[self.wheels[wheel.index()].wheel].translation();
+        let filter = QueryFilter::default().groups(robot_groups());
+        let outer = self.robot.wheel.outer_radius_m;
+        let (_, projection) = self.physics.project_point(centre, outer + self.robot.magnet.range_m, true, filter)?;
+        Some(((projection.point - centre).length() - outer).max(0.0))
+    }
+
     /// The geometric contact angle of a wheel: the direction from its centre to the closest
     /// terrain point, as an angle in the wheel's plane from straight down (positive toward the
     /// front), in its section's frame. What a perfectly aligned passive magnet would read.
