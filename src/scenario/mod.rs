@@ -410,7 +410,7 @@ impl Scenario {
         let mut failures = Vec::new();
         for (key, threshold) in &self.expect {
             let Some(value) = summary.get(key).and_then(serde_json::Value::as_f64) else {
-                failures.push(format!("{key}: no value in the summary (expected {})", threshold.describe()));
+                failures.push(format!("{key}: {} (expected {})", missing_metric(key, summary), threshold.describe()));
                 continue;
             };
             if threshold.min.is_some_and(|min| value < min) || threshold.max.is_some_and(|max| value > max) {
@@ -458,6 +458,19 @@ impl Scenario {
     }
 }
 
+/// Why `key` has no number in `summary`: a step metric of a response that never settled or
+/// never rose says so; anything else was not measured in this run.
+fn missing_metric(key: &str, summary: &BTreeMap<String, serde_json::Value>) -> String {
+    let Some((signal, metric)) = key.split_once('.') else { return "not measured in this run".to_owned() };
+    let settled = summary.get(&format!("{signal}.settled")).and_then(serde_json::Value::as_bool);
+    match (metric, settled) {
+        ("settling_time_s", Some(false)) => format!("never settled ({signal} stayed outside its settling band to the end)"),
+        ("rise_time_s", _) if summary.contains_key(key) => format!("never rose ({signal} did not reach the upper rise level of its step)"),
+        _ if summary.contains_key(key) => "no value: the run did not produce one (null in summary.json)".to_owned(),
+        _ => "not measured in this run".to_owned(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -465,6 +478,15 @@ mod tests {
     fn external(command: &[&str], params: &str) -> ExternalController {
         let params: toml::Table = params.parse().expect("toml");
         ExternalController { command: command.iter().map(|s| (*s).to_owned()).collect(), ends_by_itself: false, params: params.into_iter().collect() }
+    }
+
+    #[test]
+    fn a_missing_metric_says_why() {
+        let summary: BTreeMap<String, serde_json::Value> =
+            [("distance.settled", serde_json::json!(false)), ("distance.settling_time_s", serde_json::Value::Null), ("speed.rise_time_s", serde_json::Value::Null)].into_iter().map(|(k, v)| (k.to_owned(), v)).collect();
+        assert!(missing_metric("distance.settling_time_s", &summary).starts_with("never settled"));
+        assert!(missing_metric("speed.rise_time_s", &summary).starts_with("never rose"));
+        assert_eq!(missing_metric("faults.replies_dropped", &summary), "not measured in this run");
     }
 
     #[test]

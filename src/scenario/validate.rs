@@ -168,7 +168,11 @@ impl Checker {
         if range.contains(value) {
             return Ok(());
         }
-        let unit = if range.unit.starts_with('(') || range.unit.is_empty() { String::new() } else { format!(" {}", range.unit) };
+        // The value carries the unit's symbol only (`-1 s`, not the range's explanation).
+        let unit = match range.unit.split(' ').next() {
+            Some(symbol) if !symbol.is_empty() && !symbol.starts_with('(') => format!(" {symbol}"),
+            _ => String::new(),
+        };
         Err(self.problem(key, format!("{value}{unit} is outside {range}")))
     }
 
@@ -192,7 +196,7 @@ pub fn check(scenario: &Scenario) -> Result<(), Problem> {
     check_camera(scenario)?;
     let speed = Checker::at(&["speed"]);
     speed.range("target_mm_min", scenario.speed.target_mm_min, SPEED_MM_MIN)?;
-    speed.range("step_at_s", scenario.speed.step_at_s, Range::closed(0.0, scenario.world.duration_s, "s"))?;
+    speed.range("step_at_s", scenario.speed.step_at_s, Range::closed(0.0, crate::fault::MAX_FAULT_TIME_S, "s"))?;
     if let ControllerSection::Builtin(config) = &scenario.controller {
         check_controller(config)?;
     }
@@ -328,7 +332,9 @@ fn check_controller(config: &ReferenceConfig) -> Result<(), Problem> {
 }
 
 fn check_events(scenario: &Scenario) -> Result<(), Problem> {
-    let run = Range::closed(0.0, scenario.world.duration_s, "s (within the run's duration_s)");
+    // An event after the end never happens; allowed, so that `--set world.duration_s=` can
+    // shorten any scenario for a quick look.
+    let run = Range::closed(0.0, crate::fault::MAX_FAULT_TIME_S, "s");
     for (i, event) in scenario.events.iter().enumerate() {
         let c = Checker { prefix: vec![key("events"), KeyPart::Index(i)] };
         c.range("at_s", event.at_s, run)?;
