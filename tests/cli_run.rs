@@ -174,27 +174,47 @@ fn serve_with_a_line_starts_the_sensor_server() {
 fn a_run_stopped_by_sigterm_writes_complete_outputs_of_the_part_it_ran() {
     let out = support::scratch_dir("run-interrupted");
     let out_arg = out.display().to_string();
+    // As a user stops it: `timeout` sends SIGTERM to climbsim and then to its process group, two
+    // signals a moment apart, which must not cut the writing of the outputs short.
+    let output = Command::new("timeout")
+        .args(["3", env!("CARGO_BIN_EXE_climbsim"), "run", "scenarios/flat-line.toml", "--out", &out_arg, "--set", "world.duration_s=80000", "--set", "expect={}"])
+        .current_dir(repo())
+        .output()
+        .expect("timeout(1) from coreutils runs climbsim");
+    assert_eq!(output.status.code(), Some(124), "timeout stopped it: {}", text(&output));
+    assert!(text(&output).contains("interrupted at t ="), "{}", text(&output));
+    assert_complete_interrupted_outputs(&out);
+
+    // Two SIGTERMs in quick succession, straight to the process: still complete outputs.
+    let out = support::scratch_dir("run-interrupted-twice");
     let child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["run", "scenarios/flat-line.toml", "--out", &out_arg, "--set", "world.duration_s=100000", "--set", "expect={}"])
+        .args(["run", "scenarios/flat-line.toml", "--out", &out.display().to_string(), "--set", "world.duration_s=80000", "--set", "expect={}"])
         .current_dir(repo())
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("start climbsim run");
-    // Long enough to be well into the run on any machine; the scenario would take hours.
-    std::thread::sleep(std::time::Duration::from_secs(3));
-    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let pid = nix::unistd::Pid::from_raw(child.id() as i32);
+    for _ in 0..2 {
+        nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
     let output = child.wait_with_output().expect("wait");
-    assert!(!output.status.success(), "an interrupted run exits non-zero: {}", text(&output));
-    assert!(text(&output).contains("interrupted at t ="), "{}", text(&output));
+    assert_eq!(output.status.code(), Some(130), "an interrupted run exits 130: {}", text(&output));
+    assert_complete_interrupted_outputs(&out);
+}
+
+/// Every output of a run interrupted part-way is there, whole, and says where it stopped.
+fn assert_complete_interrupted_outputs(out: &Path) {
     let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("summary.json")).expect("summary.json")).expect("summary is JSON");
     let stopped_at = summary["interrupted_at_s"].as_f64().unwrap_or_else(|| panic!("no interrupted_at_s: {summary}"));
-    assert!(stopped_at > 0.0 && stopped_at < 100000.0, "{stopped_at}");
+    assert!(stopped_at > 0.0 && stopped_at < 80000.0, "{stopped_at}");
     let series = climbsim::report::read_timeseries_csv(&out.join("timeseries.csv")).expect("timeseries.csv reads back");
     let t = series.column("t_s").expect("t_s");
     assert!(!t.is_empty() && t.last().is_some_and(|&last| last <= stopped_at + 1e-9), "{} rows up to {:?}", t.len(), t.last());
     for file in ["settings.json", "report.xlsx", "distance.png", "speed.png"] {
         assert!(std::fs::metadata(out.join(file)).is_ok_and(|m| m.len() > 0), "{file}");
     }
-    assert!(std::fs::read_dir(&out).expect("out").all(|e| !e.expect("entry").file_name().to_string_lossy().ends_with(".tmp")));
+    assert!(std::fs::read_dir(out).expect("out").all(|e| !e.expect("entry").file_name().to_string_lossy().ends_with(".tmp")));
 }
