@@ -79,6 +79,44 @@ fn sweep_shards_merge_into_one_table() {
     for plot in ["overlay_distance.png", "distance_overshoot_pct_vs_zeta.svg"] {
         assert!(merged.join(plot).is_file(), "{plot} missing");
     }
+
+    // One shard alone is an incomplete grid: the merge names the missing point and fails,
+    // unless told to accept it; the table marks the point either way.
+    let partial = dir.join("partial");
+    let output = climbsim(&["sweep", "--merge", &one.display().to_string(), "--out", &partial.display().to_string()]);
+    assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+    assert!(text(&output).contains("001-controller.zeta=1.0,world.duration_s=3"), "{}", text(&output));
+    let table = std::fs::read_to_string(partial.join("sweep.csv")).expect("sweep.csv");
+    assert!(table.lines().nth(2).is_some_and(|row| row.starts_with("1,1.0,") && row.contains("not_run")), "{table}");
+    let output = climbsim(&["sweep", "--merge", &one.display().to_string(), "--allow-incomplete", "--out", &partial.display().to_string()]);
+    assert!(output.status.success(), "{}", text(&output));
+}
+
+/// A job array's task index picks the shard (`--shard auto/N`), and `--list --json` shows the
+/// points a task would run, without running them.
+#[test]
+fn job_array_shards_list_their_points() {
+    let list = |env: (&str, &str)| {
+        let output = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+            .args(["sweep", "scenarios/flat-line.toml", "--set", "controller.zeta=0.3,0.5,0.7", "--set", "controller.kp=1,2", "--shard", "auto/4", "--list", "--json"])
+            .env(env.0, env.1)
+            .current_dir(repo())
+            .output()
+            .expect("climbsim");
+        assert!(output.status.success(), "{}", text(&output));
+        serde_json::from_slice::<serde_json::Value>(&output.stdout).expect("JSON")
+    };
+    let slurm = list(("SLURM_ARRAY_TASK_ID", "1"));
+    assert_eq!(slurm["grid_size"], 6);
+    assert_eq!(slurm["shard"]["index"], 2, "task 1 (0-based) is shard 2");
+    let indices: Vec<u64> = slurm["points"].as_array().expect("points").iter().map(|p| p["index"].as_u64().expect("index")).collect();
+    assert_eq!(indices, [1, 5]);
+    assert_eq!(slurm["points"][0]["overrides"]["controller.zeta"], "0.3");
+    let kubernetes = list(("JOB_COMPLETION_INDEX", "1"));
+    assert_eq!(kubernetes["points"], slurm["points"]);
+    let output = climbsim(&["sweep", "scenarios/flat-line.toml", "--set", "controller.zeta=0.3", "--shard", "auto/4", "--list"]);
+    assert_eq!(output.status.code(), Some(2), "no task index in the environment: {}", text(&output));
+    assert!(text(&output).contains("SLURM_ARRAY_TASK_ID"), "{}", text(&output));
 }
 
 #[test]

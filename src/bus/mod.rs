@@ -64,8 +64,8 @@ pub enum BusError {
     DuplicateId(u8),
     #[error("servo ID {0} is outside 0..=252")]
     InvalidId(u8),
-    #[error("baud rate {bps} bps is not one the firmware profile {profile} offers")]
-    UnsupportedBaud { bps: u32, profile: String },
+    #[error("baud rate {bps} bps is not one the firmware profile {profile} offers (it offers {offered} bps)")]
+    UnsupportedBaud { bps: u32, profile: String, offered: String },
 }
 
 /// Eight (or any number of) servos on one bus.
@@ -453,6 +453,10 @@ fn replies_at_level(request: &Request<'_>, level: u8) -> bool {
 pub fn servos_from_profile(profile: &std::sync::Arc<FirmwareProfile>, ids: &[u8], baud_bps: u32, supply_voltage_v: f64) -> Result<Vec<Servo>, BusError> {
     let code = profile
         .baud_code(baud_bps)
-        .ok_or_else(|| BusError::UnsupportedBaud { bps: baud_bps, profile: profile.path.display().to_string() })?;
+        .ok_or_else(|| BusError::UnsupportedBaud {
+            bps: baud_bps,
+            profile: profile.path.display().to_string(),
+            offered: profile.baud_rates.iter().map(|b| b.bps.to_string()).collect::<Vec<_>>().join(", "),
+        })?;
     Ok(ids.iter().map(|&id| Servo::new(std::sync::Arc::clone(profile), id, code, supply_voltage_v)).collect())
 }

@@ -202,7 +202,29 @@ fn completed() -> String {
 struct SweepFile {
     scenario: String,
     axes: Vec<String>,
+    /// The whole grid (every shard's points), so that a merge can tell which are missing.
+    /// Tables written before it was recorded have none: their merge trusts the rows.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    grid: Vec<Axis>,
     rows: Vec<SweepRow>,
+}
+
+/// `climbsim sweep --list [--json]`: the grid points of this shard, without running them.
+pub fn list_sweep(axes: &[Axis], shard: Shard, json: bool) -> Result<()> {
+    let points = shard.select(grid(axes));
+    if json {
+        let points: Vec<Value> = points
+            .iter()
+            .map(|p| serde_json::json!({"index": p.index, "label": p.label(), "overrides": p.overrides.iter().map(|o| (o.key.clone(), Value::String(o.value.to_string()))).collect::<serde_json::Map<_, _>>()}))
+            .collect();
+        let total = grid(axes).len();
+        println!("{}", serde_json::to_string_pretty(&serde_json::json!({"grid_size": total, "shard": {"index": shard.index, "count": shard.count}, "points": points}))?);
+    } else {
+        for point in &points {
+            println!("{}", point.label());
+        }
+    }
+    Ok(())
 }
 
 /// `climbsim sweep SCENARIO --set KEY=V1,V2 ...`. Every grid point gets a row in `sweep.csv` and
@@ -256,7 +278,7 @@ pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, rob
     let wall_s = started.elapsed().as_secs_f64();
     let mut rows = rows.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
     rows.sort_by_key(|r| r.index);
-    let file = SweepFile { scenario: scenario_path.display().to_string(), axes: axes.iter().map(|a| a.key.clone()).collect(), rows };
+    let file = SweepFile { scenario: scenario_path.display().to_string(), axes: axes.iter().map(|a| a.key.clone()).collect(), grid: axes.to_vec(), rows };
     write_sweep(&file, out_dir)?;
     let count = |status: &str| file.rows.iter().filter(|r| r.status == status).count();
     println!("{} of {} runs completed in {wall_s:.1} s with {} jobs; table: {}", count("completed"), file.rows.len(), jobs.max(1), out_dir.join("sweep.csv").display());
@@ -270,8 +292,10 @@ pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, rob
     Ok(())
 }
 
-/// `climbsim sweep --merge DIR...`: join shards' tables and plots.
-pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<()> {
+/// `climbsim sweep --merge DIR...`: join shards' tables and plots. Grid points no shard ran,
+/// or that did not finish, fail the merge (after writing the table, with them marked) unless
+/// `allow_incomplete`.
+pub fn merge(dirs: &[PathBuf], out_dir: &Path, allow_incomplete: bool) -> Result<()> {
     let mut merged: Option<SweepFile> = None;
     for dir in dirs {
         let path = dir.join("sweep.json");
@@ -298,8 +322,27 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<()> {
     let mut merged = merged.context("nothing to merge")?;
     merged.rows.sort_by_key(|r| r.index);
     merged.rows.dedup_by_key(|r| r.index);
+    // The points of the whole grid that no shard brought: rows marked `not_run`.
+    let missing: Vec<GridPoint> = grid(&merged.grid).into_iter().filter(|p| merged.rows.binary_search_by_key(&p.index, |r| r.index).is_err()).collect();
+    for point in &missing {
+        let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
+        merged.rows.push(SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: Some("no merged shard has this point".to_owned()) });
+    }
+    merged.rows.sort_by_key(|r| r.index);
     write_sweep(&merged, out_dir)?;
-    println!("merged {} runs into {}", merged.rows.len(), out_dir.join("sweep.csv").display());
+    println!("merged {} runs into {}", merged.rows.len() - missing.len(), out_dir.join("sweep.csv").display());
+    let unfinished: Vec<&str> = merged.rows.iter().filter(|r| r.status == "not_run" || r.status == "interrupted").map(|r| r.label.as_str()).collect();
+    if !unfinished.is_empty() && !allow_incomplete {
+        let shown: Vec<&str> = unfinished.iter().take(20).copied().collect();
+        let more = if unfinished.len() > shown.len() { format!("\n  ... and {} more", unfinished.len() - shown.len()) } else { String::new() };
+        return Err(Verdict::Failed(format!(
+            "the merged sweep is incomplete: {} of {} grid points missing or unfinished (sweep.csv marks them; --allow-incomplete accepts this):\n  {}{more}",
+            unfinished.len(),
+            merged.rows.len(),
+            shown.join("\n  ")
+        ))
+        .into());
+    }
     Ok(())
 }
 

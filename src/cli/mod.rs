@@ -8,11 +8,11 @@ mod realtime;
 mod replay;
 
 use std::io::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use tracing::{info, warn};
 
@@ -69,6 +69,19 @@ impl PaceArgs {
     fn is_default(&self) -> bool {
         self.speed == 1.0
     }
+}
+
+/// The robot description `--robot` defaults to: the checkout's, from where climbsim is run (a
+/// path compiled into the binary would point into the build machine); `CLIMBSIM_ROBOT` sets
+/// another for every command.
+const ROBOT_IN_CHECKOUT: &str = "hil/robot.toml";
+
+/// Load the robot description at `path`, saying what to do when the default is not here.
+fn load_robot(path: &Path) -> Result<RobotDescription> {
+    if path == Path::new(ROBOT_IN_CHECKOUT) && !path.exists() {
+        bail!("robot description {ROBOT_IN_CHECKOUT} not found from {}: run climbsim from its checkout, or pass --robot FILE or set CLIMBSIM_ROBOT", std::env::current_dir().map(|d| d.display().to_string()).unwrap_or_else(|_| "here".to_owned()));
+    }
+    Ok(RobotDescription::load(path)?)
 }
 
 /// The highest `--speed`: beyond it a firmware tick is shorter on the wall clock than a sleep.
@@ -137,7 +150,7 @@ pub enum Command {
         #[arg(long)]
         trace_bus: Option<PathBuf>,
         /// Robot description (servo IDs, firmware profile, power-on baud).
-        #[arg(long, default_value_os_t = RobotDescription::default_path())]
+        #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
         robot: PathBuf,
         /// Power-on baud of every servo, overriding the robot description.
         #[arg(long)]
@@ -178,7 +191,7 @@ pub enum Command {
         /// Also create this symlink to the pty (external controllers only).
         #[arg(long)]
         link: Option<PathBuf>,
-        #[arg(long, default_value_os_t = RobotDescription::default_path())]
+        #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
         robot: PathBuf,
         /// Inject a fault, as `serve --fault` (added to the scenario's events; repeatable).
         #[arg(long = "fault", value_name = "SPEC", value_parser = parse_fault)]
@@ -201,7 +214,7 @@ pub enum Command {
         /// Root of the runs' output folders.
         #[arg(long, default_value = "results/check")]
         out: PathBuf,
-        #[arg(long, default_value_os_t = RobotDescription::default_path())]
+        #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
         robot: PathBuf,
         /// `--speed` applies to scenarios with an external controller; built-in ones always run
         /// in lockstep, as fast as the CPU allows.
@@ -253,15 +266,27 @@ pub enum Command {
         /// Runs at once (default: the number of CPUs).
         #[arg(long)]
         jobs: Option<usize>,
-        /// Run only slice K of N of the grid (for CI matrices and job arrays).
+        /// Run only slice K of N of the grid (1-based), for CI matrices and job arrays; `auto/N`
+        /// takes K from SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX (0-based).
         #[arg(long, value_name = "K/N")]
         shard: Option<String>,
+        /// Print the grid points (of this shard) instead of running them.
+        #[arg(long, conflicts_with = "merge")]
+        list: bool,
+        /// With --list: one JSON document (index, label, overrides, shard) for scripts.
+        #[arg(long, requires = "list")]
+        json: bool,
         /// Merge these sweeps' output folders (their sweep.json) instead of running.
         #[arg(long, num_args = 1.., conflicts_with_all = ["scenario", "set", "shard"])]
         merge: Vec<PathBuf>,
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long, default_value_os_t = RobotDescription::default_path())]
+        /// With --merge: write the table even when grid points are missing or did not finish,
+        /// and exit 0 (they are marked `not_run` / `interrupted` in it).
+        #[arg(long, requires = "merge")]
+        allow_incomplete: bool,
+        /// Output folder (not needed with --list).
+        #[arg(long, required_unless_present = "list")]
+        out: Option<PathBuf>,
+        #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
         robot: PathBuf,
         /// For an external controller: each point on its own port, at this speed.
         #[command(flatten)]
@@ -279,7 +304,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Run { scenario, out, set, timing, link, robot, faults, record, pace } => {
             interrupt::install()?;
             refuse_recorded_cli_faults(&faults, record.as_deref())?;
-            let robot = RobotDescription::load(&robot)?;
+            let robot = load_robot(&robot)?;
             let overrides = batch::parse_overrides(&set)?;
             let mut loaded = Scenario::load_with(&scenario, &overrides)?;
             add_fault_events(&mut loaded, faults);
@@ -315,7 +340,7 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Command::Check { paths, junit, out, robot, pace } => {
             interrupt::install()?;
-            let robot = RobotDescription::load(&robot)?;
+            let robot = load_robot(&robot)?;
             batch::preflight_dir(&out, "--out")?;
             if let Some(path) = &junit {
                 batch::preflight_file(path, "--junit")?;
@@ -324,16 +349,20 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Command::Replay { transcript, out, scenario, robot, force } => replay::replay_command(&transcript, out, &climbsim::scenario::replay::ReplaySources { scenario, robot, force }),
         Command::Diff { a, b, tolerance, rel } => replay::diff_command(&a, &b, &tolerance, rel),
-        Command::Sweep { scenario, set, jobs, shard, merge, out, robot, pace } => {
+        Command::Sweep { scenario, set, jobs, shard, list, json, merge, allow_incomplete, out, robot, pace } => {
+            let axes = climbsim::scenario::sweep::Axis::parse_all(&set)?;
+            let shard = shard.as_deref().map(climbsim::scenario::sweep::Shard::parse).transpose()?.unwrap_or(climbsim::scenario::sweep::Shard::ALL);
+            if list {
+                return batch::list_sweep(&axes, shard, json);
+            }
+            let out = out.context("--out is needed")?;
             interrupt::install()?;
             batch::preflight_dir(&out, "--out")?;
             if !merge.is_empty() {
-                return batch::merge(&merge, &out);
+                return batch::merge(&merge, &out, allow_incomplete);
             }
-            let robot = RobotDescription::load(&robot)?;
+            let robot = load_robot(&robot)?;
             let scenario = scenario.context("a scenario file is needed")?;
-            let axes = set.iter().map(|s| climbsim::scenario::sweep::Axis::parse(s)).collect::<Result<Vec<_>, _>>()?;
-            let shard = shard.as_deref().map(climbsim::scenario::sweep::Shard::parse).transpose()?.unwrap_or(climbsim::scenario::sweep::Shard::ALL);
             let jobs = jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from));
             batch::sweep(&scenario, &axes, jobs, shard, &robot, &out, pace.pace())
         }
@@ -426,7 +455,10 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
     }
     // Said before anything starts: a controller must be started with these to keep the pace.
     let faketime = if pace.is_default() { None } else { Some(controller::faketime_env(pace.speed).with_context(|| format!("--speed {}", pace.speed))?) };
-    let robot = RobotDescription::load(robot_path)?;
+    let robot = load_robot(robot_path)?;
+    if let Some(bps) = baud {
+        robot.servos(Some(bps)).with_context(|| format!("--baud {bps}"))?;
+    }
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
     // A world with a weld line also gets the camera, the line detector and the sensor server.

@@ -101,6 +101,11 @@ pub fn diff_command(a: &Path, b: &Path, tolerances: &[String], rel: Option<f64>)
     }
     let (run_a, run_b) = (diff::load_run(a)?, diff::load_run(b)?);
     let report = diff::compare(&run_a, &run_b, &given);
+    // A tolerance for a key neither run has is a typo that would otherwise loosen nothing.
+    if let Some(unknown) = given.abs.keys().find(|key| !report.rows.iter().any(|row| &row.key == *key)) {
+        let known: Vec<&str> = report.rows.iter().map(|row| row.key.as_str()).collect();
+        anyhow::bail!("--tolerance {unknown}=...: neither {} nor {} has a column or metric `{unknown}` (they have: {})", a.display(), b.display(), known.join(", "));
+    }
     if report.rows.is_empty() {
         anyhow::bail!("{} and {} have nothing in common to compare (a time series or a summary each)", a.display(), b.display());
     }

@@ -15,12 +15,16 @@ pub enum SweepError {
     NoValues(String),
     #[error(transparent)]
     Override(#[from] OverrideError),
-    #[error("--shard {0}: expected K/N with 1 ≤ K ≤ N")]
+    #[error("--shard {0}: expected K/N with 1 ≤ K ≤ N, or auto/N (K from SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX)")]
     Shard(String),
+    #[error("--shard {text}: {message}")]
+    ShardIndex { text: String, message: String },
+    #[error("--set {0} is given twice: one --set per key, its values separated by commas")]
+    DuplicateKey(String),
 }
 
 /// One swept key and its values.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Axis {
     pub key: String,
     pub values: Vec<String>,
@@ -35,6 +39,19 @@ impl Axis {
             return Err(SweepError::NoValues(text.to_owned()));
         }
         Ok(Self { key: key.trim().to_owned(), values })
+    }
+
+    /// Every `--set` of a sweep; a key given twice is an error (the grid would be ambiguous).
+    pub fn parse_all(texts: &[String]) -> Result<Vec<Self>, SweepError> {
+        let mut axes: Vec<Self> = Vec::with_capacity(texts.len());
+        for text in texts {
+            let axis = Self::parse(text)?;
+            if axes.iter().any(|a| a.key == axis.key) {
+                return Err(SweepError::DuplicateKey(axis.key));
+            }
+            axes.push(axis);
+        }
+        Ok(axes)
     }
 }
 
@@ -83,9 +100,33 @@ impl Shard {
     pub const ALL: Self = Self { index: 1, count: 1 };
 
     pub fn parse(text: &str) -> Result<Self, SweepError> {
+        Self::parse_with_env(text, |name| std::env::var(name).ok())
+    }
+
+    /// [`Self::parse`] with the environment given: `auto/N` takes K from a job array's 0-based
+    /// task index, Slurm's `SLURM_ARRAY_TASK_ID` (less `SLURM_ARRAY_TASK_MIN`, so `--array=1-8`
+    /// works too) or a Kubernetes Indexed Job's `JOB_COMPLETION_INDEX`. N is always explicit:
+    /// a shard count read from the scheduler would silently change with the array's size.
+    pub fn parse_with_env(text: &str, env: impl Fn(&str) -> Option<String>) -> Result<Self, SweepError> {
         let bad = || SweepError::Shard(text.to_owned());
         let (k, n) = text.split_once('/').ok_or_else(bad)?;
-        let (index, count) = (k.trim().parse::<usize>().map_err(|_| bad())?, n.trim().parse::<usize>().map_err(|_| bad())?);
+        let count = n.trim().parse::<usize>().map_err(|_| bad())?;
+        let index = if k.trim() == "auto" {
+            let fail = |message: String| SweepError::ShardIndex { text: text.to_owned(), message };
+            let number = |name: &str| env(name).map(|v| v.trim().parse::<usize>().map_err(|_| fail(format!("{name}={v} is not a task index"))));
+            let zero_based = match (number("SLURM_ARRAY_TASK_ID"), number("JOB_COMPLETION_INDEX")) {
+                (Some(slurm), None) => slurm?.checked_sub(number("SLURM_ARRAY_TASK_MIN").transpose()?.unwrap_or(0)).ok_or_else(|| fail("SLURM_ARRAY_TASK_ID is below SLURM_ARRAY_TASK_MIN".to_owned()))?,
+                (None, Some(kubernetes)) => kubernetes?,
+                (Some(_), Some(_)) => return Err(fail("both SLURM_ARRAY_TASK_ID and JOB_COMPLETION_INDEX are set: give K/N explicitly".to_owned())),
+                (None, None) => return Err(fail("auto needs SLURM_ARRAY_TASK_ID (a Slurm job array) or JOB_COMPLETION_INDEX (a Kubernetes Indexed Job)".to_owned())),
+            };
+            if zero_based >= count {
+                return Err(fail(format!("task index {zero_based} (0-based) is not below the shard count {count}")));
+            }
+            zero_based + 1
+        } else {
+            k.trim().parse::<usize>().map_err(|_| bad())?
+        };
         if index == 0 || count == 0 || index > count {
             return Err(bad());
         }
@@ -136,6 +177,23 @@ mod tests {
         assert_eq!(seen, (0..6).collect::<Vec<_>>());
         assert_eq!(Shard::parse("2/4"), Ok(Shard { index: 2, count: 4 }));
         assert!(Shard::parse("0/4").is_err() && Shard::parse("5/4").is_err() && Shard::parse("x").is_err());
+    }
+
+    #[test]
+    fn auto_shards_come_from_the_job_array_index() {
+        let env = |vars: &'static [(&'static str, &'static str)]| move |name: &str| vars.iter().find(|(k, _)| *k == name).map(|(_, v)| (*v).to_owned());
+        assert_eq!(Shard::parse_with_env("auto/4", env(&[("SLURM_ARRAY_TASK_ID", "0")])), Ok(Shard { index: 1, count: 4 }));
+        assert_eq!(Shard::parse_with_env("auto/4", env(&[("SLURM_ARRAY_TASK_ID", "4"), ("SLURM_ARRAY_TASK_MIN", "1")])), Ok(Shard { index: 4, count: 4 }));
+        assert_eq!(Shard::parse_with_env("auto/4", env(&[("JOB_COMPLETION_INDEX", "3")])), Ok(Shard { index: 4, count: 4 }));
+        for vars in [&[("JOB_COMPLETION_INDEX", "4")][..], &[][..], &[("SLURM_ARRAY_TASK_ID", "1"), ("JOB_COMPLETION_INDEX", "1")][..], &[("SLURM_ARRAY_TASK_ID", "x")][..]] {
+            assert!(matches!(Shard::parse_with_env("auto/4", env(vars)), Err(SweepError::ShardIndex { .. })), "{vars:?}");
+        }
+    }
+
+    #[test]
+    fn a_key_swept_twice_is_an_error() {
+        let texts = ["world.duration_s=1,2".to_owned(), "world.duration_s=3".to_owned()];
+        assert_eq!(Axis::parse_all(&texts), Err(SweepError::DuplicateKey("world.duration_s".to_owned())));
     }
 
     #[test]
