@@ -1,4 +1,4 @@
-//! The sensor server for external controllers (issue #4): a small HTTP/1.1 server on localhost
+//! The sensor server for external controllers: a small HTTP/1.1 server on localhost
 //! that serves what the robot's camera and line detector see.
 //!
 //! - `GET /camera.png`: the latest camera frame (8-bit grayscale PNG);
@@ -8,7 +8,10 @@
 //! - `GET /state`: the ground-truth pose, for debugging only (a real robot has no such thing).
 //!
 //! The simulation publishes into a [`SensorFeed`]; the server only reads it, so a slow or stuck
-//! HTTP client never holds up the physics. Its URL reaches the controller in `CLIMBSIM_SENSORS`.
+//! HTTP client never holds up the physics. Frames are published raw and encoded (PNG, JPEG) only
+//! when a client asks, on the server's thread: at `--speed 10` the camera's 30 Hz is 300 frames a
+//! wall second, and encoding each one cost the world thread a tenth of its time whether anyone
+//! looked or not. Its URL reaches the controller in `CLIMBSIM_SENSORS`.
 
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -35,10 +38,49 @@ pub enum SensorServerError {
     Encode { width: u32, height: u32, reason: String },
 }
 
+/// One grayscale frame and its encodings, each made at the first request for it.
+#[derive(Debug)]
+struct Frame {
+    width: u32,
+    height: u32,
+    gray: Vec<u8>,
+    png: std::sync::OnceLock<Result<Vec<u8>, String>>,
+    jpeg: std::sync::OnceLock<Result<Vec<u8>, String>>,
+}
+
+impl Frame {
+    fn png(&self) -> Result<&[u8], SensorServerError> {
+        let encoded = self.png.get_or_init(|| {
+            let mut bytes = Vec::new();
+            let mut encoder = png::Encoder::new(&mut bytes, self.width, self.height);
+            encoder.set_color(png::ColorType::Grayscale);
+            encoder.set_depth(png::BitDepth::Eight);
+            let mut writer = encoder.write_header().map_err(|e| e.to_string())?;
+            writer.write_image_data(&self.gray).map_err(|e| e.to_string())?;
+            drop(writer);
+            Ok(bytes)
+        });
+        encoded.as_deref().map_err(|reason| self.encode_error(reason))
+    }
+
+    fn jpeg(&self) -> Result<&[u8], SensorServerError> {
+        let encoded = self.jpeg.get_or_init(|| {
+            let mut bytes = Vec::new();
+            let (w, h) = (u16::try_from(self.width).map_err(|e| e.to_string())?, u16::try_from(self.height).map_err(|e| e.to_string())?);
+            jpeg_encoder::Encoder::new(&mut bytes, JPEG_QUALITY).encode(&self.gray, w, h, jpeg_encoder::ColorType::Luma).map_err(|e| e.to_string())?;
+            Ok(bytes)
+        });
+        encoded.as_deref().map_err(|reason| self.encode_error(reason))
+    }
+
+    fn encode_error(&self, reason: &str) -> SensorServerError {
+        SensorServerError::Encode { width: self.width, height: self.height, reason: reason.to_owned() }
+    }
+}
+
 #[derive(Debug, Default, Clone)]
 struct Snapshot {
-    png: Option<Arc<Vec<u8>>>,
-    jpeg: Option<Arc<Vec<u8>>>,
+    frame: Option<Arc<Frame>>,
     line: Option<serde_json::Value>,
     state: Option<serde_json::Value>,
 }
@@ -83,24 +125,14 @@ impl SensorFeed {
         change(&mut self.snapshot.lock().unwrap_or_else(PoisonError::into_inner));
     }
 
-    /// A new grayscale frame (`width × height` bytes, row 0 at the top).
+    /// A new grayscale frame (`width × height` bytes, row 0 at the top). It is encoded only
+    /// when a client asks for it.
     pub fn publish_frame(&self, width: u32, height: u32, gray: &[u8]) -> Result<(), SensorServerError> {
-        let encode_error = |reason: String| SensorServerError::Encode { width, height, reason };
-        let mut png_bytes = Vec::new();
-        {
-            let mut encoder = png::Encoder::new(&mut png_bytes, width, height);
-            encoder.set_color(png::ColorType::Grayscale);
-            encoder.set_depth(png::BitDepth::Eight);
-            let mut writer = encoder.write_header().map_err(|e| encode_error(e.to_string()))?;
-            writer.write_image_data(gray).map_err(|e| encode_error(e.to_string()))?;
+        if u64::from(width) * u64::from(height) != gray.len() as u64 {
+            return Err(SensorServerError::Encode { width, height, reason: format!("{} bytes of pixels", gray.len()) });
         }
-        let mut jpeg_bytes = Vec::new();
-        let (w, h) = (u16::try_from(width).map_err(|e| encode_error(e.to_string()))?, u16::try_from(height).map_err(|e| encode_error(e.to_string()))?);
-        jpeg_encoder::Encoder::new(&mut jpeg_bytes, JPEG_QUALITY).encode(gray, w, h, jpeg_encoder::ColorType::Luma).map_err(|e| encode_error(e.to_string()))?;
-        self.update(|s| {
-            s.png = Some(Arc::new(png_bytes));
-            s.jpeg = Some(Arc::new(jpeg_bytes));
-        });
+        let frame = Arc::new(Frame { width, height, gray: gray.to_vec(), png: std::sync::OnceLock::new(), jpeg: std::sync::OnceLock::new() });
+        self.update(|s| s.frame = Some(frame));
         self.frames.send_modify(|n| *n += 1);
         Ok(())
     }
@@ -182,8 +214,9 @@ async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Resu
         None => (503, "text/plain", not_yet(what)),
     };
     let (status, content_type, body): (u16, &str, Vec<u8>) = match path {
-        "/camera.png" => match snapshot.png {
-            Some(png) => (200, "image/png", png.to_vec()),
+        "/camera.png" => match snapshot.frame.as_deref().map(Frame::png) {
+            Some(Ok(png)) => (200, "image/png", png.to_vec()),
+            Some(Err(error)) => (500, "text/plain", format!("{error}\n").into_bytes()),
             None => (503, "text/plain", not_yet("camera frame")),
         },
         "/line" => json(snapshot.line, "line measurement"),
@@ -196,6 +229,7 @@ async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Resu
     }
     let reason = match status {
         200 => "200 OK",
+        500 => "500 Internal Server Error",
         503 => "503 Service Unavailable",
         _ => "404 Not Found",
     };
@@ -215,11 +249,16 @@ async fn stream_mjpeg(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Resu
     stream.write_all(head.as_bytes()).await?;
     let mut frames = feed.frames.subscribe();
     loop {
-        if let Some(jpeg) = feed.snapshot().jpeg {
-            let part = format!("--{MJPEG_BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {}\r\n\r\n", jpeg.len());
-            stream.write_all(part.as_bytes()).await?;
-            stream.write_all(&jpeg).await?;
-            stream.write_all(b"\r\n").await?;
+        if let Some(frame) = feed.snapshot().frame {
+            match frame.jpeg() {
+                Ok(jpeg) => {
+                    let part = format!("--{MJPEG_BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {}\r\n\r\n", jpeg.len());
+                    stream.write_all(part.as_bytes()).await?;
+                    stream.write_all(jpeg).await?;
+                    stream.write_all(b"\r\n").await?;
+                }
+                Err(error) => warn!(%error, "camera frame not streamed"),
+            }
         }
         if frames.changed().await.is_err() {
             warn!("sensor feed closed; ending MJPEG stream");
