@@ -62,7 +62,10 @@ def parse_args():
     p.add_argument("--omega-n", type=float, default=0.3)
     p.add_argument("--max-yaw-rate", type=float, default=0.2)
     p.add_argument("--integral-pole", type=float, default=0.0, help="integral action's pole p (rad/s); 0 = none")
-    p.add_argument("--kp", type=float, default=4.0)
+    # As the built-in controller: feedforward of the target plus a PID with kp = 1. Without the
+    # feedforward a P-only loop drives at kp/(1 + kp) of the target (80 % at kp = 4).
+    p.add_argument("--kp", type=float, default=1.0)
+    p.add_argument("--no-feedforward", action="store_true", help="PID output alone as the speed command (the seed's Fig. 14)")
     p.add_argument("--ki", type=float, default=0.0)
     p.add_argument("--kd", type=float, default=0.0)
     p.add_argument("--no-compensation", action="store_true")
@@ -129,6 +132,7 @@ def main():
     last_time = None
     next_tick = time.monotonic()
     ticks = 0
+    blind = 0
     while running:
         now = time.monotonic()
         result = reader.txRxPacket()
@@ -157,10 +161,11 @@ def main():
                 integral = max(-limit, min(limit, integral + error * dt))
             derivative = (error - last_error) / dt if last_error is not None and dt > 0 else 0.0
             last_error = error
-            command = args.kp * error + args.ki * integral + args.kd * derivative
+            command = (0.0 if args.no_feedforward else target) + args.kp * error + args.ki * integral + args.kd * derivative
 
             yaw_rate = 0.0
             line = read_line(sensors) if sensors else None
+            blind += line is None
             if line is not None and target > 0:
                 d_err, psi_err = -line["d"], -line["psi"]
                 w, pole = args.omega_n, args.integral_pole
@@ -197,7 +202,7 @@ def main():
     for dxl in WHEELS:
         packet.write1ByteTxRx(port, dxl, ADDR_TORQUE_ENABLE, 0)
     port.closePort()
-    print(f"line_follower: {ticks} control periods", flush=True)
+    print(f"line_follower: {ticks} control periods, {blind} without a line measurement", flush=True)
 
 
 if __name__ == "__main__":

@@ -165,6 +165,12 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     summary.insert("pace.tick_late_p99_ms".to_owned(), json!(report.physics_lateness_us.map(|q| q.p99_us / 1e3)));
     summary.insert("pace.reply_late_p99_ms".to_owned(), json!(report.delivery_lateness_us.map(|q| q.p99_us / 1e3)));
     summary.insert("pace.kept".to_owned(), json!(pace_problems.is_empty()));
+    // What the controller did on the bus, for thresholds such as "the loop keeps its period".
+    summary.insert("bus.utilisation_pct".to_owned(), json!(report.bus_utilisation_pct));
+    if let Some(loop_report) = &report.controller_loop {
+        summary.insert("controller.period_p50_ms".to_owned(), json!(loop_report.period_ms.p50));
+        summary.insert("controller.period_p99_ms".to_owned(), json!(loop_report.period_ms.p99));
+    }
     summary.extend(handle.with_bus(|bus| climbsim::scenario::run::fault_summary(bus)));
     let interrupted = super::interrupt::requested();
     if interrupted {
