@@ -113,3 +113,28 @@ fn a_robot_that_falls_off_the_terrain_fails_the_run() {
     assert!(at < 20.0, "the run stopped at the fall, t = {at} s, not at its end");
     assert!(out.join("timeseries.csv").exists() && out.join("report.xlsx").exists());
 }
+
+/// The heaviest solver the scenario allows still stops soon after Ctrl-C: the run checks for a
+/// stop request between physics steps, and the iteration counts are bounded so a step stays short.
+#[test]
+fn the_heaviest_solver_still_stops_on_sigint() {
+    let dir = support::scratch_dir("heavy-solver");
+    let out = dir.join("out");
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["run", "scenarios/flat-line.toml", "--set", "world.solver.iterations=100", "--set", "world.solver.internal_iterations=100", "--set", "expect={}", "--out", &out.display().to_string()])
+        .current_dir(repo())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start climbsim run");
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGINT).expect("SIGINT");
+    let asked = std::time::Instant::now();
+    let output = child.wait_with_output().expect("wait");
+    let took = asked.elapsed();
+    assert_eq!(output.status.code(), Some(130), "{}", String::from_utf8_lossy(&output.stderr));
+    // Generous for a debug build on a loaded machine; before the bound a single step could take
+    // minutes (1000 × 1000 iterations).
+    assert!(took < std::time::Duration::from_secs(10), "stopped {took:?} after SIGINT");
+    assert!(out.join("summary.json").exists());
+}
