@@ -256,3 +256,34 @@ fn assert_complete_interrupted_outputs(out: &Path) {
     }
     assert!(std::fs::read_dir(out).expect("out").all(|e| !e.expect("entry").file_name().to_string_lossy().ends_with(".tmp")));
 }
+
+/// Start `climbsim ARGS`, send SIGINT after `after`, and return its output.
+fn interrupted(args: &[&str], after: std::time::Duration) -> std::process::Output {
+    let child = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(repo()).stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped()).spawn().expect("start climbsim");
+    std::thread::sleep(after);
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGINT).expect("SIGINT");
+    child.wait_with_output().expect("wait")
+}
+
+/// An interrupted `check` still writes its JUnit file, with the interrupted scenario in it; an
+/// interrupted `sweep` still writes its table, marking the points it did not finish.
+#[test]
+fn interrupted_check_and_sweep_write_what_they_have() {
+    let dir = support::scratch_dir("interrupted-batch");
+    let junit = dir.join("junit.xml");
+    let long = dir.join("long-flat-line.toml");
+    let scenario = std::fs::read_to_string(repo().join("scenarios/flat-line.toml")).expect("scenario");
+    std::fs::write(&long, scenario.replace("duration_s = 120.0", "duration_s = 80000.0")).expect("write");
+    let output = interrupted(&["check", &long.display().to_string(), "--junit", &junit.display().to_string(), "--out", &dir.join("check").display().to_string()], std::time::Duration::from_secs(2));
+    assert_eq!(output.status.code(), Some(130), "{}", text(&output));
+    let xml = std::fs::read_to_string(&junit).expect("junit.xml written on interrupt");
+    assert!(xml.contains("flat-line") && xml.contains("interrupted"), "{xml}");
+
+    let sweep = dir.join("sweep");
+    let output = interrupted(&["sweep", "scenarios/flat-line.toml", "--set", "world.duration_s=80000", "--set", "controller.zeta=0.5,1.0,1.5", "--jobs", "1", "--out", &sweep.display().to_string()], std::time::Duration::from_secs(2));
+    assert_eq!(output.status.code(), Some(130), "{}", text(&output));
+    let table = std::fs::read_to_string(sweep.join("sweep.csv")).expect("sweep.csv written on interrupt");
+    assert_eq!(table.lines().count(), 4, "every point has a row: {table}");
+    assert!(table.lines().nth(1).is_some_and(|row| row.contains("interrupted")), "{table}");
+    assert!(table.lines().skip(2).all(|row| row.contains("not_run")), "{table}");
+}
