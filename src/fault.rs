@@ -1,4 +1,4 @@
-//! Fault injection (issue #5, item 3): what can go wrong on the bus, in a servo and in the world,
+//! Fault injection: what can go wrong on the bus, in a servo and in the world,
 //! as plain data. A scenario schedules faults as `[[events]]` with a `fault` table; `climbsim
 //! serve --fault KIND:key=value,...` builds the same table from a compact spec and deserializes it
 //! with the same code, so both accept exactly the same keys.

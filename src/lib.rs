@@ -2,7 +2,7 @@
 //!
 //! Layers import only downwards: [`protocol`] (sans-IO codec) → [`device`] (control table and
 //! servo model per firmware profile) → [`bus`] (routing, multi-reply ordering, wire timing) →
-//! [`transport`] (pty, TCP, in-memory). See `README.md` for the architecture.
+//! [`transport`] (pty, TCP, in-memory). See `docs/architecture.md` for the architecture.
 
 pub mod protocol;
 pub mod source_location;

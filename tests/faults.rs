@@ -1,4 +1,4 @@
-//! Fault injection (issue #5, item 3): every fault kind produces the register, status-packet and
+//! Fault injection: every fault kind produces the register, status-packet and
 //! physical effect it names. Servo and bus faults are tested on the bench (each servo on its own
 //! rotor, or on a stalled shaft), world faults in the rapier world; all through real instruction
 //! packets, the codec and the bus.

@@ -1,5 +1,5 @@
 #!/bin/sh
-# Reproduce the seed report's experiments with climbsim (README "Line following"):
+# Reproduce the seed report's experiments with climbsim (docs/scenarios-and-runs.md):
 #   Fig. 13   distance step as the line follower's damping ratio zeta varies (flat line);
 #   Figs 14-15  speed steady-state error and rise time as Kp varies, normal compensation on/off
 #               (Perlin bumps, 250 mm/min).

@@ -1,4 +1,4 @@
-//! Scheduled faults on the bus (issue #5, item 3): the schedule, the bus-level faults themselves
+//! Scheduled faults on the bus: the schedule, the bus-level faults themselves
 //! (bit errors, dropped, late and missing replies), and the hand-off of servo and plant faults to
 //! [`Servo`] and [`Plant`] at the firmware tick they start or end.
 //!

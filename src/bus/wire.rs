@@ -6,7 +6,7 @@
 //! put two drivers on the line. Chosen model: the receivers see the bitwise AND of the two
 //! bytes in flight (a 0 bit, the dominant low level of a TTL line, wins). On RS-485 the level
 //! under contention is undefined; the AND is one deterministic choice, and like real contention
-//! it breaks the CRC of both packets (unverified against a scope; listed in the README).
+//! it breaks the CRC of both packets (unverified against a scope; listed in docs/serve-and-bus.md).
 
 use std::time::Duration;
 

@@ -1,4 +1,4 @@
-//! The built-in reference controllers (issue #4, seed report §4–5): a linear line follower, a PID
+//! The built-in reference controllers (seed report §4–5): a linear line follower, a PID
 //! wheel-speed controller with optional normal compensation, and the bus client they share.
 //!
 //! They are ordinary Dynamixel clients: every read and write is a real Protocol 2.0 packet

@@ -2,7 +2,7 @@
 //!
 //! Each firmware tick the servo hands out a [`ShaftDrive`]: the motor's torque-speed line at the
 //! horn for the PWM it chose, plus gearbox friction and reflected rotor inertia. Whatever owns the
-//! shaft integrates it and reports a [`ShaftState`] back. In issue #2 that is a [`BenchLoad`]; the
+//! shaft integrates it and reports a [`ShaftState`] back. On the bench that is a [`BenchLoad`]; the
 //! rapier world swaps in a revolute joint behind the same types without touching protocol or bus.
 
 /// Shaft position and speed at the horn, in the motor's own positive direction.

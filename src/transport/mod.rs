@@ -307,7 +307,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                     }
                 }
                 // A bad CRC gets no reply (no error 0x03): ROBOTIS's own slave code drops such
-                // packets; unverified on XM firmware (reference §7), listed in the README.
+                // packets; unverified on XM firmware (reference §7), listed in docs/serve-and-bus.md.
                 Err(error) => {
                     self.handle.with_stats(LineStats::frame_error);
                     log_frame_error(&error);

@@ -121,7 +121,7 @@ impl VirtualPort {
     fn poll_read_master(&self, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
         // Fast path for the dedicated pty thread: wait briefly in poll(2) and read directly. A
         // controller's next request usually follows within a millisecond, and this skips the
-        // reactor's epoll round trip and wake-up (measured: see README, pty latency). Only
+        // reactor's epoll round trip and wake-up (measured: see docs/performance.md, pty latency). Only
         // after a quiet millisecond does the task park on the reactor like any other.
         let mut fds = [PollFd::new(self.master.get_ref().as_fd(), PollFlags::POLLIN)];
         if matches!(poll(&mut fds, PollTimeout::from(QUICK_WAIT_MS)), Ok(n) if n > 0) {

@@ -1,4 +1,4 @@
-"""Hardware timing validation (issue #5) with the unchanged official SDK: half-duplex collisions,
+"""Hardware timing validation with the unchanged official SDK: half-duplex collisions,
 baud mismatch, and the timing report ``climbsim serve --report FILE`` writes on exit.
 
 At 57600 bps a 4-byte Read instruction takes 2.4 ms on the wire, the servo waits its Return

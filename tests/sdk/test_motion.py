@@ -92,7 +92,7 @@ def test_velocity_mode_reaches_goal_velocity(dxl):
     dxl.torque(4, True)
     dxl.write_ok(4, A_GOAL_VEL, 4, 50)
     # The velocity PI with the factory gains (KvP 100/128, KvI 1920/65536 per 1 ms tick) settles
-    # with a ~0.26 s time constant on the bench; see README "Servo model".
+    # with a ~0.26 s time constant on the bench; see docs/serve-and-bus.md, "Servo model".
     time.sleep(1.5)
     samples = _velocity_samples(dxl, 4)
     assert all(abs(v - 50) <= 5 for v in samples), f"Present Velocity {samples}, expected 50 +- 5"

@@ -1,4 +1,4 @@
-"""Soak (issue #5): the official SDK at its maximum loop rate against ``climbsim serve --baud
+"""Soak: the official SDK at its maximum loop rate against ``climbsim serve --baud
 1000000`` (wire timing): every loop a GroupSyncWrite of a fresh value per servo to Goal Velocity
 (a RAM register, writable with torque off) and a GroupSyncRead of it back from all eight. Any
 lost reply, CRC failure or wrong value is a failed transaction; there must be none.
