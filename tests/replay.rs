@@ -189,7 +189,7 @@ fn diff_passes_identical_runs_and_fails_a_real_difference() {
     let moved = dir.join("timeseries.csv");
     std::fs::write(&moved, lines.join("\n") + "\n").expect("written");
     let diff = climbsim(&["diff", &s(&live_out.join("timeseries.csv")), &s(&moved)]);
-    assert!(!diff.status.success(), "{}", text(&diff));
+    assert_eq!(diff.status.code(), Some(1), "a difference is exit 1: {}", text(&diff));
     let table = text(&diff);
     assert!(table.lines().any(|l| l.starts_with("x_m") && l.contains("FAIL")), "{table}");
     // The same difference passes with a tolerance that covers it.

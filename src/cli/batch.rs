@@ -40,6 +40,10 @@ pub fn print_summary(outcome: &RunOutcome, out_dir: &Path) {
 
 /// `climbsim run SCENARIO` with a built-in controller.
 pub fn run_builtin(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path) -> Result<RunOutcome> {
+    // The lockstep bus has no wire, but a baud the servos cannot take is still a wrong scenario.
+    if let Some(bps) = scenario.bus.baud_bps {
+        robot.servos(Some(bps)).with_context(|| format!("{}: [bus] baud_bps = {bps}", scenario.path.display()))?;
+    }
     let outcome = run_lockstep_until(scenario, robot, super::interrupt::flag())?;
     write_outputs(&outcome, out_dir).with_context(|| format!("writing outputs to {}", out_dir.display()))?;
     if let Some(at) = outcome.summary.get("interrupted_at_s") {

@@ -113,7 +113,8 @@ pub fn diff_command(a: &Path, b: &Path, tolerances: &[String], rel: Option<f64>)
     print!("{}", report.table());
     let failures = report.failures();
     if failures > 0 {
-        anyhow::bail!("{failures} of {} keys differ by more than their tolerance", report.rows.len());
+        // A difference is the comparison's verdict (exit 1), not bad input (exit 2).
+        return Err(super::Verdict::Failed(format!("{failures} of {} keys differ by more than their tolerance", report.rows.len())).into());
     }
     println!("no differences beyond tolerance");
     Ok(())
