@@ -91,7 +91,8 @@ fn settings_record_everything_that_shaped_the_run() {
 
 /// An "external controller" that only reads the sensor server: it prints every `/line` answer,
 /// so the test can set them beside the CSV of the same run.
-const LINE_PROBE: &str = r#"
+// `r##`: the probe holds `"#` (an f-string starting with `#`), which would end an `r#` string.
+const LINE_PROBE: &str = r##"
 import json, os, sys, time, urllib.request
 url = os.environ["CLIMBSIM_SENSORS"] + "/line"
 while True:
@@ -101,7 +102,7 @@ while True:
     except Exception as error:
         print(f"# {error}", file=sys.stderr, flush=True)
     time.sleep(0.1)
-"#;
+"##;
 
 #[test]
 fn the_line_endpoint_and_the_csv_agree_on_the_sign_of_d() {
