@@ -39,11 +39,16 @@ pub fn write_workbook(
     settings: &Value,
     summary: &Summary,
 ) -> Result<PathBuf, ReportError> {
+    write_workbook_with_limit(out_dir, series, settings, summary, MAX_SHEET_ROWS)
+}
+
+/// [`write_workbook`] with at most `max_rows` samples in the Raw data sheet.
+fn write_workbook_with_limit(out_dir: &Path, series: &Path, settings: &Value, summary: &Summary, max_rows: u64) -> Result<PathBuf, ReportError> {
     let path = out_dir.join(REPORT_XLSX);
     let rows = count_rows(series)?;
     write_atomically_at(&path, |temporary| {
         let workbook_error = |source| ReportError::Workbook { path: path.clone(), source };
-        let mut workbook = build_workbook(out_dir, series, rows, settings, summary).map_err(|error| match error {
+        let mut workbook = build_workbook(out_dir, series, (rows, max_rows), settings, summary).map_err(|error| match error {
             Built::Xlsx(source) => workbook_error(source),
             Built::Report(error) => error,
         })?;
@@ -114,7 +119,7 @@ impl From<ReportError> for Built {
 fn build_workbook(
     out_dir: &Path,
     series: &Path,
-    rows: u64,
+    (rows, max_rows): (u64, u64),
     settings: &Value,
     summary: &Summary,
 ) -> Result<Workbook, Built> {
@@ -124,7 +129,7 @@ fn build_workbook(
     workbook.set_tempdir(out_dir)?;
     let header = Format::new().set_bold();
 
-    let every = rows.div_ceil(MAX_SHEET_ROWS).max(1);
+    let every = rows.div_ceil(max_rows.max(1)).max(1);
     let csv = CsvRows::open(series)?;
     let raw = workbook.add_worksheet_with_constant_memory().set_name(SHEET_RAW_DATA)?;
     for (column, name) in (0..).zip(csv.columns()) {
@@ -143,7 +148,7 @@ fn build_workbook(
         flat_settings.push(("raw_data.every_nth_row".to_owned(), Value::from(every)));
         flat_settings.push((
             "raw_data.note".to_owned(),
-            Value::from(format!("the series has {rows} rows, more than the {MAX_SHEET_ROWS} a sheet holds: Raw data shows every {every}th; timeseries.csv has them all")),
+            Value::from(format!("the series has {rows} rows, more than the {max_rows} a sheet holds: Raw data shows every {every}th; timeseries.csv has them all")),
         ));
     }
     let sheet = workbook.add_worksheet().set_name(SHEET_SETTINGS)?;
@@ -333,5 +338,26 @@ mod tests {
             Some(&Data::String("speed.settling_time_s".to_owned()))
         );
         assert!(matches!(steps.get_value((3, 1)), None | Some(Data::Empty)));
+    }
+
+    #[test]
+    fn a_series_longer_than_a_sheet_is_thinned_and_the_settings_say_so() {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let mut series = TimeSeries::new(["t_s", "d_m"]);
+        for i in 0..10 {
+            series.push_row(&[f64::from(i), f64::from(i) / 10.0]).expect("width 2");
+        }
+        let csv = crate::report::write_timeseries_csv(dir.path(), &series).expect("csv");
+        let path = write_workbook_with_limit(dir.path(), &csv, &json!({}), &Summary::new(), 4).expect("written");
+        let mut workbook: Xlsx<_> = open_workbook(&path).expect("a valid xlsx");
+        let raw = workbook.worksheet_range("Raw data").expect("sheet");
+        // 10 rows, 4 per sheet: every 3rd (0, 3, 6, 9), after the header.
+        assert_eq!(raw.height(), 5);
+        assert_eq!(raw.get_value((2, 0)), Some(&Data::Float(3.0)));
+        let settings = workbook.worksheet_range("Settings").expect("sheet");
+        let rows: Vec<String> = settings.rows().map(|r| format!("{}={}", r[0], r.get(1).map(ToString::to_string).unwrap_or_default())).collect();
+        assert!(rows.contains(&"raw_data.rows=10".to_owned()) && rows.contains(&"raw_data.every_nth_row=3".to_owned()), "{rows:?}");
+        assert!(rows.iter().any(|r| r.starts_with("raw_data.note=")), "{rows:?}");
+        assert!(std::fs::read_dir(dir.path()).expect("dir").all(|e| !e.expect("entry").file_name().to_string_lossy().contains("tmp")), "no temporary file left");
     }
 }

@@ -222,7 +222,7 @@ fn substitute(arg: &str, params: &BTreeMap<String, String>) -> Result<String, St
 }
 
 /// A scripted change at `at_s`. Each key present takes effect.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Deserialize, serde::Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Event {
     pub at_s: f64,

@@ -431,7 +431,7 @@ pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
         },
         "robot": robot.path.display().to_string(),
         "faults": scenario.faults(),
-        "events": scenario.events.len(),
+        "events": serde_json::to_value(&scenario.events).unwrap_or(Value::Null),
         "camera": serde_json::to_value(&camera).unwrap_or(Value::Null),
         "start": {
             "x_m": f32_json(start.x_m), "z_m": f32_json(start.z_m), "yaw_deg": f32_json(start.yaw_deg), "line_offset_m": f32_json(start.line_offset_m),
