@@ -228,7 +228,9 @@ fn line_points(line: &PlotSeries<'_>) -> Vec<(f64, f64)> {
     let buckets = MAX_LINE_POINTS / 2;
     let mut points = Vec::with_capacity(MAX_LINE_POINTS);
     for bucket in 0..buckets {
-        let (mut low, mut high): (Option<(usize, f64)>, Option<(usize, f64)>) = (None, None);
+        // The index and value of the bucket's lowest and highest finite point.
+        let mut low: Option<(usize, f64)> = None;
+        let mut high = low;
         for i in bucket * n / buckets..(bucket + 1) * n / buckets {
             let (x, y) = (line.x[i], line.y[i]);
             if !(x.is_finite() && y.is_finite()) {

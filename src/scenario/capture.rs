@@ -179,9 +179,9 @@ impl Capture {
         self.rows = Rows::Discard;
     }
 
-    /// A row is due at `t_s`.
+    /// A row is due at `t_s` (never while rows are discarded: building one costs a servo scan).
     pub fn row_due(&self, t_s: f64) -> bool {
-        t_s + 1e-9 >= self.next_s
+        !matches!(self.rows, Rows::Discard) && t_s + 1e-9 >= self.next_s
     }
 
     /// A metric-track sample is due at `t_s`.
