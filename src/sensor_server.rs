@@ -4,7 +4,10 @@
 //! - `GET /camera.png`: the latest camera frame (8-bit grayscale PNG);
 //! - `GET /camera.mjpg`: every new frame as a `multipart/x-mixed-replace` JPEG stream, which
 //!   OpenCV's `VideoCapture("http://…/camera.mjpg")` and browsers open;
-//! - `GET /line`: the line detector's latest output, JSON `{"t": s, "d": m, "psi": rad, "valid": bool}`;
+//! - `GET /line`: the line detector's latest output, JSON `{"t": s, "d": m, "psi": rad, "valid": bool}`,
+//!   in the run's one convention (as `timeseries.csv`'s `d_m`, `psi_rad` and the ground truth):
+//!   the robot relative to the line, `d` > 0 when the robot is left of it, `psi` > 0 when it
+//!   points left of it;
 //! - `GET /state`: the ground-truth pose, for debugging only (a real robot has no such thing).
 //!
 //! The simulation publishes into a [`SensorFeed`]; the server only reads it, so a slow or stuck
@@ -137,7 +140,7 @@ impl SensorFeed {
         Ok(())
     }
 
-    /// The detector's latest output.
+    /// The detector's latest output, the robot relative to the line (see the module documentation).
     pub fn publish_line(&self, t_s: f64, d_m: f64, psi_rad: f64, valid: bool) {
         let value = serde_json::json!({ "t": t_s, "d": d_m, "psi": psi_rad, "valid": valid });
         self.update(|s| s.line = Some(value));

@@ -203,8 +203,9 @@ fn serve_with_a_line_starts_the_sensor_server() {
     let _ = child.kill();
     let _ = child.wait();
     assert_eq!(line["valid"], true, "{line}");
-    // The robot starts 50 mm left of the line: the line is to its right, d < 0 (detector convention).
-    assert!(line["d"].as_f64().is_some_and(|d| (d + 0.05).abs() < 0.003), "{line}");
+    // The robot starts 50 mm left of the line: d > 0 (the robot relative to the line, as
+    // timeseries.csv's d_m).
+    assert!(line["d"].as_f64().is_some_and(|d| (d - 0.05).abs() < 0.003), "{line}");
     assert!(png.starts_with(b"HTTP/1.1 200") && png.windows(4).any(|w| w == b"\x89PNG"), "camera.png");
 }
 

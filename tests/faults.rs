@@ -467,7 +467,8 @@ fn scenario_fault_events_are_checked_and_show_in_the_time_series_and_summary() {
     );
     let scenario = Scenario::load(&path).expect("scenario with faults");
     let outcome = climbsim::scenario::run::run_lockstep(&scenario, &robot()).expect("run");
-    let column = |name: &str| outcome.series.column(name).expect(name);
+    let series = outcome.series.as_ref().expect("run_lockstep keeps the captured rows");
+    let column = |name: &str| series.column(name).expect(name);
     let (t, hw2, torque2, volts) = (column("t_s"), column("hw_error_2"), column("torque_on_2"), column("input_voltage_1_v"));
     let at = |values: &[f64], time: f64| values[t.iter().position(|&s| s >= time).expect("time in series")];
     assert_eq!((at(&hw2, 0.9), at(&torque2, 0.9)), (0.0, 1.0));

@@ -21,6 +21,11 @@ fn run(scenario: &str, sets: &[&str]) -> climbsim::scenario::run::RunOutcome {
     run_lockstep(&scenario, &robot()).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The rows `run_lockstep` keeps in memory (it has no output folder to stream them to).
+fn series(outcome: &climbsim::scenario::run::RunOutcome) -> &climbsim::report::TimeSeries {
+    outcome.series.as_ref().expect("run_lockstep keeps the captured rows")
+}
+
 fn metric(outcome: &climbsim::scenario::run::RunOutcome, key: &str) -> Option<f64> {
     outcome.summary.get(key).and_then(serde_json::Value::as_f64)
 }
@@ -33,9 +38,9 @@ fn the_flat_line_scenario_converges_onto_the_line() {
     assert!(settling.is_some_and(f64::is_finite), "never settled: {:?}", outcome.summary);
     assert!(sse.abs() < 0.002, "steady-state error {sse} m");
     // The camera saw the line the whole way and agreed with the ground truth.
-    let seen = outcome.series.column("line_valid").expect("line_valid");
+    let seen = series(&outcome).column("line_valid").expect("line_valid");
     assert!(seen.iter().all(|&v| v == 1.0), "the camera lost the line");
-    let (camera, truth) = (outcome.series.column("d_m").expect("d_m"), outcome.series.column("d_true_m").expect("d_true_m"));
+    let (camera, truth) = (series(&outcome).column("d_m").expect("d_m"), series(&outcome).column("d_true_m").expect("d_true_m"));
     let mut differences: Vec<f64> = camera.iter().zip(&truth).map(|(c, t)| (c - t).abs()).collect();
     differences.sort_by(f64::total_cmp);
     let (median, worst) = (differences[differences.len() / 2], differences[differences.len() - 1]);
@@ -58,7 +63,7 @@ fn raising_zeta_lowers_the_overshoot() {
 #[test]
 fn a_speed_step_event_changes_the_target_and_the_robot_follows() {
     let outcome = run("scenarios/flat-line.toml", &["world.duration_s=30", "events=[{at_s = 15.0, set_speed_mm_min = 2000.0}]"]);
-    let (t, speed, target) = (outcome.series.column("t_s").expect("t"), outcome.series.column("speed_m_s").expect("speed"), outcome.series.column("target_speed_m_s").expect("target"));
+    let (t, speed, target) = (series(&outcome).column("t_s").expect("t"), series(&outcome).column("speed_m_s").expect("speed"), series(&outcome).column("target_speed_m_s").expect("target"));
     let mean_between = |from: f64, to: f64| {
         let values: Vec<f64> = t.iter().zip(&speed).filter(|(t, _)| **t >= from && **t < to).map(|(_, v)| *v).collect();
         values.iter().sum::<f64>() / values.len() as f64
@@ -78,7 +83,7 @@ fn a_scenario_without_a_line_is_refused_by_name() {
 #[test]
 fn captured_signals_select_the_columns_and_unknown_ones_are_named() {
     let outcome = run("scenarios/flat-line.toml", &["world.duration_s=1", "capture.signals=[\"d_m\", \"speed_m_s\"]"]);
-    assert_eq!(outcome.series.columns(), ["t_s", "d_m", "speed_m_s"]);
+    assert_eq!(series(&outcome).columns(), ["t_s", "d_m", "speed_m_s"]);
     // Metrics still come from the full series.
     assert!(metric(&outcome, "rms_distance_m").is_some());
     let overrides = [Override::parse("capture.signals=[\"d_mm\"]").expect("override")];
@@ -97,7 +102,7 @@ fn integral_action_removes_the_standing_error_on_a_curved_line() {
     let points = format!("line.points=[[-0.5, 0.0], [0.0, 0.0], {}]", arc.join(", "));
     let standing_error = |pole: &str| {
         let outcome = run("scenarios/flat-line.toml", &[&points, &format!("controller.integral_pole_rad_s={pole}"), "world.duration_s=150", "expect={}"]);
-        let (t, d) = (outcome.series.column("t_s").expect("t"), outcome.series.column("d_m").expect("d_m"));
+        let (t, d) = (series(&outcome).column("t_s").expect("t"), series(&outcome).column("d_m").expect("d_m"));
         let tail: Vec<f64> = t.iter().zip(&d).filter(|(t, _)| **t >= 100.0).map(|(_, d)| *d).collect();
         tail.iter().sum::<f64>() / tail.len() as f64
     };

@@ -4,7 +4,9 @@ DynamixelSDK, written as code for the real robot would be. It knows nothing of c
 two environment variables any HIL rig would set:
 
   DXL_PORT           serial port of the Dynamixel bus (the emulator's pty, or /dev/ttyUSB0)
-  CLIMBSIM_SENSORS   base URL of the camera/line-sensor HTTP server (GET /line -> JSON)
+  CLIMBSIM_SENSORS   base URL of the camera/line-sensor HTTP server (GET /line -> JSON
+                     {"t", "d", "psi", "valid"}: the robot relative to the line, d > 0 when
+                     the robot is left of it, psi > 0 when it points left of it)
 
 and, optionally, DXL_BAUD (default 57600) and CLIMBSIM_TARGET_SPEED_MM_MIN (default 250).
 The algorithm is the built-in reference controller's (src/control/reference.rs):
@@ -167,7 +169,9 @@ def main():
             line = read_line(sensors) if sensors else None
             blind += line is None
             if line is not None and target > 0:
-                d_err, psi_err = -line["d"], -line["psi"]
+                # /line gives the robot relative to the line (d > 0: the robot is left of it),
+                # the errors the control law takes.
+                d_err, psi_err = line["d"], line["psi"]
                 w, pole = args.omega_n, args.integral_pole
                 damping = 2 * args.zeta * w
                 k_d, k_psi, k_i = -(w ** 2 + damping * pole) / target, -(damping + pole), -(w ** 2) * pole / target

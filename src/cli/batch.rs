@@ -14,7 +14,7 @@ use serde_json::Value;
 use climbsim::report::junit::{JunitCase, write_junit};
 use climbsim::report::{self, PlotLabels, PlotSeries, TimeSeries};
 use climbsim::robot::RobotDescription;
-use climbsim::scenario::run::{RunOutcome, run_lockstep_until, write_outputs};
+use climbsim::scenario::run::{MetricTrack, RunOutcome, run_lockstep_until, write_outputs};
 use climbsim::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
@@ -44,7 +44,8 @@ pub fn run_builtin(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path
     if let Some(bps) = scenario.bus.baud_bps {
         robot.servos(Some(bps)).with_context(|| format!("{}: [bus] baud_bps = {bps}", scenario.path.display()))?;
     }
-    let outcome = run_lockstep_until(scenario, robot, super::interrupt::flag())?;
+    std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
+    let outcome = run_lockstep_until(scenario, robot, super::interrupt::flag(), Some(out_dir))?;
     write_outputs(&outcome, out_dir).with_context(|| format!("writing outputs to {}", out_dir.display()))?;
     if let Some(at) = outcome.summary.get("interrupted_at_s") {
         return Err(Verdict::Interrupted(format!("interrupted at t = {at} s; the outputs in {} cover the run up to then", out_dir.display())).into());
@@ -196,6 +197,10 @@ struct SweepRow {
     status: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     error: Option<String>,
+    /// The run's metric track, for the overlay plots (a merged table's rows have none: their
+    /// runs' time series are read instead).
+    #[serde(skip)]
+    track: Option<MetricTrack>,
 }
 
 fn completed() -> String {
@@ -250,7 +255,7 @@ pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, rob
             scope.spawn(|| {
                 while let Some((point, scenario)) = scenarios.get(next.fetch_add(1, Ordering::Relaxed)) {
                     let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
-                    let mut row = SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: None };
+                    let mut row = SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: None, track: None };
                     // Interrupted: the runs under way stop and write; no new ones start.
                     if !super::interrupt::requested() {
                         let run_dir = out_dir.join("runs").join(point.label());
@@ -260,6 +265,7 @@ pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, rob
                                 row.status = if failures.is_empty() { "completed" } else { "failed" }.to_owned();
                                 row.error = (!failures.is_empty()).then(|| failures.join("; "));
                                 row.summary = outcome.summary;
+                                row.track = Some(outcome.track);
                             }
                             Err(error) => {
                                 let interrupted = matches!(error.downcast_ref::<Verdict>(), Some(Verdict::Interrupted(_)));
@@ -330,7 +336,7 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path, allow_incomplete: bool) -> Result
     let missing: Vec<GridPoint> = grid(&merged.grid).into_iter().filter(|p| merged.rows.binary_search_by_key(&p.index, |r| r.index).is_err()).collect();
     for point in &missing {
         let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
-        merged.rows.push(SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: Some("no merged shard has this point".to_owned()) });
+        merged.rows.push(SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: Some("no merged shard has this point".to_owned()), track: None });
     }
     merged.rows.sort_by_key(|r| r.index);
     write_sweep(&merged, out_dir)?;
@@ -394,14 +400,33 @@ fn write_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
     plot_sweep(file, out_dir)
 }
 
+/// A run's signals for the overlay plots.
+enum Overlay<'a> {
+    Track(&'a MetricTrack),
+    Series(TimeSeries),
+}
+
+impl Overlay<'_> {
+    fn column(&self, name: &str) -> Option<Vec<f64>> {
+        match self {
+            Self::Track(track) => track.column(name),
+            Self::Series(series) => series.column(name),
+        }
+    }
+}
+
 fn plot_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
-    // Overlay: every run's distance error and speed over time.
-    let mut loaded: Vec<(String, TimeSeries)> = Vec::new();
+    // Overlay: every run's distance error and speed over time, from its metric track (the
+    // rows of a merged table have none: their time series, copied beside them, are read).
+    let mut loaded: Vec<(String, Overlay)> = Vec::new();
     for row in &file.rows {
-        let path = out_dir.join("runs").join(&row.label).join(report::TIMESERIES_CSV);
-        if let Ok(series) = report::read_timeseries_csv(&path) {
+        let overlay = match &row.track {
+            Some(track) => Some(Overlay::Track(track)),
+            None => report::read_timeseries_csv(&out_dir.join("runs").join(&row.label).join(report::TIMESERIES_CSV)).ok().map(Overlay::Series),
+        };
+        if let Some(overlay) = overlay {
             let label = row.parameters.iter().map(|(k, v)| format!("{}={v}", k.rsplit('.').next().unwrap_or(k))).collect::<Vec<_>>().join(" ");
-            loaded.push((label, series));
+            loaded.push((label, overlay));
         }
     }
     for (column, stem, title, y) in [("d_true_m", "overlay_distance", "Distance error", "d (m)"), ("speed_m_s", "overlay_speed", "Speed", "speed (m/s)")] {

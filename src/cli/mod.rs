@@ -469,7 +469,12 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             let (bus, observer) = realtime::scenario_bus(&loaded, &robot, timing, baud)?;
             let spec = record.map(|path| replay::RecordSpec { path, overrides: Vec::new() });
             let recorder = spec.map(|spec| replay::start_recording(&spec, "serve", &loaded, &robot, &bus, baud)).transpose()?;
-            (bus, observer.map(|o| Arc::new(std::sync::Mutex::new(o))), recorder)
+            // `serve` writes no time series: a session may last for days.
+            let observer = observer.map(|mut o| {
+                o.discard_rows();
+                Arc::new(std::sync::Mutex::new(o))
+            });
+            (bus, observer, recorder)
         }
         None => {
             let mut bus = robot.bench_bus(timing, baud)?;

@@ -14,7 +14,7 @@ use tracing::{info, warn};
 use climbsim::bus::Timing;
 use climbsim::robot::RobotDescription;
 use climbsim::bus::Bus;
-use climbsim::scenario::run::{Observer, RunError, RunOutcome, settings_json, write_outputs};
+use climbsim::scenario::run::{Observer, RunError, RunOutcome, robot_relative, settings_json, write_outputs};
 use climbsim::scenario::{ExternalController, Scenario};
 use climbsim::sensor_server::{SensorFeed, SensorServer};
 use climbsim::sim::RobotWorld;
@@ -69,7 +69,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
     let baud = scenario.bus.baud_bps;
     let (bus, observer) = scenario_bus(scenario, robot, options.timing, baud)?;
-    let observer = Arc::new(Mutex::new(observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?));
+    let mut observer = observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?;
+    observer.stream_to(out_dir)?;
+    let observer = Arc::new(Mutex::new(observer));
     let recorder = options.record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;
     let clock = Clock::scaled(options.pace.speed);
     let handle = BusHandle::with_clock(bus, None, recorder, clock);
@@ -185,7 +187,8 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         summary.entry("failure_at_s".to_owned()).or_insert(json!(exit.at_s));
         summary.insert("failures".to_owned(), json!(failures));
     }
-    let outcome = RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s };
+    let (series, track) = observer.finish()?;
+    let outcome = RunOutcome { series, track, summary, settings: settings_json(scenario, robot), sim_s, wall_s };
     write_outputs(&outcome, out_dir)?;
     if interrupted {
         return Err(super::Verdict::Interrupted(format!("interrupted at t = {sim_s:.1} s; the outputs in {} cover the run up to then", out_dir.display())).into());
@@ -237,8 +240,11 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
             errors.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(error.to_string());
         }
         if observation.new_frame {
+            // In the run's one convention (as timeseries.csv's d_m): the robot relative to the
+            // line, + = robot left of it.
             if let Some(latest) = observer.latest().copied() {
-                feed.publish_line(t_s, f64::from(latest.d_m), f64::from(latest.psi_rad), latest.valid);
+                let line = robot_relative(&latest);
+                feed.publish_line(t_s, line.d_err_m, line.psi_err_rad, latest.valid);
             }
             if let Some(frame) = observer.camera().latest()
                 && let Err(error) = feed.publish_frame(frame.width, frame.height, &frame.pixels)

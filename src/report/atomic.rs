@@ -31,8 +31,29 @@ pub fn write_atomically(
             source,
         });
     }
-    if let Err(source) = fs::rename(&temporary, path) {
+    commit(&temporary, path)
+}
+
+/// Writes `path` atomically through a writer that wants a path rather than a stream (e.g. the
+/// workbook's, which saves a file itself): `write` fills `NAME.tmp`, which is then fsynced and
+/// renamed over `path` as in [`write_atomically`]; on failure it is removed.
+pub(crate) fn write_atomically_at(path: &Path, write: impl FnOnce(&Path) -> Result<(), ReportError>) -> Result<(), ReportError> {
+    let temporary = temporary_path(path);
+    let written = write(&temporary).and_then(|()| File::open(&temporary).and_then(|file| file.sync_all()).map_err(io_error(&temporary)));
+    if let Err(error) = written {
+        // Best effort: the error that matters is the write's, not the clean-up's.
         let _ = fs::remove_file(&temporary);
+        return Err(error);
+    }
+    commit(&temporary, path)
+}
+
+/// The second half of an atomic write: rename the finished (and fsynced) `temporary` over
+/// `path`, then fsync the directory so the rename survives a crash. A failed rename removes the
+/// temporary.
+pub(crate) fn commit(temporary: &Path, path: &Path) -> Result<(), ReportError> {
+    if let Err(source) = fs::rename(temporary, path) {
+        let _ = fs::remove_file(temporary);
         return Err(ReportError::Io {
             path: path.to_path_buf(),
             source,
@@ -51,7 +72,7 @@ pub(crate) fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<(), Re
 
 /// `NAME.tmp` beside `NAME`: the same directory, hence the same file system, so the rename is
 /// atomic.
-fn temporary_path(path: &Path) -> PathBuf {
+pub(crate) fn temporary_path(path: &Path) -> PathBuf {
     let mut name = path.file_name().map(OsString::from).unwrap_or_default();
     name.push(".tmp");
     path.with_file_name(name)

@@ -28,7 +28,7 @@ pub use summary::{
     SETTINGS_JSON, SUMMARY_JSON, Summary, summarise, write_settings_json, write_summary_json,
 };
 pub use timing::write_timing_report;
-pub use timeseries::{TIMESERIES_CSV, TimeSeries, read_timeseries_csv, write_timeseries_csv};
+pub use timeseries::{CsvRows, TIMESERIES_CSV, TimeSeries, TimeSeriesWriter, read_timeseries_csv, write_timeseries_csv};
 pub use workbook::{
     REPORT_XLSX, SHEET_RAW_DATA, SHEET_SETTINGS, SHEET_STEP_CHARACTERISTICS, write_workbook,
 };

@@ -183,7 +183,7 @@ fn draw<DB: DrawingBackend>(
         .draw()?;
     for (index, line) in series.iter().enumerate() {
         let colour = PALETTE[index % PALETTE.len()];
-        let points: Vec<(f64, f64)> = finite_points(line).collect();
+        let points = line_points(line);
         chart
             .draw_series(LineSeries::new(
                 points.iter().copied(),
@@ -211,6 +211,46 @@ fn draw<DB: DrawingBackend>(
             .draw()?;
     }
     root.present()
+}
+
+/// Most points a line is drawn with: the lowest and the highest of each of as many buckets as
+/// the plot has pixel columns. The picture is the same as with every point, and a run of hours
+/// costs no more memory (or SVG) than a short one.
+const MAX_LINE_POINTS: usize = 2 * PLOT_SIZE_PX.0 as usize;
+
+/// The finite points of `line`, thinned to [`MAX_LINE_POINTS`] (each bucket's extremes, in
+/// order) when it has more.
+fn line_points(line: &PlotSeries<'_>) -> Vec<(f64, f64)> {
+    let n = line.x.len().min(line.y.len());
+    if n <= MAX_LINE_POINTS {
+        return finite_points(line).collect();
+    }
+    let buckets = MAX_LINE_POINTS / 2;
+    let mut points = Vec::with_capacity(MAX_LINE_POINTS);
+    for bucket in 0..buckets {
+        // The index and value of the bucket's lowest and highest finite point.
+        let mut low: Option<(usize, f64)> = None;
+        let mut high = low;
+        for i in bucket * n / buckets..(bucket + 1) * n / buckets {
+            let (x, y) = (line.x[i], line.y[i]);
+            if !(x.is_finite() && y.is_finite()) {
+                continue;
+            }
+            if low.is_none_or(|(_, v)| y < v) {
+                low = Some((i, y));
+            }
+            if high.is_none_or(|(_, v)| y > v) {
+                high = Some((i, y));
+            }
+        }
+        if let (Some((a, _)), Some((b, _))) = (low, high) {
+            points.push((line.x[a.min(b)], line.y[a.min(b)]));
+            if a != b {
+                points.push((line.x[a.max(b)], line.y[a.max(b)]));
+            }
+        }
+    }
+    points
 }
 
 fn finite_points<'a>(line: &PlotSeries<'a>) -> impl Iterator<Item = (f64, f64)> + 'a {
@@ -258,6 +298,20 @@ fn encode_png(rgb: &[u8], (width, height): (u32, u32)) -> Result<Vec<u8>, png::E
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_long_line_is_thinned_to_its_extremes_per_pixel_column() {
+        let x: Vec<f64> = (0..100_000).map(f64::from).collect();
+        let mut y: Vec<f64> = x.iter().map(|v| (v / 1000.0).sin()).collect();
+        y[50_000] = 7.0;
+        y[60_000] = f64::NAN;
+        let line = PlotSeries { label: "long", x: &x, y: &y };
+        let points = line_points(&line);
+        assert!(points.len() <= MAX_LINE_POINTS && points.len() > MAX_LINE_POINTS / 2, "{}", points.len());
+        assert!(points.contains(&(50_000.0, 7.0)), "a spike survives");
+        assert!(points.windows(2).all(|w| w[0].0 < w[1].0), "in order");
+        assert!(points.iter().all(|(_, y)| y.is_finite()));
+    }
+
     use super::*;
 
     fn decode_png(path: &Path) -> (png::OutputInfo, Vec<u8>) {

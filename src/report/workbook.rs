@@ -1,13 +1,16 @@
 //! `report.xlsx`: the seed's workbook (section 4.2) with three sheets — the raw time series, the
 //! simulation settings, and the step-response characteristics.
 
+use std::fs::File;
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
 use rust_xlsxwriter::{Format, Workbook, Worksheet, XlsxError};
 use serde_json::Value;
 
-use super::atomic::write_bytes_atomically;
-use super::{ReportError, Summary, TimeSeries};
+use super::atomic::write_atomically_at;
+use super::timeseries::CsvRows;
+use super::{ReportError, Summary, io_error};
 
 /// File name of the workbook in the output directory.
 pub const REPORT_XLSX: &str = "report.xlsx";
@@ -18,46 +21,136 @@ pub const SHEET_SETTINGS: &str = "Settings";
 /// Sheet of the metrics, one `metric | value` row per entry of the summary.
 pub const SHEET_STEP_CHARACTERISTICS: &str = "Step characteristics";
 
-/// Writes `out_dir/report.xlsx` atomically and returns its path. Nested settings are flattened
-/// to dotted keys (`controller.kd`, `line.points[2]`); `null` values leave the value cell empty.
+/// Data rows a sheet holds (Excel's 1 048 576 rows, less the header).
+pub const MAX_SHEET_ROWS: u64 = 1_048_575;
+
+/// Writes `out_dir/report.xlsx` atomically and returns its path, with the Raw data sheet copied
+/// row by row from the CSV file `series` (a `timeseries.csv`). Nested settings are flattened to
+/// dotted keys (`controller.kd`, `line.points[2]`); `null` values leave the value cell empty.
 /// Excel cannot hold NaN or infinities: such samples appear as the text `NAN`, `INF`, `-INF`.
-/// A sheet holds at most 1 048 575 samples; a longer series is an error.
+///
+/// The Raw data sheet is a constant-memory worksheet: each row goes to a temporary file in
+/// `out_dir` as it is written, so a series of any length costs the same memory. A sheet holds at
+/// most [`MAX_SHEET_ROWS`] samples; a longer series is thinned to every n-th row, which the
+/// Settings sheet records (`raw_data.every_nth_row`, `raw_data.note`); the CSV keeps them all.
 pub fn write_workbook(
     out_dir: &Path,
-    series: &TimeSeries,
+    series: &Path,
     settings: &Value,
     summary: &Summary,
 ) -> Result<PathBuf, ReportError> {
+    write_workbook_with_limit(out_dir, series, settings, summary, MAX_SHEET_ROWS)
+}
+
+/// [`write_workbook`] with at most `max_rows` samples in the Raw data sheet.
+fn write_workbook_with_limit(out_dir: &Path, series: &Path, settings: &Value, summary: &Summary, max_rows: u64) -> Result<PathBuf, ReportError> {
     let path = out_dir.join(REPORT_XLSX);
-    let bytes =
-        build_workbook(series, settings, summary).map_err(|source| ReportError::Workbook {
-            path: path.clone(),
-            source,
+    let rows = count_rows(series)?;
+    write_atomically_at(&path, |temporary| {
+        let workbook_error = |source| ReportError::Workbook { path: path.clone(), source };
+        let mut workbook = build_workbook(out_dir, series, (rows, max_rows), settings, summary).map_err(|error| match error {
+            Built::Xlsx(source) => workbook_error(source),
+            Built::Report(error) => error,
         })?;
-    write_bytes_atomically(&path, &bytes)?;
+        workbook.save(temporary).map_err(workbook_error)
+    })?;
     Ok(path)
 }
 
-fn build_workbook(
-    series: &TimeSeries,
-    settings: &Value,
-    summary: &Summary,
-) -> Result<Vec<u8>, XlsxError> {
-    let mut workbook = Workbook::new();
-    let header = Format::new().set_bold();
-
-    let raw = workbook.add_worksheet().set_name(SHEET_RAW_DATA)?;
-    for (column, name) in (0..).zip(series.columns()) {
-        raw.write_string_with_format(0, column, name, &header)?;
+/// Rows of the CSV file at `path` (lines after the header that are not empty).
+fn count_rows(path: &Path) -> Result<u64, ReportError> {
+    let mut rows = 0;
+    for row in CsvLines::open(path)? {
+        row?;
+        rows += 1;
     }
-    for (row, values) in (1..).zip(series.rows()) {
-        for (column, value) in (0..).zip(values) {
-            raw.write_number(row, column, *value)?;
+    Ok(rows)
+}
+
+/// Non-empty lines after the header, unparsed: counting them must not cost a parse.
+struct CsvLines {
+    path: PathBuf,
+    reader: BufReader<File>,
+    buffer: Vec<u8>,
+}
+
+impl CsvLines {
+    fn open(path: &Path) -> Result<Self, ReportError> {
+        let mut reader = BufReader::new(File::open(path).map_err(io_error(path))?);
+        let mut buffer = Vec::new();
+        reader.read_until(b'\n', &mut buffer).map_err(io_error(path))?;
+        Ok(Self { path: path.to_owned(), reader, buffer })
+    }
+}
+
+impl Iterator for CsvLines {
+    type Item = Result<(), ReportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            self.buffer.clear();
+            match self.reader.read_until(b'\n', &mut self.buffer) {
+                Ok(0) => return None,
+                Ok(_) if self.buffer.iter().all(|b| b.is_ascii_whitespace()) => continue,
+                Ok(_) => return Some(Ok(())),
+                Err(source) => return Some(Err(ReportError::Io { path: self.path.clone(), source })),
+            }
         }
     }
-    raw.set_freeze_panes(1, 0)?;
+}
 
-    let flat_settings = flatten_json(settings);
+enum Built {
+    Xlsx(XlsxError),
+    Report(ReportError),
+}
+
+impl From<XlsxError> for Built {
+    fn from(error: XlsxError) -> Self {
+        Self::Xlsx(error)
+    }
+}
+
+impl From<ReportError> for Built {
+    fn from(error: ReportError) -> Self {
+        Self::Report(error)
+    }
+}
+
+fn build_workbook(
+    out_dir: &Path,
+    series: &Path,
+    (rows, max_rows): (u64, u64),
+    settings: &Value,
+    summary: &Summary,
+) -> Result<Workbook, Built> {
+    let mut workbook = Workbook::new();
+    // The raw sheet's rows spill to a temporary file beside the outputs, not in /tmp (often a
+    // RAM-backed tmpfs, which would bring the memory back).
+    workbook.set_tempdir(out_dir)?;
+    let header = Format::new().set_bold();
+
+    let every = rows.div_ceil(max_rows.max(1)).max(1);
+    let csv = CsvRows::open(series)?;
+    let raw = workbook.add_worksheet_with_constant_memory().set_name(SHEET_RAW_DATA)?;
+    for (column, name) in (0..).zip(csv.columns()) {
+        raw.write_string_with_format(0, column, name, &header)?;
+    }
+    raw.set_freeze_panes(1, 0)?;
+    for (row, values) in (1..).zip(csv.step_by(every as usize)) {
+        for (column, value) in (0..).zip(values?) {
+            raw.write_number(row, column, value)?;
+        }
+    }
+
+    let mut flat_settings = flatten_json(settings);
+    flat_settings.push(("raw_data.rows".to_owned(), Value::from(rows)));
+    if every > 1 {
+        flat_settings.push(("raw_data.every_nth_row".to_owned(), Value::from(every)));
+        flat_settings.push((
+            "raw_data.note".to_owned(),
+            Value::from(format!("the series has {rows} rows, more than the {max_rows} a sheet holds: Raw data shows every {every}th; timeseries.csv has them all")),
+        ));
+    }
     let sheet = workbook.add_worksheet().set_name(SHEET_SETTINGS)?;
     write_key_values(
         sheet,
@@ -78,7 +171,7 @@ fn build_workbook(
         &header,
     )?;
 
-    workbook.save_to_buffer()
+    Ok(workbook)
 }
 
 fn write_key_values<'a>(
@@ -156,6 +249,7 @@ fn flatten_json(value: &Value) -> Vec<(String, Value)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::report::TimeSeries;
     use calamine::{Data, Reader, Xlsx, open_workbook};
     use serde_json::json;
 
@@ -199,7 +293,8 @@ mod tests {
         summary.insert("distance.settled".to_owned(), json!(true));
         summary.insert("speed.settling_time_s".to_owned(), Value::Null);
 
-        let path = write_workbook(dir.path(), &series, &settings, &summary).expect("written");
+        let csv = crate::report::write_timeseries_csv(dir.path(), &series).expect("csv");
+        let path = write_workbook(dir.path(), &csv, &settings, &summary).expect("written");
         assert_eq!(path, dir.path().join("report.xlsx"));
 
         let mut workbook: Xlsx<_> = open_workbook(&path).expect("a valid xlsx");
@@ -243,5 +338,26 @@ mod tests {
             Some(&Data::String("speed.settling_time_s".to_owned()))
         );
         assert!(matches!(steps.get_value((3, 1)), None | Some(Data::Empty)));
+    }
+
+    #[test]
+    fn a_series_longer_than_a_sheet_is_thinned_and_the_settings_say_so() {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let mut series = TimeSeries::new(["t_s", "d_m"]);
+        for i in 0..10 {
+            series.push_row(&[f64::from(i), f64::from(i) / 10.0]).expect("width 2");
+        }
+        let csv = crate::report::write_timeseries_csv(dir.path(), &series).expect("csv");
+        let path = write_workbook_with_limit(dir.path(), &csv, &json!({}), &Summary::new(), 4).expect("written");
+        let mut workbook: Xlsx<_> = open_workbook(&path).expect("a valid xlsx");
+        let raw = workbook.worksheet_range("Raw data").expect("sheet");
+        // 10 rows, 4 per sheet: every 3rd (0, 3, 6, 9), after the header.
+        assert_eq!(raw.height(), 5);
+        assert_eq!(raw.get_value((2, 0)), Some(&Data::Float(3.0)));
+        let settings = workbook.worksheet_range("Settings").expect("sheet");
+        let rows: Vec<String> = settings.rows().map(|r| format!("{}={}", r[0], r.get(1).map(ToString::to_string).unwrap_or_default())).collect();
+        assert!(rows.contains(&"raw_data.rows=10".to_owned()) && rows.contains(&"raw_data.every_nth_row=3".to_owned()), "{rows:?}");
+        assert!(rows.iter().any(|r| r.starts_with("raw_data.note=")), "{rows:?}");
+        assert!(std::fs::read_dir(dir.path()).expect("dir").all(|e| !e.expect("entry").file_name().to_string_lossy().contains("tmp")), "no temporary file left");
     }
 }

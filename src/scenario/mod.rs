@@ -11,6 +11,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 mod overrides;
+pub mod capture;
 pub mod replay;
 pub mod run;
 pub mod sweep;
@@ -221,7 +222,7 @@ fn substitute(arg: &str, params: &BTreeMap<String, String>) -> Result<String, St
 }
 
 /// A scripted change at `at_s`. Each key present takes effect.
-#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Deserialize, serde::Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Event {
     pub at_s: f64,
@@ -337,6 +338,9 @@ pub struct Scenario {
     pub expect: BTreeMap<String, Threshold>,
     #[serde(skip)]
     pub path: PathBuf,
+    /// The `--set KEY=VALUE` overrides applied, in order (`settings.json` records them).
+    #[serde(skip)]
+    pub overrides: Vec<String>,
 }
 
 impl Scenario {
@@ -399,6 +403,7 @@ impl Scenario {
         }
         let mut scenario = Self::deserialize(table).map_err(|e| fail(e.to_string()))?;
         scenario.path = path.to_owned();
+        scenario.overrides = overrides.iter().map(ToString::to_string).collect();
         scenario.check_ranges(overrides)?;
         scenario.check_events()?;
         Ok(scenario)

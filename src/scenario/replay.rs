@@ -177,7 +177,8 @@ pub fn replay(transcript: &Transcript, sources: &ReplaySources) -> Result<Replay
     let mut settings = settings_json(&scenario, &robot);
     settings["replay_of"] = json!(transcript.path.display().to_string());
     settings["overrides"] = json!(header.scenario.overrides);
-    let outcome = RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings, sim_s, wall_s: started.elapsed().as_secs_f64() };
+    let (series, track) = observer.finish()?;
+    let outcome = RunOutcome { series, track, summary, settings, sim_s, wall_s: started.elapsed().as_secs_f64() };
     Ok(Replayed { outcome, stats })
 }
 

@@ -18,13 +18,14 @@ use tracing::info_span;
 use crate::bus::{Bus, BusFaults, Timing};
 use crate::device::Servo;
 use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
-use crate::metrics::{self, StepOptions};
 use crate::report::{self, Summary, TimeSeries};
 use crate::robot::{RobotDescription, WheelPosition};
 use crate::sim::detector::DetectorError;
 use crate::sim::line::LineError as WeldLineError;
 use crate::sim::{DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, WeldLine};
 
+pub use super::capture::{COLUMNS, MetricTrack, summarise};
+use super::capture::Capture;
 use super::watch::{self, WorldFailure, WorldWatch};
 use super::{ControllerSection, Event, Scenario, ScenarioError, mm_min_to_m_s};
 
@@ -42,6 +43,9 @@ pub enum RunError {
     NoLine { path: PathBuf },
     #[error("scenario {path}: [capture] signals: no signal `{name}` (known: {known})")]
     UnknownSignal { path: PathBuf, name: String, known: String },
+    /// A capture faster than the run produces new states would repeat rows, or lag behind.
+    #[error("scenario {path}: [capture] rate_hz = {rate_hz} Hz is more than this run can capture: {max_hz} Hz ({why})")]
+    CaptureRate { path: PathBuf, rate_hz: f64, max_hz: f64, why: String },
     #[error("line detector: {0}")]
     Detector(#[from] DetectorError),
     #[error("controller: {0}")]
@@ -55,72 +59,6 @@ pub enum RunError {
     #[error("scenario {path}: {source}")]
     Fault { path: PathBuf, source: crate::fault::FaultError },
 }
-
-/// The time series' columns, in order.
-pub const COLUMNS: &[&str] = &[
-    "t_s",
-    "d_m",
-    "psi_rad",
-    "line_valid",
-    "d_true_m",
-    "psi_true_rad",
-    "speed_m_s",
-    "target_speed_m_s",
-    "speed_error_m_s",
-    "measured_speed_m_s",
-    "yaw_rate_command_rad_s",
-    "wheel_rate_fl_rad_s",
-    "wheel_rate_fr_rad_s",
-    "wheel_rate_rl_rad_s",
-    "wheel_rate_rr_rad_s",
-    "magnet_angle_fl_rad",
-    "magnet_angle_fr_rad",
-    "magnet_angle_rl_rad",
-    "magnet_angle_rr_rad",
-    "adhesion_fl_n",
-    "adhesion_fr_n",
-    "adhesion_rl_n",
-    "adhesion_rr_n",
-    "x_m",
-    "y_m",
-    "z_m",
-    // Faults (issue #5): Hardware Error Status, winding temperature and supply of servos 1-8
-    // (NaN for an ID not on the bus), tread slip per wheel, active faults, bus-fault tally.
-    "hw_error_1",
-    "hw_error_2",
-    "hw_error_3",
-    "hw_error_4",
-    "hw_error_5",
-    "hw_error_6",
-    "hw_error_7",
-    "hw_error_8",
-    "temperature_1_c",
-    "temperature_2_c",
-    "temperature_3_c",
-    "temperature_4_c",
-    "temperature_5_c",
-    "temperature_6_c",
-    "temperature_7_c",
-    "temperature_8_c",
-    "input_voltage_1_v",
-    "input_voltage_2_v",
-    "input_voltage_3_v",
-    "input_voltage_4_v",
-    "input_voltage_5_v",
-    "input_voltage_6_v",
-    "input_voltage_7_v",
-    "input_voltage_8_v",
-    "torque_on_1",
-    "torque_on_2",
-    "torque_on_3",
-    "torque_on_4",
-    "wheel_slip_fl_m_s",
-    "wheel_slip_fr_m_s",
-    "wheel_slip_rl_m_s",
-    "wheel_slip_rr_m_s",
-    "faults_active",
-    "bus_faults",
-];
 
 /// Servo IDs with per-servo fault columns.
 const FAULT_COLUMN_IDS: std::ops::RangeInclusive<u8> = 1..=8;
@@ -182,9 +120,7 @@ pub struct Observer {
     /// The detector's output on the newest frame (None before the first frame).
     latest: Option<LineMeasurement>,
     frames_seen: u64,
-    series: TimeSeries,
-    capture_period_s: f64,
-    next_capture_s: f64,
+    capture: Capture,
     target_speed_m_s: f64,
     speed_step_at_s: f64,
     events: Vec<Event>,
@@ -216,9 +152,7 @@ impl Observer {
             detector,
             latest: None,
             frames_seen: 0,
-            series: TimeSeries::new(COLUMNS.iter().copied()),
-            capture_period_s: 1.0 / scenario.capture.rate_hz.max(1e-3),
-            next_capture_s: 0.0,
+            capture: Capture::new(scenario.capture.rate_hz, scenario.capture.signals.as_deref()),
             target_speed_m_s: mm_min_to_m_s(scenario.speed.target_mm_min),
             speed_step_at_s: scenario.speed.step_at_s,
             events,
@@ -254,6 +188,17 @@ impl Observer {
         Ok(())
     }
 
+    /// Write the captured rows into `out_dir/timeseries.csv` as they come (see
+    /// [`Capture::stream_to`]) instead of keeping them.
+    pub fn stream_to(&mut self, out_dir: &std::path::Path) -> Result<(), RunError> {
+        Ok(self.capture.stream_to(out_dir)?)
+    }
+
+    /// Keep no captured rows (`serve SCENARIO`, which writes no outputs).
+    pub fn discard_rows(&mut self) {
+        self.capture.discard();
+    }
+
     /// Render the camera if a frame is due at `t`, run the detector on any new frame; the latest
     /// measurement in the controller's convention (None while the line is not seen).
     pub fn sense(&mut self, world: &RobotWorld, t: Duration) -> Option<LineError> {
@@ -261,12 +206,11 @@ impl Observer {
             self.latest = Some(self.detector.detect(frame));
             self.frames_seen += 1;
         }
-        // The detector says where the line is relative to the robot; the controller wants where
-        // the robot is relative to the line.
-        self.latest.filter(|m| m.valid).map(|m| LineError { d_err_m: -f64::from(m.d_m), psi_err_rad: -f64::from(m.psi_rad) })
+        self.latest.filter(|m| m.valid).map(|m| robot_relative(&m))
     }
 
-    /// The detector's output on the newest frame.
+    /// The detector's output on the newest frame, in the detector's own convention (where the
+    /// line is relative to the robot); [`robot_relative`] gives the run's.
     pub fn latest(&self) -> Option<&LineMeasurement> {
         self.latest.as_ref()
     }
@@ -299,25 +243,33 @@ impl Observer {
         }
     }
 
-    /// Record a row if one is due at `t_s`. `control` is the built-in controller's view (an
-    /// external controller's is unknown: its columns are NaN).
+    /// Record a row if one is due at `t_s`, and the metric track's sample if one is due.
+    /// `control` is the built-in controller's view (an external controller's is unknown: its
+    /// columns are NaN).
     pub fn capture(&mut self, t_s: f64, bus: &Bus, control: Option<&ControlSample>) -> Result<(), RunError> {
-        if t_s + 1e-9 < self.next_capture_s {
+        let (row_due, track_due) = (self.capture.row_due(t_s), self.capture.track_due(t_s));
+        if !row_due && !track_due {
             return Ok(());
         }
         let Some(world) = bus.plant::<RobotWorld>() else { return Ok(()) };
-        self.next_capture_s += self.capture_period_s;
         let truth = self.ground_truth(world);
         let target = self.target_speed_m_s(t_s);
+        let seen = self.latest.filter(|m| m.valid).map(|m| robot_relative(&m));
+        // The camera's measurement in the same convention as the ground truth (NaN when the line
+        // is not seen).
+        let (d_m, psi_rad) = seen.map_or((f64::NAN, f64::NAN), |l| (l.d_err_m, l.psi_err_rad));
+        if track_due {
+            self.capture.record_track(t_s, truth.d_err_m, d_m, truth.speed_m_s, target);
+        }
+        if !row_due {
+            return Ok(());
+        }
         let position = world.chassis_pose().translation;
         let adhesion = world.adhesion();
-        let seen = self.latest.filter(|m| m.valid);
         let mut row = vec![
             t_s,
-            // The camera's measurement in the same convention as the ground truth (NaN when the
-            // line is not seen).
-            seen.map_or(f64::NAN, |m| -f64::from(m.d_m)),
-            seen.map_or(f64::NAN, |m| -f64::from(m.psi_rad)),
+            d_m,
+            psi_rad,
             f64::from(u8::from(seen.is_some())),
             truth.d_err_m,
             truth.psi_err_rad,
@@ -341,7 +293,7 @@ impl Observer {
         let counts = faults.counts();
         row.push(faults.active().count() as f64);
         row.push((counts.instructions_corrupted + counts.replies_corrupted + counts.replies_dropped + counts.replies_delayed + counts.instructions_unheard) as f64);
-        self.series.push_row(&row)?;
+        self.capture.record_row(&row)?;
         Ok(())
     }
 
@@ -366,26 +318,24 @@ impl Observer {
         self.watch.failure()
     }
 
-    pub fn series(&self) -> &TimeSeries {
-        &self.series
+    /// End the capture: a streamed `timeseries.csv` is completed (flushed and renamed), rows kept
+    /// in memory are returned, with the metric track.
+    pub fn finish(mut self) -> Result<(Option<TimeSeries>, MetricTrack), RunError> {
+        let series = self.capture.finish()?;
+        Ok((series, self.capture.into_track()))
     }
 
-    /// The captured series, cut to the scenario's `[capture] signals` (and `t_s`).
-    pub fn into_series(self, signals: Option<&[String]>) -> TimeSeries {
-        let Some(signals) = signals else { return self.series };
-        let keep: Vec<usize> = self.series.columns().iter().enumerate().filter(|(i, c)| *i == 0 || signals.contains(c)).map(|(i, _)| i).collect();
-        let mut series = TimeSeries::new(keep.iter().map(|&i| self.series.columns()[i].clone()));
-        for row in self.series.rows() {
-            // ok to ignore: every row has one value per kept column by construction.
-            let _ = series.push_row(&keep.iter().map(|&i| row[i]).collect::<Vec<_>>());
-        }
-        series
-    }
-
-    /// The seed's metrics over the captured series.
+    /// The seed's metrics over the metric track (the same whatever `[capture] rate_hz`).
     pub fn summary(&self, on_line_tolerance_m: f64) -> Summary {
-        summarise(&self.series, self.speed_step_at_s, on_line_tolerance_m)
+        summarise(self.capture.track(), self.speed_step_at_s, on_line_tolerance_m)
     }
+}
+
+/// A line measurement in the run's one convention, that of the ground truth and the controller:
+/// where the robot is relative to the line (+ = robot left of the line, pointing left of it).
+/// The detector says where the line is relative to the robot, the opposite sign.
+pub fn robot_relative(measurement: &LineMeasurement) -> LineError {
+    LineError { d_err_m: -f64::from(measurement.d_m), psi_err_rad: -f64::from(measurement.psi_rad) }
 }
 
 fn build_line(points: &[[f32; 2]], smoothness: u32, width_m: f32, offset_m: f64, world: &RobotWorld) -> Result<WeldLine, WeldLineError> {
@@ -425,20 +375,6 @@ fn offset_points(points: &[[f32; 2]], offset: f32) -> Vec<[f32; 2]> {
         .collect()
 }
 
-/// Distance and speed step characteristics and line tracking, flattened as in `summary.json`.
-pub fn summarise(series: &TimeSeries, speed_step_at_s: f64, on_line_tolerance_m: f64) -> Summary {
-    let column = |name: &str| series.column(name).unwrap_or_default();
-    let (t, d, speed, target) = (column("t_s"), column("d_true_m"), column("speed_m_s"), column("target_speed_m_s"));
-    let final_target = target.last().copied().unwrap_or(0.0);
-    let t_first = t.first().copied().unwrap_or(0.0);
-    let distance = metrics::decaying_error_step(&t, &d, &StepOptions::default()).ok();
-    // A step "at 0" is at the first sample (the world has stepped once before capture begins).
-    let speed_options = StepOptions { t_step: Some(speed_step_at_s.max(t_first)), ..StepOptions::default() };
-    let speed_step = metrics::rising_step(&t, &speed, final_target, &speed_options).ok();
-    let tracking = metrics::line_tracking(&t, &d, on_line_tolerance_m).ok();
-    report::summarise(distance.as_ref(), speed_step.as_ref(), tracking.as_ref())
-}
-
 /// Why a run failed other than by its thresholds (`summary.json`'s `failures`, one line each;
 /// empty for a run that went as far as it should).
 pub fn failures(summary: &Summary) -> Vec<String> {
@@ -455,7 +391,11 @@ pub fn record_failure(summary: &mut Summary, failure: &WorldFailure) {
 
 /// A finished run.
 pub struct RunOutcome {
-    pub series: TimeSeries,
+    /// The captured rows when the run kept them in memory ([`run_lockstep`], replay); `None`
+    /// when it wrote them into its output folder's `timeseries.csv` as they came.
+    pub series: Option<TimeSeries>,
+    /// The fixed-rate signals the summary and plots were made of (see [`MetricTrack`]).
+    pub track: MetricTrack,
     pub summary: Summary,
     pub settings: Value,
     /// Simulated and wall-clock seconds.
@@ -463,10 +403,22 @@ pub struct RunOutcome {
     pub wall_s: f64,
 }
 
-/// What `settings.json` records: the scenario as run (after overrides) and the robot.
+/// An f32 setting as JSON with the digits it was written with (`0.05`, not the f64 widening
+/// `0.05000000074505806`).
+fn f32_json(value: f32) -> Value {
+    value.to_string().parse::<f64>().map_or(Value::Null, Value::from)
+}
+
+/// What `settings.json` records: everything that shaped the run — the scenario as run (after
+/// overrides, which are listed too), the values taken from the robot description where the
+/// scenario gives none (camera, friction), the start pose as computed, and the robot.
 pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
+    let camera = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
+    let start = scenario.start.clone().unwrap_or_default();
+    let pose = scenario.start_pose();
     json!({
         "scenario": scenario.path.display().to_string(),
+        "overrides": scenario.overrides,
         "seed": scenario.world.seed,
         "duration_s": scenario.world.duration_s,
         "gravity_m_s2": scenario.world.gravity_m_s2,
@@ -479,6 +431,23 @@ pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
         },
         "robot": robot.path.display().to_string(),
         "faults": scenario.faults(),
+        "events": serde_json::to_value(&scenario.events).unwrap_or(Value::Null),
+        "camera": serde_json::to_value(&camera).unwrap_or(Value::Null),
+        "start": {
+            "x_m": f32_json(start.x_m), "z_m": f32_json(start.z_m), "yaw_deg": f32_json(start.yaw_deg), "line_offset_m": f32_json(start.line_offset_m),
+            "pose": { "x_m": f32_json(pose.x_m), "z_m": f32_json(pose.z_m), "yaw_deg": f32_json(pose.yaw_deg), "clearance_m": f32_json(pose.clearance_m) },
+        },
+        "solver": scenario.world.solver,
+        "payload_kg": f32_json(scenario.world.payload_kg),
+        "friction": f32_json(scenario.world.friction.unwrap_or(robot.wheel.friction)),
+        "magnets": scenario.world.magnets,
+        "bus_baud_bps": scenario.bus.baud_bps.unwrap_or(robot.bus.baud_bps),
+        "capture": {
+            "rate_hz": scenario.capture.rate_hz,
+            "on_line_tolerance_m": scenario.capture.on_line_tolerance_m,
+            "signals": scenario.capture.signals,
+            "metric_period_s": super::capture::METRIC_PERIOD_S,
+        },
     })
 }
 
@@ -505,17 +474,27 @@ pub fn fault_summary(bus: &Bus) -> Vec<(String, Value)> {
     entries
 }
 
-/// Run a scenario with the built-in controller in lockstep, as fast as the CPU allows.
+/// Run a scenario with the built-in controller in lockstep, as fast as the CPU allows; the
+/// captured rows are kept in the outcome.
 pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<RunOutcome, RunError> {
-    run_lockstep_until(scenario, robot, &AtomicBool::new(false))
+    run_lockstep_until(scenario, robot, &AtomicBool::new(false), None)
 }
 
 /// [`run_lockstep`], ending early when `stop` is set (e.g. by SIGINT): the outcome then covers
-/// the run up to that moment and its summary says where it stopped (`interrupted_at_s`).
-pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &AtomicBool) -> Result<RunOutcome, RunError> {
+/// the run up to that moment and its summary says where it stopped (`interrupted_at_s`). With
+/// `out_dir`, the captured rows go into its `timeseries.csv` as they come (complete when this
+/// returns, interrupted or not) and the outcome holds none: [`write_outputs`] into the same
+/// folder then writes the rest.
+pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &AtomicBool, out_dir: Option<&std::path::Path>) -> Result<RunOutcome, RunError> {
     let ControllerSection::Builtin(config) = &scenario.controller else {
         return Err(RunError::NeedsRealTime { path: scenario.path.clone() });
     };
+    // Rows are captured once per control period: a faster capture would repeat them.
+    let control_hz = 1.0 / config.period().as_secs_f64();
+    if scenario.capture.rate_hz > control_hz * (1.0 + 1e-9) {
+        let why = format!("a built-in controller's run captures once per control period, {} s; lower rate_hz or controller.period_s", config.period().as_secs_f64());
+        return Err(RunError::CaptureRate { path: scenario.path.clone(), rate_hz: scenario.capture.rate_hz, max_hz: (control_hz * 1e6).round() / 1e6, why });
+    }
     let _span = info_span!("scenario", path = %scenario.path.display()).entered();
     let started = Instant::now();
     let mut sim = Lockstep::new(robot, scenario.world_config()?)?;
@@ -535,6 +514,9 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     // queryable.
     sim.run(Duration::from_millis(1));
     let mut observer = Observer::new(scenario, robot, sim.world())?;
+    if let Some(out_dir) = out_dir {
+        observer.stream_to(out_dir)?;
+    }
     let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;
     controller.start(&mut sim)?;
     let period = config.period();
@@ -588,18 +570,24 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     if !sim.bus().faults().is_empty() {
         summary.insert("faults.control_periods_skipped".to_owned(), json!(controller_errors));
     }
-    Ok(RunOutcome { series: observer.into_series(scenario.capture.signals.as_deref()), summary, settings: settings_json(scenario, robot), sim_s, wall_s })
+    let (series, track) = observer.finish()?;
+    Ok(RunOutcome { series, track, summary, settings: settings_json(scenario, robot), sim_s, wall_s })
 }
 
-/// Write a run's outputs into `out_dir`: `timeseries.csv`, `summary.json`, `settings.json`,
-/// `report.xlsx`, and distance and speed plots (PNG and SVG).
+/// Write a run's outputs into `out_dir`: `timeseries.csv` (unless the run streamed it there
+/// already: `outcome.series` is `None`), `summary.json`, `settings.json`, `report.xlsx` (its raw
+/// sheet read back from the CSV file), and distance and speed plots (PNG and SVG) of the metric
+/// track.
 pub fn write_outputs(outcome: &RunOutcome, out_dir: &std::path::Path) -> Result<(), RunError> {
     std::fs::create_dir_all(out_dir).map_err(|source| report::ReportError::Io { path: out_dir.to_owned(), source })?;
-    report::write_timeseries_csv(out_dir, &outcome.series)?;
+    let csv = match &outcome.series {
+        Some(series) => report::write_timeseries_csv(out_dir, series)?,
+        None => out_dir.join(report::TIMESERIES_CSV),
+    };
     report::write_summary_json(out_dir, &outcome.summary)?;
     report::write_settings_json(out_dir, &outcome.settings)?;
-    report::write_workbook(out_dir, &outcome.series, &outcome.settings, &outcome.summary)?;
-    let column = |name: &str| outcome.series.column(name).unwrap_or_default();
+    report::write_workbook(out_dir, &csv, &outcome.settings, &outcome.summary)?;
+    let column = |name: &str| outcome.track.column(name).unwrap_or_default();
     let t = column("t_s");
     for (stem, title, y, [(first, first_label), (second, second_label)]) in [
         ("distance", "Distance error", "d (m)", [("d_true_m", "ground truth"), ("d_m", "camera")]),

@@ -145,6 +145,10 @@ pub const CAMERA_FRAME_RATE_HZ: Range = Range::above(0.0, 1_000.0, "Hz");
 pub const CAMERA_SIZE_M: Range = Range::above(0.0, 10.0, "m");
 pub const CAMERA_ASPECT: Range = Range::above(0.0, 100.0, "(width / height)");
 pub const CAMERA_NOISE: Range = Range::closed(0.0, 255.0, "gray levels");
+/// Rows per second of `timeseries.csv`: above 0 (a rate of 0 never captures), at most one row
+/// per firmware tick (1 kHz), the fastest any run advances; a lockstep run allows only its
+/// control rate, which the run itself checks.
+pub const CAPTURE_RATE_HZ: Range = Range::above(0.0, 1_000.0, "Hz");
 pub const ON_LINE_TOLERANCE_M: Range = Range::closed(0.0, 10.0, "m");
 
 struct Checker {
@@ -201,7 +205,9 @@ pub fn check(scenario: &Scenario) -> Result<(), Problem> {
         check_controller(config)?;
     }
     check_events(scenario)?;
-    Checker::at(&["capture"]).range("on_line_tolerance_m", scenario.capture.on_line_tolerance_m, ON_LINE_TOLERANCE_M)?;
+    let capture = Checker::at(&["capture"]);
+    capture.range("rate_hz", scenario.capture.rate_hz, CAPTURE_RATE_HZ)?;
+    capture.range("on_line_tolerance_m", scenario.capture.on_line_tolerance_m, ON_LINE_TOLERANCE_M)?;
     let expect = Checker::at(&["expect"]);
     for (metric, threshold) in &scenario.expect {
         for (bound, value) in [("min", threshold.min), ("max", threshold.max)] {

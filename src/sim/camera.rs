@@ -56,7 +56,7 @@ pub const MAX_LATENCY_FRAMES: u32 = 64;
 const SS: usize = 4;
 
 /// Camera settings, as written in a scenario's `[camera]` table.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct LineCameraSettings {
     /// Image size I in pixels per side, a power of two.

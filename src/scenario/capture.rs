@@ -1,0 +1,249 @@
+//! What a run records besides its events: the captured rows of `timeseries.csv` (at
+//! `[capture] rate_hz`, cut to `[capture] signals`) and the metric track, the few signals the
+//! summary and the plots need, every [`METRIC_PERIOD_S`] of simulated time whatever the capture
+//! rate. The rows can go straight into the output folder's CSV file as they come, so that a
+//! run of hours holds only the track (about 1 KB per simulated second) in memory; the summary
+//! comes from the track, so it does not change with the capture rate.
+
+use std::path::Path;
+
+use crate::metrics::{self, StepOptions};
+use crate::report::{self, ReportError, Summary, TimeSeries, TimeSeriesWriter};
+
+/// The time series' columns, in order.
+pub const COLUMNS: &[&str] = &[
+    "t_s",
+    "d_m",
+    "psi_rad",
+    "line_valid",
+    "d_true_m",
+    "psi_true_rad",
+    "speed_m_s",
+    "target_speed_m_s",
+    "speed_error_m_s",
+    "measured_speed_m_s",
+    "yaw_rate_command_rad_s",
+    "wheel_rate_fl_rad_s",
+    "wheel_rate_fr_rad_s",
+    "wheel_rate_rl_rad_s",
+    "wheel_rate_rr_rad_s",
+    "magnet_angle_fl_rad",
+    "magnet_angle_fr_rad",
+    "magnet_angle_rl_rad",
+    "magnet_angle_rr_rad",
+    "adhesion_fl_n",
+    "adhesion_fr_n",
+    "adhesion_rl_n",
+    "adhesion_rr_n",
+    "x_m",
+    "y_m",
+    "z_m",
+    // Faults (issue #5): Hardware Error Status, winding temperature and supply of servos 1-8
+    // (NaN for an ID not on the bus), tread slip per wheel, active faults, bus-fault tally.
+    "hw_error_1",
+    "hw_error_2",
+    "hw_error_3",
+    "hw_error_4",
+    "hw_error_5",
+    "hw_error_6",
+    "hw_error_7",
+    "hw_error_8",
+    "temperature_1_c",
+    "temperature_2_c",
+    "temperature_3_c",
+    "temperature_4_c",
+    "temperature_5_c",
+    "temperature_6_c",
+    "temperature_7_c",
+    "temperature_8_c",
+    "input_voltage_1_v",
+    "input_voltage_2_v",
+    "input_voltage_3_v",
+    "input_voltage_4_v",
+    "input_voltage_5_v",
+    "input_voltage_6_v",
+    "input_voltage_7_v",
+    "input_voltage_8_v",
+    "torque_on_1",
+    "torque_on_2",
+    "torque_on_3",
+    "torque_on_4",
+    "wheel_slip_fl_m_s",
+    "wheel_slip_fr_m_s",
+    "wheel_slip_rl_m_s",
+    "wheel_slip_rr_m_s",
+    "faults_active",
+    "bus_faults",
+];
+
+/// The metric track's sampling period (s of simulated time): the built-in controller's default
+/// control period, the rate at which the summary's figures were always taken.
+pub const METRIC_PERIOD_S: f64 = 0.02;
+
+/// Ground truth, camera and speed every [`METRIC_PERIOD_S`]: what `summary.json`, the distance
+/// and speed plots and a sweep's overlay plots are made of. Samples are f32 (a micrometre at a
+/// metre, far below the camera's 1.6 mm pixel) but times f64, which a day of runs needs, and the
+/// target speed, which the summary reports as given (`speed.target_m_s`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MetricTrack {
+    t_s: Vec<f64>,
+    d_true_m: Vec<f32>,
+    d_m: Vec<f32>,
+    speed_m_s: Vec<f32>,
+    target_speed_m_s: Vec<f64>,
+}
+
+impl MetricTrack {
+    /// The track's signals, named as the time series' columns.
+    pub const COLUMNS: [&'static str; 5] = ["t_s", "d_true_m", "d_m", "speed_m_s", "target_speed_m_s"];
+
+    /// Append a sample: time, ground-truth and camera distance (m, + = robot left of the line;
+    /// NaN while the camera does not see it), speed and target speed (m/s).
+    pub fn push(&mut self, t_s: f64, d_true_m: f64, d_m: f64, speed_m_s: f64, target_speed_m_s: f64) {
+        self.t_s.push(t_s);
+        self.d_true_m.push(d_true_m as f32);
+        self.d_m.push(d_m as f32);
+        self.speed_m_s.push(speed_m_s as f32);
+        self.target_speed_m_s.push(target_speed_m_s);
+    }
+
+    /// The values of the signal `name` (one of [`MetricTrack::COLUMNS`]).
+    pub fn column(&self, name: &str) -> Option<Vec<f64>> {
+        let values = match name {
+            "t_s" => return Some(self.t_s.clone()),
+            "d_true_m" => &self.d_true_m,
+            "d_m" => &self.d_m,
+            "speed_m_s" => &self.speed_m_s,
+            "target_speed_m_s" => return Some(self.target_speed_m_s.clone()),
+            _ => return None,
+        };
+        Some(values.iter().map(|&v| f64::from(v)).collect())
+    }
+
+    pub fn len(&self) -> usize {
+        self.t_s.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.t_s.is_empty()
+    }
+}
+
+/// Where the captured rows go.
+enum Rows {
+    /// Nowhere: `serve SCENARIO` writes no outputs, and a session may last for days.
+    Discard,
+    /// Kept, for a library caller without an output folder (tests, `replay`).
+    Memory(TimeSeries),
+    /// Into `timeseries.csv.tmp` in the output folder, row by row.
+    Csv(TimeSeriesWriter),
+}
+
+/// The captured rows and the metric track of one run (see the module documentation).
+pub struct Capture {
+    rows: Rows,
+    /// Indices into [`COLUMNS`] of the columns the rows keep: `t_s` and `[capture] signals`.
+    keep: Vec<usize>,
+    period_s: f64,
+    next_s: f64,
+    track: MetricTrack,
+    next_track_s: f64,
+}
+
+impl Capture {
+    /// Rows at `rate_hz` with the columns `signals` (all when `None`; names already checked
+    /// against [`COLUMNS`]), kept in memory until [`Capture::stream_to`] or [`Capture::discard`].
+    pub fn new(rate_hz: f64, signals: Option<&[String]>) -> Self {
+        let keep: Vec<usize> = (0..COLUMNS.len()).filter(|&i| i == 0 || signals.is_none_or(|s| s.iter().any(|name| name == COLUMNS[i]))).collect();
+        Self {
+            rows: Rows::Memory(TimeSeries::new(keep.iter().map(|&i| COLUMNS[i]))),
+            keep,
+            // The scenario's range check refuses a rate that is not above 0; this only keeps a
+            // library caller's zero from dividing by it.
+            period_s: 1.0 / rate_hz.max(1e-3),
+            next_s: 0.0,
+            track: MetricTrack::default(),
+            next_track_s: 0.0,
+        }
+    }
+
+    /// Write the rows into `out_dir/timeseries.csv.tmp` from now on (renamed to `timeseries.csv`
+    /// by [`Capture::finish`]).
+    pub fn stream_to(&mut self, out_dir: &Path) -> Result<(), ReportError> {
+        self.rows = Rows::Csv(TimeSeriesWriter::create(out_dir, self.keep.iter().map(|&i| COLUMNS[i]))?);
+        Ok(())
+    }
+
+    /// Keep no rows (the metric track is still kept).
+    pub fn discard(&mut self) {
+        self.rows = Rows::Discard;
+    }
+
+    /// A row is due at `t_s` (never while rows are discarded: building one costs a servo scan).
+    pub fn row_due(&self, t_s: f64) -> bool {
+        !matches!(self.rows, Rows::Discard) && t_s + 1e-9 >= self.next_s
+    }
+
+    /// A metric-track sample is due at `t_s`.
+    pub fn track_due(&self, t_s: f64) -> bool {
+        t_s + 1e-9 >= self.next_track_s
+    }
+
+    /// Record the track's sample due now (see [`MetricTrack::push`]).
+    pub fn record_track(&mut self, t_s: f64, d_true_m: f64, d_m: f64, speed_m_s: f64, target_speed_m_s: f64) {
+        self.next_track_s += METRIC_PERIOD_S;
+        self.track.push(t_s, d_true_m, d_m, speed_m_s, target_speed_m_s);
+    }
+
+    /// Record the row due now: one value per [`COLUMNS`] entry, of which the kept ones are
+    /// written.
+    pub fn record_row(&mut self, row: &[f64]) -> Result<(), ReportError> {
+        if row.len() != COLUMNS.len() {
+            return Err(ReportError::RowWidth { expected: COLUMNS.len(), got: row.len() });
+        }
+        self.next_s += self.period_s;
+        if matches!(self.rows, Rows::Discard) {
+            return Ok(());
+        }
+        let kept: Vec<f64> = self.keep.iter().map(|&i| row[i]).collect();
+        match &mut self.rows {
+            Rows::Discard => Ok(()),
+            Rows::Memory(series) => series.push_row(&kept),
+            Rows::Csv(writer) => writer.push_row(&kept),
+        }
+    }
+
+    pub fn track(&self) -> &MetricTrack {
+        &self.track
+    }
+
+    pub fn into_track(self) -> MetricTrack {
+        self.track
+    }
+
+    /// End the rows: a streamed file is flushed and renamed to `timeseries.csv`; rows kept in
+    /// memory are returned. Rows recorded after this are discarded.
+    pub fn finish(&mut self) -> Result<Option<TimeSeries>, ReportError> {
+        match std::mem::replace(&mut self.rows, Rows::Discard) {
+            Rows::Discard => Ok(None),
+            Rows::Memory(series) => Ok(Some(series)),
+            Rows::Csv(writer) => writer.finish().map(|_| None),
+        }
+    }
+}
+
+/// Distance and speed step characteristics and line tracking over the metric track, flattened
+/// as in `summary.json`.
+pub fn summarise(track: &MetricTrack, speed_step_at_s: f64, on_line_tolerance_m: f64) -> Summary {
+    let column = |name: &str| track.column(name).unwrap_or_default();
+    let (t, d, speed, target) = (column("t_s"), column("d_true_m"), column("speed_m_s"), column("target_speed_m_s"));
+    let final_target = target.last().copied().unwrap_or(0.0);
+    let t_first = t.first().copied().unwrap_or(0.0);
+    let distance = metrics::decaying_error_step(&t, &d, &StepOptions::default()).ok();
+    // A step "at 0" is at the first sample (the world has stepped once before capture begins).
+    let speed_options = StepOptions { t_step: Some(speed_step_at_s.max(t_first)), ..StepOptions::default() };
+    let speed_step = metrics::rising_step(&t, &speed, final_target, &speed_options).ok();
+    let tracking = metrics::line_tracking(&t, &d, on_line_tolerance_m).ok();
+    report::summarise(distance.as_ref(), speed_step.as_ref(), tracking.as_ref())
+}
+
