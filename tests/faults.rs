@@ -380,13 +380,20 @@ fn world(terrain: TerrainSpec, gravity: Vector, specs: &[&str]) -> Lockstep {
 
 /// Hold at zero speed on a vertical wall for 10 s after the fault at 0.5 s; the drift (m, + up).
 fn wall_drift(specs: &[&str]) -> (f32, [f32; 4]) {
+    let (drift, pulls, _) = wall_drift_and_pulls(specs);
+    (drift, pulls)
+}
+
+/// [`wall_drift`] and the magnets' pulls (N) at the end as well.
+fn wall_drift_and_pulls(specs: &[&str]) -> (f32, [f32; 4], [f32; 4]) {
     let mut sim = world(flat(), tilted_gravity(90.0), specs);
     drive_wheels(&mut sim, 0);
     sim.run(Duration::from_millis(1000));
     let x0 = sim.world().chassis_pose().translation.x;
     let pulls = sim.world().adhesion().map(|a| a.force_n);
     sim.run(Duration::from_secs(10));
-    (sim.world().chassis_pose().translation.x - x0, pulls)
+    let end = sim.world().adhesion().map(|a| a.force_n);
+    (sim.world().chassis_pose().translation.x - x0, pulls, end)
 }
 
 #[test]
@@ -404,7 +411,10 @@ fn a_failed_magnet_pulls_nothing_and_the_others_hold_the_robot_on_a_wall_unless_
     let (drift, _) = wall_drift(&["magnet_failure:wheel=fl,at=0.5", "magnet_failure:wheel=rl,at=0.5"]);
     assert!(drift.abs() < 0.005, "left pair failed: drift {:.2} mm", drift * 1000.0);
     // ...but with both front magnets failed the front section peels off and the robot falls.
-    let (drift, pulls) = wall_drift(&["magnet_failure:wheel=fl,at=0.5", "magnet_failure:wheel=fr,at=0.5"]);
+    // The pulls are checked at the end: with the front section locked in pitch to the middle one
+    // (a multibody rocker) the frame turns away from the wall as one body, and 0.5 s after the
+    // failure the rear magnets still reach the steel (37 N each) before the robot falls.
+    let (drift, _, pulls) = wall_drift_and_pulls(&["magnet_failure:wheel=fl,at=0.5", "magnet_failure:wheel=fr,at=0.5"]);
     assert!(drift < -1.0, "front pair failed: fell only {:.3} m", -drift);
     assert!(pulls.iter().all(|&f| f == 0.0), "off the wall, no magnet reaches the steel: {pulls:?}");
 }

@@ -81,6 +81,24 @@ fn passive_magnet_reads_the_contact_angle_over_a_bump() {
 }
 
 #[test]
+fn front_wheels_roll_like_the_rear_ones_on_a_long_straight_drive() {
+    // All four wheels at the same Goal Velocity (14 units, 1000 mm/min) on flat steel for 40 s.
+    // With the rocker an impulse joint the front section gathered a pitch rate in rapier's
+    // solved velocities (not in its pose) that grew to 0.016 rad/s by 40 s: the front wheels'
+    // rate about their axles read 5 % above the rear ones' and the front treads scrubbed.
+    let mut sim = world(flat(), Vector::new(0.0, -G, 0.0), true);
+    drive_wheels(&mut sim, 14);
+    sim.run(Duration::from_secs(40));
+    let world = sim.world();
+    let rear = world.wheel_rate(WheelPosition::RearLeft);
+    for wheel in WheelPosition::ALL {
+        let (rate, slip) = (world.wheel_rate(wheel), world.wheel_slip(wheel));
+        assert!((rate - rear).abs() < 0.003 * rear, "{wheel:?} turns at {rate:.4} rad/s, the rear left at {rear:.4} rad/s");
+        assert!(slip.abs() < 1e-4, "{wheel:?} scrubs at {slip:.6} m/s");
+    }
+}
+
+#[test]
 fn rocker_keeps_all_four_wheels_on_a_one_sided_step() {
     // A 15 mm step under the right track only (z ≥ 0): the front section rolls about the rocker
     // so that the right front wheel climbs it while the left front wheel stays down.

@@ -318,13 +318,20 @@ impl RobotWorld {
             }
         }
 
-        // The front section rolls about x against the middle one (the rocker).
+        // The front section rolls about x against the middle one (the rocker). It is a multibody
+        // joint (reduced coordinates): the front section can only roll, by construction. As an
+        // impulse joint its pitch lock had to be solved against the two front wheel joints, whose
+        // bodies carry the servos' reflected rotor inertia (7.9e-3 kg·m² each about the axle, 8×
+        // the section's 9.8e-4 pitch inertia). Gauss–Seidel never converged on that ratio: the
+        // section kept a pitch rate in rapier's solved velocities that its poses did not have,
+        // growing without bound on a straight drive (0.0001 → 0.022 rad/s in 45 s), so the front
+        // wheels' motors and rates read that much off and the front treads scrubbed (25 % slip).
         let limit = body.rocker.limit_deg.to_radians();
         let rocker = RevoluteJointBuilder::new(Vector::X)
             .local_anchor1(Vector::new(half_base / 2.0, 0.0, 0.0))
             .local_anchor2(Vector::new(-half_base / 2.0, 0.0, 0.0))
             .limits([-limit, limit]);
-        physics.insert_impulse_joint(middle, front, rocker);
+        physics.multibody_joints.insert(middle, front, rocker, true);
 
         let mut wheels = Vec::with_capacity(4);
         for position in WheelPosition::ALL {
