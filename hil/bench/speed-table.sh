@@ -16,6 +16,7 @@ out="${OUT:-target/bench-results/speed-table}"
 cargo build --release --locked --quiet
 export PATH="$repo/.venv/bin:$PATH"
 rm -rf "$out"
+mkdir -p "$out"
 for speed in $speeds; do
     for run in $(seq "$repeat"); do
         dir="$out/x$speed-$run"

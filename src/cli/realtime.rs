@@ -78,9 +78,13 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let feed = Arc::new(SensorFeed::default());
     super::replay::record_sensor_reads(&handle, &feed);
 
-    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
-    let (port, sensors_url) = runtime.block_on(async {
-        let url = start_sensor_server(Arc::clone(&feed)).await?;
+    // The pty session and the sensor server each get a thread: the session waits for a reply's
+    // due time in a blocking ppoll, and the controller's HTTP reads every period must neither
+    // wait for that nor delay a reply (sharing one thread cost replies milliseconds of lateness).
+    let sensor_runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).thread_name("sensors").enable_all().build()?;
+    let sensors_url = sensor_runtime.block_on(start_sensor_server(Arc::clone(&feed)))?;
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).thread_name("pty").enable_all().build()?;
+    let port = runtime.block_on(async {
         let port = Arc::new(VirtualPort::open(options.link)?);
         let session = tokio::spawn(super::serve_pty(Arc::clone(&port), Arc::clone(&handle)));
         tokio::spawn(async move {
@@ -88,7 +92,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
                 warn!(%error, "pty session ended");
             }
         });
-        Ok::<_, anyhow::Error>((port, url))
+        Ok::<_, anyhow::Error>(port)
     })?;
 
     let command = external.substituted_command().map_err(|message| anyhow::anyhow!("scenario {}: [controller]: {message}", scenario.path.display()))?;
