@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Peak resident memory against simulated time: `climbsim run scenarios/flat-line.toml` for
-# DURATIONS simulated seconds (built-in controller, lockstep), and `climbsim serve
+# DURATIONS simulated seconds (built-in controller, lockstep; at the welding speed, 250 mm/min,
+# on a line and terrain long enough for 5 hours: the shipped 3.5 m line ends after 3 minutes,
+# and a robot that wanders off the terrain fails the run), and `climbsim serve
 # scenarios/flat-line.toml --speed 10` with no controller for SERVE_SECONDS wall seconds each
 # (ten times that simulated). Prints one Markdown row per run; GNU time measures the peak.
 #
@@ -19,7 +21,8 @@ echo "| command | simulated s | wall s | peak RSS (MB) |"
 echo "|---|---|---|---|"
 for duration in $durations; do
     /usr/bin/time -f "%e %M" -o "$out/run-$duration.time" target/release/climbsim run scenarios/flat-line.toml \
-        --set "world.duration_s=$duration" --set 'expect={}' --out "$out/run-$duration" > /dev/null
+        --set "world.duration_s=$duration" --set 'expect={}' --set speed.target_mm_min=250 \
+        --set terrain.size_m=200 --set 'line.points=[[-0.5, 0.0], [90.0, 0.0]]' --out "$out/run-$duration" > /dev/null
     read -r wall kb < <(tail -n 1 "$out/run-$duration.time")
     echo "| run flat-line.toml | $duration | $wall | $(python3 -c "print(f'{$kb / 1024:.1f}')") |"
 done

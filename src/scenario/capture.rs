@@ -174,9 +174,11 @@ impl Capture {
         Ok(())
     }
 
-    /// Keep no rows (the metric track is still kept).
+    /// Keep no rows and no metric track: for `serve`, whose session may last days and which
+    /// reports no step metrics (the track alone grows 1.4 KB per simulated second).
     pub fn discard(&mut self) {
         self.rows = Rows::Discard;
+        self.next_track_s = f64::INFINITY;
     }
 
     /// A row is due at `t_s` (never while rows are discarded: building one costs a servo scan).
@@ -247,3 +249,17 @@ pub fn summarise(track: &MetricTrack, speed_step_at_s: f64, on_line_tolerance_m:
     report::summarise(distance.as_ref(), speed_step.as_ref(), tracking.as_ref())
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `serve` discards: a session of days must not keep a sample every 20 ms.
+    #[test]
+    fn a_discarding_capture_keeps_neither_rows_nor_metric_track() {
+        let mut capture = Capture::new(50.0, None);
+        assert!(capture.row_due(0.0) && capture.track_due(0.0));
+        capture.discard();
+        assert!(!capture.row_due(0.0) && !capture.track_due(0.0) && !capture.track_due(1e6));
+    }
+}

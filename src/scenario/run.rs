@@ -194,7 +194,7 @@ impl Observer {
         Ok(self.capture.stream_to(out_dir)?)
     }
 
-    /// Keep no captured rows (`serve SCENARIO`, which writes no outputs).
+    /// Keep no captured rows and no metric track (`serve SCENARIO`, which writes no outputs).
     pub fn discard_rows(&mut self) {
         self.capture.discard();
     }
