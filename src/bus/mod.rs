@@ -151,8 +151,20 @@ impl Bus {
     /// controller's port is set to, where the transport knows it (a pty): servos set to another
     /// baud do not hear the packet, exactly as on a real bus.
     pub fn handle(&mut self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>) -> Transaction {
+        self.handle_on(packet, received_at, line_baud, false)
+    }
+
+    /// Like [`Bus::handle`] for a packet that came over a physical wire (a serial device): the
+    /// host saw its last byte at `received_at`, after its real wire time, so none is modelled,
+    /// and each reply's `start` is when to write it (the device's UART takes the wire time).
+    pub fn handle_from_physical_wire(&mut self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>) -> Transaction {
+        self.handle_on(packet, received_at, line_baud, true)
+    }
+
+    fn handle_on(&mut self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>, physical_wire: bool) -> Transaction {
         let baud = line_baud.unwrap_or(self.default_baud);
         let (instruction_end, reply_base) = match self.timing {
+            Timing::Wire if physical_wire => (received_at, received_at),
             Timing::Wire => {
                 let end = received_at.max(self.wire_free_at) + self.wire_time(packet.wire_len, baud);
                 (end, end)

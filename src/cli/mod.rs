@@ -2,6 +2,7 @@
 
 mod batch;
 mod controller;
+mod device;
 mod interrupt;
 mod pacer;
 mod realtime;
@@ -118,6 +119,26 @@ pub enum TimingArg {
     Off,
 }
 
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum EchoArg {
+    /// Drop what comes back if it is exactly what was sent.
+    Auto,
+    /// The device echoes every send: drop it (and count sends whose echo did not come).
+    On,
+    /// Never drop anything.
+    Off,
+}
+
+impl From<EchoArg> for climbsim::transport::Echo {
+    fn from(arg: EchoArg) -> Self {
+        match arg {
+            EchoArg::Auto => Self::Auto,
+            EchoArg::On => Self::On,
+            EchoArg::Off => Self::Off,
+        }
+    }
+}
+
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Emulate the robot's eight servos on a virtual serial port (and optionally TCP).
@@ -143,6 +164,15 @@ pub enum Command {
         /// frames. Received frames are accepted padded or not.
         #[arg(long, value_name = "BYTE|off", value_parser = parse_can_padding, default_value = "0xCC")]
         can_padding: CanPadding,
+        /// Also serve the bus on this serial device (a USB–RS485/TTL adapter, a UART, an
+        /// emulator's pty), with a real controller on its far side: opened exclusively, 8N1, no
+        /// flow control, at the servos' baud, following them when the controller changes it.
+        #[arg(long, value_name = "PATH")]
+        device: Option<PathBuf>,
+        /// Whether the device hears its own sends (half-duplex adapters, one-wire TTL):
+        /// `auto` drops what comes back if it is exactly what was sent.
+        #[arg(long, value_enum, default_value = "auto", requires = "device")]
+        echo: EchoArg,
         /// Reply timing.
         #[arg(long, value_enum, default_value = "wire")]
         timing: TimingArg,
@@ -296,9 +326,10 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, timing, trace_bus, robot, baud, report, faults, record, pace } => {
+        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, device, echo, timing, trace_bus, robot, baud, report, faults, record, pace } => {
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
-            let options = ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults, record, pace };
+            let device = device.map(|path| device::DeviceOptions { path, echo: echo.into() });
+            let options = ServeOptions { scenario, link, tcp, can, device, timing, trace_bus, baud, report, faults, record, pace };
             serve(options, &robot)
         }
         Command::Run { scenario, out, set, timing, link, robot, faults, record, pace } => {
@@ -408,6 +439,7 @@ struct ServeOptions {
     link: Option<PathBuf>,
     tcp: Option<std::net::SocketAddr>,
     can: Option<CanOptions>,
+    device: Option<device::DeviceOptions>,
     timing: TimingArg,
     trace_bus: Option<PathBuf>,
     baud: Option<u32>,
@@ -443,10 +475,13 @@ fn refuse_recorded_cli_faults(faults: &[ScheduledFault], record: Option<&std::pa
 }
 
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
-    let ServeOptions { scenario, link, tcp, can, timing, trace_bus, baud, report, faults, record, pace } = options;
+    let ServeOptions { scenario, link, tcp, can, device, timing, trace_bus, baud, report, faults, record, pace } = options;
     refuse_recorded_cli_faults(&faults, record.as_deref())?;
     if !pace.is_default() && can.is_some() {
         anyhow::bail!("--speed with --can: a CAN bus is a real bus whose other nodes keep real time; serve it at --speed 1");
+    }
+    if !pace.is_default() && device.is_some() {
+        anyhow::bail!("--speed with --device: the controller on a serial device keeps real time; serve it at --speed 1");
     }
     for (path, flag) in [(&report, "--report"), (&trace_bus, "--trace-bus"), (&record, "--record")] {
         if let Some(path) = path {
@@ -503,6 +538,10 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             Some(options) => Some(start_can(options.clone(), Arc::clone(&handle)).await?),
             None => None,
         };
+        let device_thread = match &device {
+            Some(options) => Some(device::start_device(options.clone(), Arc::clone(&handle)).await?),
+            None => None,
+        };
         let mut stdout = std::io::stdout().lock();
         writeln!(stdout, "port: {}", port.path().display())?;
         if let Some(server) = &tcp_server {
@@ -510,6 +549,9 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         }
         if let Some(options) = &can {
             writeln!(stdout, "can: {} request {} response {}", options.iface, options.ids.request, options.ids.response)?;
+        }
+        if let (Some(options), Some((_, bps))) = (&device, &device_thread) {
+            writeln!(stdout, "device: {} at {bps} bps", options.path.display())?;
         }
         if let Some(env) = &faketime {
             let assignments: Vec<String> = env.iter().map(|(k, v)| format!("{k}='{v}'")).collect();
@@ -561,6 +603,9 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         }
         if can_thread.as_ref().is_some_and(|thread| thread.is_finished()) {
             warn!("the CAN session had stopped before shutdown");
+        }
+        if device_thread.as_ref().is_some_and(|(thread, _)| thread.is_finished()) {
+            warn!("the device session had stopped before shutdown");
         }
         // Let the controller read the last reply before the master closes.
         port.drain(Duration::from_secs(1)).await;

@@ -3,8 +3,10 @@
 //! over any `AsyncRead + AsyncWrite`.
 
 pub mod can;
+mod echo;
 pub mod memory;
 mod pty;
+mod serial;
 pub mod stats;
 mod tcp;
 
@@ -20,7 +22,9 @@ use crate::bus::{Bus, Reply, Timing, TraceWriter, Transaction, wire};
 use crate::protocol::{DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};
 use crate::transcript::Recorder;
 
+pub use echo::{Echo, EchoFilter};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
+pub use serial::{DeviceLine, DeviceStream, SerialDevice, SerialError};
 pub use stats::{LineStats, LogHistogram, LoopKey, PhysicsPace, ReportExtras, TimingReport};
 pub use tcp::{TcpServer, parse_tcp_addr};
 
@@ -34,6 +38,8 @@ pub enum TransportError {
     Io(#[from] std::io::Error),
     #[error(transparent)]
     Can(#[from] can::CanError),
+    #[error(transparent)]
+    Serial(#[from] SerialError),
 }
 
 /// The emulator's monotonic time base: every timestamp is a `Duration` of simulated time since
@@ -145,10 +151,10 @@ impl BusHandle {
         self.with_stats(|stats| stats.report(extra))
     }
 
-    fn handle(&self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>) -> Transaction {
+    fn handle(&self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>, physical_wire: bool) -> Transaction {
         let key = LoopKey { instruction: packet.instruction, id: packet.id };
         let transaction = self.with_bus(|bus| {
-            let transaction = bus.handle(packet, received_at, line_baud);
+            let transaction = if physical_wire { bus.handle_from_physical_wire(packet, received_at, line_baud) } else { bus.handle(packet, received_at, line_baud) };
             if let Some(recorder) = &self.recorder {
                 recorder.packet(&transaction, line_baud);
             }
@@ -188,6 +194,35 @@ pub trait LineSettings: Send + Sync {
     fn wait_for_controller(&self, _timeout: Duration) -> Option<bool> {
         None
     }
+
+    /// The wire between the controller and this transport is real (a serial device): replies
+    /// are written when they start, not when a modelled wire would have delivered them.
+    fn physical_wire(&self) -> bool {
+        false
+    }
+
+    /// A transaction changed some servo's baud (`(id, bps)` of every servo): a transport with a
+    /// baud of its own follows.
+    fn servo_bauds_changed(&self, _servos: &[(u8, Option<u32>)]) {}
+}
+
+/// Bytes queued for reading on `fd` (FIONREAD).
+pub(crate) fn queued_bytes(fd: i32) -> Option<usize> {
+    let mut pending: libc::c_int = 0;
+    // SAFETY: FIONREAD writes one c_int through the pointer, which is valid for the call.
+    let rc = unsafe { libc::ioctl(fd, libc::FIONREAD, &mut pending) };
+    (rc == 0).then_some(pending.max(0) as usize)
+}
+
+/// Block until `fd` is readable or `timeout` has passed; whether it is readable. ppoll(2)
+/// sleeps on a high-resolution timer (tens of µs late, not the 1 ms of tokio's timer wheel);
+/// a transport's own thread has nothing else to do meanwhile.
+pub(crate) fn ppoll_readable(fd: i32, timeout: Duration) -> bool {
+    let mut fds = [libc::pollfd { fd, events: libc::POLLIN, revents: 0 }];
+    let timeout = libc::timespec { tv_sec: timeout.as_secs() as libc::time_t, tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32) };
+    // SAFETY: one valid pollfd for the call's duration, a valid timespec, no signal mask.
+    let rc = unsafe { libc::ppoll(fds.as_mut_ptr(), 1, &timeout, std::ptr::null()) };
+    rc > 0 && fds[0].revents & libc::POLLIN != 0
 }
 
 /// A transport without a baud (TCP, in-memory): every servo hears every packet.
@@ -239,7 +274,12 @@ where
         decoded: VecDeque::new(),
         last_reply_lens: Vec::new(),
         controller_tx_free_at: Duration::ZERO,
+        physical_wire: line.physical_wire(),
+        servo_bauds: Vec::new(),
     };
+    if session.physical_wire {
+        session.servo_bauds = session.handle.with_bus(servo_bauds);
+    }
     session.run().await
 }
 
@@ -260,6 +300,14 @@ struct Session<'a, S> {
     /// When the controller's own transmitter has shifted out everything it was given: a UART
     /// sends a second packet only after the first, however soon the program wrote it.
     controller_tx_free_at: Duration,
+    /// The line is a real wire (see [`LineSettings::physical_wire`]).
+    physical_wire: bool,
+    /// Each servo's baud after the last transaction, on a physical wire (whose device follows).
+    servo_bauds: Vec<(u8, Option<u32>)>,
+}
+
+fn servo_bauds(bus: &mut Bus) -> Vec<(u8, Option<u32>)> {
+    bus.servos().iter().map(|servo| (servo.id(), servo.baud_bps())).collect()
 }
 
 impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
@@ -300,10 +348,13 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 Ok(packet) => {
                     self.count_unread();
                     let span = info_span!("packet", id = packet.id, instruction = packet.instruction);
-                    let transaction = span.in_scope(|| self.handle.handle(packet, at, self.line.baud()));
+                    let transaction = span.in_scope(|| self.handle.handle(packet, at, self.line.baud(), self.physical_wire));
                     self.controller_tx_free_at = self.controller_tx_free_at.max(transaction.instruction_end);
                     if self.deliver(transaction).instrument(span).await? {
                         return Ok(true);
+                    }
+                    if self.physical_wire {
+                        self.follow_baud_changes();
                     }
                 }
                 // A bad CRC gets no reply (no error 0x03): ROBOTIS's own slave code drops such
@@ -315,6 +366,15 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             }
         }
         Ok(false)
+    }
+
+    /// A servo switches its baud after its reply: so does a device, once the reply is out.
+    fn follow_baud_changes(&mut self) {
+        let now = self.handle.with_bus(servo_bauds);
+        if now != self.servo_bauds {
+            self.line.servo_bauds_changed(&now);
+            self.servo_bauds = now;
+        }
     }
 
     /// A request while earlier replies sit unread: the controller moved on without them.
@@ -340,14 +400,18 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         if replies.is_empty() {
             return Ok(false);
         }
-        if self.timing == Timing::Wire {
+        // On a physical wire collisions happen on the wire itself, not in a model.
+        let modelled_wire = self.timing == Timing::Wire && !self.physical_wire;
+        if modelled_wire {
             self.collide_queued(&mut replies);
         }
         let mut closed = false;
         let last = replies.len() - 1;
         for index in 0..replies.len() {
             if self.timing == Timing::Wire {
-                let due = replies[index].end;
+                // A modelled wire hands a reply over when its last byte has arrived; a real one
+                // needs it written when its first byte starts.
+                let due = if self.physical_wire { replies[index].start } else { replies[index].end };
                 closed |= self.wait_watching(&mut replies[index..], due).await?;
             }
             if index == last {
@@ -355,7 +419,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 // once written, the controller may act on it, even end the session.
                 let now = self.clock.now();
                 let name = transaction.instruction.as_ref().map_or("Malformed", |i| i.name());
-                let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(replies[last].end));
+                let due = if self.physical_wire { replies[last].start } else { replies[last].end };
+                let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(due));
                 self.handle.with_stats(|stats| stats.answered(name, replies.len(), latency, late, now));
                 self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
             }
@@ -439,7 +504,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         let at = self.clock.now();
         // A copy: rare (only a controller that does not wait), and `put_on_wire` needs `self`.
         let mut sent = self.buf[..n].to_vec();
-        self.put_on_wire(&mut sent, at, undelivered);
+        if !self.physical_wire {
+            self.put_on_wire(&mut sent, at, undelivered);
+        }
         let framed = self.decoder.push(at, &sent);
         self.decoded.extend(framed.into_iter().map(|r| (r, at)));
     }

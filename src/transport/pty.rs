@@ -23,7 +23,7 @@ use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tracing::{info, warn};
 
-use super::LineSettings;
+use super::{LineSettings, queued_bytes};
 
 /// How long a read waits in poll(2) before parking on the reactor.
 const QUICK_WAIT_MS: u8 = 1;
@@ -194,14 +194,6 @@ pub struct PtyLine {
     master: i32,
 }
 
-/// Bytes queued for reading on `fd` (FIONREAD).
-fn queued_bytes(fd: i32) -> Option<usize> {
-    let mut pending: libc::c_int = 0;
-    // SAFETY: FIONREAD writes one c_int through the pointer, which is valid for the call.
-    let rc = unsafe { libc::ioctl(fd, libc::FIONREAD, &mut pending) };
-    (rc == 0).then_some(pending.max(0) as usize)
-}
-
 impl LineSettings for PtyLine {
     fn baud(&self) -> Option<u32> {
         // SAFETY: termios2 is plain data; TCGETS2 fills it and the pointer is valid for the call.
@@ -219,13 +211,7 @@ impl LineSettings for PtyLine {
     }
 
     fn wait_for_controller(&self, timeout: Duration) -> Option<bool> {
-        // ppoll(2) sleeps on a high-resolution timer (tens of µs late, not the 1 ms of tokio's
-        // timer wheel); the pty's own thread has nothing else to do meanwhile.
-        let mut fds = [libc::pollfd { fd: self.master, events: libc::POLLIN, revents: 0 }];
-        let timeout = libc::timespec { tv_sec: timeout.as_secs() as libc::time_t, tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32) };
-        // SAFETY: one valid pollfd for the call's duration, a valid timespec, no signal mask.
-        let rc = unsafe { libc::ppoll(fds.as_mut_ptr(), 1, &timeout, std::ptr::null()) };
-        Some(rc > 0 && fds[0].revents & libc::POLLIN != 0)
+        Some(super::ppoll_readable(self.master, timeout))
     }
 }
 
