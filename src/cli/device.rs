@@ -5,16 +5,51 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
+use climbsim::transport::latency::{self, LowLatencyGuard};
 use climbsim::transport::{BusHandle, Echo, SerialDevice, SerialError, serve_stream};
+use tokio::sync::Notify;
 use tracing::{info, warn};
 
 /// How often a device that disappeared (USB unplugged) is looked for again.
 const REOPEN_EVERY: Duration = Duration::from_millis(500);
+/// How long shutdown waits for the device thread to put the adapter's settings back.
+const STOP_WAIT: Duration = Duration::from_secs(2);
 
 #[derive(Debug, Clone)]
 pub struct DeviceOptions {
     pub path: PathBuf,
     pub echo: Echo,
+    /// `--low-latency`: the adapter's latency timer to 1 ms and ASYNC_LOW_LATENCY, both put back
+    /// on exit.
+    pub low_latency: bool,
+}
+
+/// The device's thread, serving it until stopped.
+pub struct DeviceService {
+    thread: std::thread::JoinHandle<()>,
+    stop: Arc<Notify>,
+    /// The rate it opened at.
+    pub baud: u32,
+}
+
+impl DeviceService {
+    pub fn is_finished(&self) -> bool {
+        self.thread.is_finished()
+    }
+
+    /// End the session, close the device and put its latency settings back.
+    pub fn stop(self) {
+        self.stop.notify_one();
+        let deadline = std::time::Instant::now() + STOP_WAIT;
+        while !self.thread.is_finished() && std::time::Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        if self.thread.is_finished() {
+            let _ = self.thread.join();
+        } else {
+            warn!("the device thread did not stop; the adapter's latency settings may not be restored");
+        }
+    }
 }
 
 /// The baud most servos listen at: what the device opens at.
@@ -31,42 +66,75 @@ fn servo_baud(handle: &BusHandle) -> Option<u32> {
     })
 }
 
+/// The adapter's latency timer: said at start, and set to 1 ms with `--low-latency`.
+fn latency_timer(options: &DeviceOptions) -> Result<Option<LowLatencyGuard>, latency::LatencyError> {
+    let sysfs = latency::sysfs_root();
+    if options.low_latency {
+        return latency::set_low(&options.path, &sysfs).map(Some);
+    }
+    if let Some(timer) = latency::read_timer(&options.path, &sysfs) {
+        latency::warn_if_slow(&options.path, &timer);
+    }
+    Ok(None)
+}
+
+/// The device with its latency settings.
+struct Opened {
+    device: Arc<SerialDevice>,
+    // Dropped after the device: the timer is put back once the descriptor is closed.
+    _timer: Option<LowLatencyGuard>,
+}
+
+fn open(options: &DeviceOptions, handle: &BusHandle) -> Result<Opened> {
+    let baud = servo_baud(handle).unwrap_or(57_600);
+    let device = SerialDevice::open(&options.path, baud, options.echo, options.low_latency)?;
+    // After the device: while it is unplugged its sysfs entry is gone too.
+    let timer = latency_timer(options)?;
+    Ok(Opened { device: Arc::new(device), _timer: timer })
+}
+
 /// Open the device on a thread of its own (precise reply timing waits there, like the pty's)
-/// and serve the bus on it; returns the device's baud once it is open. A device that goes away
-/// is reopened when it comes back; the bus and every other transport carry on meanwhile.
-pub async fn start_device(options: DeviceOptions, handle: Arc<BusHandle>) -> Result<(std::thread::JoinHandle<()>, u32)> {
+/// and serve the bus on it; returns once it is open. A device that goes away is reopened when
+/// it comes back; the bus and every other transport carry on meanwhile.
+pub async fn start_device(options: DeviceOptions, handle: Arc<BusHandle>) -> Result<DeviceService> {
     let (opened_tx, opened_rx) = tokio::sync::oneshot::channel();
+    let stop = Arc::new(Notify::new());
+    let stop_thread = Arc::clone(&stop);
     let thread = std::thread::Builder::new().name("device".into()).spawn(move || {
         let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
             Ok(runtime) => runtime,
             Err(error) => return drop(opened_tx.send(Err(anyhow::Error::from(error)))),
         };
         runtime.block_on(async move {
-            let baud = servo_baud(&handle).unwrap_or(57_600);
             // The device registers with this thread's runtime, so it is opened here.
-            let device = match SerialDevice::open(&options.path, baud, options.echo) {
-                Ok(device) => Arc::new(device),
-                Err(error) => return drop(opened_tx.send(Err(error.into()))),
+            let mut opened = match open(&options, &handle) {
+                Ok(opened) => opened,
+                Err(error) => return drop(opened_tx.send(Err(error))),
             };
-            let _ = opened_tx.send(Ok(baud));
-            let mut device = device;
+            let _ = opened_tx.send(Ok(opened.device.baud()));
             loop {
                 // Spawned, not run in `block_on`: see the pty thread in `serve`.
-                let session = tokio::spawn(serve_on(Arc::clone(&device), Arc::clone(&handle)));
-                match session.await {
-                    Ok(Ok(())) => warn!(device = %options.path.display(), "the device hung up"),
-                    Ok(Err(error)) => warn!(device = %options.path.display(), %error, "the device failed (unplugged?)"),
-                    Err(error) => warn!(device = %options.path.display(), %error, "the device session failed"),
+                let mut session = tokio::spawn(serve_on(Arc::clone(&opened.device), Arc::clone(&handle)));
+                tokio::select! {
+                    () = stop_thread.notified() => return session.abort(),
+                    ended = &mut session => match ended {
+                        Ok(Ok(())) => warn!(device = %options.path.display(), "the device hung up"),
+                        Ok(Err(error)) => warn!(device = %options.path.display(), %error, "the device failed (unplugged?)"),
+                        Err(error) => warn!(device = %options.path.display(), %error, "the device session failed"),
+                    },
                 }
-                let (echoes, missing) = device.echo_counts();
+                let (echoes, missing) = opened.device.echo_counts();
                 info!(echoes, missing, "echo of own sends on the device so far");
-                drop(device);
-                device = reopen(&options, &handle).await;
+                drop(opened);
+                opened = tokio::select! {
+                    () = stop_thread.notified() => return,
+                    back = reopen(&options, &handle) => back,
+                };
             }
         });
     })?;
     let baud = opened_rx.await.context("the device thread ended before opening the device")??;
-    Ok((thread, baud))
+    Ok(DeviceService { thread, stop, baud })
 }
 
 async fn serve_on(device: Arc<SerialDevice>, handle: Arc<BusHandle>) -> Result<(), climbsim::transport::TransportError> {
@@ -75,24 +143,23 @@ async fn serve_on(device: Arc<SerialDevice>, handle: Arc<BusHandle>) -> Result<(
 }
 
 /// Wait for the device to come back and open it again, at the servos' baud as it is now.
-async fn reopen(options: &DeviceOptions, handle: &BusHandle) -> Arc<SerialDevice> {
+async fn reopen(options: &DeviceOptions, handle: &BusHandle) -> Opened {
     let mut said = None::<String>;
     loop {
         tokio::time::sleep(REOPEN_EVERY).await;
-        let baud = servo_baud(handle).unwrap_or(57_600);
-        match SerialDevice::open(&options.path, baud, options.echo) {
-            Ok(device) => {
-                warn!(device = %options.path.display(), baud, "the device is back; serving it again");
-                return Arc::new(device);
+        match open(options, handle) {
+            Ok(opened) => {
+                warn!(device = %options.path.display(), baud = opened.device.baud(), "the device is back; serving it again");
+                return opened;
             }
             Err(error) => {
-                let text = error.to_string();
+                let text = format!("{error:#}");
                 // Said once per kind of failure, not every half second.
                 if said.as_deref() != Some(&text) {
-                    if !matches!(error, SerialError::NotFound(_)) {
-                        warn!(%error, "cannot reopen the device yet");
-                    } else {
+                    if error.downcast_ref::<SerialError>().is_some_and(|e| matches!(e, SerialError::NotFound(_))) {
                         info!(device = %options.path.display(), "waiting for the device to come back");
+                    } else {
+                        warn!(error = %text, "cannot reopen the device yet");
                     }
                     said = Some(text);
                 }

@@ -173,6 +173,10 @@ pub enum Command {
         /// `auto` drops what comes back if it is exactly what was sent.
         #[arg(long, value_enum, default_value = "auto", requires = "device")]
         echo: EchoArg,
+        /// Set the USB adapter's latency timer to 1 ms (FTDI's default is 16) and the tty's
+        /// ASYNC_LOW_LATENCY flag while serving; both are put back on exit.
+        #[arg(long, requires = "device")]
+        low_latency: bool,
         /// Reply timing.
         #[arg(long, value_enum, default_value = "wire")]
         timing: TimingArg,
@@ -326,9 +330,9 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, device, echo, timing, trace_bus, robot, baud, report, faults, record, pace } => {
+        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, device, echo, low_latency, timing, trace_bus, robot, baud, report, faults, record, pace } => {
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
-            let device = device.map(|path| device::DeviceOptions { path, echo: echo.into() });
+            let device = device.map(|path| device::DeviceOptions { path, echo: echo.into(), low_latency });
             let options = ServeOptions { scenario, link, tcp, can, device, timing, trace_bus, baud, report, faults, record, pace };
             serve(options, &robot)
         }
@@ -550,8 +554,8 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         if let Some(options) = &can {
             writeln!(stdout, "can: {} request {} response {}", options.iface, options.ids.request, options.ids.response)?;
         }
-        if let (Some(options), Some((_, bps))) = (&device, &device_thread) {
-            writeln!(stdout, "device: {} at {bps} bps", options.path.display())?;
+        if let (Some(options), Some(service)) = (&device, &device_thread) {
+            writeln!(stdout, "device: {} at {} bps", options.path.display(), service.baud)?;
         }
         if let Some(env) = &faketime {
             let assignments: Vec<String> = env.iter().map(|(k, v)| format!("{k}='{v}'")).collect();
@@ -604,8 +608,11 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         if can_thread.as_ref().is_some_and(|thread| thread.is_finished()) {
             warn!("the CAN session had stopped before shutdown");
         }
-        if device_thread.as_ref().is_some_and(|(thread, _)| thread.is_finished()) {
+        if device_thread.as_ref().is_some_and(device::DeviceService::is_finished) {
             warn!("the device session had stopped before shutdown");
+        }
+        if let Some(service) = device_thread {
+            service.stop();
         }
         // Let the controller read the last reply before the master closes.
         port.drain(Duration::from_secs(1)).await;

@@ -4,6 +4,7 @@
 
 pub mod can;
 mod echo;
+pub mod latency;
 pub mod memory;
 mod pty;
 mod serial;
@@ -25,7 +26,7 @@ use crate::transcript::Recorder;
 pub use echo::{Echo, EchoFilter};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
 pub use serial::{DeviceLine, DeviceStream, SerialDevice, SerialError};
-pub use stats::{LineStats, LogHistogram, LoopKey, PhysicsPace, ReportExtras, TimingReport};
+pub use stats::{Answered, LineStats, LogHistogram, LoopKey, MasterTimeouts, PhysicsPace, ReportExtras, TimingReport};
 pub use tcp::{TcpServer, parse_tcp_addr};
 
 #[derive(Debug, Error)]
@@ -421,7 +422,12 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 let name = transaction.instruction.as_ref().map_or("Malformed", |i| i.name());
                 let due = if self.physical_wire { replies[last].start } else { replies[last].end };
                 let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(due));
-                self.handle.with_stats(|stats| stats.answered(name, replies.len(), latency, late, now));
+                let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
+                let replies_wire = byte_time * replies.iter().map(|r| r.bytes.len() as u32).sum::<u32>();
+                // Handed over at its start on a physical wire, its bytes still have to cross it.
+                let complete = if self.physical_wire { latency + byte_time * replies[last].bytes.len() as u32 } else { latency };
+                let answer = stats::Answered { instruction: name, replies: replies.len(), latency, late, at: now, complete, replies_wire };
+                self.handle.with_stats(|stats| stats.answered(answer));
                 self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
             }
             self.stream.write_all(&replies[index].bytes).await?;

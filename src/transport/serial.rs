@@ -51,6 +51,16 @@ pub struct SerialDevice {
     path: PathBuf,
     baud: AtomicU32,
     received: Mutex<Received>,
+    /// ASYNC_LOW_LATENCY before `--low-latency` set it, where the driver has the flag.
+    low_latency_was: Option<bool>,
+}
+
+impl Drop for SerialDevice {
+    fn drop(&mut self) {
+        if self.low_latency_was == Some(false) {
+            super::latency::set_async_low_latency(self.fd.get_ref().as_raw_fd(), false);
+        }
+    }
 }
 
 /// What the device has received, through its echo filter.
@@ -64,7 +74,7 @@ struct Received {
 impl SerialDevice {
     /// Open `path` exclusively at `baud`, 8N1, no flow control, raw. Must be called inside a
     /// tokio runtime (the descriptor is registered with its reactor).
-    pub fn open(path: &Path, baud: u32, echo: Echo) -> Result<Self, SerialError> {
+    pub fn open(path: &Path, baud: u32, echo: Echo, low_latency: bool) -> Result<Self, SerialError> {
         let builder = serialport::new(path.to_string_lossy(), baud)
             .data_bits(serialport::DataBits::Eight)
             .parity(serialport::Parity::None)
@@ -81,8 +91,10 @@ impl SerialDevice {
         // SAFETY: the OwnedFd is moved into the AsyncFd, which keeps it open for its whole life.
         let fd = unsafe { AsyncFd::register(fd) }.map_err(|e| io_error(e.into()))?;
         info!(device = %path.display(), baud, ?echo, "serial device open");
+        // Put back on close: the flag outlives the descriptor in the driver.
+        let low_latency_was = if low_latency { super::latency::set_async_low_latency(fd.get_ref().as_raw_fd(), true) } else { None };
         let received = Received { echo: EchoFilter::new(echo), ready: VecDeque::new(), scratch: vec![0; 4096] };
-        Ok(Self { fd, path: path.to_owned(), baud: AtomicU32::new(baud), received: Mutex::new(received) })
+        Ok(Self { fd, path: path.to_owned(), baud: AtomicU32::new(baud), received: Mutex::new(received), low_latency_was })
     }
 
     pub fn path(&self) -> &Path {

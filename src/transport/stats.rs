@@ -132,6 +132,40 @@ pub struct LineStats {
     inter_byte_gaps: u64,
     frame_errors: u64,
     baud_mismatch_packets: u64,
+    over_timeouts: MasterTimeouts,
+}
+
+/// Transactions that took longer than common masters wait for them: what the controller would
+/// have reported as a timeout, had it been one of these. Counted from the request's last byte to
+/// the last reply's last byte at the controller.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct MasterTimeouts {
+    /// Dynamixel2Arduino's 10 ms for a whole transaction.
+    pub dynamixel2arduino_10ms: u64,
+    /// The official DynamixelSDK's packet timeout: twice its 16 ms latency-timer allowance plus
+    /// 2 ms, plus the wire time of the reply (`PortHandler.setPacketTimeout`).
+    pub dynamixel_sdk_34ms_plus_wire: u64,
+}
+
+/// Dynamixel2Arduino's default transaction timeout.
+const DYNAMIXEL2ARDUINO_TIMEOUT: Duration = Duration::from_millis(10);
+/// The official SDK's packet timeout, less the reply's wire time.
+const DYNAMIXEL_SDK_TIMEOUT: Duration = Duration::from_millis(34);
+
+/// One transaction's replies handed over.
+#[derive(Debug, Clone, Copy)]
+pub struct Answered {
+    pub instruction: &'static str,
+    pub replies: usize,
+    /// Request's last byte → last reply handed over.
+    pub latency: Duration,
+    /// How late the last reply was handed over against its due time.
+    pub late: Duration,
+    pub at: Duration,
+    /// Request's last byte → the last reply's last byte at the controller.
+    pub complete: Duration,
+    /// The replies' own wire time.
+    pub replies_wire: Duration,
 }
 
 impl LineStats {
@@ -151,11 +185,13 @@ impl LineStats {
 
     /// The last reply to an instruction was handed to the controller `latency` after the
     /// instruction arrived, `late` after the wire model's due time.
-    pub fn answered(&mut self, instruction: &'static str, replies: usize, latency: Duration, late: Duration, at: Duration) {
-        self.replies += replies as u64;
-        self.latency.entry(instruction).or_default().record(latency);
-        self.lateness.record(late);
-        self.last_at = self.last_at.max(at);
+    pub fn answered(&mut self, answer: Answered) {
+        self.replies += answer.replies as u64;
+        self.latency.entry(answer.instruction).or_default().record(answer.latency);
+        self.lateness.record(answer.late);
+        self.last_at = self.last_at.max(answer.at);
+        self.over_timeouts.dynamixel2arduino_10ms += u64::from(answer.complete > DYNAMIXEL2ARDUINO_TIMEOUT);
+        self.over_timeouts.dynamixel_sdk_34ms_plus_wire += u64::from(answer.complete > DYNAMIXEL_SDK_TIMEOUT + answer.replies_wire);
     }
 
     /// A new request came while `bytes` of earlier replies (`replies` packets) were unread.
@@ -217,6 +253,7 @@ impl LineStats {
             inter_byte_gaps: self.inter_byte_gaps,
             frame_errors: self.frame_errors,
             baud_mismatch_packets: self.baud_mismatch_packets,
+            over_master_timeouts: self.over_timeouts,
             watchdog_expiries: extra.watchdog_expiries,
             speed: if extra.pace.speed > 0.0 { extra.pace.speed } else { 1.0 },
             physics_ticks: extra.pace.ticks,
@@ -298,6 +335,8 @@ pub struct TimingReport {
     pub inter_byte_gaps: u64,
     pub frame_errors: u64,
     pub baud_mismatch_packets: u64,
+    /// Transactions slower than common masters' timeouts.
+    pub over_master_timeouts: MasterTimeouts,
     pub watchdog_expiries: u64,
     /// Simulated seconds per wall-clock second; every time in this report is simulated time.
     pub speed: f64,
@@ -349,6 +388,13 @@ impl TimingReport {
             "  collisions {}, unread replies {}, inter-byte gaps {}, frame errors {}, baud mismatches {}, watchdog expiries {}, physics overruns {} of {} ticks",
             self.collisions, self.unread_replies, self.inter_byte_gaps, self.frame_errors, self.baud_mismatch_packets, self.watchdog_expiries, self.physics_overruns, self.physics_ticks
         );
+        let over = self.over_master_timeouts;
+        if over != MasterTimeouts::default() {
+            out += &format!(
+                "\n  slower than masters wait: {} transactions over Dynamixel2Arduino's 10 ms, {} over the official SDK's 34 ms + wire time",
+                over.dynamixel2arduino_10ms, over.dynamixel_sdk_34ms_plus_wire
+            );
+        }
         if let Some(q) = &self.physics_lateness_us {
             out += &format!("\n  world at {}x: ticks handled p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs after their deadlines (simulated time)", self.speed, q.p50_us, q.p99_us, q.max_us);
         }
@@ -372,6 +418,27 @@ mod tests {
         assert!((q.p99_us - 990.0).abs() / 990.0 < 0.012, "{q:?}");
         assert_eq!(q.max_us, 1000.0);
         assert!((q.mean_us - 500.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn transactions_slower_than_masters_wait_are_counted_against_each_timeout() {
+        let mut stats = LineStats::default();
+        let answer = |complete_ms: u64| Answered {
+            instruction: "Read",
+            replies: 1,
+            latency: Duration::from_millis(complete_ms),
+            late: Duration::ZERO,
+            at: Duration::ZERO,
+            complete: Duration::from_millis(complete_ms),
+            replies_wire: Duration::from_millis(2),
+        };
+        for ms in [1, 9, 11, 35, 37] {
+            stats.answered(answer(ms));
+        }
+        let over = stats.report(ReportExtras::default()).over_master_timeouts;
+        // 11, 35 and 37 ms exceed 10 ms; only 37 exceeds 34 ms + 2 ms of wire.
+        assert_eq!(over, MasterTimeouts { dynamixel2arduino_10ms: 3, dynamixel_sdk_34ms_plus_wire: 1 });
+        assert!(stats.report(ReportExtras::default()).human_summary().contains("3 transactions over Dynamixel2Arduino's 10 ms"));
     }
 
     #[test]

@@ -295,3 +295,45 @@ def test_an_unplugged_device_is_reopened_and_the_bus_kept_its_state(start_emulat
     finally:
         port.closePort()
     assert "the device is back" in emu.stderr(), emu.diagnostics()
+
+
+def fake_sysfs(tmp_path: Path, cable: NullModem, ms: int) -> Path:
+    """A directory standing in for /sys with the cable's device end as a USB-serial adapter."""
+    name = os.path.basename(os.path.realpath(cable.device_link))
+    root = tmp_path / "sys"
+    timer = root / "bus/usb-serial/devices" / name / "latency_timer"
+    timer.parent.mkdir(parents=True)
+    timer.write_text(f"{ms}\n")
+    return root
+
+
+def test_a_slow_latency_timer_is_reported(start_emulator, null_modem, tmp_path, monkeypatch):
+    cable = null_modem()
+    monkeypatch.setenv("CLIMBSIM_SYSFS_ROOT", str(fake_sysfs(tmp_path, cable, 16)))
+    emu = serve_device(start_emulator, cable)
+    deadline = time.monotonic() + 2
+    while "latency timer" not in emu.stderr() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert "up to 16 ms" in emu.stderr() and "--low-latency" in emu.stderr(), emu.diagnostics()
+
+
+def test_low_latency_sets_the_timer_to_1_ms_and_puts_it_back_on_exit(start_emulator, null_modem, tmp_path, monkeypatch):
+    cable = null_modem()
+    sysfs = fake_sysfs(tmp_path, cable, 16)
+    timer = next(sysfs.glob("bus/usb-serial/devices/*/latency_timer"))
+    monkeypatch.setenv("CLIMBSIM_SYSFS_ROOT", str(sysfs))
+    emu = serve_device(start_emulator, cable, "--low-latency")
+    assert timer.read_text().strip() == "1", emu.diagnostics()
+    assert "up to 16 ms" not in emu.stderr()
+    assert emu.stop() == 0, emu.diagnostics()
+    assert timer.read_text().strip() == "16", "the timer was not put back"
+
+
+def test_low_latency_on_a_device_without_a_timer_is_a_clear_error(null_modem, tmp_path):
+    cable = null_modem()
+    env = dict(os.environ, CLIMBSIM_SYSFS_ROOT=str(tmp_path / "empty-sys"))
+    run = subprocess.run(
+        [str(climbsim_bin()), "serve", "--device", str(cable.device_link), "--low-latency"],
+        capture_output=True, text=True, timeout=20, env=env,
+    )
+    assert run.returncode == 2 and "has no USB latency timer" in run.stderr, run.stderr
