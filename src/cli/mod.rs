@@ -22,7 +22,7 @@ use climbsim::fault::ScheduledFault;
 use climbsim::robot::RobotDescription;
 use climbsim::scenario::Scenario;
 use climbsim::transport::can::CanIds;
-use climbsim::transport::{BusHandle, Clock, PhysicsPace, TcpServer, TimingReport, VirtualPort, parse_tcp_addr, serve_stream};
+use climbsim::transport::{Adapter, AdapterModel, BusHandle, Clock, PhysicsPace, TcpServer, TimingReport, VirtualPort, parse_tcp_addr, serve_stream_through};
 
 use pacer::Pacer;
 
@@ -119,6 +119,15 @@ pub enum TimingArg {
     Off,
 }
 
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum AdapterArg {
+    /// Replies reach the controller as they arrive.
+    Ideal,
+    /// ROBOTIS U2D2 (FTDI FT232H): USB packets of 62 bytes, latency timer 16 ms unless
+    /// --latency-timer-ms.
+    U2d2,
+}
+
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum EchoArg {
     /// Drop what comes back if it is exactly what was sent.
@@ -152,6 +161,11 @@ pub enum Command {
         /// Also listen for controllers on TCP: PORT or HOST:PORT (a bare port binds 127.0.0.1).
         #[arg(long, value_parser = parse_tcp_addr)]
         tcp: Option<std::net::SocketAddr>,
+        /// Also connect to a controller that is a TCP server, HOST:PORT (firmware in QEMU with
+        /// `-serial tcp::PORT,server`, Renode's server socket terminal, ser2net), and reconnect
+        /// whenever it goes away.
+        #[arg(long, value_name = "HOST:PORT", value_parser = parse_tcp_addr)]
+        tcp_connect: Option<std::net::SocketAddr>,
         /// Also serve the bus on this SocketCAN interface (e.g. can0, vcan0): each Dynamixel
         /// packet is one ISO-TP (ISO 15765-2) message. Linux, `can` feature.
         #[arg(long, value_name = "IFACE")]
@@ -180,6 +194,14 @@ pub enum Command {
         /// Reply timing.
         #[arg(long, value_enum, default_value = "wire")]
         timing: TimingArg,
+        /// The USB adapter the controller on the pty sits behind: `ideal` hands it each reply
+        /// as it arrives; `u2d2` (an FTDI FT232H) holds bytes until 62 fill a USB packet or its
+        /// latency timer expires, as the real one does (docs/hardware.md).
+        #[arg(long, value_enum, default_value = "ideal")]
+        adapter: AdapterArg,
+        /// The modelled adapter's latency timer (Linux's default for FTDI chips is 16 ms).
+        #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u32).range(1..=255))]
+        latency_timer_ms: Option<u32>,
         /// Write every bus transaction to this file as JSON lines.
         #[arg(long)]
         trace_bus: Option<PathBuf>,
@@ -330,10 +352,15 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, can, can_ids, can_padding, device, echo, low_latency, timing, trace_bus, robot, baud, report, faults, record, pace } => {
+        Command::Serve { scenario, link, tcp, tcp_connect, can, can_ids, can_padding, device, echo, low_latency, timing, adapter, latency_timer_ms, trace_bus, robot, baud, report, faults, record, pace } => {
+            let adapter = match (adapter, latency_timer_ms) {
+                (AdapterArg::Ideal, Some(_)) => bail!("--latency-timer-ms is a setting of a modelled adapter: give --adapter u2d2 with it"),
+                (AdapterArg::Ideal, None) => Adapter::Ideal,
+                (AdapterArg::U2d2, ms) => Adapter::u2d2(ms),
+            };
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
             let device = device.map(|path| device::DeviceOptions { path, echo: echo.into(), low_latency });
-            let options = ServeOptions { scenario, link, tcp, can, device, timing, trace_bus, baud, report, faults, record, pace };
+            let options = ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, pace };
             serve(options, &robot)
         }
         Command::Run { scenario, out, set, timing, link, robot, faults, record, pace } => {
@@ -442,9 +469,11 @@ struct ServeOptions {
     scenario: Option<PathBuf>,
     link: Option<PathBuf>,
     tcp: Option<std::net::SocketAddr>,
+    tcp_connect: Option<std::net::SocketAddr>,
     can: Option<CanOptions>,
     device: Option<device::DeviceOptions>,
     timing: TimingArg,
+    adapter: Adapter,
     trace_bus: Option<PathBuf>,
     baud: Option<u32>,
     report: Option<PathBuf>,
@@ -479,7 +508,7 @@ fn refuse_recorded_cli_faults(faults: &[ScheduledFault], record: Option<&std::pa
 }
 
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
-    let ServeOptions { scenario, link, tcp, can, device, timing, trace_bus, baud, report, faults, record, pace } = options;
+    let ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, pace } = options;
     refuse_recorded_cli_faults(&faults, record.as_deref())?;
     if !pace.is_default() && can.is_some() {
         anyhow::bail!("--speed with --can: a CAN bus is a real bus whose other nodes keep real time; serve it at --speed 1");
@@ -551,6 +580,10 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         if let Some(server) = &tcp_server {
             writeln!(stdout, "tcp: {}", server.local_addr()?)?;
         }
+        if let Some(addr) = tcp_connect {
+            climbsim::transport::connect_forever(addr, Arc::clone(&handle))?;
+            writeln!(stdout, "tcp-connect: {addr}")?;
+        }
         if let Some(options) = &can {
             writeln!(stdout, "can: {} request {} response {}", options.iface, options.ids.request, options.ids.response)?;
         }
@@ -572,7 +605,7 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             // Spawned, not run in `block_on`: a spawned task's I/O wake-ups stay in the scheduler's
             // local queue, while a `block_on` future is woken through the driver's eventfd, which
             // costs two extra syscalls and an extra epoll round per packet.
-            runtime.block_on(async move { tokio::spawn(serve_pty(pty_port, pty_handle)).await? })
+            runtime.block_on(async move { tokio::spawn(serve_pty(pty_port, pty_handle, adapter)).await? })
         })?;
         // A world runs on the wall clock: a pacer advances it every firmware tick against
         // absolute deadlines, so it moves between packets too (packets advance it as well). The
@@ -683,9 +716,10 @@ async fn start_can(_options: CanOptions, _handle: Arc<BusHandle>) -> Result<std:
     anyhow::bail!("--can needs SocketCAN: this climbsim was built without the `can` feature or not for Linux")
 }
 
-/// Serve the pty until the process ends. The port outlives every controller connection.
-async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>) -> Result<()> {
+/// Serve the pty until the process ends, the controller behind `adapter`. The port outlives
+/// every controller connection.
+async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) -> Result<()> {
     let line = port.line();
-    serve_stream(port.stream(), handle, &line).await?;
+    serve_stream_through(port.stream(), handle, &line, AdapterModel::new(adapter)).await?;
     Ok(())
 }

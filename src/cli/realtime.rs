@@ -86,7 +86,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).thread_name("pty").enable_all().build()?;
     let port = runtime.block_on(async {
         let port = Arc::new(VirtualPort::open(options.link)?);
-        let session = tokio::spawn(super::serve_pty(Arc::clone(&port), Arc::clone(&handle)));
+        let session = tokio::spawn(super::serve_pty(Arc::clone(&port), Arc::clone(&handle), climbsim::transport::Adapter::Ideal));
         tokio::spawn(async move {
             if let Ok(Err(error)) = session.await {
                 warn!(%error, "pty session ended");

@@ -2,6 +2,7 @@
 //! duplex ([`memory`]), or CAN with ISO-TP ([`can`]). All of them run the same [`serve_stream`]
 //! over any `AsyncRead + AsyncWrite`.
 
+pub mod adapter;
 pub mod can;
 mod echo;
 pub mod latency;
@@ -23,11 +24,12 @@ use crate::bus::{Bus, Reply, Timing, TraceWriter, Transaction, wire};
 use crate::protocol::{DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};
 use crate::transcript::Recorder;
 
+pub use adapter::{Adapter, AdapterModel};
 pub use echo::{Echo, EchoFilter};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
 pub use serial::{DeviceLine, DeviceStream, SerialDevice, SerialError};
 pub use stats::{Answered, LineStats, LogHistogram, LoopKey, MasterTimeouts, PhysicsPace, ReportExtras, TimingReport};
-pub use tcp::{TcpServer, parse_tcp_addr};
+pub use tcp::{TcpServer, connect_forever, parse_tcp_addr};
 
 #[derive(Debug, Error)]
 pub enum TransportError {
@@ -262,6 +264,14 @@ pub async fn serve_stream<S>(stream: S, handle: Arc<BusHandle>, line: &dyn LineS
 where
     S: AsyncRead + AsyncWrite + Unpin,
 {
+    serve_stream_through(stream, handle, line, None).await
+}
+
+/// [`serve_stream`] with the controller behind a modelled USB adapter (see [`adapter`]).
+pub async fn serve_stream_through<S>(stream: S, handle: Arc<BusHandle>, line: &dyn LineSettings, adapter: Option<AdapterModel>) -> Result<(), TransportError>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
     let (gap, timing) = handle.with_bus(|bus| (bus.inter_byte_timeout(), bus.timing()));
     let mut session = Session {
         stream,
@@ -277,6 +287,7 @@ where
         controller_tx_free_at: Duration::ZERO,
         physical_wire: line.physical_wire(),
         servo_bauds: Vec::new(),
+        adapter,
     };
     if session.physical_wire {
         session.servo_bauds = session.handle.with_bus(servo_bauds);
@@ -305,6 +316,15 @@ struct Session<'a, S> {
     physical_wire: bool,
     /// Each servo's baud after the last transaction, on a physical wire (whose device follows).
     servo_bauds: Vec<(u8, Option<u32>)>,
+    /// The USB adapter in front of the controller (`--adapter`), if not an ideal one.
+    adapter: Option<AdapterModel>,
+}
+
+/// Bytes of one reply handed to the controller at `due`.
+struct HandOver {
+    due: Duration,
+    reply: usize,
+    bytes: std::ops::Range<usize>,
 }
 
 fn servo_bauds(bus: &mut Bus) -> Vec<(u8, Option<u32>)> {
@@ -406,35 +426,64 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         if modelled_wire {
             self.collide_queued(&mut replies);
         }
+        let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
+        let plan = self.hand_over_plan(&replies, byte_time);
         let mut closed = false;
-        let last = replies.len() - 1;
-        for index in 0..replies.len() {
+        let (last_reply, last_due) = plan.last().map_or((0, Duration::ZERO), |h| (h.reply, h.due));
+        for (index, hand_over) in plan.iter().enumerate() {
             if self.timing == Timing::Wire {
-                // A modelled wire hands a reply over when its last byte has arrived; a real one
-                // needs it written when its first byte starts.
-                let due = if self.physical_wire { replies[index].start } else { replies[index].end };
-                closed |= self.wait_watching(&mut replies[index..], due).await?;
+                closed |= self.wait_watching(&mut replies[hand_over.reply..], hand_over.due).await?;
             }
-            if index == last {
+            if index == plan.len() - 1 {
                 // Counted just before the hand-over (a write to the kernel takes microseconds):
                 // once written, the controller may act on it, even end the session.
                 let now = self.clock.now();
                 let name = transaction.instruction.as_ref().map_or("Malformed", |i| i.name());
-                let due = if self.physical_wire { replies[last].start } else { replies[last].end };
-                let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(due));
-                let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
+                let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(last_due));
                 let replies_wire = byte_time * replies.iter().map(|r| r.bytes.len() as u32).sum::<u32>();
                 // Handed over at its start on a physical wire, its bytes still have to cross it.
-                let complete = if self.physical_wire { latency + byte_time * replies[last].bytes.len() as u32 } else { latency };
+                let complete = if self.physical_wire { latency + byte_time * replies[last_reply].bytes.len() as u32 } else { latency };
                 let answer = stats::Answered { instruction: name, replies: replies.len(), latency, late, at: now, complete, replies_wire };
                 self.handle.with_stats(|stats| stats.answered(answer));
                 self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
             }
-            self.stream.write_all(&replies[index].bytes).await?;
-            trace!(from = ?replies[index].from, bytes = replies[index].bytes.len(), "reply written");
+            let reply = &replies[hand_over.reply];
+            self.stream.write_all(&reply.bytes[hand_over.bytes.clone()]).await?;
+            trace!(from = ?reply.from, bytes = hand_over.bytes.len(), "reply bytes written");
         }
         self.stream.flush().await?;
         Ok(closed)
+    }
+
+    /// When each part of the replies goes to the controller. A modelled wire hands a reply over
+    /// when its last byte has arrived; a physical one needs it written when its first byte
+    /// starts; an adapter model hands bytes over as the adapter would pass them to the host.
+    fn hand_over_plan(&mut self, replies: &[Reply], byte_time: Duration) -> Vec<HandOver> {
+        let whole = |(reply, r): (usize, &Reply)| HandOver { due: if self.physical_wire { r.start } else { r.end }, reply, bytes: 0..r.bytes.len() };
+        let Some(adapter) = self.adapter.as_mut().filter(|_| self.timing == Timing::Wire && !self.physical_wire) else {
+            return replies.iter().enumerate().map(whole).collect();
+        };
+        let mut arrivals = Vec::with_capacity(replies.iter().map(|r| r.bytes.len()).sum());
+        let mut owner = Vec::with_capacity(arrivals.capacity());
+        for (index, reply) in replies.iter().enumerate() {
+            for byte in 0..reply.bytes.len() {
+                arrivals.push(reply.start + byte_time * (byte as u32 + 1));
+                owner.push((index, byte));
+            }
+        }
+        // Each adapter packet, split where it spans two replies.
+        let mut plan = Vec::new();
+        let mut next = 0;
+        for (due, count) in adapter.deliver(&arrivals) {
+            let end = next + count;
+            while next < end {
+                let (reply, first) = owner[next];
+                let in_reply = (replies[reply].bytes.len() - first).min(end - next);
+                plan.push(HandOver { due, reply, bytes: first..first + in_reply });
+                next += in_reply;
+            }
+        }
+        plan
     }
 
     /// Wait until `due`, reading whatever the controller sends meanwhile: bytes that overlap

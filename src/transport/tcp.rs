@@ -1,10 +1,12 @@
 //! TCP transport: the same byte stream as the serial line, for controllers that reach the bus
-//! through a serial-to-network bridge. Binds to 127.0.0.1 unless told otherwise.
+//! through a serial-to-network bridge. As a server (`--tcp`) it binds to 127.0.0.1 unless told
+//! otherwise; as a client (`--tcp-connect`) it connects to an emulator's serial port.
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::sync::Arc;
+use std::time::Duration;
 
-use tokio::net::TcpListener;
+use tokio::net::{TcpListener, TcpStream};
 use tracing::{info, warn};
 
 use super::{BusHandle, NoLine, TransportError, serve_stream};
@@ -62,6 +64,52 @@ impl TcpServer {
             });
         }
     }
+}
+
+/// How often `--tcp-connect` tries again while nothing listens.
+const RECONNECT_EVERY: Duration = Duration::from_millis(500);
+
+/// Connect out to `addr` and serve the bus there, reconnecting whenever the connection ends or
+/// cannot be made: for firmware in an emulator whose UART is a TCP server (QEMU `-serial
+/// tcp::PORT,server`, Renode's `CreateServerSocketTerminal`), which may start after climbsim
+/// and restart any number of times. Runs on a thread of its own for the process's life.
+pub fn connect_forever(addr: SocketAddr, handle: Arc<BusHandle>) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new().name("tcp-connect".into()).spawn(move || {
+        let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+            Ok(runtime) => runtime,
+            Err(error) => return warn!(%error, "cannot start the TCP client runtime"),
+        };
+        runtime.block_on(async move {
+            let mut said: Option<String> = None;
+            loop {
+                match TcpStream::connect(addr).await {
+                    Ok(stream) => {
+                        said = None;
+                        if let Err(error) = stream.set_nodelay(true) {
+                            warn!(%error, "TCP_NODELAY");
+                        }
+                        info!(%addr, "connected to the controller over TCP");
+                        // Spawned, not run in `block_on`: see the pty thread in `serve`.
+                        let session = tokio::spawn(serve_stream(stream, Arc::clone(&handle), &NoLine));
+                        match session.await {
+                            Ok(Ok(())) => warn!(%addr, "the controller closed the TCP connection; reconnecting"),
+                            Ok(Err(error)) => warn!(%addr, %error, "the TCP connection failed; reconnecting"),
+                            Err(error) => warn!(%addr, %error, "the TCP session failed; reconnecting"),
+                        }
+                    }
+                    Err(error) => {
+                        // Said once per kind of failure, not every half second.
+                        let text = error.to_string();
+                        if said.as_deref() != Some(text.as_str()) {
+                            info!(%addr, %error, "cannot connect yet; trying every {} ms", RECONNECT_EVERY.as_millis());
+                            said = Some(text);
+                        }
+                    }
+                }
+                tokio::time::sleep(RECONNECT_EVERY).await;
+            }
+        });
+    })
 }
 
 #[cfg(test)]
