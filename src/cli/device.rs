@@ -6,7 +6,8 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use climbsim::transport::latency::{self, LowLatencyGuard};
-use climbsim::transport::{BusHandle, Echo, SerialDevice, SerialError, serve_stream};
+use climbsim::transport::rs485::Rs485Delays;
+use climbsim::transport::{BusHandle, DeviceSettings, Echo, SerialDevice, SerialError, serve_stream};
 use tokio::sync::Notify;
 use tracing::{info, warn};
 
@@ -22,6 +23,8 @@ pub struct DeviceOptions {
     /// `--low-latency`: the adapter's latency timer to 1 ms and ASYNC_LOW_LATENCY, both put back
     /// on exit.
     pub low_latency: bool,
+    /// `--rs485`: an on-chip UART in Linux's RS-485 mode.
+    pub rs485: Option<Rs485Delays>,
 }
 
 /// The device's thread, serving it until stopped.
@@ -87,7 +90,8 @@ struct Opened {
 
 fn open(options: &DeviceOptions, handle: &BusHandle) -> Result<Opened> {
     let baud = servo_baud(handle).unwrap_or(57_600);
-    let device = SerialDevice::open(&options.path, baud, options.echo, options.low_latency)?;
+    let settings = DeviceSettings { echo: options.echo, low_latency: options.low_latency, rs485: options.rs485 };
+    let device = SerialDevice::open(&options.path, baud, &settings)?;
     // After the device: while it is unplugged its sysfs entry is gone too.
     let timer = latency_timer(options)?;
     Ok(Opened { device: Arc::new(device), _timer: timer })

@@ -191,6 +191,14 @@ pub enum Command {
         /// ASYNC_LOW_LATENCY flag while serving; both are put back on exit.
         #[arg(long, requires = "device")]
         low_latency: bool,
+        /// Put the device (an on-chip UART wired to an RS-485 transceiver) into Linux's RS-485
+        /// mode: the driver raises RTS (the transceiver's DE) while sending. USB–RS485 adapters
+        /// switch by themselves and need none.
+        #[arg(long, requires = "device")]
+        rs485: bool,
+        /// RTS delays before and after each send in RS-485 mode, in milliseconds.
+        #[arg(long, value_name = "BEFORE,AFTER", value_parser = parse_rs485_delays, requires = "rs485")]
+        rs485_delay_ms: Option<climbsim::transport::rs485::Rs485Delays>,
         /// Reply timing.
         #[arg(long, value_enum, default_value = "wire")]
         timing: TimingArg,
@@ -352,14 +360,15 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, tcp_connect, can, can_ids, can_padding, device, echo, low_latency, timing, adapter, latency_timer_ms, trace_bus, robot, baud, report, faults, record, pace } => {
+        Command::Serve { scenario, link, tcp, tcp_connect, can, can_ids, can_padding, device, echo, low_latency, rs485, rs485_delay_ms, timing, adapter, latency_timer_ms, trace_bus, robot, baud, report, faults, record, pace } => {
             let adapter = match (adapter, latency_timer_ms) {
                 (AdapterArg::Ideal, Some(_)) => bail!("--latency-timer-ms is a setting of a modelled adapter: give --adapter u2d2 with it"),
                 (AdapterArg::Ideal, None) => Adapter::Ideal,
                 (AdapterArg::U2d2, ms) => Adapter::u2d2(ms),
             };
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
-            let device = device.map(|path| device::DeviceOptions { path, echo: echo.into(), low_latency });
+            let rs485 = rs485.then(|| rs485_delay_ms.unwrap_or_default());
+            let device = device.map(|path| device::DeviceOptions { path, echo: echo.into(), low_latency, rs485 });
             let options = ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, pace };
             serve(options, &robot)
         }
@@ -480,6 +489,13 @@ struct ServeOptions {
     faults: Vec<ScheduledFault>,
     record: Option<PathBuf>,
     pace: PaceArgs,
+}
+
+/// `--rs485-delay-ms BEFORE,AFTER` (milliseconds, whole numbers up to 1000).
+fn parse_rs485_delays(text: &str) -> Result<climbsim::transport::rs485::Rs485Delays, String> {
+    let (before, after) = text.split_once(',').ok_or_else(|| format!("`{text}` is not BEFORE,AFTER (milliseconds, e.g. 0,1)"))?;
+    let ms = |part: &str| part.trim().parse::<u32>().ok().filter(|&ms| ms <= 1000).ok_or_else(|| format!("`{part}` is not a whole number of milliseconds in 0..=1000"));
+    Ok(climbsim::transport::rs485::Rs485Delays { before_send_ms: ms(before)?, after_send_ms: ms(after)? })
 }
 
 /// `--fault SPEC`, parsed by the code that reads a scenario's `fault` table.

@@ -8,6 +8,7 @@ mod echo;
 pub mod latency;
 pub mod memory;
 mod pty;
+pub mod rs485;
 mod serial;
 pub mod stats;
 mod tcp;
@@ -27,7 +28,7 @@ use crate::transcript::Recorder;
 pub use adapter::{Adapter, AdapterModel};
 pub use echo::{Echo, EchoFilter};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
-pub use serial::{DeviceLine, DeviceStream, SerialDevice, SerialError};
+pub use serial::{DeviceLine, DeviceSettings, DeviceStream, SerialDevice, SerialError};
 pub use stats::{Answered, LineStats, LogHistogram, LoopKey, MasterTimeouts, PhysicsPace, ReportExtras, TimingReport};
 pub use tcp::{TcpServer, connect_forever, parse_tcp_addr};
 

@@ -27,6 +27,7 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tracing::{info, warn};
 
 use super::echo::{Echo, EchoFilter};
+use super::rs485::{Rs485Delays, SerialRs485};
 use super::LineSettings;
 
 #[derive(Debug, Error)]
@@ -43,6 +44,18 @@ pub enum SerialError {
     Baud { path: PathBuf, bps: u32, source: io::Error },
     #[error("--device {path}: {source}")]
     Io { path: PathBuf, source: io::Error },
+    #[error("--device {path} --rs485: its driver has no RS-485 mode ({source}); USB–RS485 adapters switch direction by themselves: leave --rs485 off for them")]
+    NoRs485 { path: PathBuf, source: io::Error },
+}
+
+/// How to run the device, beyond its path and baud.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct DeviceSettings {
+    pub echo: Echo,
+    /// Set ASYNC_LOW_LATENCY (the latency timer itself is in sysfs: see [`super::latency`]).
+    pub low_latency: bool,
+    /// Put an on-chip UART into Linux's RS-485 mode with these delays.
+    pub rs485: Option<Rs485Delays>,
 }
 
 /// An open serial device.
@@ -53,12 +66,17 @@ pub struct SerialDevice {
     received: Mutex<Received>,
     /// ASYNC_LOW_LATENCY before `--low-latency` set it, where the driver has the flag.
     low_latency_was: Option<bool>,
+    /// The RS-485 settings before `--rs485`.
+    rs485_was: Option<SerialRs485>,
 }
 
 impl Drop for SerialDevice {
     fn drop(&mut self) {
         if self.low_latency_was == Some(false) {
             super::latency::set_async_low_latency(self.fd.get_ref().as_raw_fd(), false);
+        }
+        if let Some(previous) = &self.rs485_was {
+            super::rs485::restore(self.fd.get_ref().as_raw_fd(), previous);
         }
     }
 }
@@ -74,7 +92,7 @@ struct Received {
 impl SerialDevice {
     /// Open `path` exclusively at `baud`, 8N1, no flow control, raw. Must be called inside a
     /// tokio runtime (the descriptor is registered with its reactor).
-    pub fn open(path: &Path, baud: u32, echo: Echo, low_latency: bool) -> Result<Self, SerialError> {
+    pub fn open(path: &Path, baud: u32, settings: &DeviceSettings) -> Result<Self, SerialError> {
         let builder = serialport::new(path.to_string_lossy(), baud)
             .data_bits(serialport::DataBits::Eight)
             .parity(serialport::Parity::None)
@@ -90,11 +108,16 @@ impl SerialDevice {
         nix::fcntl::fcntl(&fd, nix::fcntl::FcntlArg::F_SETFL(flags)).map_err(|e| io_error(e.into()))?;
         // SAFETY: the OwnedFd is moved into the AsyncFd, which keeps it open for its whole life.
         let fd = unsafe { AsyncFd::register(fd) }.map_err(|e| io_error(e.into()))?;
-        info!(device = %path.display(), baud, ?echo, "serial device open");
+        info!(device = %path.display(), baud, ?settings, "serial device open");
         // Put back on close: the flag outlives the descriptor in the driver.
-        let low_latency_was = if low_latency { super::latency::set_async_low_latency(fd.get_ref().as_raw_fd(), true) } else { None };
-        let received = Received { echo: EchoFilter::new(echo), ready: VecDeque::new(), scratch: vec![0; 4096] };
-        Ok(Self { fd, path: path.to_owned(), baud: AtomicU32::new(baud), received: Mutex::new(received), low_latency_was })
+        let raw = fd.get_ref().as_raw_fd();
+        let rs485_was = match settings.rs485 {
+            Some(delays) => Some(super::rs485::enable(raw, delays).map_err(|source| SerialError::NoRs485 { path: path.to_owned(), source })?),
+            None => None,
+        };
+        let low_latency_was = if settings.low_latency { super::latency::set_async_low_latency(raw, true) } else { None };
+        let received = Received { echo: EchoFilter::new(settings.echo), ready: VecDeque::new(), scratch: vec![0; 4096] };
+        Ok(Self { fd, path: path.to_owned(), baud: AtomicU32::new(baud), received: Mutex::new(received), low_latency_was, rs485_was })
     }
 
     pub fn path(&self) -> &Path {

@@ -337,3 +337,13 @@ def test_low_latency_on_a_device_without_a_timer_is_a_clear_error(null_modem, tm
         capture_output=True, text=True, timeout=20, env=env,
     )
     assert run.returncode == 2 and "has no USB latency timer" in run.stderr, run.stderr
+
+
+def test_rs485_on_a_driver_without_it_is_a_clear_error(null_modem):
+    cable = null_modem()
+    run = subprocess.run(
+        [str(climbsim_bin()), "serve", "--device", str(cable.device_link), "--rs485", "--rs485-delay-ms", "0,1"],
+        capture_output=True, text=True, timeout=20,
+    )
+    assert run.returncode == 2, run.stderr
+    assert "has no RS-485 mode" in run.stderr and "leave --rs485 off" in run.stderr, run.stderr
