@@ -1,8 +1,9 @@
-//! Issue #4's scenario benchmarks, one run each:
+//! The scenario benchmarks, one run each:
 //! - real-time factor of a 20 s flat line-following scenario (camera 128×128 at 30 Hz, built-in
 //!   controller, lockstep, one core), and what the camera adds: the same run with the camera
 //!   at 0.05 Hz (one frame) costs the physics and controller alone;
 //! - a sweep of 32 such runs with `--jobs 1` and `--jobs 2` (wall time and speed-up).
+//!
 //! `cargo bench --bench scenario_rtf`; results in target/bench-results/scenario_rtf.json.
 
 #[path = "../tests/support/mod.rs"]

@@ -219,10 +219,8 @@ impl BusFaults {
                         servo.set_encoder_noise(t.start.then_some((*position_std_pulses, *velocity_std)), seed);
                     }
                 }
-                Fault::MagnetFailure { .. } | Fault::SlipPatch { .. } => {
-                    if !plant.inject_fault(t.index, &fault, t.start) {
-                        warn!(kind = fault.kind(), "this plant has no world: the fault has no effect");
-                    }
+                Fault::MagnetFailure { .. } | Fault::SlipPatch { .. } if !plant.inject_fault(t.index, &fault, t.start) => {
+                    warn!(kind = fault.kind(), "this plant has no world: the fault has no effect");
                 }
                 _ => {}
             }

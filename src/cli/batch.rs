@@ -238,13 +238,32 @@ pub fn list_sweep(axes: &[Axis], shard: Shard, json: bool) -> Result<()> {
 
 /// `climbsim sweep SCENARIO --set KEY=V1,V2 ...`. Every grid point gets a row in `sweep.csv` and
 /// `sweep.json`, whether it completed, failed, was interrupted or never ran.
-pub fn sweep(scenario_path: &Path, axes: &[Axis], jobs: usize, shard: Shard, robot: &RobotDescription, out_dir: &Path, pace: Pace) -> Result<()> {
+/// Which part of a sweep's grid to run, and how.
+pub struct SweepPlan<'a> {
+    pub axes: &'a [Axis],
+    pub jobs: usize,
+    pub shard: Shard,
+    /// For an external controller: each point at this pace.
+    pub pace: Pace,
+    /// Record `run.mcap` for every point (`--mcap`).
+    pub record_mcap: bool,
+}
+
+pub fn sweep(scenario_path: &Path, plan: &SweepPlan<'_>, robot: &RobotDescription, out_dir: &Path) -> Result<()> {
+    let SweepPlan { axes, jobs, shard, pace, record_mcap } = *plan;
     let points = shard.select(grid(axes));
     if points.is_empty() {
         bail!("shard {}/{} of this grid is empty", shard.index, shard.count);
     }
     // Check every grid point loads before spending minutes on the first ones.
-    let scenarios: Vec<(GridPoint, Scenario)> = points.into_iter().map(|point| Ok((point.clone(), Scenario::load_with(scenario_path, &point.overrides)?))).collect::<Result<_>>()?;
+    let scenarios: Vec<(GridPoint, Scenario)> = points
+        .into_iter()
+        .map(|point| {
+            let mut scenario = Scenario::load_with(scenario_path, &point.overrides)?;
+            scenario.capture.mcap = record_mcap;
+            Ok((point.clone(), scenario))
+        })
+        .collect::<Result<_>>()?;
     let progress = indicatif::ProgressBar::new(scenarios.len() as u64);
     progress.set_style(indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} runs, {elapsed} elapsed, ETA {eta} {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
     let started = Instant::now();

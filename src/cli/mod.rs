@@ -350,6 +350,9 @@ pub enum Command {
         /// Output folder (not needed with --list).
         #[arg(long, required_unless_present = "list")]
         out: Option<PathBuf>,
+        /// Record `run.mcap` for every point too (off by default: a grid may have hundreds).
+        #[arg(long)]
+        mcap: bool,
         #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
         robot: PathBuf,
         /// For an external controller: each point on its own port, at this speed.
@@ -420,7 +423,7 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Command::Replay { transcript, out, scenario, robot, force } => replay::replay_command(&transcript, out, &climbsim::scenario::replay::ReplaySources { scenario, robot, force }),
         Command::Diff { a, b, tolerance, rel } => replay::diff_command(&a, &b, &tolerance, rel),
-        Command::Sweep { scenario, set, jobs, shard, list, json, merge, allow_incomplete, out, robot, pace } => {
+        Command::Sweep { scenario, set, jobs, shard, list, json, merge, allow_incomplete, out, mcap, robot, pace } => {
             let axes = climbsim::scenario::sweep::Axis::parse_all(&set)?;
             let shard = shard.as_deref().map(climbsim::scenario::sweep::Shard::parse).transpose()?.unwrap_or(climbsim::scenario::sweep::Shard::ALL);
             if list {
@@ -435,7 +438,7 @@ pub fn run(cli: Cli) -> Result<()> {
             let robot = load_robot(&robot)?;
             let scenario = scenario.context("a scenario file is needed")?;
             let jobs = jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from));
-            batch::sweep(&scenario, &axes, jobs, shard, &robot, &out, pace.pace())
+            batch::sweep(&scenario, &batch::SweepPlan { axes: &axes, jobs, shard, pace: pace.pace(), record_mcap: mcap }, &robot, &out)
         }
     }
 }

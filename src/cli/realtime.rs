@@ -71,6 +71,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let (bus, observer) = scenario_bus(scenario, robot, options.timing, baud)?;
     let mut observer = observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?;
     observer.stream_to(out_dir)?;
+    if scenario.capture.mcap {
+        observer.record_mcap(out_dir)?;
+    }
     let observer = Arc::new(Mutex::new(observer));
     let recorder = options.record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;
     let clock = Clock::scaled(options.pace.speed);

@@ -12,6 +12,7 @@ use thiserror::Error;
 
 mod overrides;
 pub mod capture;
+pub mod mcap;
 pub mod replay;
 pub mod run;
 pub mod sweep;
@@ -271,11 +272,15 @@ pub struct CaptureSection {
     /// Metrics are taken from the full series either way.
     #[serde(default)]
     pub signals: Option<Vec<String>>,
+    /// Record `run.mcap` (Foxglove) beside the other outputs of `run` and `check` (sweeps
+    /// record only with `--mcap`).
+    #[serde(default = "default_true")]
+    pub mcap: bool,
 }
 
 impl Default for CaptureSection {
     fn default() -> Self {
-        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m(), signals: None }
+        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m(), signals: None, mcap: true }
     }
 }
 

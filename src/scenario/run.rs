@@ -26,6 +26,7 @@ use crate::sim::{DetectorSettings, LineCamera, LineCameraSettings, LineDetector,
 
 pub use super::capture::{COLUMNS, MetricTrack, summarise};
 use super::capture::Capture;
+use super::mcap::McapRecording;
 use super::watch::{self, WorldFailure, WorldWatch};
 use super::{ControllerSection, Event, Scenario, ScenarioError, mm_min_to_m_s};
 
@@ -33,6 +34,8 @@ use super::{ControllerSection, Event, Scenario, ScenarioError, mm_min_to_m_s};
 pub enum RunError {
     #[error(transparent)]
     Scenario(#[from] ScenarioError),
+    #[error(transparent)]
+    Mcap(#[from] super::mcap::McapError),
     #[error(transparent)]
     Sim(#[from] SimError),
     #[error("scenario {path}: [line]: {source}")]
@@ -127,6 +130,8 @@ pub struct Observer {
     next_event: usize,
     scenario_path: PathBuf,
     watch: WorldWatch,
+    /// `run.mcap`, if the run records one.
+    mcap: Option<McapRecording>,
 }
 
 impl Observer {
@@ -159,6 +164,7 @@ impl Observer {
             next_event: 0,
             scenario_path: path,
             watch: WorldWatch::new(),
+            mcap: None,
         })
     }
 
@@ -194,6 +200,13 @@ impl Observer {
         Ok(self.capture.stream_to(out_dir)?)
     }
 
+    /// Also record `out_dir/run.mcap` (see [`super::mcap`]): transforms and signals with every
+    /// captured row, every camera frame.
+    pub fn record_mcap(&mut self, out_dir: &std::path::Path) -> Result<(), RunError> {
+        self.mcap = Some(McapRecording::create(out_dir, COLUMNS)?);
+        Ok(())
+    }
+
     /// Keep no captured rows and no metric track (`serve SCENARIO`, which writes no outputs).
     pub fn discard_rows(&mut self) {
         self.capture.discard();
@@ -205,6 +218,13 @@ impl Observer {
         if let Some(frame) = self.camera.render(world.camera_pose(), &self.line, t) {
             self.latest = Some(self.detector.detect(frame));
             self.frames_seen += 1;
+            if let Some(mcap) = &self.mcap {
+                // The recording's chunks are compressed again (zstd): the fastest PNG will do.
+                match frame.to_png_with(png::Compression::Fastest) {
+                    Ok(png) => mcap.image(frame.t, png),
+                    Err(error) => tracing::warn!(%error, "camera frame not recorded"),
+                }
+            }
         }
         self.latest.filter(|m| m.valid).map(|m| robot_relative(&m))
     }
@@ -293,6 +313,11 @@ impl Observer {
         let counts = faults.counts();
         row.push(faults.active().count() as f64);
         row.push((counts.instructions_corrupted + counts.replies_corrupted + counts.replies_dropped + counts.replies_delayed + counts.instructions_unheard) as f64);
+        if let Some(mcap) = &mut self.mcap {
+            let at = Duration::from_secs_f64(t_s);
+            mcap.transforms(at, &world.part_poses());
+            mcap.signals(at, &row);
+        }
         self.capture.record_row(&row)?;
         Ok(())
     }
@@ -321,6 +346,9 @@ impl Observer {
     /// End the capture: a streamed `timeseries.csv` is completed (flushed and renamed), rows kept
     /// in memory are returned, with the metric track.
     pub fn finish(mut self) -> Result<(Option<TimeSeries>, MetricTrack), RunError> {
+        if let Some(mcap) = self.mcap.take() {
+            mcap.finish()?;
+        }
         let series = self.capture.finish()?;
         Ok((series, self.capture.into_track()))
     }
@@ -447,6 +475,7 @@ pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
             "on_line_tolerance_m": scenario.capture.on_line_tolerance_m,
             "signals": scenario.capture.signals,
             "metric_period_s": super::capture::METRIC_PERIOD_S,
+            "mcap": scenario.capture.mcap,
         },
     })
 }
@@ -516,6 +545,9 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     let mut observer = Observer::new(scenario, robot, sim.world())?;
     if let Some(out_dir) = out_dir {
         observer.stream_to(out_dir)?;
+        if scenario.capture.mcap {
+            observer.record_mcap(out_dir)?;
+        }
     }
     let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;
     controller.start(&mut sim)?;

@@ -163,10 +163,16 @@ impl Frame {
 
     /// The frame as an 8-bit grayscale PNG (for the HTTP sensor endpoint and debugging).
     pub fn to_png(&self) -> Result<Vec<u8>, png::EncodingError> {
+        self.to_png_with(png::Compression::Balanced)
+    }
+
+    /// [`Frame::to_png`] at a chosen compression (a recording of every frame takes `Fastest`).
+    pub fn to_png_with(&self, compression: png::Compression) -> Result<Vec<u8>, png::EncodingError> {
         let mut out = Vec::new();
         let mut encoder = png::Encoder::new(&mut out, self.width, self.height);
         encoder.set_color(png::ColorType::Grayscale);
         encoder.set_depth(png::BitDepth::Eight);
+        encoder.set_compression(compression);
         let mut writer = encoder.write_header()?;
         writer.write_image_data(&self.pixels)?;
         writer.finish()?;

@@ -486,6 +486,21 @@ impl RobotWorld {
         *self.physics.bodies[self.sections[1]].position()
     }
 
+    /// Every rigid part's pose, named as a recording's frames: the two sections and the four
+    /// wheels (the bolted rear section is part of `middle`).
+    pub fn part_poses(&self) -> [(&'static str, Pose); 6] {
+        let pose = |handle: RigidBodyHandle| *self.physics.bodies[handle].position();
+        let wheel = |w: WheelPosition| pose(self.wheels[w.index()].wheel);
+        [
+            ("middle", pose(self.sections[1])),
+            ("front", pose(self.sections[0])),
+            ("wheel_front_left", wheel(WheelPosition::FrontLeft)),
+            ("wheel_front_right", wheel(WheelPosition::FrontRight)),
+            ("wheel_rear_left", wheel(WheelPosition::RearLeft)),
+            ("wheel_rear_right", wheel(WheelPosition::RearRight)),
+        ]
+    }
+
     /// The downward camera's pose: its mount (`[camera] position_m`) on the middle section,
     /// looking along the section's −y axis.
     pub fn camera_pose(&self) -> Pose {
