@@ -10,7 +10,7 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::robot::WheelPosition;
+use crate::parts::WheelPosition;
 
 fn one() -> f64 {
     1.0

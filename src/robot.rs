@@ -7,6 +7,8 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use crate::bus::{self, Bus, BusError, Timing};
+// Defined below the bus (fault descriptions name wheels too); part of the robot description.
+pub use crate::parts::{ServoRole, WheelPosition};
 use crate::device::{BenchPlant, FirmwareProfile, Plant, ProfileError, Servo};
 use crate::source_location::{DataFileError, load_toml};
 
@@ -18,43 +20,6 @@ pub enum RobotError {
     Profile(#[from] ProfileError),
     #[error("robot description {path}: {source}")]
     Bus { path: PathBuf, source: BusError },
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ServoRole {
-    WheelDrive,
-    MagnetShaft,
-}
-
-/// Which wheel a servo belongs to.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum WheelPosition {
-    #[serde(alias = "fl")]
-    FrontLeft,
-    #[serde(alias = "fr")]
-    FrontRight,
-    #[serde(alias = "rl")]
-    RearLeft,
-    #[serde(alias = "rr")]
-    RearRight,
-}
-
-impl WheelPosition {
-    pub const ALL: [Self; 4] = [Self::FrontLeft, Self::FrontRight, Self::RearLeft, Self::RearRight];
-
-    pub fn is_front(self) -> bool {
-        matches!(self, Self::FrontLeft | Self::FrontRight)
-    }
-
-    pub fn is_left(self) -> bool {
-        matches!(self, Self::FrontLeft | Self::RearLeft)
-    }
-
-    pub fn index(self) -> usize {
-        self as usize
-    }
 }
 
 #[derive(Debug, Clone, Deserialize)]

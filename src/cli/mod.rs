@@ -594,6 +594,10 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             Some(options) => Some(device::start_device(options.clone(), Arc::clone(&handle)).await?),
             None => None,
         };
+        // The handlers are in place before the port is announced: a supervisor that stops
+        // climbsim as soon as it has printed its port must still get a clean shutdown.
+        use tokio::signal::unix::{SignalKind, signal};
+        let (mut interrupt, mut terminate) = (signal(SignalKind::interrupt())?, signal(SignalKind::terminate())?);
         let mut stdout = std::io::stdout().lock();
         writeln!(stdout, "port: {}", port.path().display())?;
         if let Some(server) = &tcp_server {
@@ -649,9 +653,8 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
                 }
             });
         }
-        let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
         tokio::select! {
-            _ = tokio::signal::ctrl_c() => info!("SIGINT: shutting down"),
+            _ = interrupt.recv() => info!("SIGINT: shutting down"),
             _ = terminate.recv() => info!("SIGTERM: shutting down"),
         }
         if pty_thread.is_finished() {
