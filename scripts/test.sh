@@ -36,11 +36,12 @@ echo "==> cargo test"
 cargo test --locked "$@"
 
 # The external scenarios run the reference Python controller (hil/controllers/line_follower.py)
-# with the venv's official SDK, at 2x: on an idle 2-core machine 3x still kept its pace in 3 of 3
-# runs and 5x did not (docs/external-controllers.md#speed-table); 2x leaves a margin for a noisy
-# CI machine.
-echo "==> climbsim check scenarios/ --speed 2"
-PATH="$venv/bin:$PATH" cargo run --locked --release --quiet -- check scenarios/ --speed 2 --junit target/check/junit.xml --out target/check
+# with the venv's official SDK. At 1x, with the pace tolerance at 16 ms (the delivery delay a
+# real U2D2 adds at its default latency timer): the 57600-baud variant, whose bus is 83 % busy,
+# once had its replies p99 14.8 ms late at 2x on this 2-core machine, and a CI run must not fail
+# on the machine's noise (docs/external-controllers.md#speed-table).
+echo "==> climbsim check scenarios/ --speed 1 --pace-tolerance-ms 16"
+PATH="$venv/bin:$PATH" cargo run --locked --release --quiet -- check scenarios/ --speed 1 --pace-tolerance-ms 16 --junit target/check/junit.xml --out target/check
 
 # The SocketCAN test (tests/can_transport.rs, #[ignore]d) needs a CAN interface: run it where one
 # exists (sudo hil/vcan-setup.sh), say so where the kernel has none. The ISO-TP framing itself is
