@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use climbsim::transport::latency::{self, LowLatencyGuard};
 use climbsim::transport::rs485::Rs485Delays;
-use climbsim::transport::{BusHandle, DeviceSettings, Echo, SerialDevice, SerialError, serve_stream};
+use climbsim::transport::{BusHandle, DeviceSettings, Echo, SerialDevice, SerialError, majority_baud, serve_stream};
 use tokio::sync::Notify;
 use tracing::{info, warn};
 
@@ -57,16 +57,7 @@ impl DeviceService {
 
 /// The baud most servos listen at: what the device opens at.
 fn servo_baud(handle: &BusHandle) -> Option<u32> {
-    handle.with_bus(|bus| {
-        let mut counts: Vec<(u32, usize)> = Vec::new();
-        for bps in bus.servos().iter().filter_map(|servo| servo.baud_bps()) {
-            match counts.iter_mut().find(|(rate, _)| *rate == bps) {
-                Some((_, count)) => *count += 1,
-                None => counts.push((bps, 1)),
-            }
-        }
-        counts.into_iter().max_by_key(|&(_, count)| count).map(|(bps, _)| bps)
-    })
+    handle.with_bus(|bus| majority_baud(bus.servos().iter().filter_map(|servo| servo.baud_bps()), None))
 }
 
 /// The adapter's latency timer: said at start, and set to 1 ms with `--low-latency`.

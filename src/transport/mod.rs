@@ -28,7 +28,7 @@ use crate::transcript::Recorder;
 pub use adapter::{Adapter, AdapterModel};
 pub use echo::{Echo, EchoFilter};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
-pub use serial::{DeviceLine, DeviceSettings, DeviceStream, SerialDevice, SerialError};
+pub use serial::{DeviceLine, DeviceSettings, DeviceStream, SerialDevice, SerialError, majority_baud};
 pub use stats::{Answered, LineStats, LogHistogram, LoopKey, MasterTimeouts, PhysicsPace, ReportExtras, TimingReport};
 pub use tcp::{TcpServer, connect_forever, parse_tcp_addr};
 

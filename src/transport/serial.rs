@@ -302,15 +302,8 @@ impl LineSettings for DeviceLine {
 /// (the controller switched them and will switch its own port), and names the servos left at
 /// another rate, which no longer hear the device.
 fn follow_servos(device: &SerialDevice, servos: &[(u8, Option<u32>)]) {
-    let mut rates: Vec<(u32, usize)> = Vec::new();
-    for bps in servos.iter().filter_map(|&(_, bps)| bps) {
-        match rates.iter_mut().find(|(rate, _)| *rate == bps) {
-            Some((_, count)) => *count += 1,
-            None => rates.push((bps, 1)),
-        }
-    }
     let current = device.baud();
-    let Some(&(majority, _)) = rates.iter().max_by_key(|&&(rate, count)| (count, rate == current)) else { return };
+    let Some(majority) = majority_baud(servos.iter().filter_map(|&(_, bps)| bps), Some(current)) else { return };
     if majority != current
         && let Err(error) = device.set_baud(majority)
     {
@@ -320,5 +313,32 @@ fn follow_servos(device: &SerialDevice, servos: &[(u8, Option<u32>)]) {
     let deaf: Vec<String> = servos.iter().filter(|&&(_, bps)| bps != Some(device.baud())).map(|&(id, bps)| format!("ID {id} at {}", bps.map_or("an invalid rate".to_owned(), |b| format!("{b} bps")))).collect();
     if !deaf.is_empty() {
         warn!(device = %device.path.display(), device_bps = device.baud(), "servos at another baud than the device no longer hear it (went deaf): {}", deaf.join(", "));
+    }
+}
+
+/// The baud most of `bauds` are at; a tie goes to `prefer` if it is among the tied, else to
+/// whichever came first.
+pub fn majority_baud(bauds: impl IntoIterator<Item = u32>, prefer: Option<u32>) -> Option<u32> {
+    let mut rates: Vec<(u32, usize)> = Vec::new();
+    for bps in bauds {
+        match rates.iter_mut().find(|(rate, _)| *rate == bps) {
+            Some((_, count)) => *count += 1,
+            None => rates.push((bps, 1)),
+        }
+    }
+    // max_by_key keeps the last of equal keys: walk backwards so the first seen wins a tie.
+    rates.iter().rev().max_by_key(|&&(rate, count)| (count, Some(rate) == prefer)).map(|&(rate, _)| rate)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::majority_baud;
+
+    #[test]
+    fn the_majority_baud_wins_and_a_tie_goes_to_the_preferred_rate() {
+        assert_eq!(majority_baud([57_600, 1_000_000, 1_000_000], None), Some(1_000_000));
+        assert_eq!(majority_baud([57_600, 1_000_000], Some(1_000_000)), Some(1_000_000));
+        assert_eq!(majority_baud([57_600, 1_000_000], None), Some(57_600));
+        assert_eq!(majority_baud([], Some(57_600)), None);
     }
 }
