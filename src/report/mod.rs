@@ -9,6 +9,7 @@
 mod atomic;
 pub mod diff;
 pub mod junit;
+mod path;
 mod plot;
 mod summary;
 mod timeseries;
@@ -21,6 +22,7 @@ use std::path::{Path, PathBuf};
 use thiserror::Error;
 
 pub use atomic::write_atomically;
+pub use path::plot_path;
 pub use plot::{
     PLOT_SIZE_PX, PlotFiles, PlotLabels, PlotSeries, plot_metric_vs_parameter, plot_series,
 };

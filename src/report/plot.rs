@@ -18,11 +18,11 @@ use super::atomic::write_bytes_atomically;
 /// Width and height of the PNG (and the SVG's canvas) in pixels.
 pub const PLOT_SIZE_PX: (u32, u32) = (1024, 640);
 
-const FONT_FAMILY: &str = "sans-serif";
+pub(super) const FONT_FAMILY: &str = "sans-serif";
 static DEJAVU_SANS: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
 
 /// Line colours, in series order (Tableau 10: distinguishable, also in greyscale print).
-const PALETTE: [RGBColor; 10] = [
+pub(super) const PALETTE: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(255, 127, 14),
     RGBColor(44, 160, 44),
@@ -143,7 +143,7 @@ fn plot(
     Ok(files)
 }
 
-fn register_embedded_font() -> Result<(), ReportError> {
+pub(super) fn register_embedded_font() -> Result<(), ReportError> {
     // plotters keeps registered fonts in a process-wide table; registering once is enough.
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let registered = *REGISTERED
@@ -285,7 +285,7 @@ fn axis_ranges(series: &[PlotSeries<'_>], x_margin: f64) -> (Range<f64>, Range<f
     (widen(x, x_margin), widen(y, 0.05))
 }
 
-fn encode_png(rgb: &[u8], (width, height): (u32, u32)) -> Result<Vec<u8>, png::EncodingError> {
+pub(super) fn encode_png(rgb: &[u8], (width, height): (u32, u32)) -> Result<Vec<u8>, png::EncodingError> {
     let mut bytes = Vec::new();
     let mut encoder = png::Encoder::new(&mut bytes, width, height);
     encoder.set_color(png::ColorType::Rgb);
@@ -451,7 +451,7 @@ mod tests {
 }
 
 /// An axis label with three significant digits and no trailing zeros.
-fn significant(value: f64) -> String {
+pub(super) fn significant(value: f64) -> String {
     if value == 0.0 || !value.is_finite() {
         return format!("{value}");
     }

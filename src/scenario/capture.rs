@@ -91,7 +91,14 @@ pub struct MetricTrack {
     d_m: Vec<f32>,
     speed_m_s: Vec<f32>,
     target_speed_m_s: Vec<f64>,
+    /// The robot's position seen from above, (x, z) every [`PATH_PERIOD_S`], for `path.png`.
+    path: Vec<[f32; 2]>,
+    /// The weld line seen from above, (x, z), as the run began.
+    line: Vec<[f32; 2]>,
 }
+
+/// How often the robot's position goes into the track's path (a 5-hour run: 90 000 points).
+pub const PATH_PERIOD_S: f64 = 0.2;
 
 impl MetricTrack {
     /// The track's signals, named as the time series' columns.
@@ -124,6 +131,16 @@ impl MetricTrack {
         self.t_s.len()
     }
 
+    /// The robot's path seen from above, (x, z) in metres.
+    pub fn path(&self) -> &[[f32; 2]] {
+        &self.path
+    }
+
+    /// The weld line seen from above, (x, z) in metres.
+    pub fn line(&self) -> &[[f32; 2]] {
+        &self.line
+    }
+
     pub fn is_empty(&self) -> bool {
         self.t_s.is_empty()
     }
@@ -148,6 +165,7 @@ pub struct Capture {
     next_s: f64,
     track: MetricTrack,
     next_track_s: f64,
+    next_path_s: f64,
 }
 
 impl Capture {
@@ -164,6 +182,7 @@ impl Capture {
             next_s: 0.0,
             track: MetricTrack::default(),
             next_track_s: 0.0,
+            next_path_s: 0.0,
         }
     }
 
@@ -189,6 +208,19 @@ impl Capture {
     /// A metric-track sample is due at `t_s`.
     pub fn track_due(&self, t_s: f64) -> bool {
         t_s + 1e-9 >= self.next_track_s
+    }
+
+    /// The weld line, seen from above, for the path picture.
+    pub fn set_line(&mut self, points: Vec<[f32; 2]>) {
+        self.track.line = points;
+    }
+
+    /// The robot at (x, z) at `t_s`: kept if a path point is due (every [`PATH_PERIOD_S`]).
+    pub fn record_position(&mut self, t_s: f64, x: f32, z: f32) {
+        if t_s + 1e-9 >= self.next_path_s {
+            self.next_path_s += PATH_PERIOD_S;
+            self.track.path.push([x, z]);
+        }
     }
 
     /// Record the track's sample due now (see [`MetricTrack::push`]).

@@ -149,6 +149,8 @@ impl Observer {
         let detector = LineDetector::new(DetectorSettings::default())?;
         let mut events = scenario.events.clone();
         events.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+        let mut capture = Capture::new(scenario.capture.rate_hz, scenario.capture.signals.as_deref());
+        capture.set_line(line.smoothed().to_vec());
         Ok(Self {
             line,
             line_points: line_section.points,
@@ -157,7 +159,7 @@ impl Observer {
             detector,
             latest: None,
             frames_seen: 0,
-            capture: Capture::new(scenario.capture.rate_hz, scenario.capture.signals.as_deref()),
+            capture,
             target_speed_m_s: mm_min_to_m_s(scenario.speed.target_mm_min),
             speed_step_at_s: scenario.speed.step_at_s,
             events,
@@ -280,6 +282,8 @@ impl Observer {
         let (d_m, psi_rad) = seen.map_or((f64::NAN, f64::NAN), |l| (l.d_err_m, l.psi_err_rad));
         if track_due {
             self.capture.record_track(t_s, truth.d_err_m, d_m, truth.speed_m_s, target);
+            let at = world.chassis_pose().translation;
+            self.capture.record_position(t_s, at.x, at.z);
         }
         if !row_due {
             return Ok(());
@@ -632,6 +636,9 @@ pub fn write_outputs(outcome: &RunOutcome, out_dir: &std::path::Path) -> Result<
             &report::PlotLabels { title, x: "t (s)", y },
             &[report::PlotSeries { label: first_label, x: &t, y: &first_y }, report::PlotSeries { label: second_label, x: &t, y: &second_y }],
         )?;
+    }
+    if !outcome.track.path().is_empty() {
+        report::plot_path(out_dir, "path", outcome.track.line(), outcome.track.path())?;
     }
     Ok(())
 }
