@@ -56,6 +56,9 @@ pub struct Transaction {
     pub wire_busy: Duration,
     /// The line's baud differs from every servo's: nobody could decode the packet.
     pub baud_mismatch: bool,
+    /// Time one byte took on the line (at its baud, or the bus's default where the transport
+    /// has none).
+    pub byte_time: Duration,
 }
 
 #[derive(Debug, Error)]
@@ -175,7 +178,8 @@ impl Bus {
         self.plant.advance(&mut self.servos, instruction_end);
         let instruction = Instruction::parse(packet.instruction, &packet.params);
         let wire_busy = self.wire_time(packet.wire_len, baud);
-        let mut transaction = Transaction { packet, instruction, received_at, instruction_end, replies: Vec::new(), wire_busy, baud_mismatch: false };
+        let byte_time = self.wire_time(1, baud);
+        let mut transaction = Transaction { packet, instruction, received_at, instruction_end, replies: Vec::new(), wire_busy, baud_mismatch: false, byte_time };
         if self.faults.instruction_corrupted(transaction.packet.wire_len, self.bits_per_byte) {
             return transaction; // bit errors: every servo's CRC check fails, nobody answers
         }

@@ -8,8 +8,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::ReportError;
-use super::atomic::write_bytes_atomically;
-use super::plot::{FONT_FAMILY, PALETTE, PLOT_SIZE_PX, PlotFiles, encode_png, register_embedded_font, significant};
+use super::plot::{FONT_FAMILY, Figure, PALETTE, PLOT_SIZE_PX, PlotFiles, significant, write_figure};
 
 /// The track's colour, and the line's.
 pub const TRACK_RGB: (u8, u8, u8) = (PALETTE[0].0, PALETTE[0].1, PALETTE[0].2);
@@ -23,27 +22,18 @@ const MARGIN_PX: u32 = 20;
 /// Plots `track` over `line` (both (x, z) in metres, seen from above: x to the right, z down,
 /// so that the robot's left is up when it drives along +x) into `out_dir/STEM.png` and `.svg`.
 pub fn plot_path(out_dir: &Path, stem: &str, line: &[[f32; 2]], track: &[[f32; 2]]) -> Result<PlotFiles, ReportError> {
-    register_embedded_font()?;
-    let files = PlotFiles { png: out_dir.join(format!("{stem}.png")), svg: out_dir.join(format!("{stem}.svg")) };
-    let error = |path: &Path| {
-        let path = path.to_path_buf();
-        move |message: String| ReportError::Plot { path, message }
-    };
-    let (width, height) = PLOT_SIZE_PX;
-    let mut rgb = vec![0_u8; width as usize * height as usize * 3];
-    {
-        let backend = BitMapBackend::with_buffer(&mut rgb, PLOT_SIZE_PX);
-        draw(backend.into_drawing_area(), line, track).map_err(|e| e.to_string()).map_err(error(&files.png))?;
+    write_figure(out_dir, stem, &PathPlot { line, track })
+}
+
+struct PathPlot<'a> {
+    line: &'a [[f32; 2]],
+    track: &'a [[f32; 2]],
+}
+
+impl Figure for PathPlot<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        draw(root, self.line, self.track)
     }
-    let png = encode_png(&rgb, PLOT_SIZE_PX).map_err(|source| ReportError::PngEncoding { path: files.png.clone(), source })?;
-    write_bytes_atomically(&files.png, &png)?;
-    let mut svg = String::new();
-    {
-        let backend = SVGBackend::with_string(&mut svg, PLOT_SIZE_PX);
-        draw(backend.into_drawing_area(), line, track).map_err(|e| e.to_string()).map_err(error(&files.svg))?;
-    }
-    write_bytes_atomically(&files.svg, svg.as_bytes())?;
-    Ok(files)
 }
 
 /// Ranges for (x, −z) that hold every point with a 5 % margin and give a metre the same number

@@ -93,12 +93,6 @@ fn plot(
     series: &[PlotSeries<'_>],
     markers: Markers,
 ) -> Result<PlotFiles, ReportError> {
-    // The stem names a file inside out_dir; a separator would put it elsewhere.
-    if stem.is_empty() || stem.contains(['/', '\\']) || stem == "." || stem == ".." {
-        return Err(ReportError::InvalidFileStem {
-            stem: stem.to_owned(),
-        });
-    }
     for line in series {
         if line.x.len() != line.y.len() {
             return Err(ReportError::SeriesLengthMismatch {
@@ -107,6 +101,22 @@ fn plot(
                 y_len: line.y.len(),
             });
         }
+    }
+    write_figure(out_dir, stem, &LinePlot { labels, series, markers })
+}
+
+/// A picture that can be drawn on any plotters backend: the PNG's and the SVG's.
+pub(super) trait Figure {
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>;
+}
+
+/// Draws `figure` into `out_dir/STEM.png` and `out_dir/STEM.svg`, each written atomically.
+pub(super) fn write_figure(out_dir: &Path, stem: &str, figure: &impl Figure) -> Result<PlotFiles, ReportError> {
+    // The stem names a file inside out_dir; a separator would put it elsewhere.
+    if stem.is_empty() || stem.contains(['/', '\\']) || stem == "." || stem == ".." {
+        return Err(ReportError::InvalidFileStem {
+            stem: stem.to_owned(),
+        });
     }
     register_embedded_font()?;
     let files = PlotFiles {
@@ -122,7 +132,8 @@ fn plot(
     let mut rgb = vec![0_u8; width as usize * height as usize * 3];
     {
         let backend = BitMapBackend::with_buffer(&mut rgb, PLOT_SIZE_PX);
-        draw(backend.into_drawing_area(), labels, series, markers)
+        figure
+            .draw(backend.into_drawing_area())
             .map_err(|error| error.to_string())
             .map_err(plot_error(&files.png))?;
     }
@@ -135,7 +146,8 @@ fn plot(
     let mut svg = String::new();
     {
         let backend = SVGBackend::with_string(&mut svg, PLOT_SIZE_PX);
-        draw(backend.into_drawing_area(), labels, series, markers)
+        figure
+            .draw(backend.into_drawing_area())
             .map_err(|error| error.to_string())
             .map_err(plot_error(&files.svg))?;
     }
@@ -143,7 +155,20 @@ fn plot(
     Ok(files)
 }
 
-pub(super) fn register_embedded_font() -> Result<(), ReportError> {
+/// Labelled lines against a shared x axis.
+struct LinePlot<'a> {
+    labels: &'a PlotLabels<'a>,
+    series: &'a [PlotSeries<'a>],
+    markers: Markers,
+}
+
+impl Figure for LinePlot<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        draw(root, self.labels, self.series, self.markers)
+    }
+}
+
+fn register_embedded_font() -> Result<(), ReportError> {
     // plotters keeps registered fonts in a process-wide table; registering once is enough.
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let registered = *REGISTERED
@@ -285,7 +310,7 @@ fn axis_ranges(series: &[PlotSeries<'_>], x_margin: f64) -> (Range<f64>, Range<f
     (widen(x, x_margin), widen(y, 0.05))
 }
 
-pub(super) fn encode_png(rgb: &[u8], (width, height): (u32, u32)) -> Result<Vec<u8>, png::EncodingError> {
+fn encode_png(rgb: &[u8], (width, height): (u32, u32)) -> Result<Vec<u8>, png::EncodingError> {
     let mut bytes = Vec::new();
     let mut encoder = png::Encoder::new(&mut bytes, width, height);
     encoder.set_color(png::ColorType::Rgb);

@@ -280,15 +280,14 @@ impl Observer {
         // The camera's measurement in the same convention as the ground truth (NaN when the line
         // is not seen).
         let (d_m, psi_rad) = seen.map_or((f64::NAN, f64::NAN), |l| (l.d_err_m, l.psi_err_rad));
+        let position = world.chassis_pose().translation;
         if track_due {
             self.capture.record_track(t_s, truth.d_err_m, d_m, truth.speed_m_s, target);
-            let at = world.chassis_pose().translation;
-            self.capture.record_position(t_s, at.x, at.z);
+            self.capture.record_position(t_s, position.x, position.z);
         }
         if !row_due {
             return Ok(());
         }
-        let position = world.chassis_pose().translation;
         let adhesion = world.adhesion();
         let mut row = vec![
             t_s,

@@ -52,9 +52,11 @@ pub fn timer_file(device: &Path, sysfs: &Path) -> PathBuf {
 
 /// Read `device`'s latency timer, if it has one.
 pub fn read_timer(device: &Path, sysfs: &Path) -> Option<LatencyTimer> {
-    let file = timer_file(device, sysfs);
-    let text = std::fs::read_to_string(&file).ok()?;
-    let ms = text.trim().parse().ok()?;
+    read_timer_file(timer_file(device, sysfs))
+}
+
+fn read_timer_file(file: PathBuf) -> Option<LatencyTimer> {
+    let ms = std::fs::read_to_string(&file).ok()?.trim().parse().ok()?;
     Some(LatencyTimer { file, ms })
 }
 
@@ -77,7 +79,7 @@ pub fn warn_if_slow(device: &Path, timer: &LatencyTimer) {
 /// Set the timer to 1 ms; the guard puts the old value back when dropped.
 pub fn set_low(device: &Path, sysfs: &Path) -> Result<LowLatencyGuard, LatencyError> {
     let file = timer_file(device, sysfs);
-    let Some(timer) = read_timer(device, sysfs) else {
+    let Some(timer) = read_timer_file(file.clone()) else {
         return Err(LatencyError::NoTimer { device: device.to_owned(), file });
     };
     write_timer(&timer.file, 1)?;

@@ -427,7 +427,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         if modelled_wire {
             self.collide_queued(&mut replies);
         }
-        let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
+        let byte_time = transaction.byte_time;
         let plan = self.hand_over_plan(&replies, byte_time);
         let mut closed = false;
         let (last_reply, last_due) = plan.last().map_or((0, Duration::ZERO), |h| (h.reply, h.due));

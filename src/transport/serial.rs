@@ -89,6 +89,15 @@ struct Received {
     scratch: Vec<u8>,
 }
 
+impl Received {
+    /// `n` bytes were read into `scratch`: the controller's ones join `ready`.
+    fn accept(&mut self, n: usize) {
+        let mut controller = Vec::with_capacity(n);
+        self.echo.received(&self.scratch[..n], &mut controller);
+        self.ready.extend(controller);
+    }
+}
+
 impl SerialDevice {
     /// Open `path` exclusively at `baud`, 8N1, no flow control, raw. Must be called inside a
     /// tokio runtime (the descriptor is registered with its reactor).
@@ -174,12 +183,9 @@ impl SerialDevice {
             let scratch = &mut received.scratch;
             match guard.try_io(|fd| nix::unistd::read(fd.get_ref().as_fd(), scratch).map_err(io::Error::from)) {
                 Ok(Ok(0)) => return Poll::Ready(Ok(())), // hung up: the end of the stream
-                Ok(Ok(n)) => {
-                    let mut controller = Vec::with_capacity(n);
-                    received.echo.received(&received.scratch[..n], &mut controller);
-                    received.ready.extend(controller);
-                    // Nothing but our own echo (or bytes held as maybe echo): read on.
-                }
+                // Nothing but our own echo (or bytes held as maybe echo) leaves `ready` empty:
+                // read on.
+                Ok(Ok(n)) => received.accept(n),
                 Ok(Err(error)) => return Poll::Ready(Err(error)),
                 Err(_would_block) => continue,
             }
@@ -211,9 +217,7 @@ impl SerialDevice {
             if n == 0 {
                 break;
             }
-            let mut controller = Vec::with_capacity(n);
-            received.echo.received(&received.scratch[..n], &mut controller);
-            received.ready.extend(controller);
+            received.accept(n);
         }
         received.ready.len()
     }

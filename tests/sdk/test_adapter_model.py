@@ -39,9 +39,11 @@ def ping_times(path: str, count: int) -> list[float]:
 def test_the_u2d2_model_holds_every_reply_for_its_latency_timer(start_emulator):
     emu = start_emulator("wire", ("--baud", "1000000", "--adapter", "u2d2"))
     took = ping_times(emu.port, 12)
-    # Each ping waits for the 16 ms timer's next expiry: the SDK sends right after the last
-    # reply came, so a whole period (less the SDK's own fraction of a millisecond).
-    assert min(took[2:]) > 0.0145, [f"{t * 1e3:.2f}" for t in took]
+    # Each reply is handed over at a timer expiry, each at a later one than the last (a ping is
+    # sent only after the previous reply came). So pings 2..12 span at least ten whole 16 ms
+    # periods. A single ping is no bound: one handed over late on a loaded machine makes the
+    # next one shorter, because the timer's phase does not move.
+    assert sum(took[1:]) > 10 * 0.016, [f"{t * 1e3:.2f}" for t in took]
 
 
 def test_a_1_ms_latency_timer_and_the_ideal_adapter_answer_within_a_few_ms(start_emulator):
