@@ -39,5 +39,15 @@ impl WheelPosition {
     pub fn index(self) -> usize {
         self as usize
     }
+
+    /// The wheel's name as scenarios and robot descriptions write it (`front_left`, …).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::FrontLeft => "front_left",
+            Self::FrontRight => "front_right",
+            Self::RearLeft => "rear_left",
+            Self::RearRight => "rear_right",
+        }
+    }
 }
 

@@ -1,13 +1,16 @@
 //! `run.mcap`, read back with the `mcap` crate (not the writer's SDK): schemas, topics, message
 //! counts and timestamps match the run's `timeseries.csv`, the transforms decode and put the
-//! robot where the series says it was, the camera frames are PNG images.
+//! robot where the series says it was, the scene holds the terrain, the line, the robot and its
+//! magnets' pulls, the servos' registers are there by name, faults are logged, and the camera
+//! frames are PNG images.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
 use foxglove::Decode;
-use foxglove::messages::FrameTransforms;
+use foxglove::messages::{FrameTransforms, SceneUpdate};
+use rapier3d::prelude::{Pose, Rotation, Vector};
 
 mod support;
 
@@ -42,11 +45,16 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     assert_eq!(schema("/tf"), ("foxglove.FrameTransforms".into(), "protobuf".into(), "protobuf".into()));
     assert_eq!(schema("/camera/image"), ("foxglove.CompressedImage".into(), "protobuf".into(), "protobuf".into()));
     assert_eq!(schema("/signals"), ("climbsim.Signals".into(), "jsonschema".into(), "json".into()));
+    assert_eq!(schema("/servos"), ("climbsim.Servos".into(), "jsonschema".into(), "json".into()));
+    for topic in ["/scene/terrain", "/scene/robot", "/scene/magnets"] {
+        assert_eq!(schema(topic), ("foxglove.SceneUpdate".into(), "protobuf".into(), "protobuf".into()), "{topic}");
+    }
 
     let csv = climbsim::report::read_timeseries_csv(&out.join("timeseries.csv")).expect("timeseries.csv");
     let (t, x, y, z) = (csv.column("t_s").expect("t"), csv.column("x_m").expect("x"), csv.column("y_m").expect("y"), csv.column("z_m").expect("z"));
-    // One signals message and one set of transforms per captured row, at the row's time.
-    for topic in ["/signals", "/tf"] {
+    // One signals message and one set of transforms per captured row, at the row's time (the
+    // view's 50 Hz is the capture's default rate).
+    for topic in ["/signals", "/tf", "/servos"] {
         let times: Vec<u64> = by_topic[topic].iter().map(|m| m.log_time).collect();
         assert_eq!(times.len(), t.len(), "{topic}: one message per row");
         for (time, t_s) in times.iter().zip(&t) {
@@ -57,14 +65,56 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     let last: serde_json::Value = serde_json::from_slice(&by_topic["/signals"].last().expect("rows").data).expect("JSON");
     assert!((last["x_m"].as_f64().expect("x_m") - x[x.len() - 1]).abs() < 1e-9, "{last}");
 
-    // The middle section's transform is where the series puts the robot.
+    // The robot's frame tree, at the view's 50 Hz: the middle section where the series puts
+    // the robot, the wheels a track apart, each magnet pulling straight down on the flat floor.
+    let parents = ["map", "world", "middle", "front", "wheel_front_left", "front", "wheel_front_right", "middle", "wheel_rear_left", "middle", "wheel_rear_right"];
+    let children = ["world", "middle", "front", "wheel_front_left", "magnet_front_left", "wheel_front_right", "magnet_front_right", "wheel_rear_left", "magnet_rear_left", "wheel_rear_right", "magnet_rear_right"];
     for (index, message) in by_topic["/tf"].iter().enumerate().step_by(25) {
         let transforms = FrameTransforms::decode(&message.data[..]).expect("FrameTransforms");
-        let frames: Vec<&str> = transforms.transforms.iter().map(|f| f.child_frame_id.as_str()).collect();
-        assert_eq!(frames, ["world", "middle", "front", "wheel_front_left", "wheel_front_right", "wheel_rear_left", "wheel_rear_right"]);
+        let pairs: Vec<(&str, &str)> = transforms.transforms.iter().map(|f| (f.parent_frame_id.as_str(), f.child_frame_id.as_str())).collect();
+        assert_eq!(pairs, parents.iter().copied().zip(children).collect::<Vec<_>>());
         let middle = transforms.transforms[1].translation.as_ref().expect("translation");
         assert!((middle.x - x[index]).abs() < 1e-5 && (middle.y - y[index]).abs() < 1e-5 && (middle.z - z[index]).abs() < 1e-5, "row {index}: {middle:?}");
+        let in_world = |name: &str| world_pose(&transforms, name);
+        let (left, right) = (in_world("wheel_front_left").translation, in_world("wheel_front_right").translation);
+        assert!(((left - right).length() - 0.26).abs() < 0.005, "front wheels {left:?} and {right:?} are a 260 mm track apart");
+        for magnet in ["magnet_front_left", "magnet_rear_right"] {
+            let pull = in_world(magnet).rotation * -Vector::Y;
+            assert!(pull.y < -0.99, "{magnet} pulls along {pull:?}, not down");
+        }
     }
+
+    // The scene: the terrain as an indexed mesh, the line's stripe just above it, the robot's
+    // boxes and wheels, and one arrow per magnet as long as its pull.
+    let terrain = SceneUpdate::decode(&by_topic["/scene/terrain"][0].data[..]).expect("SceneUpdate");
+    let ground = terrain.entities.iter().find(|e| e.id == "terrain").expect("terrain entity");
+    let mesh = &ground.triangles[0];
+    assert!(mesh.points.len() >= 4 && !mesh.indices.is_empty() && mesh.indices.len() % 3 == 0, "{} points, {} indices", mesh.points.len(), mesh.indices.len());
+    assert!(mesh.indices.iter().all(|&i| (i as usize) < mesh.points.len()));
+    assert_eq!(mesh.colors.len(), mesh.points.len());
+    let stripe = &terrain.entities.iter().find(|e| e.id == "weld_line").expect("weld line entity").triangles[0];
+    assert!(!stripe.points.is_empty() && stripe.points.iter().all(|p| (0.0005..0.002).contains(&p.y)), "the stripe lies 1 mm over the flat floor");
+    let robot = SceneUpdate::decode(&by_topic["/scene/robot"][0].data[..]).expect("SceneUpdate");
+    let count = |kind: fn(&foxglove::messages::SceneEntity) -> usize| robot.entities.iter().map(kind).sum::<usize>();
+    assert_eq!((count(|e| e.cubes.len()), count(|e| e.cylinders.len())), (3, 4), "three section boxes and four wheels");
+    assert!(robot.entities.iter().all(|e| e.frame_locked));
+    let magnets = &by_topic["/scene/magnets"];
+    assert_eq!(magnets.len(), by_topic["/tf"].len());
+    let pull_fl = csv.column("adhesion_fl_n").expect("adhesion");
+    let last_arrows = SceneUpdate::decode(&magnets.last().expect("arrows").data[..]).expect("SceneUpdate");
+    let arrow = &last_arrows.entities.iter().find(|e| e.frame_id == "magnet_front_left").expect("front-left arrow").arrows[0];
+    let length = arrow.shaft_length + arrow.head_length;
+    assert!((length - pull_fl[pull_fl.len() - 1] * 0.0005).abs() < 0.002, "arrow {length} m for {} N", pull_fl[pull_fl.len() - 1]);
+
+    // The servos' registers by name: the wheels were told to turn and do.
+    let servos: serde_json::Value = serde_json::from_slice(&by_topic["/servos"].last().expect("servos").data).expect("JSON");
+    for name in ["wheel_front_left", "wheel_rear_right"] {
+        let servo = &servos[name];
+        assert_eq!(servo["torque_enable"], 1, "{servos}");
+        assert!(servo["goal_velocity"].as_i64().is_some_and(|v| v != 0) && servo["present_velocity"].as_i64().is_some_and(|v| v != 0), "{name}: {servo}");
+        assert!(servo["present_temperature"].as_i64().is_some() && servo["hardware_error_status"] == 0, "{name}: {servo}");
+    }
+    assert_eq!(servos["magnet_front_left"]["id"], 5);
 
     // The camera's frames at its 30 Hz, each a PNG.
     let images = &by_topic["/camera/image"];
@@ -74,10 +124,57 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     assert!(image.data.starts_with(b"\x89PNG\r\n\x1a\n"), "a PNG");
 }
 
+/// Where frame `name` is in `world`, from the tree of transforms.
+fn world_pose(transforms: &FrameTransforms, name: &str) -> Pose {
+    let transform = transforms.transforms.iter().find(|t| t.child_frame_id == name).unwrap_or_else(|| panic!("no frame {name}"));
+    let (t, r) = (transform.translation.expect("translation"), transform.rotation.expect("rotation"));
+    let local = Pose::from_parts(Vector::new(t.x as f32, t.y as f32, t.z as f32), Rotation::from_xyzw(r.x as f32, r.y as f32, r.z as f32, r.w as f32));
+    if transform.parent_frame_id == "world" { local } else { world_pose(transforms, &transform.parent_frame_id) * local }
+}
+
+#[test]
+fn faults_are_logged_as_they_start_and_end() {
+    let out = support::scratch_dir("mcap-log").join("run");
+    run(&out, &["--fault", "voltage_sag:volts=11,at=1,until=2"]);
+    let bytes = std::fs::read(out.join("run.mcap")).expect("run.mcap");
+    let logs: Vec<(f64, String)> = mcap::MessageStream::new(&bytes)
+        .expect("stream")
+        .map(|m| m.expect("message"))
+        .filter(|m| m.channel.topic == "/log")
+        .map(|m| (m.log_time as f64 / 1e9, foxglove::messages::Log::decode(&m.data[..]).expect("Log").message))
+        .collect();
+    assert_eq!(logs.len(), 2, "{logs:?}");
+    assert!(logs[0].1.starts_with("fault starts") && logs[0].1.contains("voltage_sag") && (1.0..1.05).contains(&logs[0].0), "{logs:?}");
+    assert!(logs[1].1.starts_with("fault ends") && (2.0..2.05).contains(&logs[1].0), "{logs:?}");
+}
+
 #[test]
 fn capture_mcap_false_records_nothing() {
     let out = support::scratch_dir("mcap-off").join("run");
     run(&out, &["--set", "capture.mcap=false"]);
     assert!(out.join("timeseries.csv").exists());
     assert!(!out.join("run.mcap").exists() && !out.join("run.mcap.tmp").exists());
+}
+
+#[test]
+fn serve_records_its_world_until_it_is_stopped() {
+    use std::io::{BufRead, BufReader};
+    let file = support::scratch_dir("mcap-serve").join("session.mcap");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["serve", "scenarios/flat-line.toml", "--mcap", &file.display().to_string()])
+        .current_dir(support::repo())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("climbsim serve");
+    let stdout = child.stdout.take().expect("stdout");
+    let ready = BufReader::new(stdout).lines().map_while(Result::ok).any(|line| line.starts_with("sensors: "));
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let stopped = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().expect("kill");
+    let status = child.wait().expect("wait");
+    assert!(ready && stopped.success() && status.success(), "serve ended with {status}");
+    let bytes = std::fs::read(&file).expect("the recording has its final name");
+    let times: Vec<u64> = mcap::MessageStream::new(&bytes).expect("stream").map(|m| m.expect("message")).filter(|m| m.channel.topic == "/tf").map(|m| m.log_time).collect();
+    // The world ran on the wall clock for about 1.5 s, its frames at 50 Hz.
+    assert!(times.len() >= 50 && times.windows(2).all(|w| w[0] < w[1]), "{} frames", times.len());
 }

@@ -56,7 +56,7 @@ fn live() -> &'static (PathBuf, PathBuf) {
         let dir = support::scratch_dir("replay-live");
         let (out, transcript) = (dir.join("live"), dir.join("live.jsonl"));
         let duration = format!("world.duration_s={LIVE_S}");
-        let output = support::climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--set", &duration, "--set", "expect={}", "--out", &s(&out), "--record", &s(&transcript)]);
+        let output = support::climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--set", &duration, "--set", "expect={}", "--pace-tolerance-ms", "1000", "--out", &s(&out), "--record", &s(&transcript)]);
         let log = std::fs::read_to_string(out.join("controller.log")).unwrap_or_default();
         assert!(output.status.success(), "{}\ncontroller.log:\n{log}", text(&output));
         (out, transcript)

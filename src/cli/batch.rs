@@ -14,7 +14,7 @@ use serde_json::Value;
 use climbsim::report::junit::{JunitCase, write_junit};
 use climbsim::report::{self, PlotLabels, PlotSeries, TimeSeries};
 use climbsim::robot::RobotDescription;
-use climbsim::scenario::run::{MetricTrack, RunOutcome, run_lockstep_until, write_outputs};
+use climbsim::scenario::run::{LiveRun, MetricTrack, RunOutcome, run_lockstep_until, write_outputs};
 use climbsim::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
@@ -38,14 +38,14 @@ pub fn print_summary(outcome: &RunOutcome, out_dir: &Path) {
     }
 }
 
-/// `climbsim run SCENARIO` with a built-in controller.
-pub fn run_builtin(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path) -> Result<RunOutcome> {
+/// `climbsim run SCENARIO` with a built-in controller (shown `live` in Foxglove if asked).
+pub fn run_builtin(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path, live: Option<&LiveRun>) -> Result<RunOutcome> {
     // The lockstep bus has no wire, but a baud the servos cannot take is still a wrong scenario.
     if let Some(bps) = scenario.bus.baud_bps {
         robot.servos(Some(bps)).with_context(|| format!("{}: [bus] baud_bps = {bps}", scenario.path.display()))?;
     }
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
-    let outcome = run_lockstep_until(scenario, robot, super::interrupt::flag(), Some(out_dir))?;
+    let outcome = run_lockstep_until(scenario, robot, super::interrupt::flag(), Some(out_dir), live)?;
     write_outputs(&outcome, out_dir).with_context(|| format!("writing outputs to {}", out_dir.display()))?;
     if let Some(at) = outcome.summary.get("interrupted_at_s") {
         return Err(Verdict::Interrupted(format!("interrupted at t = {at} s; the outputs in {} cover the run up to then", out_dir.display())).into());
@@ -56,9 +56,9 @@ pub fn run_builtin(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path
 /// Run `scenario` with whichever controller it names (an external one quietly, on its own port).
 fn run_any(scenario: &Scenario, robot: &RobotDescription, out_dir: &Path, pace: Pace) -> Result<RunOutcome> {
     match &scenario.controller {
-        ControllerSection::Builtin(_) => run_builtin(scenario, robot, out_dir),
+        ControllerSection::Builtin(_) => run_builtin(scenario, robot, out_dir, None),
         ControllerSection::External(external) => {
-            let options = ExternalRun { timing: climbsim::bus::Timing::Wire, link: None, record: None, pace, announce: false };
+            let options = ExternalRun { timing: climbsim::bus::Timing::Wire, link: None, record: None, pace, announce: false, live: None };
             run_external(scenario, external, robot, &options, out_dir)
         }
     }

@@ -21,6 +21,8 @@ use climbsim::bus::{Timing, TraceWriter};
 use climbsim::fault::ScheduledFault;
 use climbsim::robot::RobotDescription;
 use climbsim::scenario::Scenario;
+use climbsim::scenario::run::LiveRun;
+use climbsim::scenario::view::{LiveAddress, ViewOptions};
 use climbsim::transport::can::CanIds;
 use climbsim::transport::{Adapter, AdapterModel, BusHandle, Clock, PhysicsPace, TcpServer, TimingReport, VirtualPort, parse_tcp_addr, serve_stream_through};
 
@@ -233,6 +235,15 @@ pub enum Command {
         /// a scenario.
         #[arg(long, value_name = "FILE", requires = "scenario")]
         record: Option<PathBuf>,
+        /// Record the world for Foxglove into FILE (MCAP: the robot, terrain, camera, signals,
+        /// servos' registers, events). Needs a scenario with a weld line.
+        #[arg(long, value_name = "FILE", requires = "scenario")]
+        mcap: Option<PathBuf>,
+        /// Show the world live in Foxglove: serve Foxglove's WebSocket protocol at 127.0.0.1:8765, or at
+        /// `--foxglove=ADDR` (PORT, HOST or HOST:PORT; only this machine can connect unless a
+        /// host is given). In Foxglove: Open connection → Foxglove WebSocket.
+        #[arg(long, requires = "scenario", value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
+        foxglove: Option<LiveAddress>,
         #[command(flatten)]
         pace: PaceArgs,
     },
@@ -264,6 +275,12 @@ pub enum Command {
         /// (external controllers only: a built-in one is deterministic already).
         #[arg(long, value_name = "FILE")]
         record: Option<PathBuf>,
+        /// Show the run live in Foxglove: serve Foxglove's WebSocket protocol at 127.0.0.1:8765, or at
+        /// `--foxglove=ADDR` (PORT, HOST or HOST:PORT; only this machine can connect unless a
+        /// host is given). In Foxglove: Open connection → Foxglove WebSocket. A built-in
+        /// controller's run then keeps to real time (or --speed N times it) for the watcher.
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
+        foxglove: Option<LiveAddress>,
         #[command(flatten)]
         pace: PaceArgs,
     },
@@ -363,7 +380,7 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Serve { scenario, link, tcp, tcp_connect, can, can_ids, can_padding, device, echo, low_latency, rs485, rs485_delay_ms, timing, adapter, latency_timer_ms, trace_bus, robot, baud, report, faults, record, pace } => {
+        Command::Serve { scenario, link, tcp, tcp_connect, can, can_ids, can_padding, device, echo, low_latency, rs485, rs485_delay_ms, timing, adapter, latency_timer_ms, trace_bus, robot, baud, report, faults, record, mcap, foxglove, pace } => {
             let adapter = match (adapter, latency_timer_ms) {
                 (AdapterArg::Ideal, Some(_)) => bail!("--latency-timer-ms is a setting of a modelled adapter: give --adapter u2d2 with it"),
                 (AdapterArg::Ideal, None) => Adapter::Ideal,
@@ -372,10 +389,11 @@ pub fn run(cli: Cli) -> Result<()> {
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
             let rs485 = rs485.then(|| rs485_delay_ms.unwrap_or_default());
             let device = device.map(|path| device::DeviceOptions { path, echo: echo.into(), low_latency, rs485 });
-            let options = ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, pace };
+            let view = ViewOptions { mcap, live: foxglove };
+            let options = ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, view, pace };
             serve(options, &robot)
         }
-        Command::Run { scenario, out, set, timing, link, robot, faults, record, pace } => {
+        Command::Run { scenario, out, set, timing, link, robot, faults, record, foxglove, pace } => {
             interrupt::install()?;
             refuse_recorded_cli_faults(&faults, record.as_deref())?;
             let robot = load_robot(&robot)?;
@@ -392,15 +410,16 @@ pub fn run(cli: Cli) -> Result<()> {
                 climbsim::scenario::ControllerSection::Builtin(_) => {
                     // Flags that only an external controller's wall-clock run uses are refused,
                     // not silently ignored.
-                    let ignored = [(record.is_some(), "--record (a built-in controller's run is deterministic already: run it again)"), (link.is_some(), "--link (a built-in controller has no port)"), (timing.is_some(), "--timing (a built-in controller talks to the bus in lockstep)"), (!pace.is_default(), "--speed (a built-in controller runs in lockstep, as fast as the CPU allows)")];
+                    let ignored = [(record.is_some(), "--record (a built-in controller's run is deterministic already: run it again)"), (link.is_some(), "--link (a built-in controller has no port)"), (timing.is_some(), "--timing (a built-in controller talks to the bus in lockstep)"), (!pace.is_default() && foxglove.is_none(), "--speed (a built-in controller runs in lockstep, as fast as the CPU allows; with --foxglove it keeps to --speed for the watcher)")];
                     if let Some((_, flag)) = ignored.iter().find(|(given, _)| *given) {
                         anyhow::bail!("{}: the scenario's controller is built in, so {flag}", scenario.display());
                     }
-                    batch::run_builtin(&loaded, &robot, &out_dir)?
+                    let live = foxglove.map(|address| LiveRun { address, speed: pace.speed, announce: announce_foxglove });
+                    batch::run_builtin(&loaded, &robot, &out_dir, live.as_ref())?
                 }
                 climbsim::scenario::ControllerSection::External(external) => {
                     let record = record.map(|path| replay::RecordSpec { path, overrides: set.clone() });
-                    let options = realtime::ExternalRun { timing: timing_of(timing.unwrap_or(TimingArg::Wire)), link: link.as_deref(), record: record.as_ref(), pace: pace.pace(), announce: true };
+                    let options = realtime::ExternalRun { timing: timing_of(timing.unwrap_or(TimingArg::Wire)), link: link.as_deref(), record: record.as_ref(), pace: pace.pace(), announce: true, live: foxglove };
                     realtime::run_external(&loaded, external, &robot, &options, &out_dir)?
                 }
             };
@@ -491,6 +510,7 @@ struct ServeOptions {
     report: Option<PathBuf>,
     faults: Vec<ScheduledFault>,
     record: Option<PathBuf>,
+    view: ViewOptions,
     pace: PaceArgs,
 }
 
@@ -527,7 +547,7 @@ fn refuse_recorded_cli_faults(faults: &[ScheduledFault], record: Option<&std::pa
 }
 
 fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
-    let ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, pace } = options;
+    let ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, view, pace } = options;
     refuse_recorded_cli_faults(&faults, record.as_deref())?;
     if !pace.is_default() && can.is_some() {
         anyhow::bail!("--speed with --can: a CAN bus is a real bus whose other nodes keep real time; serve it at --speed 1");
@@ -556,11 +576,20 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             let (bus, observer) = realtime::scenario_bus(&loaded, &robot, timing, baud)?;
             let spec = record.map(|path| replay::RecordSpec { path, overrides: Vec::new() });
             let recorder = spec.map(|spec| replay::start_recording(&spec, "serve", &loaded, &robot, &bus, baud)).transpose()?;
+            if !view.is_off() && observer.is_none() {
+                bail!("--mcap and --foxglove show a world with a weld line; {} has no [line]", path.display());
+            }
             // `serve` writes no time series: a session may last for days.
-            let observer = observer.map(|mut o| {
-                o.discard_rows();
-                Arc::new(std::sync::Mutex::new(o))
-            });
+            let observer = observer
+                .map(|mut o| {
+                    o.discard_rows();
+                    let world = bus.plant::<climbsim::sim::RobotWorld>().context("the scenario's bus has no robot world")?;
+                    if let Some(url) = o.start_view(&view, world)? {
+                        println!("foxglove: {url}");
+                    }
+                    Ok::<_, anyhow::Error>(Arc::new(std::sync::Mutex::new(o)))
+                })
+                .transpose()?;
             (bus, observer, recorder)
         }
         None => {
@@ -633,7 +662,7 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
         // A world runs on the wall clock: a pacer advances it every firmware tick against
         // absolute deadlines, so it moves between packets too (packets advance it as well). The
         // bench needs none: its servos are brought up to date exactly when a packet arrives.
-        let pacer = match observer {
+        let pacer = match observer.clone() {
             Some(observer) => {
                 let feed = Arc::new(climbsim::sensor_server::SensorFeed::default());
                 replay::record_sensor_reads(&handle, &feed);
@@ -684,6 +713,9 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             eprintln!("climbsim: {problem}");
         }
         replay::finish_recording(&handle, &pace_kept)?;
+        if let Some(observer) = observer {
+            observer.lock().unwrap_or_else(std::sync::PoisonError::into_inner).finish_view()?;
+        }
         Ok::<_, anyhow::Error>(port)
     })
     .map(|port| port.remove_link())
@@ -744,4 +776,10 @@ async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adap
     let line = port.line();
     serve_stream_through(port.stream(), handle, &line, AdapterModel::new(adapter)).await?;
     Ok(())
+}
+
+/// Where a built-in controller's live run is watched (printed before the run starts).
+fn announce_foxglove(url: &str) {
+    println!("foxglove: {url}");
+    let _ = std::io::Write::flush(&mut std::io::stdout());
 }

@@ -15,6 +15,7 @@ use climbsim::bus::Timing;
 use climbsim::robot::RobotDescription;
 use climbsim::bus::Bus;
 use climbsim::scenario::run::{Observer, RunError, RunOutcome, robot_relative, settings_json, write_outputs};
+use climbsim::scenario::view::{LiveAddress, MCAP_FILE, ViewOptions};
 use climbsim::scenario::{ExternalController, Scenario};
 use climbsim::sensor_server::{SensorFeed, SensorServer};
 use climbsim::sim::RobotWorld;
@@ -47,6 +48,8 @@ pub struct ExternalRun<'a> {
     pub pace: Pace,
     /// Print the port, sensor URL and controller as they start (`run`; not `check`/`sweep`).
     pub announce: bool,
+    /// Serve the run live to Foxglove here (`run --foxglove`).
+    pub live: Option<LiveAddress>,
 }
 
 /// The bus of `scenario`'s world and its observer (see [`climbsim::scenario::run::scenario_bus`]).
@@ -71,9 +74,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let (bus, observer) = scenario_bus(scenario, robot, options.timing, baud)?;
     let mut observer = observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?;
     observer.stream_to(out_dir)?;
-    if scenario.capture.mcap {
-        observer.record_mcap(out_dir)?;
-    }
+    let view = ViewOptions { mcap: scenario.capture.mcap.then(|| out_dir.join(MCAP_FILE)), live: options.live.clone() };
+    let world = bus.plant::<RobotWorld>().ok_or_else(|| anyhow::anyhow!("the scenario's bus has no robot world"))?;
+    let foxglove_url = observer.start_view(&view, world)?;
     let observer = Arc::new(Mutex::new(observer));
     let recorder = options.record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;
     let clock = Clock::scaled(options.pace.speed);
@@ -127,6 +130,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     info!(pid = controller.id(), port = %port.path().display(), sensors = %sensors_url, speed = options.pace.speed, "controller started");
     if options.announce {
         println!("port: {}\nsensors: {sensors_url}\ncontroller: {} (pid {})", port.path().display(), controller.description, controller.id());
+        if let Some(url) = &foxglove_url {
+            println!("foxglove: {url}");
+        }
     }
 
     let duration = Duration::from_secs_f64(scenario.world.duration_s);

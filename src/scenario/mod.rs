@@ -12,7 +12,7 @@ use thiserror::Error;
 
 mod overrides;
 pub mod capture;
-pub mod mcap;
+pub mod view;
 pub mod replay;
 pub mod run;
 pub mod sweep;

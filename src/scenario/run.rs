@@ -15,6 +15,8 @@ use serde_json::{Value, json};
 use thiserror::Error;
 use tracing::info_span;
 
+use foxglove::messages::log::Level as LogLevel;
+
 use crate::bus::{Bus, BusFaults, Timing};
 use crate::device::Servo;
 use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
@@ -26,7 +28,7 @@ use crate::sim::{DetectorSettings, LineCamera, LineCameraSettings, LineDetector,
 
 pub use super::capture::{COLUMNS, MetricTrack, summarise};
 use super::capture::Capture;
-use super::mcap::McapRecording;
+use super::view::{LiveAddress, View, ViewOptions};
 use super::watch::{self, WorldFailure, WorldWatch};
 use super::{ControllerSection, Event, Scenario, ScenarioError, mm_min_to_m_s};
 
@@ -35,7 +37,7 @@ pub enum RunError {
     #[error(transparent)]
     Scenario(#[from] ScenarioError),
     #[error(transparent)]
-    Mcap(#[from] super::mcap::McapError),
+    View(#[from] super::view::ViewError),
     #[error(transparent)]
     Sim(#[from] SimError),
     #[error("scenario {path}: [line]: {source}")]
@@ -130,9 +132,20 @@ pub struct Observer {
     next_event: usize,
     scenario_path: PathBuf,
     watch: WorldWatch,
-    /// `run.mcap`, if the run records one.
-    mcap: Option<McapRecording>,
+    /// The Foxglove view (recording, live server), if the run has one.
+    view: Option<View>,
+    /// When the view's next frame is due (simulated seconds): at [`VIEW_RATE_HZ`] whatever the
+    /// capture rate.
+    next_view_s: f64,
+    /// Which scheduled faults were acting at the last capture (for the view's log).
+    faults_acting: Vec<bool>,
+    /// The servos' names (robot description) by ID.
+    servo_names: Vec<(u8, String)>,
 }
+
+/// How often the view gets the robot's frames and the servos' registers (Foxglove's 3D panel
+/// looks smooth from about 30 Hz).
+pub const VIEW_RATE_HZ: f64 = 50.0;
 
 impl Observer {
     pub fn new(scenario: &Scenario, robot: &RobotDescription, world: &RobotWorld) -> Result<Self, RunError> {
@@ -166,7 +179,10 @@ impl Observer {
             next_event: 0,
             scenario_path: path,
             watch: WorldWatch::new(),
-            mcap: None,
+            view: None,
+            next_view_s: 0.0,
+            faults_acting: Vec::new(),
+            servo_names: robot.servo.iter().map(|s| (s.id, s.name.clone())).collect(),
         })
     }
 
@@ -180,20 +196,34 @@ impl Observer {
         while let Some(event) = self.events.get(self.next_event).filter(|e| e.at_s <= t_s).cloned() {
             self.next_event += 1;
             let _span = info_span!("event", at_s = event.at_s).entered();
+            let at = Duration::from_secs_f64(t_s);
             if let Some(speed) = event.set_speed_mm_min {
                 self.target_speed_m_s = mm_min_to_m_s(speed);
+                self.note(at, LogLevel::Info, format!("event at {} s: target speed {speed} mm/min", event.at_s));
             }
             if let Some(on) = event.magnets {
                 world.set_magnets_on(on);
+                self.note(at, LogLevel::Info, format!("event at {} s: magnets {}", event.at_s, if on { "on" } else { "off" }));
             }
             if let Some(offset) = event.line_offset_m {
                 self.line_offset_m = offset;
                 let width = self.line.width_m();
                 let smoothness = self.line.smoothness();
                 self.line = build_line(&self.line_points, smoothness, width, offset, world).map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
+                self.note(at, LogLevel::Info, format!("event at {} s: the line moves {} mm to the left", event.at_s, offset * 1000.0));
+                if let Some(view) = &self.view {
+                    view.terrain(at, world, self.line.samples());
+                }
             }
         }
         Ok(())
+    }
+
+    /// Something for the view's `/log` (events, faults, failures); nothing without a view.
+    pub fn note(&self, at: Duration, level: LogLevel, message: String) {
+        if let Some(view) = &self.view {
+            view.log(at, level, message);
+        }
     }
 
     /// Write the captured rows into `out_dir/timeseries.csv` as they come (see
@@ -202,11 +232,20 @@ impl Observer {
         Ok(self.capture.stream_to(out_dir)?)
     }
 
-    /// Also record `out_dir/run.mcap` (see [`super::mcap`]): transforms and signals with every
-    /// captured row, every camera frame.
-    pub fn record_mcap(&mut self, out_dir: &std::path::Path) -> Result<(), RunError> {
-        self.mcap = Some(McapRecording::create(out_dir, COLUMNS)?);
-        Ok(())
+    /// Show the run in Foxglove (see [`super::view`]): a recording, a live server, or both. The
+    /// terrain, the line and the robot's shapes are sent at once; the robot's frames, the
+    /// servos' registers and the signals with the capture. The live server's URL, if any.
+    pub fn start_view(&mut self, options: &ViewOptions, world: &RobotWorld) -> Result<Option<String>, RunError> {
+        if options.is_off() {
+            return Ok(None);
+        }
+        let names: Vec<String> = self.servo_names.iter().map(|(_, name)| name.clone()).collect();
+        let view = View::start(options, COLUMNS, &names)?;
+        view.terrain(Duration::ZERO, world, self.line.samples());
+        view.robot(Duration::ZERO, world);
+        let url = view.live_url();
+        self.view = Some(view);
+        Ok(url)
     }
 
     /// Keep no captured rows and no metric track (`serve SCENARIO`, which writes no outputs).
@@ -220,10 +259,10 @@ impl Observer {
         if let Some(frame) = self.camera.render(world.camera_pose(), &self.line, t) {
             self.latest = Some(self.detector.detect(frame));
             self.frames_seen += 1;
-            if let Some(mcap) = &self.mcap {
+            if let Some(view) = &self.view {
                 // The recording's chunks are compressed again (zstd): the fastest PNG will do.
                 match frame.to_png_with(png::Compression::Fastest) {
-                    Ok(png) => mcap.image(frame.t, png),
+                    Ok(png) => view.image(frame.t, png),
                     Err(error) => tracing::warn!(%error, "camera frame not recorded"),
                 }
             }
@@ -270,10 +309,14 @@ impl Observer {
     /// columns are NaN).
     pub fn capture(&mut self, t_s: f64, bus: &Bus, control: Option<&ControlSample>) -> Result<(), RunError> {
         let (row_due, track_due) = (self.capture.row_due(t_s), self.capture.track_due(t_s));
+        let Some(world) = bus.plant::<RobotWorld>() else { return Ok(()) };
+        if self.view.is_some() && t_s >= self.next_view_s {
+            self.next_view_s = (t_s * VIEW_RATE_HZ).floor() / VIEW_RATE_HZ + 1.0 / VIEW_RATE_HZ;
+            self.show(t_s, bus, world);
+        }
         if !row_due && !track_due {
             return Ok(());
         }
-        let Some(world) = bus.plant::<RobotWorld>() else { return Ok(()) };
         let truth = self.ground_truth(world);
         let target = self.target_speed_m_s(t_s);
         let seen = self.latest.filter(|m| m.valid).map(|m| robot_relative(&m));
@@ -316,13 +359,33 @@ impl Observer {
         let counts = faults.counts();
         row.push(faults.active().count() as f64);
         row.push((counts.instructions_corrupted + counts.replies_corrupted + counts.replies_dropped + counts.replies_delayed + counts.instructions_unheard) as f64);
-        if let Some(mcap) = &mut self.mcap {
-            let at = Duration::from_secs_f64(t_s);
-            mcap.transforms(at, &world.part_poses());
-            mcap.signals(at, &row);
+        if let Some(view) = &mut self.view {
+            view.signals(Duration::from_secs_f64(t_s), &row);
         }
         self.capture.record_row(&row)?;
         Ok(())
+    }
+
+    /// The view's frame at `t_s`: the robot's frames and magnet pulls, the servos' registers,
+    /// and faults that started or ended since the last one.
+    fn show(&mut self, t_s: f64, bus: &Bus, world: &RobotWorld) {
+        let Some(view) = &mut self.view else { return };
+        let at = Duration::from_secs_f64(t_s);
+        let pulls: Vec<(String, f32)> = WheelPosition::ALL.iter().zip(world.adhesion()).map(|(w, a)| (format!("magnet_{}", w.name()), a.force_n)).collect();
+        view.transforms(at, &world.part_frames(), &pulls);
+        let servos: Vec<(String, &Servo)> = self.servo_names.iter().filter_map(|(id, name)| bus.servos().iter().find(|s| s.id() == *id).map(|s| (name.clone(), s))).collect();
+        view.servos(at, &servos);
+        let faults = bus.faults();
+        let acting: Vec<bool> = faults.scheduled().iter().map(|f| faults.active().any(|a| std::ptr::eq(a, f))).collect();
+        for (index, fault) in faults.scheduled().iter().enumerate() {
+            let was = self.faults_acting.get(index).copied().unwrap_or(false);
+            if acting[index] != was {
+                let what = serde_json::to_string(&fault.fault).unwrap_or_else(|_| fault.fault.kind().to_owned());
+                let message = if acting[index] { format!("fault starts: {what}") } else { format!("fault ends: {what}") };
+                view.log(at, if acting[index] { LogLevel::Warning } else { LogLevel::Info }, message);
+            }
+        }
+        self.faults_acting = acting;
     }
 
     /// What every firmware tick of a wall-clock run (and of its replay) does after advancing the
@@ -334,11 +397,23 @@ impl Observer {
         let mut error = self.apply_events(t_s, world).err();
         let frames_before = self.frames_seen;
         self.sense(world, now);
+        let failed_before = self.watch.failure().is_some();
         let failure = self.watch.check(world, t_s).cloned();
+        if let Some(failure) = failure.as_ref().filter(|_| !failed_before) {
+            self.note(now, LogLevel::Error, failure.message.clone());
+        }
         if let Err(capture) = self.capture(t_s, bus, None) {
             error.get_or_insert(capture);
         }
         TickObservation { new_frame: self.frames_seen != frames_before, error, failure }
+    }
+
+    /// Close the view: the recording gets its final name, the live server stops.
+    pub fn finish_view(&mut self) -> Result<(), RunError> {
+        match self.view.take() {
+            Some(view) => Ok(view.finish()?),
+            None => Ok(()),
+        }
     }
 
     /// Why the world watch stopped believing in this run (see [`watch`]), once it has.
@@ -349,9 +424,7 @@ impl Observer {
     /// End the capture: a streamed `timeseries.csv` is completed (flushed and renamed), rows kept
     /// in memory are returned, with the metric track.
     pub fn finish(mut self) -> Result<(Option<TimeSeries>, MetricTrack), RunError> {
-        if let Some(mcap) = self.mcap.take() {
-            mcap.finish()?;
-        }
+        self.finish_view()?;
         let series = self.capture.finish()?;
         Ok((series, self.capture.into_track()))
     }
@@ -509,7 +582,18 @@ pub fn fault_summary(bus: &Bus) -> Vec<(String, Value)> {
 /// Run a scenario with the built-in controller in lockstep, as fast as the CPU allows; the
 /// captured rows are kept in the outcome.
 pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<RunOutcome, RunError> {
-    run_lockstep_until(scenario, robot, &AtomicBool::new(false), None)
+    run_lockstep_until(scenario, robot, &AtomicBool::new(false), None, None)
+}
+
+/// A built-in controller's run shown live in Foxglove: where the server listens, and at what
+/// multiple of real time the run goes (a lockstep run is otherwise as fast as the CPU allows,
+/// too fast to watch).
+#[derive(Debug, Clone)]
+pub struct LiveRun {
+    pub address: LiveAddress,
+    pub speed: f64,
+    /// Told the server's URL once it listens, before the run starts.
+    pub announce: fn(&str),
 }
 
 /// [`run_lockstep`], ending early when `stop` is set (e.g. by SIGINT): the outcome then covers
@@ -517,7 +601,7 @@ pub fn run_lockstep(scenario: &Scenario, robot: &RobotDescription) -> Result<Run
 /// `out_dir`, the captured rows go into its `timeseries.csv` as they come (complete when this
 /// returns, interrupted or not) and the outcome holds none: [`write_outputs`] into the same
 /// folder then writes the rest.
-pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &AtomicBool, out_dir: Option<&std::path::Path>) -> Result<RunOutcome, RunError> {
+pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &AtomicBool, out_dir: Option<&std::path::Path>, live: Option<&LiveRun>) -> Result<RunOutcome, RunError> {
     let ControllerSection::Builtin(config) = &scenario.controller else {
         return Err(RunError::NeedsRealTime { path: scenario.path.clone() });
     };
@@ -548,9 +632,10 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     let mut observer = Observer::new(scenario, robot, sim.world())?;
     if let Some(out_dir) = out_dir {
         observer.stream_to(out_dir)?;
-        if scenario.capture.mcap {
-            observer.record_mcap(out_dir)?;
-        }
+    }
+    let mcap = out_dir.filter(|_| scenario.capture.mcap).map(|dir| dir.join(super::view::MCAP_FILE));
+    if let (Some(url), Some(live)) = (observer.start_view(&ViewOptions { mcap, live: live.map(|l| l.address.clone()) }, sim.world())?, live) {
+        (live.announce)(&url);
     }
     let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;
     controller.start(&mut sim)?;
@@ -590,6 +675,16 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
         if interrupted || failure.is_some() {
             break;
         }
+        if let Some(live) = live {
+            // Keep to `speed` × real time for the person watching.
+            let due = Duration::from_secs_f64(sim.now().as_secs_f64() / live.speed);
+            if let Some(ahead) = due.checked_sub(started.elapsed()) {
+                std::thread::sleep(ahead);
+            }
+        }
+    }
+    if let Some(failure) = &failure {
+        observer.note(sim.now(), LogLevel::Error, failure.message.clone());
     }
     let wall_s = started.elapsed().as_secs_f64();
     let sim_s = sim.now().as_secs_f64();

@@ -8,7 +8,7 @@ mod lockstep;
 pub mod terrain;
 pub mod world;
 
-pub use world::{AdhesionSample, RobotWorld, SolverSettings, StartPose, WorldConfig, WorldError};
+pub use world::{AdhesionSample, PartFrame, PartShape, PartShapeKind, RobotWorld, TerrainMesh, SolverSettings, StartPose, WorldConfig, WorldError};
 pub use camera::{Frame, LineCamera, LineCameraSettings};
 pub use detector::{DetectorSettings, LineDetector, LineMeasurement};
 pub use line::{LineProjection, Surface, WeldLine};

@@ -217,6 +217,38 @@ enum ServoLink {
     Magnet { wheel: usize, zero_rad: f64 },
 }
 
+/// The terrain's surface as triangles (see [`RobotWorld::terrain_mesh`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TerrainMesh {
+    pub vertices: Vec<Vector>,
+    pub indices: Vec<[u32; 3]>,
+}
+
+/// A named frame of the robot and its pose relative to its parent frame (see
+/// [`RobotWorld::part_frames`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PartFrame {
+    pub name: String,
+    pub parent: String,
+    pub pose: Pose,
+}
+
+/// A piece of the robot's shape in one of its frames (see [`RobotWorld::part_shapes`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PartShape {
+    pub frame: String,
+    /// Where the piece sits in its frame.
+    pub pose: Pose,
+    pub kind: PartShapeKind,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PartShapeKind {
+    Box { half_extents: Vector },
+    /// A wheel about its frame's z axis.
+    Wheel { radius_m: f32, width_m: f32 },
+}
+
 pub struct RobotWorld {
     physics: PhysicsWorld,
     terrain: ColliderHandle,
@@ -425,6 +457,44 @@ impl RobotWorld {
         self.steps
     }
 
+    /// The terrain's surface as an indexed triangle mesh in the world frame, for viewers: a
+    /// heightfield every `stride`-th row and column, where `stride` keeps each side to at most
+    /// `max_vertices_per_side` vertices (the last row and column always kept); a mesh as it is.
+    pub fn terrain_mesh(&self, max_vertices_per_side: usize) -> TerrainMesh {
+        let collider = &self.physics.colliders[self.terrain];
+        let place = *collider.position();
+        if let Some(field) = collider.shape().as_heightfield() {
+            let picks = |n: usize| -> Vec<usize> {
+                let stride = (n.saturating_sub(1)).div_ceil(max_vertices_per_side.max(2) - 1).max(1);
+                let mut picked: Vec<usize> = (0..n).step_by(stride).collect();
+                if picked.last() != Some(&(n - 1)) {
+                    picked.push(n - 1);
+                }
+                picked
+            };
+            // parry's nrows/ncols count cells; the grid of heights has one more of each.
+            let heights = field.heights();
+            let (rows, cols) = (picks(heights.nrows()), picks(heights.ncols()));
+            let scale_y = field.scale().y;
+            let vertices = rows.iter().flat_map(|&i| cols.iter().map(move |&j| place * Vector::new(field.x_at(j), heights[(i, j)] * scale_y, field.z_at(i)))).collect();
+            let width = cols.len() as u32;
+            let mut indices = Vec::with_capacity((rows.len() - 1) * (cols.len() - 1) * 2);
+            for i in 0..rows.len() as u32 - 1 {
+                for j in 0..width - 1 {
+                    let (a, b, c, d) = (i * width + j, i * width + j + 1, (i + 1) * width + j, (i + 1) * width + j + 1);
+                    // Counter-clockwise seen from above (+y), as parry's own cells.
+                    indices.push([a, c, b]);
+                    indices.push([b, c, d]);
+                }
+            }
+            return TerrainMesh { vertices, indices };
+        }
+        if let Some(mesh) = collider.shape().as_trimesh() {
+            return TerrainMesh { vertices: mesh.vertices().iter().map(|&v| place * v).collect(), indices: mesh.indices().to_vec() };
+        }
+        TerrainMesh { vertices: Vec::new(), indices: Vec::new() }
+    }
+
     pub fn terrain_collider(&self) -> ColliderHandle {
         self.terrain
     }
@@ -486,19 +556,48 @@ impl RobotWorld {
         *self.physics.bodies[self.sections[1]].position()
     }
 
-    /// Every rigid part's pose, named as a recording's frames: the two sections and the four
-    /// wheels (the bolted rear section is part of `middle`).
-    pub fn part_poses(&self) -> [(&'static str, Pose); 6] {
+    /// The robot as a tree of named frames, for viewers (a recording's `/tf`): `middle` (which
+    /// carries the bolted rear section) in `world`, `front` on the rocker in `middle`, each wheel
+    /// (`wheel_front_left`, …) in the section that carries it, and each magnet (`magnet_front_left`,
+    /// …) in its wheel, turned about the axle by its shaft's angle (its −y points where it pulls).
+    pub fn part_frames(&self) -> Vec<PartFrame> {
         let pose = |handle: RigidBodyHandle| *self.physics.bodies[handle].position();
-        let wheel = |w: WheelPosition| pose(self.wheels[w.index()].wheel);
-        [
-            ("middle", pose(self.sections[1])),
-            ("front", pose(self.sections[0])),
-            ("wheel_front_left", wheel(WheelPosition::FrontLeft)),
-            ("wheel_front_right", wheel(WheelPosition::FrontRight)),
-            ("wheel_rear_left", wheel(WheelPosition::RearLeft)),
-            ("wheel_rear_right", wheel(WheelPosition::RearRight)),
-        ]
+        let section_name = |handle: RigidBodyHandle| if handle == self.sections[0] { "front" } else { "middle" };
+        let (front, middle) = (pose(self.sections[0]), pose(self.sections[1]));
+        let mut frames = Vec::with_capacity(10);
+        frames.push(PartFrame { name: "middle".to_owned(), parent: "world".to_owned(), pose: middle });
+        frames.push(PartFrame { name: "front".to_owned(), parent: "middle".to_owned(), pose: middle.inv_mul(&front) });
+        for position in WheelPosition::ALL {
+            let parts = self.wheels[position.index()];
+            let (section, wheel) = (pose(parts.section), pose(parts.wheel));
+            let wheel_name = format!("wheel_{}", position.name());
+            let angle = self.magnets[position.index()].load.state().position_rad as f32;
+            let magnet = Pose::from_parts(wheel.translation, section.rotation * Rotation::from_axis_angle(parts.magnet_axis, angle));
+            frames.push(PartFrame { name: wheel_name.clone(), parent: section_name(parts.section).to_owned(), pose: section.inv_mul(&wheel) });
+            frames.push(PartFrame { name: format!("magnet_{}", position.name()), parent: wheel_name, pose: wheel.inv_mul(&magnet) });
+        }
+        frames
+    }
+
+    /// The robot's shapes for viewers, each in the frame of [`RobotWorld::part_frames`] it moves
+    /// with: the sections' boxes as their colliders have them, and each wheel as the hollow
+    /// cylinder it is (its collider is a ball, which rolls more robustly on heightfields).
+    pub fn part_shapes(&self) -> Vec<PartShape> {
+        let mut shapes = Vec::with_capacity(7);
+        for (frame, section) in [("front", self.sections[0]), ("middle", self.sections[1])] {
+            for &collider in self.physics.bodies[section].colliders() {
+                if let Some(cuboid) = self.physics.colliders[collider].shape().as_cuboid() {
+                    let pose = self.physics.colliders[collider].position_wrt_parent().copied().unwrap_or_default();
+                    shapes.push(PartShape { frame: frame.to_owned(), pose, kind: PartShapeKind::Box { half_extents: cuboid.half_extents } });
+                }
+            }
+        }
+        let wheel = &self.robot.wheel;
+        for position in WheelPosition::ALL {
+            // The wheel body's z axis is its axle.
+            shapes.push(PartShape { frame: format!("wheel_{}", position.name()), pose: Pose::IDENTITY, kind: PartShapeKind::Wheel { radius_m: wheel.outer_radius_m, width_m: wheel.width_m } });
+        }
+        shapes
     }
 
     /// The downward camera's pose: its mount (`[camera] position_m`) on the middle section,

@@ -1,0 +1,284 @@
+//! What a run shows in Foxglove, recorded (`run.mcap`; MCAP is also the ROS 2 bag format, and
+//! Rerun opens it too) and live (Foxglove's WebSocket protocol), written with the Foxglove SDK,
+//! which brings the well-known schemas, the MCAP writer and the WebSocket server. One set of
+//! channels feeds both sinks.
+//!
+//! Topics (log time = simulated time since the run began):
+//! - `/tf` (`foxglove.FrameTransforms`): `map` (z up) → `world` (rapier's y up) → `middle` →
+//!   `front` (the rocker), the wheels in the section that carries them, each magnet in its
+//!   wheel, at the capture rate;
+//! - `/scene/terrain` (`foxglove.SceneUpdate`): the terrain coloured by height and the weld
+//!   line's stripe, at the start and whenever the line moves;
+//! - `/scene/robot`: the sections' boxes and the wheels, locked to their frames, at the start;
+//! - `/scene/magnets`: an arrow per magnet as long as its pull, at the capture rate;
+//! - `/camera/image` (`foxglove.CompressedImage`, PNG): every frame of the downward camera;
+//! - `/signals` (JSON): every column of `timeseries.csv` at the capture rate (the detector's
+//!   `d_m` and `psi_rad` among them), for plots;
+//! - `/servos` (JSON): each servo's key registers, by name, at the capture rate;
+//! - `/log` (`foxglove.Log`): events, faults starting and ending, and why a run failed.
+//!
+//! A live viewer that connects late still gets the scene: the server sends the latest terrain
+//! and robot to each new subscriber.
+//!
+//! A recording is written as `<file>.tmp` and renamed when the run ends, interrupted or not, so
+//! the named file is always complete.
+
+mod live;
+pub mod scene;
+
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use foxglove::messages::log::Level as LogLevel;
+use foxglove::messages::{CompressedImage, FrameTransform, FrameTransforms, Log, Quaternion, SceneUpdate, Timestamp, Vector3};
+use foxglove::{Channel, ChannelBuilder, Context, McapWriter, McapWriterHandle, PartialMetadata, RawChannel, Schema};
+use thiserror::Error;
+
+pub use live::LiveAddress;
+use live::LiveServer;
+
+use crate::device::Servo;
+use crate::sim::{PartFrame, RobotWorld};
+use crate::sim::line::LineSample;
+
+/// The recording's file name in a run's output folder.
+pub const MCAP_FILE: &str = "run.mcap";
+
+/// Terrain meshes are cut to at most this many vertices a side (a 256 × 256 heightfield is sent
+/// whole: about 3 MB once, far less compressed in the recording).
+const TERRAIN_VERTICES_PER_SIDE: usize = 257;
+
+/// A magnet pulling less than this (N) has its arrow drawn red.
+const WEAK_MAGNET_N: f32 = 20.0;
+
+#[derive(Debug, Error)]
+pub enum ViewError {
+    #[error("cannot write {path}: {message}")]
+    Write { path: PathBuf, message: String },
+    #[error("cannot start the Foxglove WebSocket server on {address}: {message}")]
+    Listen { address: String, message: String },
+}
+
+/// Where a run shows itself.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ViewOptions {
+    /// Record into this file.
+    pub mcap: Option<PathBuf>,
+    /// Serve Foxglove's WebSocket protocol here.
+    pub live: Option<LiveAddress>,
+}
+
+impl ViewOptions {
+    pub fn is_off(&self) -> bool {
+        self.mcap.is_none() && self.live.is_none()
+    }
+}
+
+/// The registers `/servos` shows, by control-table key.
+const SERVO_REGISTERS: &[&str] = &["torque_enable", "goal_velocity", "present_velocity", "present_position", "present_current", "present_input_voltage", "present_temperature", "hardware_error_status"];
+
+struct Recording {
+    writer: McapWriterHandle<BufWriter<File>>,
+    temporary: PathBuf,
+    path: PathBuf,
+}
+
+/// The scene messages a late subscriber is sent (see [`live`]).
+#[derive(Default)]
+struct LatestScene {
+    terrain: Option<SceneUpdate>,
+    robot: Option<SceneUpdate>,
+}
+
+/// Channels of one run.
+struct Channels {
+    transforms: Channel<FrameTransforms>,
+    terrain: Channel<SceneUpdate>,
+    robot: Channel<SceneUpdate>,
+    magnets: Channel<SceneUpdate>,
+    image: Channel<CompressedImage>,
+    log: Channel<Log>,
+    signals: Arc<RawChannel>,
+    servos: Arc<RawChannel>,
+}
+
+/// A run as Foxglove sees it.
+pub struct View {
+    /// Channels and sinks belong to a context of their own: runs of a sweep record side by side.
+    _context: Arc<Context>,
+    recording: Option<Recording>,
+    live: Option<LiveServer>,
+    channels: Arc<Channels>,
+    latest: Arc<Mutex<LatestScene>>,
+    columns: Vec<&'static str>,
+    /// JSON reused message after message.
+    json: String,
+}
+
+fn nanos(t: Duration) -> u64 {
+    u64::try_from(t.as_nanos()).unwrap_or(u64::MAX)
+}
+
+fn timestamp(t: Duration) -> Timestamp {
+    Timestamp::new(u32::try_from(t.as_secs()).unwrap_or(u32::MAX), t.subsec_nanos())
+}
+
+/// A JSON schema for the signals: one number per column.
+fn signals_schema(columns: &[&str]) -> Vec<u8> {
+    let properties: serde_json::Map<String, serde_json::Value> = columns.iter().map(|&name| (name.to_owned(), serde_json::json!({ "type": "number" }))).collect();
+    serde_json::json!({ "type": "object", "properties": properties }).to_string().into_bytes()
+}
+
+/// A JSON schema for `/servos`: an object per servo name, a number per register.
+fn servos_schema(names: &[String]) -> Vec<u8> {
+    let registers: serde_json::Map<String, serde_json::Value> = SERVO_REGISTERS.iter().map(|&key| (key.to_owned(), serde_json::json!({ "type": "number" }))).collect();
+    let servo = serde_json::json!({ "type": "object", "properties": registers });
+    let properties: serde_json::Map<String, serde_json::Value> = names.iter().map(|name| (name.clone(), servo.clone())).collect();
+    serde_json::json!({ "type": "object", "properties": properties }).to_string().into_bytes()
+}
+
+fn json_channel(context: &Arc<Context>, topic: &str, schema_name: &str, schema: Vec<u8>) -> Result<Arc<RawChannel>, String> {
+    ChannelBuilder::new(topic).context(context).message_encoding("json").schema(Schema::new(schema_name, "jsonschema", schema)).build_raw().map_err(|e| e.to_string())
+}
+
+impl View {
+    /// Start showing a run: `columns` name the values of each [`View::signals`] row, `servo_names`
+    /// the servos of [`View::servos`] in bus order. Nothing is sent until [`View::scene`].
+    pub fn start(options: &ViewOptions, columns: &[&'static str], servo_names: &[String]) -> Result<Self, ViewError> {
+        let context = Context::new();
+        let recording = options.mcap.as_ref().map(|path| start_recording(&context, path)).transpose()?;
+        let error = |message: String| ViewError::Write { path: options.mcap.clone().unwrap_or_default(), message };
+        let channels = Arc::new(Channels {
+            transforms: ChannelBuilder::new("/tf").context(&context).build(),
+            terrain: ChannelBuilder::new("/scene/terrain").context(&context).build(),
+            robot: ChannelBuilder::new("/scene/robot").context(&context).build(),
+            magnets: ChannelBuilder::new("/scene/magnets").context(&context).build(),
+            image: ChannelBuilder::new("/camera/image").context(&context).build(),
+            log: ChannelBuilder::new("/log").context(&context).build(),
+            signals: json_channel(&context, "/signals", "climbsim.Signals", signals_schema(columns)).map_err(error)?,
+            servos: json_channel(&context, "/servos", "climbsim.Servos", servos_schema(servo_names)).map_err(error)?,
+        });
+        let latest = Arc::new(Mutex::new(LatestScene::default()));
+        let live = options.live.as_ref().map(|address| LiveServer::start(&context, address, Arc::clone(&channels), Arc::clone(&latest))).transpose()?;
+        Ok(Self { _context: context, recording, live, channels, latest, columns: columns.to_vec(), json: String::new() })
+    }
+
+    /// Where a live viewer connects (`ws://…`), when the view is live.
+    pub fn live_url(&self) -> Option<String> {
+        self.live.as_ref().map(LiveServer::url)
+    }
+
+    /// The terrain and the weld line at `t` (at the start, and again when the line moves).
+    pub fn terrain(&self, t: Duration, world: &RobotWorld, line: &[LineSample]) {
+        let update = scene::terrain_and_line(timestamp(t), &world.terrain_mesh(TERRAIN_VERTICES_PER_SIDE), line);
+        self.channels.terrain.log_with_time(&update, nanos(t));
+        self.latest.lock().unwrap_or_else(PoisonError::into_inner).terrain = Some(update);
+    }
+
+    /// The robot's shapes, each locked to its frame.
+    pub fn robot(&self, t: Duration, world: &RobotWorld) {
+        let update = scene::robot(timestamp(t), &world.part_shapes());
+        self.channels.robot.log_with_time(&update, nanos(t));
+        self.latest.lock().unwrap_or_else(PoisonError::into_inner).robot = Some(update);
+    }
+
+    /// The robot's frames at `t` (under `world`), and each magnet's pull as an arrow.
+    pub fn transforms(&self, t: Duration, frames: &[PartFrame], magnet_pulls: &[(String, f32)]) {
+        // Foxglove's 3D panel has z up; rapier's world has y up: +90° about x turns one into the other.
+        let half = std::f64::consts::FRAC_1_SQRT_2;
+        let mut transforms = Vec::with_capacity(frames.len() + 1);
+        transforms.push(FrameTransform { timestamp: Some(timestamp(t)), parent_frame_id: "map".to_owned(), child_frame_id: "world".to_owned(), translation: Some(Vector3 { x: 0.0, y: 0.0, z: 0.0 }), rotation: Some(Quaternion { x: half, y: 0.0, z: 0.0, w: half }) });
+        transforms.extend(frames.iter().map(|frame| FrameTransform {
+            timestamp: Some(timestamp(t)),
+            parent_frame_id: frame.parent.clone(),
+            child_frame_id: frame.name.clone(),
+            translation: Some(Vector3 { x: f64::from(frame.pose.translation.x), y: f64::from(frame.pose.translation.y), z: f64::from(frame.pose.translation.z) }),
+            rotation: Some(Quaternion { x: f64::from(frame.pose.rotation.x), y: f64::from(frame.pose.rotation.y), z: f64::from(frame.pose.rotation.z), w: f64::from(frame.pose.rotation.w) }),
+        }));
+        self.channels.transforms.log_with_time(&FrameTransforms { transforms }, nanos(t));
+        self.channels.magnets.log_with_time(&scene::magnet_arrows(timestamp(t), magnet_pulls, WEAK_MAGNET_N), nanos(t));
+        if let Some(live) = &self.live {
+            live.broadcast_time(nanos(t));
+        }
+    }
+
+    /// A camera frame taken at `t`, PNG-encoded.
+    pub fn image(&self, t: Duration, png: Vec<u8>) {
+        let message = CompressedImage { timestamp: Some(timestamp(t)), frame_id: "camera".to_owned(), data: png.into(), format: "png".to_owned() };
+        self.channels.image.log_with_time(&message, nanos(t));
+    }
+
+    /// Something that happened at `t`: an event, a fault, a failure.
+    pub fn log(&self, t: Duration, level: LogLevel, message: String) {
+        let message = Log { timestamp: Some(timestamp(t)), level: level as i32, message, name: "climbsim".to_owned(), file: String::new(), line: 0 };
+        self.channels.log.log_with_time(&message, nanos(t));
+    }
+
+    /// One row of signals (the values of the columns given to [`View::start`]); NaN and
+    /// infinite values are left out (JSON has no number for them).
+    pub fn signals(&mut self, t: Duration, row: &[f64]) {
+        // Written by hand into a reused buffer: the column names are plain identifiers, and a
+        // finite f64's Display is a valid JSON number (no exponent, no NaN).
+        use std::fmt::Write as _;
+        let json = &mut self.json;
+        json.clear();
+        json.push('{');
+        for (&name, &value) in self.columns.iter().zip(row).filter(|(_, v)| v.is_finite()) {
+            if json.len() > 1 {
+                json.push(',');
+            }
+            let _ = write!(json, "\"{name}\":{value}");
+        }
+        json.push('}');
+        self.channels.signals.log_with_meta(json.as_bytes(), PartialMetadata { log_time: Some(nanos(t)) });
+    }
+
+    /// The servos' key registers at `t`, as the controller would read them (raw register
+    /// values), each servo under its name.
+    pub fn servos(&mut self, t: Duration, servos: &[(String, &Servo)]) {
+        use std::fmt::Write as _;
+        let json = &mut self.json;
+        json.clear();
+        json.push('{');
+        for (index, (name, servo)) in servos.iter().enumerate() {
+            if index > 0 {
+                json.push(',');
+            }
+            let _ = write!(json, "\"{name}\":{{\"id\":{}", servo.id());
+            let profile = servo.profile();
+            for &key in SERVO_REGISTERS {
+                if let Some(item) = profile.find(key) {
+                    let _ = write!(json, ",\"{key}\":{}", servo.table().get(item));
+                }
+            }
+            json.push('}');
+        }
+        json.push('}');
+        self.channels.servos.log_with_meta(json.as_bytes(), PartialMetadata { log_time: Some(nanos(t)) });
+    }
+
+    /// Close the recording and give it its final name; stop the live server.
+    pub fn finish(mut self) -> Result<(), ViewError> {
+        if let Some(live) = self.live.take() {
+            live.stop();
+        }
+        let Some(Recording { writer, temporary, path }) = self.recording.take() else { return Ok(()) };
+        let error = |message: String| ViewError::Write { path: path.clone(), message };
+        writer.close().map_err(|e| error(e.to_string()))?;
+        std::fs::rename(&temporary, &path).map_err(|e| error(e.to_string()))
+    }
+}
+
+fn start_recording(context: &Arc<Context>, path: &Path) -> Result<Recording, ViewError> {
+    let mut temporary = path.as_os_str().to_owned();
+    temporary.push(".tmp");
+    let temporary = PathBuf::from(temporary);
+    let error = |message: String| ViewError::Write { path: path.to_owned(), message };
+    // A leftover of a killed run would make `create_new` fail.
+    let _ = std::fs::remove_file(&temporary);
+    let writer = McapWriter::new().context(context).create_new_buffered_file(&temporary).map_err(|e| error(e.to_string()))?;
+    Ok(Recording { writer, temporary, path: path.to_owned() })
+}
