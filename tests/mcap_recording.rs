@@ -115,6 +115,7 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
         assert!(servo["present_temperature"].as_i64().is_some() && servo["hardware_error_status"] == 0, "{name}: {servo}");
     }
     assert_eq!(servos["magnet_front_left"]["id"], 5);
+    shipped_layout_names_only_what_the_recording_has(&by_topic);
 
     // The camera's frames at its 30 Hz, each a PNG.
     let images = &by_topic["/camera/image"];
@@ -122,6 +123,35 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     let image = foxglove::messages::CompressedImage::decode(&images[0].data[..]).expect("CompressedImage");
     assert_eq!(image.format, "png");
     assert!(image.data.starts_with(b"\x89PNG\r\n\x1a\n"), "a PNG");
+}
+
+/// The Foxglove layout in hil/ shows topics and message fields by name: a misspelled one would
+/// show an empty panel. Every topic it names is in the recording, and every plotted field is in
+/// the topic's last message.
+fn shipped_layout_names_only_what_the_recording_has(by_topic: &BTreeMap<String, Vec<mcap::Message>>) {
+    let text = std::fs::read_to_string(support::repo().join("hil/foxglove/climbsim-layout.json")).expect("layout");
+    let layout: serde_json::Value = serde_json::from_str(&text).expect("the layout is JSON");
+    let panels = layout["configById"].as_object().expect("configById");
+    let mut topics: Vec<String> = Vec::new();
+    let mut fields: Vec<String> = Vec::new();
+    for config in panels.values() {
+        topics.extend(config["topics"].as_object().into_iter().flat_map(|t| t.keys().cloned()));
+        topics.extend([&config["imageMode"]["imageTopic"], &config["topicToRender"]].into_iter().filter_map(|v| v.as_str().map(str::to_owned)));
+        fields.extend(config["paths"].as_array().into_iter().flatten().filter_map(|p| p["value"].as_str().map(str::to_owned)));
+    }
+    assert!(topics.len() >= 5 && fields.len() >= 10, "{topics:?} {fields:?}");
+    for topic in &topics {
+        assert!(by_topic.contains_key(topic), "the layout shows {topic}, which the recording does not have");
+    }
+    for field in &fields {
+        let (topic, path) = field.split_once('.').expect("topic.field");
+        let last: serde_json::Value = serde_json::from_slice(&by_topic[topic].last().expect("messages").data).expect("JSON");
+        let value = path.split('.').fold(&last, |v, key| &v[key]);
+        assert!(value.is_number(), "the layout plots {field}, not in {topic}'s messages: {last}");
+    }
+    // Each panel in the arrangement is configured, and each configured panel is placed.
+    let placed = text.matches("\"first\": \"").count() + text.matches("\"second\": \"").count();
+    assert_eq!(placed, panels.len(), "panels placed in the layout tree");
 }
 
 /// Where frame `name` is in `world`, from the tree of transforms.
@@ -143,9 +173,10 @@ fn faults_are_logged_as_they_start_and_end() {
         .filter(|m| m.channel.topic == "/log")
         .map(|m| (m.log_time as f64 / 1e9, foxglove::messages::Log::decode(&m.data[..]).expect("Log").message))
         .collect();
-    assert_eq!(logs.len(), 2, "{logs:?}");
-    assert!(logs[0].1.starts_with("fault starts") && logs[0].1.contains("voltage_sag") && (1.0..1.05).contains(&logs[0].0), "{logs:?}");
-    assert!(logs[1].1.starts_with("fault ends") && (2.0..2.05).contains(&logs[1].0), "{logs:?}");
+    assert_eq!(logs.len(), 3, "{logs:?}");
+    assert!(logs[0].1.ends_with("flat-line.toml: the run starts") && logs[0].0 == 0.0, "{logs:?}");
+    assert!(logs[1].1.starts_with("fault starts") && logs[1].1.contains("voltage_sag") && (1.0..1.05).contains(&logs[1].0), "{logs:?}");
+    assert!(logs[2].1.starts_with("fault ends") && (2.0..2.05).contains(&logs[2].0), "{logs:?}");
 }
 
 #[test]

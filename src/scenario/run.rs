@@ -243,6 +243,7 @@ impl Observer {
         let view = View::start(options, COLUMNS, &names)?;
         view.terrain(Duration::ZERO, world, self.line.samples());
         view.robot(Duration::ZERO, world);
+        view.log(Duration::ZERO, LogLevel::Info, format!("{}: the run starts", self.scenario_path.display()));
         let url = view.live_url();
         self.view = Some(view);
         Ok(url)
