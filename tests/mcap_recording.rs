@@ -187,25 +187,49 @@ fn capture_mcap_false_records_nothing() {
     assert!(!out.join("run.mcap").exists() && !out.join("run.mcap.tmp").exists());
 }
 
+/// GET `path` from the sensor server at `url` (`http://HOST:PORT`), the body as JSON.
+fn get_json(url: &str, path: &str) -> serde_json::Value {
+    use std::io::{Read, Write};
+    let address = url.strip_prefix("http://").expect("http URL");
+    let mut stream = std::net::TcpStream::connect(address).expect("connect");
+    write!(stream, "GET {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n").expect("request");
+    let mut response = String::new();
+    stream.read_to_string(&mut response).expect("response");
+    let (_, body) = response.split_once("\r\n\r\n").expect("headers and body");
+    serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {response}"))
+}
+
 #[test]
-fn serve_records_its_world_until_it_is_stopped() {
+fn serve_shows_a_world_without_a_line_and_records_it_until_stopped() {
     use std::io::{BufRead, BufReader};
     let file = support::scratch_dir("mcap-serve").join("session.mcap");
     let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["serve", "scenarios/flat-line.toml", "--mcap", &file.display().to_string()])
+        .args(["serve", "scenarios/floor-to-wall.toml", "--mcap", &file.display().to_string()])
         .current_dir(support::repo())
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::null())
         .spawn()
         .expect("climbsim serve");
     let stdout = child.stdout.take().expect("stdout");
-    let ready = BufReader::new(stdout).lines().map_while(Result::ok).any(|line| line.starts_with("sensors: "));
+    let sensors = BufReader::new(stdout).lines().map_while(Result::ok).find_map(|line| line.strip_prefix("sensors: ").map(str::to_owned));
     std::thread::sleep(std::time::Duration::from_millis(1500));
+    // The robot's state is served without a line too; d and psi have no meaning there.
+    let state = get_json(sensors.as_deref().expect("a `sensors: URL` line"), "/state");
     let stopped = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().expect("kill");
     let status = child.wait().expect("wait");
-    assert!(ready && stopped.success() && status.success(), "serve ended with {status}");
+    assert!(stopped.success() && status.success(), "serve ended with {status}");
+    assert!(state["t"].as_f64().is_some_and(|t| t > 1.0) && state["x"].is_number() && state["d_err_m"].is_null(), "{state}");
+
     let bytes = std::fs::read(&file).expect("the recording has its final name");
-    let times: Vec<u64> = mcap::MessageStream::new(&bytes).expect("stream").map(|m| m.expect("message")).filter(|m| m.channel.topic == "/tf").map(|m| m.log_time).collect();
+    let messages: Vec<mcap::Message> = mcap::MessageStream::new(&bytes).expect("stream").map(|m| m.expect("message")).collect();
+    let times: Vec<u64> = messages.iter().filter(|m| m.channel.topic == "/tf").map(|m| m.log_time).collect();
     // The world ran on the wall clock for about 1.5 s, its frames at 50 Hz.
     assert!(times.len() >= 50 && times.windows(2).all(|w| w[0] < w[1]), "{} frames", times.len());
+    let terrain = messages.iter().find(|m| m.channel.topic == "/scene/terrain").expect("the terrain");
+    let terrain = SceneUpdate::decode(&terrain.data[..]).expect("SceneUpdate");
+    let mesh = &terrain.entities.iter().find(|e| e.id == "terrain").expect("terrain entity").triangles[0];
+    // The wall stands: its mesh reaches well above the floor.
+    let top = mesh.points.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
+    assert!(top > 0.5, "the wall's top at {top} m");
+    assert!(!messages.iter().any(|m| m.channel.topic == "/camera/image"), "no line, no camera frames");
 }

@@ -70,6 +70,17 @@ fn a_fault_beyond_any_run_or_on_a_missing_servo_is_refused() {
 }
 
 #[test]
+fn moving_a_line_that_is_not_there_is_refused() {
+    let dir = support::scratch_dir("no-line-to-move");
+    let mut scenario = std::fs::read_to_string(repo().join("scenarios/floor-to-wall.toml")).expect("floor-to-wall.toml");
+    scenario.push_str("\n[[events]]\nat_s = 1.0\nline_offset_m = 0.01\n");
+    let path = dir.join("moves.toml");
+    std::fs::write(&path, scenario).expect("write");
+    let output = climbsim(&["serve", &path.display().to_string()]);
+    assert_refused(&output, "a line offset without a line", &["events[0].line_offset_m", "no [line]"]);
+}
+
+#[test]
 fn sweep_refuses_a_bad_grid_point_before_any_run() {
     let dir = support::scratch_dir("bad-grid");
     let out = dir.join("sweep");

@@ -236,7 +236,7 @@ pub enum Command {
         #[arg(long, value_name = "FILE", requires = "scenario")]
         record: Option<PathBuf>,
         /// Record the world for Foxglove into FILE (MCAP: the robot, terrain, camera, signals,
-        /// servos' registers, events). Needs a scenario with a weld line.
+        /// servos' registers, events). Needs a scenario.
         #[arg(long, value_name = "FILE", requires = "scenario")]
         mcap: Option<PathBuf>,
         /// Show the world live in Foxglove: serve Foxglove's WebSocket protocol at 127.0.0.1:8765, or at
@@ -568,7 +568,8 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
     }
     let timing = timing_of(timing);
     let world_on_wall_clock = scenario.is_some();
-    // A world with a weld line also gets the camera, the line detector and the sensor server.
+    // A world gets its observer (the camera and line detector when it has a weld line), the
+    // sensor server and, if asked, the Foxglove view.
     let (bus, observer, recorder) = match &scenario {
         Some(path) => {
             let mut loaded = Scenario::load(path)?;
@@ -576,20 +577,14 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             let (bus, observer) = realtime::scenario_bus(&loaded, &robot, timing, baud)?;
             let spec = record.map(|path| replay::RecordSpec { path, overrides: Vec::new() });
             let recorder = spec.map(|spec| replay::start_recording(&spec, "serve", &loaded, &robot, &bus, baud)).transpose()?;
-            if !view.is_off() && observer.is_none() {
-                bail!("--mcap and --foxglove show a world with a weld line; {} has no [line]", path.display());
-            }
             // `serve` writes no time series: a session may last for days.
-            let observer = observer
-                .map(|mut o| {
-                    o.discard_rows();
-                    let world = bus.plant::<climbsim::sim::RobotWorld>().context("the scenario's bus has no robot world")?;
-                    if let Some(url) = o.start_view(&view, world)? {
-                        println!("foxglove: {url}");
-                    }
-                    Ok::<_, anyhow::Error>(Arc::new(std::sync::Mutex::new(o)))
-                })
-                .transpose()?;
+            let mut observer = observer;
+            observer.discard_rows();
+            let world = bus.plant::<climbsim::sim::RobotWorld>().context("the scenario's bus has no robot world")?;
+            if let Some(url) = observer.start_view(&view, world)? {
+                println!("foxglove: {url}");
+            }
+            let observer = Some(Arc::new(std::sync::Mutex::new(observer)));
             (bus, observer, recorder)
         }
         None => {

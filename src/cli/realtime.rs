@@ -53,7 +53,7 @@ pub struct ExternalRun<'a> {
 }
 
 /// The bus of `scenario`'s world and its observer (see [`climbsim::scenario::run::scenario_bus`]).
-pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Option<Observer>)> {
+pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Observer)> {
     Ok(climbsim::scenario::run::scenario_bus(scenario, robot, timing, baud)?)
 }
 
@@ -71,8 +71,10 @@ struct Exit {
 pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &RobotDescription, options: &ExternalRun<'_>, out_dir: &Path) -> Result<RunOutcome> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
     let baud = scenario.bus.baud_bps;
-    let (bus, observer) = scenario_bus(scenario, robot, options.timing, baud)?;
-    let mut observer = observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?;
+    if scenario.line.is_none() {
+        return Err(RunError::NoLine { path: scenario.path.clone() }.into());
+    }
+    let (bus, mut observer) = scenario_bus(scenario, robot, options.timing, baud)?;
     observer.stream_to(out_dir)?;
     let view = ViewOptions { mcap: scenario.capture.mcap.then(|| out_dir.join(MCAP_FILE)), live: options.live.clone() };
     let world = bus.plant::<RobotWorld>().ok_or_else(|| anyhow::anyhow!("the scenario's bus has no robot world"))?;
@@ -240,10 +242,15 @@ pub async fn start_sensor_server(feed: Arc<SensorFeed>) -> Result<String> {
     Ok(url)
 }
 
-/// What the pacer does after each tick of a world with a line: events, camera and detector
-/// (publishing each new frame, line measurement and ground truth), and the time series. The
-/// first error is kept in `errors` (the pacer thread cannot return one).
+/// How often `/state` is published in a world without a weld line (with one, it comes with each
+/// camera frame).
+const STATE_RATE_HZ: f64 = 30.0;
+
+/// What the pacer does after each tick of a world: events, camera and detector (publishing each
+/// new frame, line measurement and ground truth), the time series and the view. The first error
+/// is kept in `errors` (the pacer thread cannot return one).
 pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, errors: Arc<Mutex<Option<String>>>) -> TickHook {
+    let mut next_state_s = 0.0;
     Box::new(move |bus, now| {
         let mut observer = observer.lock().unwrap_or_else(PoisonError::into_inner);
         let t_s = now.as_secs_f64();
@@ -264,6 +271,10 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
             {
                 warn!(%error, "camera frame not published");
             }
+        }
+        // Without a line there are no frames: the state keeps its own rate.
+        if observation.new_frame || (!observer.has_line() && t_s >= next_state_s) {
+            next_state_s = t_s + 1.0 / STATE_RATE_HZ;
             let pose = world.chassis_pose();
             let truth = observer.ground_truth(world);
             feed.publish_state(json!({

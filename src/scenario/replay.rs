@@ -124,7 +124,10 @@ pub fn replay(transcript: &Transcript, sources: &ReplaySources) -> Result<Replay
     };
 
     let (mut bus, observer) = scenario_bus(&scenario, &robot, timing, header.bus.baud_override)?;
-    let mut observer = observer.ok_or_else(|| RunError::NoLine { path: scenario.path.clone() })?;
+    if scenario.line.is_none() {
+        return Err(RunError::NoLine { path: scenario.path.clone() }.into());
+    }
+    let mut observer = observer;
     let mut stats = ReplayStats { complete: transcript.complete, ..ReplayStats::default() };
     let mut last_t = Duration::ZERO;
     let packet_error = |line: usize, message: String| ReplayError::Packet { path: transcript.path.clone(), line, message };

@@ -98,17 +98,17 @@ fn check_world(scenario: &Scenario, world: &RobotWorld, ids: &[u8]) -> Result<()
     crate::fault::check_ids(&scenario.faults(), ids).map_err(|source| RunError::Fault { path: scenario.path.clone(), source })
 }
 
-/// The bus of `scenario`'s world (servos at `baud`, the scenario's or the robot's), and the observer
-/// (camera, detector, capture) when the scenario has a weld line: what `serve SCENARIO`, `run`
-/// with an external controller and `replay` all drive. `RobotWorld::new` has already updated
+/// The bus of `scenario`'s world (servos at `baud`, the scenario's or the robot's), and its
+/// observer (camera and detector when the scenario has a weld line, capture, view): what `serve
+/// SCENARIO`, `run` with an external controller and `replay` all drive. `RobotWorld::new` has already updated
 /// the query structures, so the line drapes at once.
-pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Option<Observer>), RunError> {
+pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timing, baud: Option<u32>) -> Result<(Bus, Observer), RunError> {
     // `serve --baud` over the scenario's `[bus] baud_bps` over the robot description's.
     let baud = baud.or(scenario.bus.baud_bps);
     let servos = robot.servos(baud).map_err(SimError::from)?;
     let world = RobotWorld::new(robot, scenario.world_config()?, &servos).map_err(SimError::from)?;
     check_world(scenario, &world, &servos.iter().map(Servo::id).collect::<Vec<_>>())?;
-    let observer = scenario.line.is_some().then(|| Observer::new(scenario, robot, &world)).transpose()?;
+    let observer = Observer::new(scenario, robot, &world)?;
     let mut bus = robot.bus_of(servos, Box::new(world), timing, baud).map_err(SimError::from)?;
     bus.set_faults(BusFaults::new(scenario.faults(), scenario.world.seed));
     Ok((bus, observer))
@@ -116,7 +116,9 @@ pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timin
 
 /// Everything that watches the world during a run.
 pub struct Observer {
-    line: WeldLine,
+    /// The weld line, when the scenario has one (a world without one is still watched: the
+    /// view, the robot's state).
+    line: Option<WeldLine>,
     /// Control points as given, for line-offset events (the line is rebuilt and draped again).
     line_points: Vec<[f32; 2]>,
     line_offset_m: f64,
@@ -155,18 +157,19 @@ impl Observer {
                 return Err(RunError::UnknownSignal { path, name: name.clone(), known: COLUMNS[1..].join(", ") });
             }
         }
-        let line_section = scenario.line.clone().ok_or_else(|| RunError::NoLine { path: path.clone() })?;
-        let line = build_line(&line_section.points, line_section.smoothness, line_section.width_m, 0.0, world).map_err(|source| RunError::Line { path: path.clone(), source })?;
+        let line = scenario.line.as_ref().map(|l| build_line(&l.points, l.smoothness, l.width_m, 0.0, world)).transpose().map_err(|source| RunError::Line { path: path.clone(), source })?;
         let settings = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
         let camera = LineCamera::new(settings).map_err(|e| RunError::Camera { path: path.clone(), message: e.to_string() })?;
         let detector = LineDetector::new(DetectorSettings::default())?;
         let mut events = scenario.events.clone();
         events.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
         let mut capture = Capture::new(scenario.capture.rate_hz, scenario.capture.signals.as_deref());
-        capture.set_line(line.smoothed().to_vec());
+        if let Some(line) = &line {
+            capture.set_line(line.smoothed().to_vec());
+        }
         Ok(Self {
             line,
-            line_points: line_section.points,
+            line_points: scenario.line.as_ref().map(|l| l.points.clone()).unwrap_or_default(),
             line_offset_m: 0.0,
             camera,
             detector,
@@ -184,6 +187,11 @@ impl Observer {
             faults_acting: Vec::new(),
             servo_names: robot.servo.iter().map(|s| (s.id, s.name.clone())).collect(),
         })
+    }
+
+    /// Whether the world has a weld line (and so a camera image and line measurements).
+    pub fn has_line(&self) -> bool {
+        self.line.is_some()
     }
 
     /// The target speed in force at `t_s` (zero before the speed step).
@@ -207,13 +215,14 @@ impl Observer {
             }
             if let Some(offset) = event.line_offset_m {
                 self.line_offset_m = offset;
-                let width = self.line.width_m();
-                let smoothness = self.line.smoothness();
-                self.line = build_line(&self.line_points, smoothness, width, offset, world).map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
+                // Validation refuses a line offset without a line.
+                let Some(line) = &self.line else { continue };
+                let moved = build_line(&self.line_points, line.smoothness(), line.width_m(), offset, world).map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
                 self.note(at, LogLevel::Info, format!("event at {} s: the line moves {} mm to the left", event.at_s, offset * 1000.0));
                 if let Some(view) = &self.view {
-                    view.terrain(at, world, self.line.samples());
+                    view.terrain(at, world, moved.samples());
                 }
+                self.line = Some(moved);
             }
         }
         Ok(())
@@ -241,7 +250,7 @@ impl Observer {
         }
         let names: Vec<String> = self.servo_names.iter().map(|(_, name)| name.clone()).collect();
         let view = View::start(options, COLUMNS, &names)?;
-        view.terrain(Duration::ZERO, world, self.line.samples());
+        view.terrain(Duration::ZERO, world, self.line.as_ref().map_or(&[], WeldLine::samples));
         view.robot(Duration::ZERO, world);
         view.log(Duration::ZERO, LogLevel::Info, format!("{}: the run starts", self.scenario_path.display()));
         let url = view.live_url();
@@ -257,7 +266,9 @@ impl Observer {
     /// Render the camera if a frame is due at `t`, run the detector on any new frame; the latest
     /// measurement in the controller's convention (None while the line is not seen).
     pub fn sense(&mut self, world: &RobotWorld, t: Duration) -> Option<LineError> {
-        if let Some(frame) = self.camera.render(world.camera_pose(), &self.line, t) {
+        // Without a weld line there is nothing for the camera and its detector to find.
+        let Some(line) = &self.line else { return None };
+        if let Some(frame) = self.camera.render(world.camera_pose(), line, t) {
             self.latest = Some(self.detector.detect(frame));
             self.frames_seen += 1;
             if let Some(view) = &self.view {
@@ -286,22 +297,24 @@ impl Observer {
         &self.camera
     }
 
-    /// The robot's true pose relative to the line.
+    /// The robot's true pose relative to the line (d and ψ are NaN without a line).
     pub fn ground_truth(&self, world: &RobotWorld) -> GroundTruth {
         let pose = world.chassis_pose();
         let centre = pose.translation;
-        let projection = self.line.nearest(centre);
+        let forward = pose.rotation * Vector::X;
+        let speed_m_s = f64::from(world.chassis_velocity().dot(forward));
+        let Some(line) = &self.line else { return GroundTruth { d_err_m: f64::NAN, psi_err_rad: f64::NAN, speed_m_s } };
+        let projection = line.nearest(centre);
         let normal = projection.normal;
         let tangent = projection.tangent;
         let left = normal.cross(tangent);
-        let forward = pose.rotation * Vector::X;
         // Heading error in the surface's plane: from the line's tangent to the robot's forward.
         let forward_in_plane = forward - normal * forward.dot(normal);
         let psi = tangent.cross(forward_in_plane).dot(normal).atan2(tangent.dot(forward_in_plane));
         GroundTruth {
             d_err_m: f64::from((centre - projection.point).dot(left)),
             psi_err_rad: f64::from(psi),
-            speed_m_s: f64::from(world.chassis_velocity().dot(forward)),
+            speed_m_s,
         }
     }
 
@@ -606,6 +619,9 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     let ControllerSection::Builtin(config) = &scenario.controller else {
         return Err(RunError::NeedsRealTime { path: scenario.path.clone() });
     };
+    if scenario.line.is_none() {
+        return Err(RunError::NoLine { path: scenario.path.clone() });
+    }
     // Rows are captured once per control period: a faster capture would repeat them.
     let control_hz = 1.0 / config.period().as_secs_f64();
     if scenario.capture.rate_hz > control_hz * (1.0 + 1e-9) {

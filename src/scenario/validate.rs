@@ -352,6 +352,9 @@ fn check_events(scenario: &Scenario) -> Result<(), Problem> {
         }
         if let Some(offset) = event.line_offset_m {
             c.range("line_offset_m", offset, LINE_OFFSET_M)?;
+            if scenario.line.is_none() {
+                return Err(c.problem(&[key("line_offset_m")], "moves the weld line, but the scenario has no [line]".to_owned()));
+            }
         }
     }
     Ok(())
