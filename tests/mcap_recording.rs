@@ -116,6 +116,7 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     }
     assert_eq!(servos["magnet_front_left"]["id"], 5);
     shipped_layout_names_only_what_the_recording_has(&by_topic);
+    assert!(!by_topic.contains_key("/bus/packets"), "bus packets only when asked");
 
     // The camera's frames at its 30 Hz, each a PNG.
     let images = &by_topic["/camera/image"];
@@ -177,6 +178,25 @@ fn faults_are_logged_as_they_start_and_end() {
     assert!(logs[0].1.ends_with("flat-line.toml: the run starts") && logs[0].0 == 0.0, "{logs:?}");
     assert!(logs[1].1.starts_with("fault starts") && logs[1].1.contains("voltage_sag") && (1.0..1.05).contains(&logs[1].0), "{logs:?}");
     assert!(logs[2].1.starts_with("fault ends") && (2.0..2.05).contains(&logs[2].0), "{logs:?}");
+}
+
+#[test]
+fn bus_packets_are_recorded_when_asked() {
+    let out = support::scratch_dir("mcap-packets").join("run");
+    run(&out, &["--set", "capture.bus_packets=true", "--set", "world.duration_s=1"]);
+    let bytes = std::fs::read(out.join("run.mcap")).expect("run.mcap");
+    let packets: Vec<(u64, serde_json::Value)> = mcap::MessageStream::new(&bytes)
+        .expect("stream")
+        .map(|m| m.expect("message"))
+        .filter(|m| m.channel.topic == "/bus/packets")
+        .map(|m| (m.log_time, serde_json::from_slice(&m.data).expect("JSON")))
+        .collect();
+    let requests: Vec<&serde_json::Value> = packets.iter().map(|(_, p)| p).filter(|p| p["dir"] == "controller->servos").collect();
+    let replies = packets.len() - requests.len();
+    // The built-in controller reads and writes the servos every 20 ms period.
+    assert!(requests.len() >= 50 * 2 && replies >= 50 * 8, "{} requests, {replies} replies in 1 s", requests.len());
+    assert!(requests.iter().all(|p| p["hex"].as_str().is_some_and(|h| h.starts_with("FF FF FD 00")) && p["decoded"]["instruction"].is_string()), "{:?}", requests[0]);
+    assert!(packets.windows(2).all(|w| w[0].0 <= w[1].0 + 1_000_000), "packets in time order, within a reply's wire time");
 }
 
 #[test]

@@ -83,7 +83,12 @@ pub struct Bus {
     /// The line baud last reported as matching no servo, so the warning is logged once.
     mismatch_warned_for: Option<u32>,
     faults: BusFaults,
+    /// Sees every transaction as it is handled (a recording's bus packets topic).
+    tap: Option<TransactionTap>,
 }
+
+/// Something that sees every transaction the bus handles.
+pub type TransactionTap = Box<dyn FnMut(&Transaction) + Send>;
 
 impl std::fmt::Debug for Bus {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -104,7 +109,7 @@ impl Bus {
             }
         }
         let bits_per_byte = servos.first().map_or(10, |s| s.profile().model.bits_per_byte);
-        Ok(Self { servos, plant, timing, bits_per_byte, default_baud, wire_free_at: Duration::ZERO, mismatch_warned_for: None, faults: BusFaults::default() })
+        Ok(Self { servos, plant, timing, bits_per_byte, default_baud, wire_free_at: Duration::ZERO, mismatch_warned_for: None, faults: BusFaults::default(), tap: None })
     }
 
     pub fn servos(&self) -> &[Servo] {
@@ -164,7 +169,20 @@ impl Bus {
         self.handle_on(packet, received_at, line_baud, true)
     }
 
+    /// Let `tap` see every transaction from now on (None: stop).
+    pub fn set_transaction_tap(&mut self, tap: Option<TransactionTap>) {
+        self.tap = tap;
+    }
+
     fn handle_on(&mut self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>, physical_wire: bool) -> Transaction {
+        let transaction = self.transact(packet, received_at, line_baud, physical_wire);
+        if let Some(tap) = &mut self.tap {
+            tap(&transaction);
+        }
+        transaction
+    }
+
+    fn transact(&mut self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>, physical_wire: bool) -> Transaction {
         let baud = line_baud.unwrap_or(self.default_baud);
         let (instruction_end, reply_base) = match self.timing {
             Timing::Wire if physical_wire => (received_at, received_at),

@@ -389,7 +389,7 @@ pub fn run(cli: Cli) -> Result<()> {
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
             let rs485 = rs485.then(|| rs485_delay_ms.unwrap_or_default());
             let device = device.map(|path| device::DeviceOptions { path, echo: echo.into(), low_latency, rs485 });
-            let view = ViewOptions { mcap, live: foxglove };
+            let view = ViewOptions { mcap, live: foxglove, packets: false };
             let options = ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, view, pace };
             serve(options, &robot)
         }
@@ -578,10 +578,10 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             let spec = record.map(|path| replay::RecordSpec { path, overrides: Vec::new() });
             let recorder = spec.map(|spec| replay::start_recording(&spec, "serve", &loaded, &robot, &bus, baud)).transpose()?;
             // `serve` writes no time series: a session may last for days.
-            let mut observer = observer;
+            let (mut bus, mut observer) = (bus, observer);
             observer.discard_rows();
-            let world = bus.plant::<climbsim::sim::RobotWorld>().context("the scenario's bus has no robot world")?;
-            if let Some(url) = observer.start_view(&view, world)? {
+            let view = ViewOptions { packets: loaded.capture.bus_packets, ..view };
+            if let Some(url) = observer.start_view(&view, &mut bus)? {
                 println!("foxglove: {url}");
             }
             let observer = Some(Arc::new(std::sync::Mutex::new(observer)));

@@ -74,11 +74,10 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     if scenario.line.is_none() {
         return Err(RunError::NoLine { path: scenario.path.clone() }.into());
     }
-    let (bus, mut observer) = scenario_bus(scenario, robot, options.timing, baud)?;
+    let (mut bus, mut observer) = scenario_bus(scenario, robot, options.timing, baud)?;
     observer.stream_to(out_dir)?;
-    let view = ViewOptions { mcap: scenario.capture.mcap.then(|| out_dir.join(MCAP_FILE)), live: options.live.clone() };
-    let world = bus.plant::<RobotWorld>().ok_or_else(|| anyhow::anyhow!("the scenario's bus has no robot world"))?;
-    let foxglove_url = observer.start_view(&view, world)?;
+    let view = ViewOptions { mcap: scenario.capture.mcap.then(|| out_dir.join(MCAP_FILE)), live: options.live.clone(), packets: scenario.capture.bus_packets };
+    let foxglove_url = observer.start_view(&view, &mut bus)?;
     let observer = Arc::new(Mutex::new(observer));
     let recorder = options.record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;
     let clock = Clock::scaled(options.pace.speed);

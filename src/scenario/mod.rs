@@ -276,11 +276,15 @@ pub struct CaptureSection {
     /// record only with `--mcap`).
     #[serde(default = "default_true")]
     pub mcap: bool,
+    /// Also put every bus packet (hex and decoded) on the recording's and the live view's
+    /// `/bus/packets` topic.
+    #[serde(default)]
+    pub bus_packets: bool,
 }
 
 impl Default for CaptureSection {
     fn default() -> Self {
-        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m(), signals: None, mcap: true }
+        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m(), signals: None, mcap: true, bus_packets: false }
     }
 }
 

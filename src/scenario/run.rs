@@ -244,16 +244,18 @@ impl Observer {
     /// Show the run in Foxglove (see [`super::view`]): a recording, a live server, or both. The
     /// terrain, the line and the robot's shapes are sent at once; the robot's frames, the
     /// servos' registers and the signals with the capture. The live server's URL, if any.
-    pub fn start_view(&mut self, options: &ViewOptions, world: &RobotWorld) -> Result<Option<String>, RunError> {
+    pub fn start_view(&mut self, options: &ViewOptions, bus: &mut Bus) -> Result<Option<String>, RunError> {
         if options.is_off() {
             return Ok(None);
         }
+        let Some(world) = bus.plant::<RobotWorld>() else { return Ok(None) };
         let names: Vec<String> = self.servo_names.iter().map(|(_, name)| name.clone()).collect();
         let view = View::start(options, COLUMNS, &names)?;
         view.terrain(Duration::ZERO, world, self.line.as_ref().map_or(&[], WeldLine::samples));
         view.robot(Duration::ZERO, world);
         view.log(Duration::ZERO, LogLevel::Info, format!("{}: the run starts", self.scenario_path.display()));
         let url = view.live_url();
+        bus.set_transaction_tap(view.packet_tap());
         self.view = Some(view);
         Ok(url)
     }
@@ -566,6 +568,7 @@ pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
             "signals": scenario.capture.signals,
             "metric_period_s": super::capture::METRIC_PERIOD_S,
             "mcap": scenario.capture.mcap,
+            "bus_packets": scenario.capture.bus_packets,
         },
     })
 }
@@ -651,7 +654,8 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
         observer.stream_to(out_dir)?;
     }
     let mcap = out_dir.filter(|_| scenario.capture.mcap).map(|dir| dir.join(super::view::MCAP_FILE));
-    if let (Some(url), Some(live)) = (observer.start_view(&ViewOptions { mcap, live: live.map(|l| l.address.clone()) }, sim.world())?, live) {
+    let view = ViewOptions { mcap, live: live.map(|l| l.address.clone()), packets: scenario.capture.bus_packets };
+    if let (Some(url), Some(live)) = (observer.start_view(&view, sim.bus_mut())?, live) {
         (live.announce)(&url);
     }
     let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;

@@ -15,7 +15,8 @@
 //! - `/signals` (JSON): every column of `timeseries.csv` at the capture rate (the detector's
 //!   `d_m` and `psi_rad` among them), for plots;
 //! - `/servos` (JSON): each servo's key registers, by name, at the capture rate;
-//! - `/log` (`foxglove.Log`): events, faults starting and ending, and why a run failed.
+//! - `/log` (`foxglove.Log`): events, faults starting and ending, and why a run failed;
+//! - `/bus/packets` (JSON), when asked: every packet on the bus, hex and decoded.
 //!
 //! A live viewer that connects late still gets the scene: the server sends the latest terrain
 //! and robot to each new subscriber.
@@ -40,6 +41,8 @@ use thiserror::Error;
 pub use live::LiveAddress;
 use live::LiveServer;
 
+use crate::bus::TransactionTap;
+use crate::bus::transaction_json;
 use crate::device::Servo;
 use crate::sim::{PartFrame, RobotWorld};
 use crate::sim::line::LineSample;
@@ -69,6 +72,8 @@ pub struct ViewOptions {
     pub mcap: Option<PathBuf>,
     /// Serve Foxglove's WebSocket protocol here.
     pub live: Option<LiveAddress>,
+    /// Put every bus packet on `/bus/packets` too (`[capture] bus_packets`).
+    pub packets: bool,
 }
 
 impl ViewOptions {
@@ -76,6 +81,9 @@ impl ViewOptions {
         self.mcap.is_none() && self.live.is_none()
     }
 }
+
+/// `/bus/packets`: one message per packet on the wire (see `bus::trace`).
+const PACKET_SCHEMA: &str = r#"{"type":"object","properties":{"t":{"type":"number"},"dir":{"type":"string"},"id":{"type":"integer"},"from":{"type":"integer"},"hex":{"type":"string"},"decoded":{"type":"object"}}}"#;
 
 /// The registers `/servos` shows, by control-table key.
 const SERVO_REGISTERS: &[&str] = &["torque_enable", "goal_velocity", "present_velocity", "present_position", "present_current", "present_input_voltage", "present_temperature", "hardware_error_status"];
@@ -103,6 +111,7 @@ struct Channels {
     log: Channel<Log>,
     signals: Arc<RawChannel>,
     servos: Arc<RawChannel>,
+    packets: Option<Arc<RawChannel>>,
 }
 
 /// A run as Foxglove sees it.
@@ -160,6 +169,7 @@ impl View {
             log: ChannelBuilder::new("/log").context(&context).build(),
             signals: json_channel(&context, "/signals", "climbsim.Signals", signals_schema(columns)).map_err(error)?,
             servos: json_channel(&context, "/servos", "climbsim.Servos", servos_schema(servo_names)).map_err(error)?,
+            packets: options.packets.then(|| json_channel(&context, "/bus/packets", "climbsim.BusPacket", PACKET_SCHEMA.as_bytes().to_vec())).transpose().map_err(error)?,
         });
         let latest = Arc::new(Mutex::new(LatestScene::default()));
         let live = options.live.as_ref().map(|address| LiveServer::start(&context, address, Arc::clone(&channels), Arc::clone(&latest))).transpose()?;
@@ -258,6 +268,19 @@ impl View {
         }
         json.push('}');
         self.channels.servos.log_with_meta(json.as_bytes(), PartialMetadata { log_time: Some(nanos(t)) });
+    }
+
+    /// What puts every transaction of a bus on `/bus/packets` (the instruction, then each reply,
+    /// as `--trace-bus` writes them, at their times on the wire), if the view was asked for
+    /// packets.
+    pub fn packet_tap(&self) -> Option<TransactionTap> {
+        let channel = self.channels.packets.clone()?;
+        Some(Box::new(move |transaction| {
+            for line in transaction_json(transaction) {
+                let at = line["t"].as_f64().map_or(0, |t| nanos(Duration::from_secs_f64(t.max(0.0))));
+                channel.log_with_meta(line.to_string().as_bytes(), PartialMetadata { log_time: Some(at) });
+            }
+        }))
     }
 
     /// Close the recording and give it its final name; stop the live server.
