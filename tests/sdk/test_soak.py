@@ -3,7 +3,7 @@
 (a RAM register, writable with torque off) and a GroupSyncRead of it back from all eight. Any
 lost reply, CRC failure or wrong value is a failed transaction; there must be none.
 
-The CI run lasts 60 s. ``CLIMBSIM_SOAK_S=1800`` makes it the 30-minute soak of the README, and
+The CI run lasts 60 s. ``CLIMBSIM_SOAK_S=1800`` makes it the 30-minute soak of docs/performance.md, and
 ``CLIMBSIM_SOAK_OUT=FILE`` writes its numbers (transactions, errors, loop rate, the emulator's
 resident memory over time) as JSON.
 """
