@@ -7,6 +7,7 @@
 pub mod protocol;
 pub mod source_location;
 pub mod parts;
+pub mod rng;
 pub mod device;
 pub mod fault;
 pub mod bus;

@@ -41,6 +41,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use super::line::{CHUNK, WeldLine};
+use crate::rng::SplitMix64;
 use crate::robot::CameraMount;
 
 /// Gray level of bare terrain (bright steel under the robot's light).
@@ -232,7 +233,7 @@ impl LineCamera {
         }
         let size = i as usize;
         Ok(LineCamera {
-            rng: SplitMix64(settings.seed),
+            rng: SplitMix64::new(settings.seed),
             settings,
             size,
             next_capture: 0,
@@ -309,6 +310,7 @@ impl LineCamera {
             if std > 0.0 {
                 for pair in self.gray.chunks_mut(2) {
                     let (z0, z1) = self.rng.normal_pair();
+                    let (z0, z1) = (z0 as f32, z1 as f32);
                     pair[0] += std * z0;
                     if let Some(v) = pair.get_mut(1) {
                         *v += std * z1;
@@ -453,33 +455,6 @@ fn box_blur(image: &mut [f32], n: usize, r: usize) {
     }
     for col in 0..n {
         pass(&|i| i * n + col, image);
-    }
-}
-
-/// SplitMix64: a tiny, well-mixed deterministic stream for pixel noise (no crate needed).
-#[derive(Debug, Clone)]
-struct SplitMix64(u64);
-
-impl SplitMix64 {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in (0, 1]: 53 random bits, never 0 so the logarithm below is finite.
-    fn unit(&mut self) -> f64 {
-        ((self.next_u64() >> 11) + 1) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Two independent standard normal values (Box–Muller).
-    fn normal_pair(&mut self) -> (f32, f32) {
-        let (u1, u2) = (self.unit(), self.unit());
-        let r = (-2.0 * u1.ln()).sqrt();
-        let phi = std::f64::consts::TAU * u2;
-        ((r * phi.cos()) as f32, (r * phi.sin()) as f32)
     }
 }
 
