@@ -8,7 +8,10 @@
 //!   in the run's one convention (as `timeseries.csv`'s `d_m`, `psi_rad` and the ground truth):
 //!   the robot relative to the line, `d` > 0 when the robot is left of it, `psi` > 0 when it
 //!   points left of it;
-//! - `GET /state`: the ground-truth pose, for debugging only (a real robot has no such thing).
+//! - `GET /state`: the ground-truth pose, for debugging only (a real robot has no such thing);
+//! - `GET /lidar`: the front LIDAR's latest scan, when the scenario has a `[lidar]`: JSON with its
+//!   time, the sensor's pose in the world, the beams' angles and one range per beam (`null`: no
+//!   return).
 //!
 //! The simulation publishes into a [`SensorFeed`]; the server only reads it, so a slow or stuck
 //! HTTP client never holds up the physics. Frames are published raw and encoded (PNG, JPEG) only
@@ -86,6 +89,7 @@ struct Snapshot {
     frame: Option<Arc<Frame>>,
     line: Option<serde_json::Value>,
     state: Option<serde_json::Value>,
+    lidar: Option<serde_json::Value>,
 }
 
 /// Told of every read the server answers: (path, HTTP status code, content type, body). For
@@ -144,6 +148,11 @@ impl SensorFeed {
     pub fn publish_line(&self, t_s: f64, d_m: f64, psi_rad: f64, valid: bool) {
         let value = serde_json::json!({ "t": t_s, "d": d_m, "psi": psi_rad, "valid": valid });
         self.update(|s| s.line = Some(value));
+    }
+
+    /// The LIDAR's latest scan.
+    pub fn publish_lidar(&self, scan: serde_json::Value) {
+        self.update(|s| s.lidar = Some(scan));
     }
 
     /// Ground truth for debugging.
@@ -224,7 +233,8 @@ async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Resu
         },
         "/line" => json(snapshot.line, "line measurement"),
         "/state" => json(snapshot.state, "state"),
-        "/" => (200, "text/plain", b"climbsim sensors: /camera.png /camera.mjpg /line /state\n".to_vec()),
+        "/lidar" => json(snapshot.lidar, "LIDAR scan (the scenario needs a [lidar])"),
+        "/" => (200, "text/plain", b"climbsim sensors: /camera.png /camera.mjpg /line /state /lidar\n".to_vec()),
         _ => (404, "text/plain", b"not found\n".to_vec()),
     };
     if let Some(hook) = feed.on_read.get() {

@@ -207,18 +207,6 @@ fn capture_mcap_false_records_nothing() {
     assert!(!out.join("run.mcap").exists() && !out.join("run.mcap.tmp").exists());
 }
 
-/// GET `path` from the sensor server at `url` (`http://HOST:PORT`), the body as JSON.
-fn get_json(url: &str, path: &str) -> serde_json::Value {
-    use std::io::{Read, Write};
-    let address = url.strip_prefix("http://").expect("http URL");
-    let mut stream = std::net::TcpStream::connect(address).expect("connect");
-    write!(stream, "GET {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n").expect("request");
-    let mut response = String::new();
-    stream.read_to_string(&mut response).expect("response");
-    let (_, body) = response.split_once("\r\n\r\n").expect("headers and body");
-    serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {response}"))
-}
-
 #[test]
 fn serve_shows_a_world_without_a_line_and_records_it_until_stopped() {
     use std::io::{BufRead, BufReader};
@@ -234,7 +222,7 @@ fn serve_shows_a_world_without_a_line_and_records_it_until_stopped() {
     let sensors = BufReader::new(stdout).lines().map_while(Result::ok).find_map(|line| line.strip_prefix("sensors: ").map(str::to_owned));
     std::thread::sleep(std::time::Duration::from_millis(1500));
     // The robot's state is served without a line too; d and psi have no meaning there.
-    let state = get_json(sensors.as_deref().expect("a `sensors: URL` line"), "/state");
+    let state = support::get_json(sensors.as_deref().expect("a `sensors: URL` line"), "/state");
     let stopped = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().expect("kill");
     let status = child.wait().expect("wait");
     assert!(stopped.success() && status.success(), "serve ended with {status}");

@@ -250,6 +250,7 @@ const STATE_RATE_HZ: f64 = 30.0;
 /// is kept in `errors` (the pacer thread cannot return one).
 pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, errors: Arc<Mutex<Option<String>>>) -> TickHook {
     let mut next_state_s = 0.0;
+    let mut lidar_published = None;
     Box::new(move |bus, now| {
         let mut observer = observer.lock().unwrap_or_else(PoisonError::into_inner);
         let t_s = now.as_secs_f64();
@@ -270,6 +271,10 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
             {
                 warn!(%error, "camera frame not published");
             }
+        }
+        if let Some(scan) = observer.lidar_scan().filter(|scan| lidar_published != Some(scan.t)) {
+            lidar_published = Some(scan.t);
+            feed.publish_lidar(scan.to_json());
         }
         // Without a line there are no frames: the state keeps its own rate.
         if observation.new_frame || (!observer.has_line() && t_s >= next_state_s) {

@@ -74,6 +74,9 @@ pub const COLUMNS: &[&str] = &[
     "wheel_slip_rr_m_s",
     "faults_active",
     "bus_faults",
+    // The LIDAR's latest scan (NaN without a `[lidar]`; infinite: no return within range).
+    "lidar_ahead_m",
+    "lidar_nearest_m",
 ];
 
 /// The metric track's sampling period (s of simulated time): the built-in controller's default

@@ -24,6 +24,8 @@ pub use overrides::{Override, OverrideError, parse_value, split_values};
 use crate::control::ReferenceConfig;
 use crate::fault::{Fault, ScheduledFault};
 use crate::sim::LineCameraSettings;
+use crate::sim::lidar::LidarSettings;
+use crate::sim::obstacles::ObstacleSpec;
 use crate::sim::terrain::{TerrainError, TerrainSpec, generate};
 use crate::sim::{SolverSettings, StartPose, WorldConfig};
 use crate::source_location::{DataFileError, load_toml};
@@ -329,6 +331,12 @@ pub struct Scenario {
     pub terrain: TerrainSpec,
     #[serde(default)]
     pub line: Option<LineSection>,
+    /// Boxes and cylinders standing on the terrain (`[[obstacles]]`).
+    #[serde(default)]
+    pub obstacles: Vec<ObstacleSpec>,
+    /// The front LIDAR's settings; without `[lidar]` the robot has none.
+    #[serde(default)]
+    pub lidar: Option<LidarSettings>,
     /// The downward line camera (the robot description's mount and defaults if absent).
     #[serde(default)]
     pub camera: Option<LineCameraSettings>,
@@ -468,6 +476,7 @@ impl Scenario {
             magnets_on: self.world.magnets,
             payload_kg: self.world.payload_kg,
             solver: self.world.solver,
+            obstacles: self.obstacles.clone(),
         })
     }
 }

@@ -24,6 +24,7 @@ use crate::report::{self, Summary, TimeSeries};
 use crate::robot::{RobotDescription, WheelPosition};
 use crate::sim::detector::DetectorError;
 use crate::sim::line::LineError as WeldLineError;
+use crate::sim::lidar::{Lidar, LidarScan};
 use crate::sim::{DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, WeldLine};
 
 pub use super::capture::{COLUMNS, MetricTrack, summarise};
@@ -44,6 +45,8 @@ pub enum RunError {
     Line { path: PathBuf, source: WeldLineError },
     #[error("scenario {path}: [camera]: {message}")]
     Camera { path: PathBuf, message: String },
+    #[error("scenario {path}: {message}")]
+    Lidar { path: PathBuf, message: String },
     #[error("scenario {path} has no [line]: a run needs a weld line to follow")]
     NoLine { path: PathBuf },
     #[error("scenario {path}: [capture] signals: no signal `{name}` (known: {known})")]
@@ -126,6 +129,8 @@ pub struct Observer {
     detector: LineDetector,
     /// The detector's output on the newest frame (None before the first frame).
     latest: Option<LineMeasurement>,
+    /// The front LIDAR, when the scenario has a `[lidar]`.
+    lidar: Option<Lidar>,
     frames_seen: u64,
     capture: Capture,
     target_speed_m_s: f64,
@@ -161,6 +166,7 @@ impl Observer {
         let settings = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
         let camera = LineCamera::new(settings).map_err(|e| RunError::Camera { path: path.clone(), message: e.to_string() })?;
         let detector = LineDetector::new(DetectorSettings::default())?;
+        let lidar = scenario.lidar.clone().map(|settings| Lidar::new(settings, robot.lidar.position_m)).transpose().map_err(|e| RunError::Lidar { path: path.clone(), message: e.to_string() })?;
         let mut events = scenario.events.clone();
         events.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
         let mut capture = Capture::new(scenario.capture.rate_hz, scenario.capture.signals.as_deref());
@@ -174,6 +180,7 @@ impl Observer {
             camera,
             detector,
             latest: None,
+            lidar,
             frames_seen: 0,
             capture,
             target_speed_m_s: mm_min_to_m_s(scenario.speed.target_mm_min),
@@ -265,9 +272,15 @@ impl Observer {
         self.capture.discard();
     }
 
-    /// Render the camera if a frame is due at `t`, run the detector on any new frame; the latest
-    /// measurement in the controller's convention (None while the line is not seen).
+    /// Scan with the LIDAR and render the camera if they are due at `t`, run the detector on any
+    /// new frame; the latest line measurement in the controller's convention (None while the
+    /// line is not seen).
     pub fn sense(&mut self, world: &RobotWorld, t: Duration) -> Option<LineError> {
+        if let Some(scan) = self.lidar.as_mut().and_then(|lidar| lidar.scan(world, t))
+            && let Some(view) = &self.view
+        {
+            view.lidar(scan);
+        }
         // Without a weld line there is nothing for the camera and its detector to find.
         let Some(line) = &self.line else { return None };
         if let Some(frame) = self.camera.render(world.camera_pose(), line, t) {
@@ -288,6 +301,11 @@ impl Observer {
     /// line is relative to the robot); [`robot_relative`] gives the run's.
     pub fn latest(&self) -> Option<&LineMeasurement> {
         self.latest.as_ref()
+    }
+
+    /// The LIDAR's latest scan, if the robot has one and it has scanned.
+    pub fn lidar_scan(&self) -> Option<&LidarScan> {
+        self.lidar.as_ref().and_then(Lidar::latest)
     }
 
     /// Frames the camera has delivered so far.
@@ -375,6 +393,9 @@ impl Observer {
         let counts = faults.counts();
         row.push(faults.active().count() as f64);
         row.push((counts.instructions_corrupted + counts.replies_corrupted + counts.replies_dropped + counts.replies_delayed + counts.instructions_unheard) as f64);
+        let scan = self.lidar_scan();
+        row.push(scan.map_or(f64::NAN, |s| f64::from(s.ahead_m())));
+        row.push(scan.map_or(f64::NAN, |s| f64::from(s.nearest_m())));
         if let Some(view) = &mut self.view {
             view.signals(Duration::from_secs_f64(t_s), &row);
         }

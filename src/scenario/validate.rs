@@ -148,6 +148,8 @@ pub const CAMERA_NOISE: Range = Range::closed(0.0, 255.0, "gray levels");
 /// Rows per second of `timeseries.csv`: above 0 (a rate of 0 never captures), at most one row
 /// per firmware tick (1 kHz), the fastest any run advances; a lockstep run allows only its
 /// control rate, which the run itself checks.
+/// An obstacle's sizes: anything larger is terrain (see `sim::obstacles`).
+pub const OBSTACLE_SIZE_M: Range = Range::above(0.0, crate::sim::obstacles::MAX_OBSTACLE_M as f64, "m");
 pub const CAPTURE_RATE_HZ: Range = Range::above(0.0, 1_000.0, "Hz");
 pub const ON_LINE_TOLERANCE_M: Range = Range::closed(0.0, 10.0, "m");
 
@@ -205,6 +207,14 @@ pub fn check(scenario: &Scenario) -> Result<(), Problem> {
         check_controller(config)?;
     }
     check_events(scenario)?;
+    check_obstacles(scenario)?;
+    if let Some(lidar) = &scenario.lidar {
+        use crate::sim::lidar::LidarError;
+        lidar.validate().map_err(|error| match error {
+            LidarError::Beams(_) => Checker::at(&["lidar"]).problem(&[key("beams")], format!("{error}")),
+            LidarError::Invalid { field, value, reason } => Checker::at(&["lidar"]).problem(&[key(field)], format!("{value} {reason}")),
+        })?;
+    }
     let capture = Checker::at(&["capture"]);
     capture.range("rate_hz", scenario.capture.rate_hz, CAPTURE_RATE_HZ)?;
     capture.range("on_line_tolerance_m", scenario.capture.on_line_tolerance_m, ON_LINE_TOLERANCE_M)?;
@@ -335,6 +345,30 @@ fn check_controller(config: &ReferenceConfig) -> Result<(), Problem> {
     c.range("ki", config.ki, PID_GAIN)?;
     c.range("kd", config.kd, PID_GAIN)?;
     c.range("speed_window_s", config.speed_window_s, SPEED_WINDOW_S)
+}
+
+fn check_obstacles(scenario: &Scenario) -> Result<(), Problem> {
+    use crate::sim::obstacles::ObstacleSpec;
+    for (i, obstacle) in scenario.obstacles.iter().enumerate() {
+        let c = Checker { prefix: vec![key("obstacles"), KeyPart::Index(i)] };
+        let [x, z] = obstacle.at_m();
+        c.range_at(&[key("at_m"), KeyPart::Index(0)], f64::from(x), POSITION_M)?;
+        c.range_at(&[key("at_m"), KeyPart::Index(1)], f64::from(z), POSITION_M)?;
+        match obstacle {
+            ObstacleSpec::Box { size_m, yaw_deg, .. } => {
+                for (axis, size) in size_m.iter().enumerate() {
+                    c.range_at(&[key("size_m"), KeyPart::Index(axis)], f64::from(*size), OBSTACLE_SIZE_M)?;
+                }
+                c.range("yaw_deg", f64::from(*yaw_deg), YAW_DEG)?;
+            }
+            ObstacleSpec::Cylinder { radius_m, length_m, yaw_deg, .. } => {
+                c.range("radius_m", f64::from(*radius_m), OBSTACLE_SIZE_M)?;
+                c.range("length_m", f64::from(*length_m), OBSTACLE_SIZE_M)?;
+                c.range("yaw_deg", f64::from(*yaw_deg), YAW_DEG)?;
+            }
+        }
+    }
+    Ok(())
 }
 
 fn check_events(scenario: &Scenario) -> Result<(), Problem> {

@@ -3,8 +3,10 @@
 
 pub mod camera;
 pub mod detector;
+pub mod lidar;
 pub mod line;
 mod lockstep;
+pub mod obstacles;
 pub mod terrain;
 pub mod world;
 

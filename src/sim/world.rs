@@ -19,6 +19,7 @@ use thiserror::Error;
 use crate::device::{BenchLoad, Plant, Servo, ShaftDrive, ShaftLoad, ShaftState};
 use crate::robot::{RobotDescription, SectionSpec, ServoRole, WheelPosition};
 
+use super::obstacles::{ObstacleError, ObstacleSpec};
 use super::terrain::TerrainGeometry;
 
 /// Collision groups: the robot's colliders touch only the terrain, never each other.
@@ -39,6 +40,8 @@ const STATIC_CONTACT_HZ: f32 = 240.0;
 pub enum WorldError {
     #[error("robot description has no servo for the {role:?} of wheel {wheel:?}")]
     MissingServo { role: ServoRole, wheel: WheelPosition },
+    #[error("obstacles[{index}]: {source}")]
+    Obstacle { index: usize, source: ObstacleError },
 }
 
 /// Where the robot starts.
@@ -72,13 +75,15 @@ pub struct WorldConfig {
     pub payload_kg: f32,
     /// How hard rapier's solver works per step.
     pub solver: SolverSettings,
+    /// Boxes and cylinders standing on the terrain.
+    pub obstacles: Vec<ObstacleSpec>,
 }
 
 impl WorldConfig {
     /// A world on `terrain` with everything else at its default: Earth gravity along −y, the
     /// default start pose, the robot's own tread friction, magnets on, no payload.
     pub fn on(terrain: TerrainGeometry) -> Self {
-        Self { gravity: Vector::new(0.0, -9.81, 0.0), terrain, start: StartPose::default(), friction: None, magnets_on: true, payload_kg: 0.0, solver: SolverSettings::default() }
+        Self { gravity: Vector::new(0.0, -9.81, 0.0), terrain, start: StartPose::default(), friction: None, magnets_on: true, payload_kg: 0.0, solver: SolverSettings::default(), obstacles: Vec::new() }
     }
 }
 
@@ -245,13 +250,15 @@ pub struct PartShape {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum PartShapeKind {
     Box { half_extents: Vector },
-    /// A wheel about its frame's z axis.
-    Wheel { radius_m: f32, width_m: f32 },
+    /// A cylinder (a wheel, a pipe) about its pose's z axis.
+    Cylinder { radius_m: f32, length_m: f32 },
 }
 
 pub struct RobotWorld {
     physics: PhysicsWorld,
     terrain: ColliderHandle,
+    /// The obstacles standing on the terrain.
+    obstacles: Vec<ColliderHandle>,
     /// The front section and the middle one (which carries the bolted rear section).
     sections: [RigidBodyHandle; 2],
     wheels: [WheelParts; 4],
@@ -319,6 +326,18 @@ impl RobotWorld {
 
         // Queries need one update of the query structures before they see the terrain.
         physics.step();
+        let mut obstacles = Vec::with_capacity(config.obstacles.len());
+        if !config.obstacles.is_empty() {
+            let terrain_groups = InteractionGroups::new(TERRAIN_GROUP, ROBOT_GROUP, InteractionTestMode::And);
+            for (index, obstacle) in config.obstacles.iter().enumerate() {
+                obstacle.validate().map_err(|source| WorldError::Obstacle { index, source })?;
+                let [x, z] = obstacle.at_m();
+                // Found on the terrain alone: obstacles inserted before are not stood on.
+                let ground = terrain_below(&physics, terrain, x, z).ok_or(WorldError::Obstacle { index, source: ObstacleError::OffTerrain { x, z } })?;
+                obstacles.push(physics.insert_collider(obstacle.collider(ground).friction(friction).collision_groups(terrain_groups), Some(terrain_body)));
+            }
+            physics.step();
+        }
         let body = &robot.body;
         let wheel = &robot.wheel;
         let half_base = body.wheelbase_m / 2.0;
@@ -433,6 +452,7 @@ impl RobotWorld {
         let world = Self {
             physics,
             terrain,
+            obstacles,
             sections: [front, middle],
             wheels,
             links,
@@ -579,6 +599,25 @@ impl RobotWorld {
         frames
     }
 
+    /// The obstacles' shapes for viewers, in `world`: boxes, and cylinders about their pose's z.
+    pub fn obstacle_shapes(&self) -> Vec<PartShape> {
+        let mut shapes = Vec::with_capacity(self.obstacles.len());
+        for &handle in &self.obstacles {
+            let collider = &self.physics.colliders[handle];
+            let pose = *collider.position();
+            let kind = if let Some(cuboid) = collider.shape().as_cuboid() {
+                (pose, PartShapeKind::Box { half_extents: cuboid.half_extents })
+            } else if let Some(cylinder) = collider.shape().as_cylinder() {
+                // rapier's cylinder stands along its y axis: a quarter turn about x puts it on z.
+                (pose * Pose::from_rotation(Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2)), PartShapeKind::Cylinder { radius_m: cylinder.radius, length_m: 2.0 * cylinder.half_height })
+            } else {
+                continue;
+            };
+            shapes.push(PartShape { frame: "world".to_owned(), pose: kind.0, kind: kind.1 });
+        }
+        shapes
+    }
+
     /// The robot's shapes for viewers, each in the frame of [`RobotWorld::part_frames`] it moves
     /// with: the sections' boxes as their colliders have them, and each wheel as the hollow
     /// cylinder it is (its collider is a ball, which rolls more robustly on heightfields).
@@ -595,7 +634,7 @@ impl RobotWorld {
         let wheel = &self.robot.wheel;
         for position in WheelPosition::ALL {
             // The wheel body's z axis is its axle.
-            shapes.push(PartShape { frame: format!("wheel_{}", position.name()), pose: Pose::IDENTITY, kind: PartShapeKind::Wheel { radius_m: wheel.outer_radius_m, width_m: wheel.width_m } });
+            shapes.push(PartShape { frame: format!("wheel_{}", position.name()), pose: Pose::IDENTITY, kind: PartShapeKind::Cylinder { radius_m: wheel.outer_radius_m, length_m: wheel.width_m } });
         }
         shapes
     }
@@ -611,6 +650,14 @@ impl RobotWorld {
     /// from high above (the robot is not in the terrain group, so it never hides the ground).
     pub fn surface_below(&self, x: f32, z: f32) -> Option<(Vector, Vector)> {
         surface_below(&self.physics, x, z)
+    }
+
+    /// How far along `direction` (unit) from `origin` the nearest surface of the terrain or an
+    /// obstacle is, up to `max_m`; the robot's own parts are never hit. For range sensors.
+    pub fn cast_ray_at_surroundings(&self, origin: Vector, direction: Vector, max_m: f32) -> Option<f32> {
+        let ray = Ray::new(origin, direction);
+        let filter = QueryFilter::default().groups(robot_groups());
+        self.physics.cast_ray(&ray, max_m, true, filter).map(|(_, toi)| toi)
     }
 
     /// The chassis' linear velocity.
@@ -874,6 +921,15 @@ fn surface_below(physics: &PhysicsWorld, x: f32, z: f32) -> Option<(Vector, Vect
     let filter = QueryFilter::default().groups(robot_groups());
     let (_, hit) = physics.cast_ray_and_get_normal(&ray, 2.0 * ABOVE, true, filter)?;
     Some((ray.point_at(hit.time_of_impact), hit.normal))
+}
+
+/// The terrain collider's surface straight below (x, z), obstacles ignored.
+fn terrain_below(physics: &PhysicsWorld, terrain: ColliderHandle, x: f32, z: f32) -> Option<Vector> {
+    const ABOVE: f32 = 100.0;
+    let ray = Ray::new(Vector::new(x, ABOVE, z), -Vector::Y);
+    let collider = physics.colliders.get(terrain)?;
+    let toi = collider.shape().cast_ray(collider.position(), &ray, 2.0 * ABOVE, true)?;
+    Some(ray.point_at(toi))
 }
 
 /// The robot's start frame: origin on the ground under the start point, rotated by the yaw and

@@ -345,3 +345,15 @@ pub fn climbsim_with_sdk_python(args: &[&str]) -> std::process::Output {
     let path = std::env::join_paths(std::iter::once(bin).chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()))).expect("PATH");
     Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).env("PATH", path).current_dir(repo()).output().expect("run climbsim")
 }
+
+/// GET `path` from the sensor server at `url` (`http://HOST:PORT`), the body as JSON.
+pub fn get_json(url: &str, path: &str) -> serde_json::Value {
+    use std::io::{Read, Write};
+    let address = url.strip_prefix("http://").expect("http URL");
+    let mut stream = std::net::TcpStream::connect(address).expect("connect");
+    write!(stream, "GET {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n").expect("request");
+    let mut response = String::new();
+    stream.read_to_string(&mut response).expect("response");
+    let (_, body) = response.split_once("\r\n\r\n").expect("headers and body");
+    serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {response}"))
+}

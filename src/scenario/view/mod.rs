@@ -7,11 +7,12 @@
 //! - `/tf` (`foxglove.FrameTransforms`): `map` (z up) → `world` (rapier's y up) → `middle` →
 //!   `front` (the rocker), the wheels in the section that carries them, each magnet in its
 //!   wheel, at the capture rate;
-//! - `/scene/terrain` (`foxglove.SceneUpdate`): the terrain coloured by height and the weld
-//!   line's stripe, at the start and whenever the line moves;
+//! - `/scene/terrain` (`foxglove.SceneUpdate`): the terrain coloured by height, the weld line's
+//!   stripe and the obstacles, at the start and whenever the line moves;
 //! - `/scene/robot`: the sections' boxes and the wheels, locked to their frames, at the start;
 //! - `/scene/magnets`: an arrow per magnet as long as its pull, at the capture rate;
 //! - `/camera/image` (`foxglove.CompressedImage`, PNG): every frame of the downward camera;
+//! - `/lidar` (`foxglove.LaserScan`): every scan of the front LIDAR, when the robot has one;
 //! - `/signals` (JSON): every column of `timeseries.csv` at the capture rate (the detector's
 //!   `d_m` and `psi_rad` among them), for plots;
 //! - `/servos` (JSON): each servo's key registers, by name, at the capture rate;
@@ -34,7 +35,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use foxglove::messages::log::Level as LogLevel;
-use foxglove::messages::{CompressedImage, FrameTransform, FrameTransforms, Log, Quaternion, SceneUpdate, Timestamp, Vector3};
+use foxglove::messages::{CompressedImage, FrameTransform, FrameTransforms, LaserScan, Log, Quaternion, SceneUpdate, Timestamp, Vector3};
 use foxglove::{Channel, ChannelBuilder, Context, McapWriter, McapWriterHandle, PartialMetadata, RawChannel, Schema};
 use thiserror::Error;
 
@@ -44,6 +45,7 @@ use live::LiveServer;
 use crate::bus::TransactionTap;
 use crate::bus::transaction_json;
 use crate::device::Servo;
+use crate::sim::lidar::LidarScan;
 use crate::sim::{PartFrame, RobotWorld};
 use crate::sim::line::LineSample;
 
@@ -108,6 +110,7 @@ struct Channels {
     robot: Channel<SceneUpdate>,
     magnets: Channel<SceneUpdate>,
     image: Channel<CompressedImage>,
+    lidar: Channel<LaserScan>,
     log: Channel<Log>,
     signals: Arc<RawChannel>,
     servos: Arc<RawChannel>,
@@ -166,6 +169,7 @@ impl View {
             robot: ChannelBuilder::new("/scene/robot").context(&context).build(),
             magnets: ChannelBuilder::new("/scene/magnets").context(&context).build(),
             image: ChannelBuilder::new("/camera/image").context(&context).build(),
+            lidar: ChannelBuilder::new("/lidar").context(&context).build(),
             log: ChannelBuilder::new("/log").context(&context).build(),
             signals: json_channel(&context, "/signals", "climbsim.Signals", signals_schema(columns)).map_err(error)?,
             servos: json_channel(&context, "/servos", "climbsim.Servos", servos_schema(servo_names)).map_err(error)?,
@@ -183,7 +187,7 @@ impl View {
 
     /// The terrain and the weld line at `t` (at the start, and again when the line moves).
     pub fn terrain(&self, t: Duration, world: &RobotWorld, line: &[LineSample]) {
-        let update = scene::terrain_and_line(timestamp(t), &world.terrain_mesh(TERRAIN_VERTICES_PER_SIDE), line);
+        let update = scene::terrain_and_line(timestamp(t), &world.terrain_mesh(TERRAIN_VERTICES_PER_SIDE), line, &world.obstacle_shapes());
         self.channels.terrain.log_with_time(&update, nanos(t));
         self.latest.lock().unwrap_or_else(PoisonError::into_inner).terrain = Some(update);
     }
@@ -219,6 +223,20 @@ impl View {
     pub fn image(&self, t: Duration, png: Vec<u8>) {
         let message = CompressedImage { timestamp: Some(timestamp(t)), frame_id: "camera".to_owned(), data: png.into(), format: "png".to_owned() };
         self.channels.image.log_with_time(&message, nanos(t));
+    }
+
+    /// A LIDAR scan, in the middle section's frame at its mount.
+    pub fn lidar(&self, scan: &LidarScan) {
+        let message = LaserScan {
+            timestamp: Some(timestamp(scan.t)),
+            frame_id: "middle".to_owned(),
+            pose: Some(scene::pose(&scan.mount)),
+            start_angle: f64::from(scan.start_angle_rad),
+            end_angle: f64::from(scan.end_angle_rad()),
+            ranges: scan.ranges_m.iter().map(|&r| f64::from(r)).collect(),
+            intensities: Vec::new(),
+        };
+        self.channels.lidar.log_with_time(&message, nanos(scan.t));
     }
 
     /// Something that happened at `t`: an event, a fault, a failure.

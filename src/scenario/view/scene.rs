@@ -22,7 +22,7 @@ fn point(v: Vector) -> Point3 {
     Point3 { x: f64::from(v.x), y: f64::from(v.y), z: f64::from(v.z) }
 }
 
-fn pose(p: &Pose) -> FoxglovePose {
+pub(super) fn pose(p: &Pose) -> FoxglovePose {
     FoxglovePose {
         position: Some(Vector3 { x: f64::from(p.translation.x), y: f64::from(p.translation.y), z: f64::from(p.translation.z) }),
         orientation: Some(Quaternion { x: f64::from(p.rotation.x), y: f64::from(p.rotation.y), z: f64::from(p.rotation.z), w: f64::from(p.rotation.w) }),
@@ -45,8 +45,9 @@ fn height_colour(height: f32, low: f32, high: f32) -> Color {
     color(shade, shade, shade * 1.05, 1.0)
 }
 
-/// The terrain (`terrain`) and the weld line's stripe (`weld_line`), in `world`.
-pub fn terrain_and_line(timestamp: Timestamp, terrain: &TerrainMesh, line: &[LineSample]) -> SceneUpdate {
+/// The terrain (`terrain`), the weld line's stripe (`weld_line`) and the obstacles
+/// (`obstacles`, rust brown), in `world`.
+pub fn terrain_and_line(timestamp: Timestamp, terrain: &TerrainMesh, line: &[LineSample], obstacles: &[PartShape]) -> SceneUpdate {
     let (low, high) = terrain.vertices.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(v.y), hi.max(v.y)));
     let mut ground = entity(timestamp, "world", "terrain");
     ground.triangles.push(TriangleListPrimitive {
@@ -65,7 +66,30 @@ pub fn terrain_and_line(timestamp: Timestamp, terrain: &TerrainMesh, line: &[Lin
         points.extend([al, ar, bl, bl, ar, br]);
     }
     stripe.triangles.push(TriangleListPrimitive { pose: Some(pose(&Pose::IDENTITY)), points, color: Some(color(0.95, 0.75, 0.1, 1.0)), colors: Vec::new(), indices: Vec::new() });
-    SceneUpdate { deletions: Vec::new(), entities: vec![ground, stripe] }
+    let mut things = entity(timestamp, "world", "obstacles");
+    for shape in obstacles {
+        add_shape(&mut things, shape, color(0.55, 0.3, 0.15, 1.0), color(0.55, 0.3, 0.15, 1.0));
+    }
+    SceneUpdate { deletions: Vec::new(), entities: vec![ground, stripe, things] }
+}
+
+/// A box or cylinder into `entity`, in `box_colour` or `cylinder_colour`.
+fn add_shape(entity: &mut SceneEntity, shape: &PartShape, box_colour: Color, cylinder_colour: Color) {
+    match shape.kind {
+        PartShapeKind::Box { half_extents } => entity.cubes.push(CubePrimitive {
+            pose: Some(pose(&shape.pose)),
+            size: Some(Vector3 { x: 2.0 * f64::from(half_extents.x), y: 2.0 * f64::from(half_extents.y), z: 2.0 * f64::from(half_extents.z) }),
+            color: Some(box_colour),
+        }),
+        // Foxglove's cylinder stands along its z axis, as the wheel's axle does.
+        PartShapeKind::Cylinder { radius_m, length_m } => entity.cylinders.push(CylinderPrimitive {
+            pose: Some(pose(&shape.pose)),
+            size: Some(Vector3 { x: 2.0 * f64::from(radius_m), y: 2.0 * f64::from(radius_m), z: f64::from(length_m) }),
+            bottom_scale: 1.0,
+            top_scale: 1.0,
+            color: Some(cylinder_colour),
+        }),
+    }
 }
 
 /// The robot's parts, one entity per frame (`robot/<frame>`), locked to their frames: sections
@@ -80,22 +104,7 @@ pub fn robot(timestamp: Timestamp, shapes: &[PartShape]) -> SceneUpdate {
                 entities.len() - 1
             }
         };
-        let part = &mut entities[index];
-        match shape.kind {
-            PartShapeKind::Box { half_extents } => part.cubes.push(CubePrimitive {
-                pose: Some(pose(&shape.pose)),
-                size: Some(Vector3 { x: 2.0 * f64::from(half_extents.x), y: 2.0 * f64::from(half_extents.y), z: 2.0 * f64::from(half_extents.z) }),
-                color: Some(color(0.2, 0.4, 0.75, 0.9)),
-            }),
-            // Foxglove's cylinder stands along its z axis, as the wheel's axle does.
-            PartShapeKind::Wheel { radius_m, width_m } => part.cylinders.push(CylinderPrimitive {
-                pose: Some(pose(&shape.pose)),
-                size: Some(Vector3 { x: 2.0 * f64::from(radius_m), y: 2.0 * f64::from(radius_m), z: f64::from(width_m) }),
-                bottom_scale: 1.0,
-                top_scale: 1.0,
-                color: Some(color(0.15, 0.15, 0.15, 0.6)),
-            }),
-        }
+        add_shape(&mut entities[index], shape, color(0.2, 0.4, 0.75, 0.9), color(0.15, 0.15, 0.15, 0.6));
     }
     SceneUpdate { deletions: Vec::new(), entities }
 }
@@ -130,7 +139,7 @@ mod tests {
     #[test]
     fn the_terrain_keeps_its_triangles_and_colours_low_dark_high_light() {
         let mesh = TerrainMesh { vertices: vec![Vector::new(0.0, 0.0, 0.0), Vector::new(1.0, 0.1, 0.0), Vector::new(0.0, 0.2, 1.0)], indices: vec![[0, 2, 1]] };
-        let update = terrain_and_line(at_zero(), &mesh, &[]);
+        let update = terrain_and_line(at_zero(), &mesh, &[], &[]);
         let triangles = &update.entities[0].triangles[0];
         assert_eq!(triangles.indices, vec![0, 2, 1]);
         assert_eq!(triangles.points.len(), 3);
@@ -141,7 +150,7 @@ mod tests {
     #[test]
     fn the_stripe_is_two_triangles_per_segment_lifted_off_the_surface() {
         let sample = |x: f32| LineSample { point: Vector::new(x, 0.0, 0.0), normal: Vector::Y, arc_length_m: x, left_edge: Vector::new(x, 0.0, -0.01), right_edge: Vector::new(x, 0.0, 0.01) };
-        let update = terrain_and_line(at_zero(), &TerrainMesh { vertices: Vec::new(), indices: Vec::new() }, &[sample(0.0), sample(0.1), sample(0.2)]);
+        let update = terrain_and_line(at_zero(), &TerrainMesh { vertices: Vec::new(), indices: Vec::new() }, &[sample(0.0), sample(0.1), sample(0.2)], &[]);
         let stripe = &update.entities[1].triangles[0];
         assert_eq!(stripe.points.len(), 12);
         assert!(stripe.points.iter().all(|p| (p.y - f64::from(STRIPE_LIFT_M)).abs() < 1e-9));
@@ -152,7 +161,7 @@ mod tests {
         let shapes = [
             PartShape { frame: "middle".to_owned(), pose: Pose::IDENTITY, kind: PartShapeKind::Box { half_extents: Vector::new(0.06, 0.03, 0.08) } },
             PartShape { frame: "middle".to_owned(), pose: Pose::from_translation(Vector::new(-0.15, 0.0, 0.0)), kind: PartShapeKind::Box { half_extents: Vector::new(0.03, 0.02, 0.1) } },
-            PartShape { frame: "wheel_front_left".to_owned(), pose: Pose::IDENTITY, kind: PartShapeKind::Wheel { radius_m: 0.05, width_m: 0.04 } },
+            PartShape { frame: "wheel_front_left".to_owned(), pose: Pose::IDENTITY, kind: PartShapeKind::Cylinder { radius_m: 0.05, length_m: 0.04 } },
         ];
         let update = robot(at_zero(), &shapes);
         assert_eq!(update.entities.len(), 2);
