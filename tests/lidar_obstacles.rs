@@ -114,21 +114,11 @@ fn an_obstacle_off_the_terrain_and_bad_lidar_settings_are_refused_by_name() {
 
 #[test]
 fn serve_gives_the_scans_to_an_external_controller() {
-    use std::io::{BufRead, BufReader};
     let dir = support::scratch_dir("lidar-serve");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["serve", &scenario(&dir).display().to_string()])
-        .current_dir(support::repo())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .expect("climbsim serve");
-    let stdout = child.stdout.take().expect("stdout");
-    let sensors = BufReader::new(stdout).lines().map_while(Result::ok).find_map(|line| line.strip_prefix("sensors: ").map(str::to_owned));
+    let serve = support::Options::default().sensors().start(&[&scenario(&dir).display().to_string()]);
     std::thread::sleep(std::time::Duration::from_millis(500));
-    let scan = support::get_json(sensors.as_deref().expect("a `sensors: URL` line"), "/lidar");
-    let _ = child.kill();
-    let _ = child.wait();
+    let scan = support::get_json(serve.sensors(), "/lidar");
+    serve.finish();
     let ranges = scan["ranges_m"].as_array().expect("ranges");
     assert_eq!(ranges.len(), 91, "{scan}");
     // The robot stands still (torque off): the plate is 0.87 m ahead of the LIDAR.

@@ -209,23 +209,12 @@ fn capture_mcap_false_records_nothing() {
 
 #[test]
 fn serve_shows_a_world_without_a_line_and_records_it_until_stopped() {
-    use std::io::{BufRead, BufReader};
     let file = support::scratch_dir("mcap-serve").join("session.mcap");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["serve", "scenarios/floor-to-wall.toml", "--mcap", &file.display().to_string()])
-        .current_dir(support::repo())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .expect("climbsim serve");
-    let stdout = child.stdout.take().expect("stdout");
-    let sensors = BufReader::new(stdout).lines().map_while(Result::ok).find_map(|line| line.strip_prefix("sensors: ").map(str::to_owned));
+    let serve = support::Options::default().sensors().start(&["scenarios/floor-to-wall.toml", "--mcap", &file.display().to_string()]);
     std::thread::sleep(std::time::Duration::from_millis(1500));
     // The robot's state is served without a line too; d and psi have no meaning there.
-    let state = support::get_json(sensors.as_deref().expect("a `sensors: URL` line"), "/state");
-    let stopped = Command::new("kill").args(["-TERM", &child.id().to_string()]).status().expect("kill");
-    let status = child.wait().expect("wait");
-    assert!(stopped.success() && status.success(), "serve ended with {status}");
+    let state = support::get_json(serve.sensors(), "/state");
+    serve.finish();
     assert!(state["t"].as_f64().is_some_and(|t| t > 1.0) && state["x"].is_number() && state["d_err_m"].is_null(), "{state}");
 
     let bytes = std::fs::read(&file).expect("the recording has its final name");

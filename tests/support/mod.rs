@@ -29,12 +29,20 @@ const STOP_ON_DROP_WITHIN: Duration = Duration::from_secs(5);
 pub struct Options {
     temp_link: bool,
     stderr_log: bool,
+    sensors: bool,
 }
 
 impl Options {
     /// Pass `--link <dir>/ttyDXL`, `<dir>` a fresh temporary directory removed on drop.
     pub fn temp_link(mut self) -> Self {
         self.temp_link = true;
+        self
+    }
+
+    /// Also wait for the sensor server's `sensors: <url>` (serve with a scenario);
+    /// [`Emulator::sensors`] gives it.
+    pub fn sensors(mut self) -> Self {
+        self.sensors = true;
         self
     }
 
@@ -93,6 +101,7 @@ impl Options {
             port: PathBuf::new(),
             link,
             tcp: None,
+            sensors: None,
         };
 
         let want_tcp = arg_value(args, "--tcp").is_some();
@@ -107,6 +116,10 @@ impl Options {
             if let Some(addr) = line.strip_prefix("tcp: ") {
                 emulator.tcp = Some(addr.trim().parse().unwrap_or_else(|e| panic!("bad tcp line {line:?}: {e}")));
             }
+        }
+        while self.sensors && emulator.sensors.is_none() {
+            let line = emulator.announced(&rx, deadline, want_tcp);
+            emulator.sensors = line.strip_prefix("sensors: ").map(|url| url.trim().to_owned());
         }
         if let Some(link) = &emulator.link {
             assert_eq!(&emulator.port, link, "with --link, `port:` must print the link path");
@@ -126,6 +139,7 @@ pub struct Emulator {
     port: PathBuf,
     link: Option<PathBuf>,
     tcp: Option<SocketAddr>,
+    sensors: Option<String>,
 }
 
 impl Emulator {
@@ -142,6 +156,11 @@ impl Emulator {
     /// Its `--link` path.
     pub fn link(&self) -> &Path {
         self.link.as_deref().expect("emulator started without --link")
+    }
+
+    /// The sensor server's URL it announced, with [`Options::sensors`].
+    pub fn sensors(&self) -> &str {
+        self.sensors.as_deref().expect("emulator started without Options::sensors")
     }
 
     /// The TCP address it announced (`tcp: <addr>`).
