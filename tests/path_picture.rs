@@ -1,6 +1,7 @@
 //! `path.png` checked by content: decoded, its weld-line and robot pixels found by colour, and
 //! the robot's track where the run's start and the controller put it.
 
+use std::path::Path;
 use std::process::Command;
 
 mod support;
@@ -11,11 +12,10 @@ const LINE_RGB: [u8; 3] = [127, 127, 127];
 /// Rows above this hold the caption and the legend (whose samples have the same colours).
 const BELOW_LEGEND_ROW: usize = 160;
 
-#[test]
-fn the_track_starts_50_mm_left_of_the_line_and_closes_in_on_it() {
-    let out = support::scratch_dir("path").join("run");
+/// `climbsim run SCENARIO` for `seconds` into `out`; path.png's pixels, width and channels.
+fn path_picture(scenario: &str, seconds: u32, out: &Path) -> (Vec<u8>, usize, usize) {
     let output = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["run", "scenarios/flat-line.toml", "--set", "world.duration_s=25", "--set", "expect={}", "--set", "capture.mcap=false", "--out", &out.display().to_string()])
+        .args(["run", scenario, "--set", &format!("world.duration_s={seconds}"), "--set", "expect={}", "--set", "capture.mcap=false", "--out", &out.display().to_string()])
         .current_dir(support::repo())
         .output()
         .expect("climbsim");
@@ -26,6 +26,37 @@ fn the_track_starts_50_mm_left_of_the_line_and_closes_in_on_it() {
     let mut pixels = vec![0; reader.output_buffer_size().expect("size")];
     let info = reader.next_frame(&mut pixels).expect("frame");
     let (width, channels) = (info.width as usize, info.color_type.samples());
+    (pixels, width, channels)
+}
+
+/// The distinct colours of the terrain's shading (pale sand to khaki: red over green over
+/// blue, src/report/path.rs) below the caption, and how many pixels have them.
+fn shading(pixels: &[u8], width: usize, channels: usize) -> (usize, usize) {
+    let mut colours = std::collections::BTreeSet::new();
+    let mut count = 0;
+    for i in BELOW_LEGEND_ROW * width..pixels.len() / channels {
+        let [r, g, b] = [pixels[i * channels], pixels[i * channels + 1], pixels[i * channels + 2]];
+        if r >= 190 && r >= g && g > b && r - b >= 10 {
+            colours.insert([r, g, b]);
+            count += 1;
+        }
+    }
+    (colours.len(), count)
+}
+
+#[test]
+fn the_terrain_is_shaded_by_height_and_flat_ground_is_not() {
+    // A pipe: the ground falls away either side of its top line.
+    let (pixels, width, channels) = path_picture("scenarios/pipe-line.toml", 3, &support::scratch_dir("path-pipe").join("run"));
+    let (colours, count) = shading(&pixels, width, channels);
+    assert!(colours >= 10 && count > 100_000, "{colours} shades over {count} px");
+    let (pixels, width, channels) = path_picture("scenarios/flat-line.toml", 3, &support::scratch_dir("path-flat").join("run"));
+    assert_eq!(shading(&pixels, width, channels), (0, 0), "flat ground is not shaded");
+}
+
+#[test]
+fn the_track_starts_50_mm_left_of_the_line_and_closes_in_on_it() {
+    let (pixels, width, channels) = path_picture("scenarios/flat-line.toml", 25, &support::scratch_dir("path").join("run"));
     let coloured = |rgb: [u8; 3]| -> Vec<(usize, usize)> {
         (BELOW_LEGEND_ROW * width..pixels.len() / channels).filter(|&i| pixels[i * channels..i * channels + 3] == rgb).map(|i| (i % width, i / width)).collect()
     };

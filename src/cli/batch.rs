@@ -12,7 +12,7 @@ use anyhow::{Context, Result, bail};
 use serde_json::Value;
 
 use climbsim::report::junit::{JunitCase, write_junit};
-use climbsim::report::{self, PlotLabels, PlotSeries, TimeSeries};
+use climbsim::report::{self, PlotLabels, PlotSeries, TimeSeries, units};
 use climbsim::robot::RobotDescription;
 use climbsim::scenario::run::{LiveRun, MetricTrack, RunOutcome, run_lockstep_until, write_outputs};
 use climbsim::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
@@ -387,13 +387,15 @@ fn copy_dir(from: &Path, to: &Path) -> Result<()> {
 }
 
 /// The metrics plotted against the first swept parameter.
+/// Metrics plotted against the first swept parameter, and their labels; each is shown in the
+/// unit its key's suffix names for plots (`report::units::shown_unit`: m/s as mm/min, m as mm).
 const SWEEP_METRICS: &[(&str, &str)] = &[
     ("distance.overshoot_pct", "overshoot (%)"),
     ("distance.rise_time_s", "distance rise time (s)"),
     ("distance.settling_time_s", "distance settling time (s)"),
-    ("speed.steady_state_error_m_s", "speed steady-state error (m/s)"),
+    ("speed.steady_state_error_m_s", "speed steady-state error (mm/min)"),
     ("speed.rise_time_s", "speed rise time (s)"),
-    ("rms_distance_m", "RMS distance error (m)"),
+    ("rms_distance_m", "RMS distance error (mm)"),
 ];
 
 fn write_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
@@ -444,12 +446,13 @@ fn plot_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
             None => report::read_timeseries_csv(&out_dir.join("runs").join(&row.label).join(report::TIMESERIES_CSV)).ok().map(Overlay::Series),
         };
         if let Some(overlay) = overlay {
-            let label = row.parameters.iter().map(|(k, v)| format!("{}={v}", k.rsplit('.').next().unwrap_or(k))).collect::<Vec<_>>().join(" ");
+            let label = row.parameters.iter().map(|(k, v)| units::parameter_label(k, v)).collect::<Vec<_>>().join(", ");
             loaded.push((label, overlay));
         }
     }
-    for (column, stem, title, y) in [("d_true_m", "overlay_distance", "Distance error", "d (m)"), ("speed_m_s", "overlay_speed", "Speed", "speed (m/s)")] {
-        let data: Vec<(String, Vec<f64>, Vec<f64>)> = loaded.iter().map(|(label, s)| (label.clone(), s.column("t_s").unwrap_or_default(), s.column(column).unwrap_or_default())).collect();
+    for (column, stem, title, y) in [("d_true_m", "overlay_distance", "Distance error", "d (mm)"), ("speed_m_s", "overlay_speed", "Speed", "speed (mm/min)")] {
+        let (factor, _) = units::shown_unit(column);
+        let data: Vec<(String, Vec<f64>, Vec<f64>)> = loaded.iter().map(|(label, s)| (label.clone(), s.column("t_s").unwrap_or_default(), s.column(column).unwrap_or_default().into_iter().map(|v| v * factor).collect())).collect();
         let series: Vec<PlotSeries<'_>> = data.iter().map(|(label, x, y)| PlotSeries { label, x, y }).collect();
         if !series.is_empty() {
             report::plot_series(out_dir, stem, &PlotLabels { title, x: "t (s)", y }, &series)?;
@@ -458,22 +461,24 @@ fn plot_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
     // Metric against the first axis, one line per combination of the other axes.
     let Some(first) = file.axes.first() else { return Ok(()) };
     for (metric, y_label) in SWEEP_METRICS {
+        let ((factor, _), (x_factor, _)) = (units::shown_unit(metric), units::shown_unit(first));
         let mut groups: BTreeMap<String, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
         for row in &file.rows {
             let (Some(x), Some(y)) = (row.parameters.get(first).and_then(|v| v.parse::<f64>().ok()), row.summary.get(*metric).and_then(Value::as_f64)) else {
                 continue;
             };
-            let group = file.axes[1..].iter().map(|k| format!("{k}={}", row.parameters.get(k).cloned().unwrap_or_default())).collect::<Vec<_>>().join(" ");
-            let entry = groups.entry(if group.is_empty() { metric.to_string() } else { group }).or_default();
-            entry.0.push(x);
-            entry.1.push(y);
+            let group = file.axes[1..].iter().map(|k| units::parameter_label(k, row.parameters.get(k).map_or("", String::as_str))).collect::<Vec<_>>().join(", ");
+            let entry = groups.entry(if group.is_empty() { y_label.to_string() } else { group }).or_default();
+            entry.0.push(x * x_factor);
+            entry.1.push(y * factor);
         }
         if groups.is_empty() {
             continue;
         }
         let series: Vec<PlotSeries<'_>> = groups.iter().map(|(label, (x, y))| PlotSeries { label, x, y }).collect();
         let stem = format!("{}_vs_{}", metric.replace('.', "_"), first.rsplit('.').next().unwrap_or(first));
-        report::plot_metric_vs_parameter(out_dir, &stem, &PlotLabels { title: y_label, x: first, y: y_label }, &series)?;
+        let x_label = units::parameter_axis(first);
+        report::plot_metric_vs_parameter(out_dir, &stem, &PlotLabels { title: y_label, x: &x_label, y: y_label }, &series)?;
     }
     Ok(())
 }

@@ -14,6 +14,7 @@ mod plot;
 mod summary;
 mod timeseries;
 mod timing;
+pub mod units;
 mod workbook;
 
 use std::io;
@@ -22,7 +23,7 @@ use std::path::{Path, PathBuf};
 use thiserror::Error;
 
 pub use atomic::write_atomically;
-pub use path::plot_path;
+pub use path::{HeightGrid, plot_path};
 pub use plot::{
     PLOT_SIZE_PX, PlotFiles, PlotLabels, PlotSeries, plot_metric_vs_parameter, plot_series,
 };

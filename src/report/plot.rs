@@ -9,6 +9,8 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use plotters::coord::Shift;
+use plotters::coord::ranged1d::ValueFormatter;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
@@ -66,7 +68,18 @@ pub fn plot_series(
     labels: &PlotLabels<'_>,
     series: &[PlotSeries<'_>],
 ) -> Result<PlotFiles, ReportError> {
-    plot(out_dir, stem, labels, series, Markers::No)
+    plot(out_dir, stem, labels, series, Markers::No, XAxis::Linear)
+}
+
+/// Like [`plot_series`] on a logarithmic x axis (positive x only): for distributions of times
+/// that span decades, where one long outlier would squash everything else into a corner.
+pub fn plot_series_log_x(
+    out_dir: &Path,
+    stem: &str,
+    labels: &PlotLabels<'_>,
+    series: &[PlotSeries<'_>],
+) -> Result<PlotFiles, ReportError> {
+    plot(out_dir, stem, labels, series, Markers::No, XAxis::Log)
 }
 
 /// Like [`plot_series`], with a marker on every point: for a metric measured at a few values of
@@ -77,7 +90,7 @@ pub fn plot_metric_vs_parameter(
     labels: &PlotLabels<'_>,
     series: &[PlotSeries<'_>],
 ) -> Result<PlotFiles, ReportError> {
-    plot(out_dir, stem, labels, series, Markers::Yes)
+    plot(out_dir, stem, labels, series, Markers::Yes, XAxis::Linear)
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -86,12 +99,19 @@ enum Markers {
     Yes,
 }
 
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum XAxis {
+    Linear,
+    Log,
+}
+
 fn plot(
     out_dir: &Path,
     stem: &str,
     labels: &PlotLabels<'_>,
     series: &[PlotSeries<'_>],
     markers: Markers,
+    x_axis: XAxis,
 ) -> Result<PlotFiles, ReportError> {
     for line in series {
         if line.x.len() != line.y.len() {
@@ -102,7 +122,7 @@ fn plot(
             });
         }
     }
-    write_figure(out_dir, stem, &LinePlot { labels, series, markers })
+    write_figure(out_dir, stem, &LinePlot { labels, series, markers, x_axis })
 }
 
 /// A picture that can be drawn on any plotters backend: the PNG's and the SVG's.
@@ -160,11 +180,12 @@ struct LinePlot<'a> {
     labels: &'a PlotLabels<'a>,
     series: &'a [PlotSeries<'a>],
     markers: Markers,
+    x_axis: XAxis,
 }
 
 impl Figure for LinePlot<'_> {
     fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
-        draw(root, self.labels, self.series, self.markers)
+        draw(root, self.labels, self.series, self.markers, self.x_axis)
     }
 }
 
@@ -185,17 +206,37 @@ fn draw<DB: DrawingBackend>(
     labels: &PlotLabels<'_>,
     series: &[PlotSeries<'_>],
     markers: Markers,
+    x_axis: XAxis,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     root.fill(&WHITE)?;
     // Markers at the first and last parameter value would be cut in half by the frame.
     let x_margin = if markers == Markers::Yes { 0.03 } else { 0.0 };
     let (x_range, y_range) = axis_ranges(series, x_margin);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(labels.title, (FONT_FAMILY, 26))
-        .margin(20)
-        .x_label_area_size(56)
-        .y_label_area_size(84)
-        .build_cartesian_2d(x_range, y_range)?;
+    let mut builder = ChartBuilder::on(&root);
+    builder.caption(labels.title, (FONT_FAMILY, 26)).margin(20).x_label_area_size(56).y_label_area_size(84);
+    match x_axis {
+        XAxis::Linear => lines(builder.build_cartesian_2d(x_range, y_range)?, labels, series, markers, SeriesLabelPosition::UpperRight)?,
+        XAxis::Log => {
+            // Only positive values have a logarithm: the axis starts at the smallest one.
+            let positive = series.iter().flat_map(finite_points).map(|(x, _)| x).filter(|&x| x > 0.0).fold(f64::INFINITY, f64::min);
+            let low = if positive.is_finite() { positive * 0.8 } else { 1e-3 };
+            let high = x_range.end.max(low * 10.0);
+            // Distributions rise to the right: the legend goes where they have not risen yet.
+            lines(builder.build_cartesian_2d((low..high).log_scale(), y_range)?, labels, series, markers, SeriesLabelPosition::UpperLeft)?;
+        }
+    }
+    root.present()
+}
+
+/// The mesh, the lines (with markers if asked) and the legend, on a chart with any kind of x
+/// axis over f64.
+fn lines<'a, DB: DrawingBackend + 'a, X: Ranged<ValueType = f64> + ValueFormatter<f64>>(
+    mut chart: ChartContext<'a, DB, Cartesian2d<X, RangedCoordf64>>,
+    labels: &PlotLabels<'_>,
+    series: &[PlotSeries<'_>],
+    markers: Markers,
+    legend: SeriesLabelPosition,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     chart
         .configure_mesh()
         .x_desc(labels.x)
@@ -229,13 +270,13 @@ fn draw<DB: DrawingBackend>(
     if !series.is_empty() {
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
+            .position(legend)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .label_font((FONT_FAMILY, 16))
             .draw()?;
     }
-    root.present()
+    Ok(())
 }
 
 /// Most points a line is drawn with: the lowest and the highest of each of as many buckets as
@@ -494,5 +535,27 @@ mod label_tests {
         assert_eq!(super::significant(12.5), "12.5");
         assert_eq!(super::significant(1500.0), "1500");
         assert_eq!(super::significant(0.0), "0");
+    }
+}
+
+#[cfg(test)]
+mod log_axis_tests {
+    #[test]
+    fn a_log_time_axis_keeps_sub_millisecond_and_second_values_apart() {
+        let dir = std::env::temp_dir().join(format!("climbsim-log-axis-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        // A zero (no logarithm) is left out, not an error.
+        let x = [0.0, 0.2, 0.5, 0.9, 1.2, 2000.0];
+        let y = [0.0, 0.2, 0.5, 0.9, 0.99, 1.0];
+        let labels = super::PlotLabels { title: "t", x: "time (ms, log scale)", y: "fraction" };
+        let files = super::plot_series_log_x(&dir, "cdf", &labels, &[super::PlotSeries { label: "reply", x: &x, y: &y }]).expect("plot");
+        let svg = std::fs::read_to_string(&files.svg).expect("svg");
+        // Decade ticks from below the fastest reply to beyond the outlier.
+        // Each label's text is on the line after its <text> tag.
+        let texts: Vec<&str> = svg.lines().map(str::trim).collect();
+        for tick in ["1", "10", "100", "1000"] {
+            assert!(texts.contains(&tick), "no tick {tick} on the log axis: {texts:?}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

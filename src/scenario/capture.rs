@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use crate::metrics::{self, StepOptions};
-use crate::report::{self, ReportError, Summary, TimeSeries, TimeSeriesWriter};
+use crate::report::{self, HeightGrid, ReportError, Summary, TimeSeries, TimeSeriesWriter};
 
 /// The time series' columns, in order.
 pub const COLUMNS: &[&str] = &[
@@ -98,6 +98,8 @@ pub struct MetricTrack {
     path: Vec<[f32; 2]>,
     /// The weld line seen from above, (x, z), as the run began.
     line: Vec<[f32; 2]>,
+    /// The terrain's height around the line, for `path.png`'s shading.
+    heights: Option<HeightGrid>,
 }
 
 /// How often the robot's position goes into the track's path (a 5-hour run: 90 000 points).
@@ -142,6 +144,11 @@ impl MetricTrack {
     /// The weld line seen from above, (x, z) in metres.
     pub fn line(&self) -> &[[f32; 2]] {
         &self.line
+    }
+
+    /// The terrain's height around the line, if it was sampled.
+    pub fn heights(&self) -> Option<&HeightGrid> {
+        self.heights.as_ref()
     }
 
     pub fn is_empty(&self) -> bool {
@@ -216,6 +223,11 @@ impl Capture {
     /// The weld line, seen from above, for the path picture.
     pub fn set_line(&mut self, points: Vec<[f32; 2]>) {
         self.track.line = points;
+    }
+
+    /// The terrain's height around the line, for `path.png`.
+    pub fn set_heights(&mut self, heights: HeightGrid) {
+        self.track.heights = Some(heights);
     }
 
     /// The robot at (x, z) at `t_s`: kept if a path point is due (every [`PATH_PERIOD_S`]).

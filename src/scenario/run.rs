@@ -20,7 +20,7 @@ use foxglove::messages::log::Level as LogLevel;
 use crate::bus::{Bus, BusFaults, Timing};
 use crate::device::Servo;
 use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
-use crate::report::{self, Summary, TimeSeries};
+use crate::report::{self, HeightGrid, Summary, TimeSeries};
 use crate::robot::{RobotDescription, WheelPosition};
 use crate::sim::detector::DetectorError;
 use crate::sim::line::LineError as WeldLineError;
@@ -172,6 +172,7 @@ impl Observer {
         let mut capture = Capture::new(scenario.capture.rate_hz, scenario.capture.signals.as_deref());
         if let Some(line) = &line {
             capture.set_line(line.smoothed().to_vec());
+            capture.set_heights(heights_around(line.smoothed(), world));
         }
         Ok(Self {
             line,
@@ -479,6 +480,25 @@ pub fn robot_relative(measurement: &LineMeasurement) -> LineError {
     LineError { d_err_m: -f64::from(measurement.d_m), psi_err_rad: -f64::from(measurement.psi_rad) }
 }
 
+/// The terrain's height on a grid around `line` (x, z), for `path.png`'s shading: the line's
+/// extent and half a metre round it (where a robot that leaves the line may go), at most
+/// [`HEIGHT_GRID_CELLS`] cells on the longer side.
+fn heights_around(line: &[[f32; 2]], world: &RobotWorld) -> HeightGrid {
+    const MARGIN_M: f32 = 0.5;
+    let (mut x, mut z) = ((f32::INFINITY, f32::NEG_INFINITY), (f32::INFINITY, f32::NEG_INFINITY));
+    for &[px, pz] in line {
+        x = (x.0.min(px - MARGIN_M), x.1.max(px + MARGIN_M));
+        z = (z.0.min(pz - MARGIN_M), z.1.max(pz + MARGIN_M));
+    }
+    let cell = ((x.1 - x.0).max(z.1 - z.0) / HEIGHT_GRID_CELLS as f32).max(0.005);
+    let (cols, rows) = (((x.1 - x.0) / cell).ceil() as usize + 1, ((z.1 - z.0) / cell).ceil() as usize + 1);
+    let heights = (0..rows).flat_map(|row| (0..cols).map(move |col| (x.0 + cell * col as f32, z.0 + cell * row as f32))).map(|(px, pz)| world.surface_below(px, pz).map_or(f32::NAN, |(point, _)| point.y)).collect();
+    HeightGrid { x_m: (x.0, x.0 + cell * (cols - 1) as f32), z_m: (z.0, z.0 + cell * (rows - 1) as f32), cols, rows, heights }
+}
+
+/// The longer side of `path.png`'s height grid, in cells.
+const HEIGHT_GRID_CELLS: usize = 160;
+
 fn build_line(points: &[[f32; 2]], smoothness: u32, width_m: f32, offset_m: f64, world: &RobotWorld) -> Result<WeldLine, WeldLineError> {
     let shifted = offset_points(points, offset_m as f32);
     let mut line = WeldLine::new(&shifted, smoothness, width_m)?;
@@ -760,12 +780,17 @@ pub fn write_outputs(outcome: &RunOutcome, out_dir: &std::path::Path) -> Result<
     report::write_settings_json(out_dir, &outcome.settings)?;
     report::write_workbook(out_dir, &csv, &outcome.settings, &outcome.summary)?;
     let column = |name: &str| outcome.track.column(name).unwrap_or_default();
+    // Plotted in the units scenarios use (mm, mm/min); the files keep SI.
+    let shown = |name: &str| {
+        let (factor, _) = report::units::shown_unit(name);
+        column(name).into_iter().map(|v| v * factor).collect::<Vec<f64>>()
+    };
     let t = column("t_s");
     for (stem, title, y, [(first, first_label), (second, second_label)]) in [
-        ("distance", "Distance error", "d (m)", [("d_true_m", "ground truth"), ("d_m", "camera")]),
-        ("speed", "Speed", "speed (m/s)", [("speed_m_s", "ground truth"), ("target_speed_m_s", "target")]),
+        ("distance", "Distance error", "d (mm)", [("d_true_m", "ground truth"), ("d_m", "camera")]),
+        ("speed", "Speed", "speed (mm/min)", [("speed_m_s", "ground truth"), ("target_speed_m_s", "target")]),
     ] {
-        let (first_y, second_y) = (column(first), column(second));
+        let (first_y, second_y) = (shown(first), shown(second));
         report::plot_series(
             out_dir,
             stem,
@@ -774,7 +799,7 @@ pub fn write_outputs(outcome: &RunOutcome, out_dir: &std::path::Path) -> Result<
         )?;
     }
     if !outcome.track.path().is_empty() {
-        report::plot_path(out_dir, "path", outcome.track.line(), outcome.track.path())?;
+        report::plot_path(out_dir, "path", outcome.track.line(), outcome.track.path(), outcome.track.heights())?;
     }
     Ok(())
 }
