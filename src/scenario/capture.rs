@@ -77,6 +77,17 @@ pub const COLUMNS: &[&str] = &[
     // The LIDAR's latest scan (NaN without a `[lidar]`; infinite: no return within range).
     "lidar_ahead_m",
     "lidar_nearest_m",
+    // Each wheel's contact direction (centre to the closest terrain point) in its section's
+    // frame: in the wheel's plane (what a magnet can follow) and out of it (the contact off the
+    // tread's middle); NaN without terrain in reach.
+    "contact_in_plane_fl_rad",
+    "contact_in_plane_fr_rad",
+    "contact_in_plane_rl_rad",
+    "contact_in_plane_rr_rad",
+    "contact_lateral_fl_rad",
+    "contact_lateral_fr_rad",
+    "contact_lateral_rl_rad",
+    "contact_lateral_rr_rad",
 ];
 
 /// The metric track's sampling period (s of simulated time): the built-in controller's default

@@ -397,6 +397,9 @@ impl Observer {
         let scan = self.lidar_scan();
         row.push(scan.map_or(f64::NAN, |s| f64::from(s.ahead_m())));
         row.push(scan.map_or(f64::NAN, |s| f64::from(s.nearest_m())));
+        let contacts = WheelPosition::ALL.map(|w| world.contact_angles(w));
+        row.extend(contacts.map(|c| c.map_or(f64::NAN, |(in_plane, _)| f64::from(in_plane))));
+        row.extend(contacts.map(|c| c.map_or(f64::NAN, |(_, lateral)| f64::from(lateral))));
         if let Some(view) = &mut self.view {
             view.signals(Duration::from_secs_f64(t_s), &row);
         }

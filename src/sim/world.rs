@@ -707,13 +707,22 @@ impl RobotWorld {
     /// terrain point, as an angle in the wheel's plane from straight down (positive toward the
     /// front), in its section's frame. What a perfectly aligned passive magnet would read.
     pub fn contact_angle(&self, wheel: WheelPosition) -> Option<f32> {
+        self.contact_angles(wheel).map(|(in_plane, _)| in_plane)
+    }
+
+    /// Both angles of a wheel's contact direction (centre to the closest terrain point), in its
+    /// section's frame: in the wheel's plane from straight down, positive toward the front (the
+    /// seed's β: what a magnet turning about the axle can follow), and out of that plane,
+    /// positive toward the section's +z (the seed's α: the contact off the tread's middle).
+    pub fn contact_angles(&self, wheel: WheelPosition) -> Option<(f32, f32)> {
         let parts = self.wheels[wheel.index()];
         let centre = self.physics.bodies[parts.wheel].translation();
         let filter = QueryFilter::default().groups(robot_groups());
         let reach = self.robot.wheel.outer_radius_m + self.robot.magnet.range_m;
         let (_, projection) = self.physics.project_point(centre, reach, true, filter)?;
         let local = self.physics.bodies[parts.section].rotation().inverse() * (projection.point - centre);
-        Some(local.x.atan2(-local.y))
+        let in_plane = local.x.hypot(local.y);
+        Some((local.x.atan2(-local.y), local.z.atan2(in_plane)))
     }
 
     /// The magnet's angle from straight down in its section's frame (positive toward the front).
