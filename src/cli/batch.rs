@@ -394,6 +394,7 @@ const SWEEP_METRICS: &[(&str, &str)] = &[
     ("distance.rise_time_s", "distance rise time (s)"),
     ("distance.settling_time_s", "distance settling time (s)"),
     ("speed.steady_state_error_m_s", "speed steady-state error (mm/min)"),
+    ("speed.mean_abs_error_m_s", "mean |speed error| over the last 80 % (mm/min)"),
     ("speed.rise_time_s", "speed rise time (s)"),
     ("rms_distance_m", "RMS distance error (mm)"),
 ];

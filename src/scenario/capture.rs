@@ -304,13 +304,48 @@ pub fn summarise(track: &MetricTrack, speed_step_at_s: f64, on_line_tolerance_m:
     let speed_options = StepOptions { t_step: Some(speed_step_at_s.max(t_first)), ..StepOptions::default() };
     let speed_step = metrics::rising_step(&t, &speed, final_target, &speed_options).ok();
     let tracking = metrics::line_tracking(&t, &d, on_line_tolerance_m).ok();
-    report::summarise(distance.as_ref(), speed_step.as_ref(), tracking.as_ref())
+    let mut summary = report::summarise(distance.as_ref(), speed_step.as_ref(), tracking.as_ref());
+    summary.extend(speed_tracking(&t, &speed, &target, speed_step_at_s.max(t_first)));
+    summary
+}
+
+/// How far the speed stays from its target after the step, averaged over the run's last 80 %
+/// after it (the step's own transient left out): `speed.mean_error_m_s` (target − speed, signed)
+/// and `speed.mean_abs_error_m_s`. On bumpy ground the step's steady-state error is averaged
+/// from wherever the speed last entered its 2 % band, which can be a few samples before the
+/// end; these are what a speed controller did over the whole run.
+fn speed_tracking(t: &[f64], speed: &[f64], target: &[f64], t_step: f64) -> Vec<(String, serde_json::Value)> {
+    let Some(&t_end) = t.last() else { return Vec::new() };
+    let from = t_step + 0.2 * (t_end - t_step);
+    let errors: Vec<f64> = t.iter().zip(speed.iter().zip(target)).filter(|(ti, (v, _))| **ti >= from && v.is_finite()).map(|(_, (v, goal))| goal - v).collect();
+    if errors.is_empty() || t_end <= t_step {
+        return Vec::new();
+    }
+    let n = errors.len() as f64;
+    vec![
+        ("speed.mean_error_m_s".to_owned(), serde_json::json!(errors.iter().sum::<f64>() / n)),
+        ("speed.mean_abs_error_m_s".to_owned(), serde_json::json!(errors.iter().map(|e| e.abs()).sum::<f64>() / n)),
+    ]
 }
 
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn speed_tracking_averages_the_last_80_percent_after_the_step() {
+        // Step at 1 s, end at 11 s: averaged from 3 s. Before it the speed is far off.
+        let t: Vec<f64> = (0..=110).map(|i| f64::from(i) * 0.1).collect();
+        let speed: Vec<f64> = t.iter().map(|&ti| if ti < 3.0 { 0.0 } else if ti < 7.0 { 0.9 } else { 1.3 }).collect();
+        let target = vec![1.0; t.len()];
+        let metrics: std::collections::BTreeMap<String, serde_json::Value> = speed_tracking(&t, &speed, &target, 1.0).into_iter().collect();
+        let (mean, abs) = (metrics["speed.mean_error_m_s"].as_f64().unwrap_or(f64::NAN), metrics["speed.mean_abs_error_m_s"].as_f64().unwrap_or(f64::NAN));
+        // 40 samples at +0.1 (3.0..6.9 s), 41 at -0.3 (7.0..11.0 s).
+        assert!((mean - (40.0 * 0.1 - 41.0 * 0.3) / 81.0).abs() < 1e-9, "{mean}");
+        assert!((abs - (40.0 * 0.1 + 41.0 * 0.3) / 81.0).abs() < 1e-9, "{abs}");
+        assert!(speed_tracking(&[], &[], &[], 0.0).is_empty());
+    }
 
     /// `serve` discards: a session of days must not keep a sample every 20 ms.
     #[test]
