@@ -64,6 +64,9 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     // The signals carry the row's values.
     let last: serde_json::Value = serde_json::from_slice(&by_topic["/signals"].last().expect("rows").data).expect("JSON");
     assert!((last["x_m"].as_f64().expect("x_m") - x[x.len() - 1]).abs() < 1e-9, "{last}");
+    // d and speed in the scenarios' units too, for plots.
+    let value = |key: &str| last[key].as_f64().unwrap_or_else(|| panic!("no {key} in {last}"));
+    assert!((value("d_true_mm") - 1000.0 * value("d_true_m")).abs() < 1e-9 && (value("speed_mm_min") - 60_000.0 * value("speed_m_s")).abs() < 1e-6, "{last}");
 
     // The robot's frame tree, at the view's 50 Hz: the middle section where the series puts
     // the robot, the wheels a track apart, each magnet pulling straight down on the flat floor.

@@ -45,6 +45,14 @@ pub fn shown_unit(key: &str) -> (f64, &'static str) {
     (factor, unit)
 }
 
+/// For a signal kept in SI whose plots use another unit: the signal's name in that unit and the
+/// factor to it (`speed_m_s` → `speed_mm_min`, 60000; `d_m` → `d_mm`, 1000); `None` when plots
+/// show it as it is.
+pub fn in_shown_unit(name: &str) -> Option<(String, f64)> {
+    let (stem, factor, unit) = split_unit(name);
+    (factor != 1.0).then(|| (format!("{stem}_{}", unit.replace('/', "_")), factor))
+}
+
 /// A parameter's name as words, without its section or unit: `controller.normal_compensation`
 /// → `normal compensation`, `controller.zeta` → `ζ`, `speed.target_mm_min` → `target`.
 pub fn parameter_name(key: &str) -> String {
@@ -105,5 +113,8 @@ mod tests {
         assert_eq!(shown_unit("distance.overshoot_pct"), (1.0, "%"));
         // A bare suffix is a name, not a unit.
         assert_eq!(parameter_name("x.m"), "m");
+        assert_eq!(in_shown_unit("speed_m_s"), Some(("speed_mm_min".to_owned(), MM_MIN_PER_M_S)));
+        assert_eq!(in_shown_unit("d_true_m"), Some(("d_true_mm".to_owned(), MM_PER_M)));
+        assert_eq!(in_shown_unit("psi_rad"), None);
     }
 }

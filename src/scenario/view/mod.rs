@@ -14,7 +14,7 @@
 //! - `/camera/image` (`foxglove.CompressedImage`, PNG): every frame of the downward camera;
 //! - `/lidar` (`foxglove.LaserScan`): every scan of the front LIDAR, when the robot has one;
 //! - `/signals` (JSON): every column of `timeseries.csv` at the capture rate (the detector's
-//!   `d_m` and `psi_rad` among them), for plots;
+//!   `d_m` and `psi_rad` among them), and d and speed in mm and mm/min too, for plots;
 //! - `/servos` (JSON): each servo's key registers, by name, at the capture rate;
 //! - `/log` (`foxglove.Log`): events, faults starting and ending, and why a run failed;
 //! - `/bus/packets` (JSON), when asked: every packet on the bus, hex and decoded.
@@ -126,9 +126,15 @@ pub struct View {
     channels: Arc<Channels>,
     latest: Arc<Mutex<LatestScene>>,
     columns: Vec<&'static str>,
+    /// Signals also published in the scenarios' units, for plots: (column index, name, factor).
+    in_scenario_units: Vec<(usize, String, f64)>,
     /// JSON reused message after message.
     json: String,
 }
+
+/// The signals `/signals` also carries in the units scenarios are written in (`d_mm`,
+/// `speed_mm_min`, …): Foxglove plots what is published.
+const SIGNALS_IN_SCENARIO_UNITS: &[&str] = &["d_m", "d_true_m", "speed_m_s", "target_speed_m_s"];
 
 fn nanos(t: Duration) -> u64 {
     u64::try_from(t.as_nanos()).unwrap_or(u64::MAX)
@@ -160,6 +166,13 @@ impl View {
     /// Start showing a run: `columns` name the values of each [`View::signals`] row, `servo_names`
     /// the servos of [`View::servos`] in bus order. Nothing is sent until [`View::scene`].
     pub fn start(options: &ViewOptions, columns: &[&'static str], servo_names: &[String]) -> Result<Self, ViewError> {
+        let in_scenario_units: Vec<(usize, String, f64)> = SIGNALS_IN_SCENARIO_UNITS
+            .iter()
+            .filter_map(|&name| Some((columns.iter().position(|c| *c == name)?, crate::report::units::in_shown_unit(name)?)))
+            .map(|(index, (name, factor))| (index, name, factor))
+            .collect();
+        let mut schema_names: Vec<&str> = columns.to_vec();
+        schema_names.extend(in_scenario_units.iter().map(|(_, name, _)| name.as_str()));
         let context = Context::new();
         let recording = options.mcap.as_ref().map(|path| start_recording(&context, path)).transpose()?;
         let error = |message: String| ViewError::Write { path: options.mcap.clone().unwrap_or_default(), message };
@@ -171,13 +184,13 @@ impl View {
             image: ChannelBuilder::new("/camera/image").context(&context).build(),
             lidar: ChannelBuilder::new("/lidar").context(&context).build(),
             log: ChannelBuilder::new("/log").context(&context).build(),
-            signals: json_channel(&context, "/signals", "climbsim.Signals", signals_schema(columns)).map_err(error)?,
+            signals: json_channel(&context, "/signals", "climbsim.Signals", signals_schema(&schema_names)).map_err(error)?,
             servos: json_channel(&context, "/servos", "climbsim.Servos", servos_schema(servo_names)).map_err(error)?,
             packets: options.packets.then(|| json_channel(&context, "/bus/packets", "climbsim.BusPacket", PACKET_SCHEMA.as_bytes().to_vec())).transpose().map_err(error)?,
         });
         let latest = Arc::new(Mutex::new(LatestScene::default()));
         let live = options.live.as_ref().map(|address| LiveServer::start(&context, address, Arc::clone(&channels), Arc::clone(&latest))).transpose()?;
-        Ok(Self { _context: context, recording, live, channels, latest, columns: columns.to_vec(), json: String::new() })
+        Ok(Self { _context: context, recording, live, channels, latest, columns: columns.to_vec(), in_scenario_units, json: String::new() })
     }
 
     /// Where a live viewer connects (`ws://…`), when the view is live.
@@ -259,6 +272,14 @@ impl View {
                 json.push(',');
             }
             let _ = write!(json, "\"{name}\":{value}");
+        }
+        for (index, name, factor) in &self.in_scenario_units {
+            if let Some(value) = row.get(*index).map(|v| v * factor).filter(|v| v.is_finite()) {
+                if json.len() > 1 {
+                    json.push(',');
+                }
+                let _ = write!(json, "\"{name}\":{value}");
+            }
         }
         json.push('}');
         self.channels.signals.log_with_meta(json.as_bytes(), PartialMetadata { log_time: Some(nanos(t)) });
