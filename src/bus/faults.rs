@@ -83,6 +83,11 @@ impl BusFaults {
         &self.faults
     }
 
+    /// Whether each scheduled fault (in [`BusFaults::scheduled`] order) is acting now.
+    pub fn acting(&self) -> &[bool] {
+        &self.active
+    }
+
     /// The faults acting now.
     pub fn active(&self) -> impl Iterator<Item = &ScheduledFault> {
         self.faults.iter().zip(&self.active).filter(|(_, on)| **on).map(|(f, _)| f)

@@ -229,6 +229,16 @@ pub struct TerrainMesh {
     pub indices: Vec<[u32; 3]>,
 }
 
+/// The name of a wheel's frame for viewers (`wheel_front_left`, …).
+pub fn wheel_frame(position: WheelPosition) -> String {
+    format!("wheel_{}", position.name())
+}
+
+/// The name of a magnet's frame for viewers (`magnet_front_left`, …).
+pub fn magnet_frame(position: WheelPosition) -> String {
+    format!("magnet_{}", position.name())
+}
+
 /// A named frame of the robot and its pose relative to its parent frame (see
 /// [`RobotWorld::part_frames`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -590,11 +600,9 @@ impl RobotWorld {
         for position in WheelPosition::ALL {
             let parts = self.wheels[position.index()];
             let (section, wheel) = (pose(parts.section), pose(parts.wheel));
-            let wheel_name = format!("wheel_{}", position.name());
-            let angle = self.magnets[position.index()].load.state().position_rad as f32;
-            let magnet = Pose::from_parts(wheel.translation, section.rotation * Rotation::from_axis_angle(parts.magnet_axis, angle));
-            frames.push(PartFrame { name: wheel_name.clone(), parent: section_name(parts.section).to_owned(), pose: section.inv_mul(&wheel) });
-            frames.push(PartFrame { name: format!("magnet_{}", position.name()), parent: wheel_name, pose: wheel.inv_mul(&magnet) });
+            let magnet = Pose::from_parts(wheel.translation, self.magnet_rotation_at(position.index()));
+            frames.push(PartFrame { name: wheel_frame(position), parent: section_name(parts.section).to_owned(), pose: section.inv_mul(&wheel) });
+            frames.push(PartFrame { name: magnet_frame(position), parent: wheel_frame(position), pose: wheel.inv_mul(&magnet) });
         }
         frames
     }
@@ -634,7 +642,7 @@ impl RobotWorld {
         let wheel = &self.robot.wheel;
         for position in WheelPosition::ALL {
             // The wheel body's z axis is its axle.
-            shapes.push(PartShape { frame: format!("wheel_{}", position.name()), pose: Pose::IDENTITY, kind: PartShapeKind::Cylinder { radius_m: wheel.outer_radius_m, length_m: wheel.width_m } });
+            shapes.push(PartShape { frame: wheel_frame(position), pose: Pose::IDENTITY, kind: PartShapeKind::Cylinder { radius_m: wheel.outer_radius_m, length_m: wheel.width_m } });
         }
         shapes
     }
@@ -687,10 +695,15 @@ impl RobotWorld {
     }
 
     fn magnet_direction_at(&self, index: usize) -> Vector {
+        self.magnet_rotation_at(index) * -Vector::Y
+    }
+
+    /// The magnet's orientation in the world: its section's, turned about the magnet axis by the
+    /// shaft's angle (its −y points where it pulls).
+    fn magnet_rotation_at(&self, index: usize) -> Rotation {
         let parts = self.wheels[index];
         let angle = self.magnets[index].load.state().position_rad as f32;
-        let local = Rotation::from_axis_angle(parts.magnet_axis, angle) * -Vector::Y;
-        self.physics.bodies[parts.section].rotation() * local
+        self.physics.bodies[parts.section].rotation() * Rotation::from_axis_angle(parts.magnet_axis, angle)
     }
 
     /// Gap between a wheel's tread and the nearest terrain (m; 0 when touching), `None` when no
@@ -925,19 +938,25 @@ fn find_surface(physics: &PhysicsWorld, terrain: ColliderHandle, centre: Vector,
 /// The terrain straight below (x, z): point and outward normal, from a ray cast down from high
 /// above against the terrain group only.
 fn surface_below(physics: &PhysicsWorld, x: f32, z: f32) -> Option<(Vector, Vector)> {
-    const ABOVE: f32 = 100.0;
-    let ray = Ray::new(Vector::new(x, ABOVE, z), -Vector::Y);
+    let ray = ray_down(x, z);
     let filter = QueryFilter::default().groups(robot_groups());
-    let (_, hit) = physics.cast_ray_and_get_normal(&ray, 2.0 * ABOVE, true, filter)?;
+    let (_, hit) = physics.cast_ray_and_get_normal(&ray, 2.0 * RAY_DOWN_FROM_M, true, filter)?;
     Some((ray.point_at(hit.time_of_impact), hit.normal))
+}
+
+/// How high above the origin a ray looking straight down starts (terrains stay far below).
+const RAY_DOWN_FROM_M: f32 = 100.0;
+
+/// A ray straight down onto (x, z) from [`RAY_DOWN_FROM_M`] up.
+fn ray_down(x: f32, z: f32) -> Ray {
+    Ray::new(Vector::new(x, RAY_DOWN_FROM_M, z), -Vector::Y)
 }
 
 /// The terrain collider's surface straight below (x, z), obstacles ignored.
 fn terrain_below(physics: &PhysicsWorld, terrain: ColliderHandle, x: f32, z: f32) -> Option<Vector> {
-    const ABOVE: f32 = 100.0;
-    let ray = Ray::new(Vector::new(x, ABOVE, z), -Vector::Y);
+    let ray = ray_down(x, z);
     let collider = physics.colliders.get(terrain)?;
-    let toi = collider.shape().cast_ray(collider.position(), &ray, 2.0 * ABOVE, true)?;
+    let toi = collider.shape().cast_ray(collider.position(), &ray, 2.0 * RAY_DOWN_FROM_M, true)?;
     Some(ray.point_at(toi))
 }
 

@@ -6,7 +6,7 @@
 //! it for Foxglove's z-up 3D panel.
 
 use foxglove::messages::{ArrowPrimitive, Color, CubePrimitive, CylinderPrimitive, Point3, Pose as FoxglovePose, Quaternion, SceneEntity, SceneUpdate, Timestamp, TriangleListPrimitive, Vector3};
-use rapier3d::prelude::{Pose, Vector};
+use rapier3d::prelude::{Pose, Rotation, Vector};
 
 use crate::sim::line::LineSample;
 use crate::sim::{PartShape, PartShapeKind, TerrainMesh};
@@ -22,11 +22,16 @@ fn point(v: Vector) -> Point3 {
     Point3 { x: f64::from(v.x), y: f64::from(v.y), z: f64::from(v.z) }
 }
 
+pub(super) fn vector3(v: Vector) -> Vector3 {
+    Vector3 { x: f64::from(v.x), y: f64::from(v.y), z: f64::from(v.z) }
+}
+
+pub(super) fn quaternion(q: Rotation) -> Quaternion {
+    Quaternion { x: f64::from(q.x), y: f64::from(q.y), z: f64::from(q.z), w: f64::from(q.w) }
+}
+
 pub(super) fn pose(p: &Pose) -> FoxglovePose {
-    FoxglovePose {
-        position: Some(Vector3 { x: f64::from(p.translation.x), y: f64::from(p.translation.y), z: f64::from(p.translation.z) }),
-        orientation: Some(Quaternion { x: f64::from(p.rotation.x), y: f64::from(p.rotation.y), z: f64::from(p.rotation.z), w: f64::from(p.rotation.w) }),
-    }
+    FoxglovePose { position: Some(vector3(p.translation)), orientation: Some(quaternion(p.rotation)) }
 }
 
 fn color(r: f64, g: f64, b: f64, a: f64) -> Color {
