@@ -49,6 +49,17 @@ impl Verdict {
     }
 }
 
+/// `--foxglove[=ADDR]`, shared by `run` and `serve`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct FoxgloveArgs {
+    /// Show the world live in Foxglove: serve Foxglove's WebSocket protocol at 127.0.0.1:8765,
+    /// or at `--foxglove=ADDR` (PORT, HOST or HOST:PORT; only this machine can connect unless a
+    /// host is given). In Foxglove: Open connection → Foxglove WebSocket. A built-in
+    /// controller's run then keeps to real time (or --speed N times it) for the watcher.
+    #[arg(long = "foxglove", requires = "scenario", value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
+    address: Option<LiveAddress>,
+}
+
 /// `--speed` and `--pace-tolerance-ms`, shared by `run`, `check`, `sweep` and `serve`.
 #[derive(Debug, Clone, Copy, clap::Args)]
 pub struct PaceArgs {
@@ -239,11 +250,8 @@ pub enum Command {
         /// servos' registers, events). Needs a scenario.
         #[arg(long, value_name = "FILE", requires = "scenario")]
         mcap: Option<PathBuf>,
-        /// Show the world live in Foxglove: serve Foxglove's WebSocket protocol at 127.0.0.1:8765, or at
-        /// `--foxglove=ADDR` (PORT, HOST or HOST:PORT; only this machine can connect unless a
-        /// host is given). In Foxglove: Open connection → Foxglove WebSocket.
-        #[arg(long, requires = "scenario", value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
-        foxglove: Option<LiveAddress>,
+        #[command(flatten)]
+        foxglove: FoxgloveArgs,
         #[command(flatten)]
         pace: PaceArgs,
     },
@@ -275,12 +283,8 @@ pub enum Command {
         /// (external controllers only: a built-in one is deterministic already).
         #[arg(long, value_name = "FILE")]
         record: Option<PathBuf>,
-        /// Show the run live in Foxglove: serve Foxglove's WebSocket protocol at 127.0.0.1:8765, or at
-        /// `--foxglove=ADDR` (PORT, HOST or HOST:PORT; only this machine can connect unless a
-        /// host is given). In Foxglove: Open connection → Foxglove WebSocket. A built-in
-        /// controller's run then keeps to real time (or --speed N times it) for the watcher.
-        #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
-        foxglove: Option<LiveAddress>,
+        #[command(flatten)]
+        foxglove: FoxgloveArgs,
         #[command(flatten)]
         pace: PaceArgs,
     },
@@ -389,11 +393,11 @@ pub fn run(cli: Cli) -> Result<()> {
             let can = can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 });
             let rs485 = rs485.then(|| rs485_delay_ms.unwrap_or_default());
             let device = device.map(|path| device::DeviceOptions { path, echo: echo.into(), low_latency, rs485 });
-            let view = ViewOptions { mcap, live: foxglove, packets: false };
+            let view = ViewOptions { mcap, live: foxglove.address, packets: false };
             let options = ServeOptions { scenario, link, tcp, tcp_connect, can, device, timing, adapter, trace_bus, baud, report, faults, record, view, pace };
             serve(options, &robot)
         }
-        Command::Run { scenario, out, set, timing, link, robot, faults, record, foxglove, pace } => {
+        Command::Run { scenario, out, set, timing, link, robot, faults, record, foxglove: FoxgloveArgs { address: foxglove }, pace } => {
             interrupt::install()?;
             refuse_recorded_cli_faults(&faults, record.as_deref())?;
             let robot = load_robot(&robot)?;
@@ -582,7 +586,7 @@ fn serve(options: ServeOptions, robot_path: &std::path::Path) -> Result<()> {
             observer.discard_rows();
             let view = ViewOptions { packets: loaded.capture.bus_packets, ..view };
             if let Some(url) = observer.start_view(&view, &mut bus)? {
-                println!("foxglove: {url}");
+                announce_foxglove(&url);
             }
             let observer = Some(Arc::new(std::sync::Mutex::new(observer)));
             (bus, observer, recorder)

@@ -14,8 +14,8 @@ use tracing::{info, warn};
 use climbsim::bus::Timing;
 use climbsim::robot::RobotDescription;
 use climbsim::bus::Bus;
-use climbsim::scenario::run::{Observer, RunError, RunOutcome, robot_relative, settings_json, write_outputs};
-use climbsim::scenario::view::{LiveAddress, MCAP_FILE, ViewOptions};
+use climbsim::scenario::run::{Observer, RunOutcome, robot_relative, settings_json, write_outputs};
+use climbsim::scenario::view::{LiveAddress, ViewOptions};
 use climbsim::scenario::{ExternalController, Scenario};
 use climbsim::sensor_server::{SensorFeed, SensorServer};
 use climbsim::sim::RobotWorld;
@@ -71,12 +71,10 @@ struct Exit {
 pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &RobotDescription, options: &ExternalRun<'_>, out_dir: &Path) -> Result<RunOutcome> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
     let baud = scenario.bus.baud_bps;
-    if scenario.line.is_none() {
-        return Err(RunError::NoLine { path: scenario.path.clone() }.into());
-    }
+    climbsim::scenario::run::require_line(scenario)?;
     let (mut bus, mut observer) = scenario_bus(scenario, robot, options.timing, baud)?;
     observer.stream_to(out_dir)?;
-    let view = ViewOptions { mcap: scenario.capture.mcap.then(|| out_dir.join(MCAP_FILE)), live: options.live.clone(), packets: scenario.capture.bus_packets };
+    let view = ViewOptions::of_run(&scenario.capture, Some(out_dir), options.live.clone());
     let foxglove_url = observer.start_view(&view, &mut bus)?;
     let observer = Arc::new(Mutex::new(observer));
     let recorder = options.record.map(|spec| super::replay::start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;

@@ -124,9 +124,7 @@ pub fn replay(transcript: &Transcript, sources: &ReplaySources) -> Result<Replay
     };
 
     let (mut bus, observer) = scenario_bus(&scenario, &robot, timing, header.bus.baud_override)?;
-    if scenario.line.is_none() {
-        return Err(RunError::NoLine { path: scenario.path.clone() }.into());
-    }
+    super::run::require_line(&scenario)?;
     let mut observer = observer;
     let mut stats = ReplayStats { complete: transcript.complete, ..ReplayStats::default() };
     let mut last_t = Duration::ZERO;

@@ -25,7 +25,7 @@ use crate::robot::{RobotDescription, WheelPosition};
 use crate::sim::detector::DetectorError;
 use crate::sim::line::LineError as WeldLineError;
 use crate::sim::lidar::{Lidar, LidarScan};
-use crate::sim::{DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, WeldLine};
+use crate::sim::{magnet_frame, DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, WeldLine};
 
 pub use super::capture::{COLUMNS, MetricTrack, summarise};
 use super::capture::Capture;
@@ -117,6 +117,15 @@ pub fn scenario_bus(scenario: &Scenario, robot: &RobotDescription, timing: Timin
     Ok((bus, observer))
 }
 
+/// A run (lockstep, wall clock or replayed) follows a weld line: refuse a scenario without one.
+/// (`serve` watches any world.)
+pub fn require_line(scenario: &Scenario) -> Result<(), RunError> {
+    match scenario.line {
+        Some(_) => Ok(()),
+        None => Err(RunError::NoLine { path: scenario.path.clone() }),
+    }
+}
+
 /// Everything that watches the world during a run.
 pub struct Observer {
     /// The weld line, when the scenario has one (a world without one is still watched: the
@@ -124,7 +133,6 @@ pub struct Observer {
     line: Option<WeldLine>,
     /// Control points as given, for line-offset events (the line is rebuilt and draped again).
     line_points: Vec<[f32; 2]>,
-    line_offset_m: f64,
     camera: LineCamera,
     detector: LineDetector,
     /// The detector's output on the newest frame (None before the first frame).
@@ -177,7 +185,6 @@ impl Observer {
         Ok(Self {
             line,
             line_points: scenario.line.as_ref().map(|l| l.points.clone()).unwrap_or_default(),
-            line_offset_m: 0.0,
             camera,
             detector,
             latest: None,
@@ -222,7 +229,6 @@ impl Observer {
                 self.note(at, LogLevel::Info, format!("event at {} s: magnets {}", event.at_s, if on { "on" } else { "off" }));
             }
             if let Some(offset) = event.line_offset_m {
-                self.line_offset_m = offset;
                 // Validation refuses a line offset without a line.
                 let Some(line) = &self.line else { continue };
                 let moved = build_line(&self.line_points, line.smoothness(), line.width_m(), offset, world).map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
@@ -412,21 +418,19 @@ impl Observer {
     fn show(&mut self, t_s: f64, bus: &Bus, world: &RobotWorld) {
         let Some(view) = &mut self.view else { return };
         let at = Duration::from_secs_f64(t_s);
-        let pulls: Vec<(String, f32)> = WheelPosition::ALL.iter().zip(world.adhesion()).map(|(w, a)| (format!("magnet_{}", w.name()), a.force_n)).collect();
+        let pulls: Vec<(String, f32)> = WheelPosition::ALL.iter().zip(world.adhesion()).map(|(&w, a)| (magnet_frame(w), a.force_n)).collect();
         view.transforms(at, &world.part_frames(), &pulls);
-        let servos: Vec<(String, &Servo)> = self.servo_names.iter().filter_map(|(id, name)| bus.servos().iter().find(|s| s.id() == *id).map(|s| (name.clone(), s))).collect();
+        let servos: Vec<(&str, &Servo)> = self.servo_names.iter().filter_map(|(id, name)| bus.servos().iter().find(|s| s.id() == *id).map(|s| (name.as_str(), s))).collect();
         view.servos(at, &servos);
         let faults = bus.faults();
-        let acting: Vec<bool> = faults.scheduled().iter().map(|f| faults.active().any(|a| std::ptr::eq(a, f))).collect();
-        for (index, fault) in faults.scheduled().iter().enumerate() {
-            let was = self.faults_acting.get(index).copied().unwrap_or(false);
-            if acting[index] != was {
+        for (index, (fault, &acting)) in faults.scheduled().iter().zip(faults.acting()).enumerate() {
+            if acting != self.faults_acting.get(index).copied().unwrap_or(false) {
                 let what = serde_json::to_string(&fault.fault).unwrap_or_else(|_| fault.fault.kind().to_owned());
-                let message = if acting[index] { format!("fault starts: {what}") } else { format!("fault ends: {what}") };
-                view.log(at, if acting[index] { LogLevel::Warning } else { LogLevel::Info }, message);
+                let message = if acting { format!("fault starts: {what}") } else { format!("fault ends: {what}") };
+                view.log(at, if acting { LogLevel::Warning } else { LogLevel::Info }, message);
             }
         }
-        self.faults_acting = acting;
+        self.faults_acting = faults.acting().to_vec();
     }
 
     /// What every firmware tick of a wall-clock run (and of its replay) does after advancing the
@@ -666,9 +670,7 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     let ControllerSection::Builtin(config) = &scenario.controller else {
         return Err(RunError::NeedsRealTime { path: scenario.path.clone() });
     };
-    if scenario.line.is_none() {
-        return Err(RunError::NoLine { path: scenario.path.clone() });
-    }
+    require_line(scenario)?;
     // Rows are captured once per control period: a faster capture would repeat them.
     let control_hz = 1.0 / config.period().as_secs_f64();
     if scenario.capture.rate_hz > control_hz * (1.0 + 1e-9) {
@@ -697,8 +699,7 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     if let Some(out_dir) = out_dir {
         observer.stream_to(out_dir)?;
     }
-    let mcap = out_dir.filter(|_| scenario.capture.mcap).map(|dir| dir.join(super::view::MCAP_FILE));
-    let view = ViewOptions { mcap, live: live.map(|l| l.address.clone()), packets: scenario.capture.bus_packets };
+    let view = ViewOptions::of_run(&scenario.capture, out_dir, live.map(|l| l.address.clone()));
     if let (Some(url), Some(live)) = (observer.start_view(&view, sim.bus_mut())?, live) {
         (live.announce)(&url);
     }

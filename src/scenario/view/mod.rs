@@ -45,6 +45,7 @@ use live::LiveServer;
 use crate::bus::TransactionTap;
 use crate::bus::transaction_json;
 use crate::device::Servo;
+use crate::scenario::CaptureSection;
 use crate::sim::lidar::LidarScan;
 use crate::sim::{PartFrame, RobotWorld};
 use crate::sim::line::LineSample;
@@ -79,6 +80,12 @@ pub struct ViewOptions {
 }
 
 impl ViewOptions {
+    /// What a run's `[capture]` asks for: `run.mcap` in its output folder (if it has one and
+    /// `mcap` is on), bus packets if `bus_packets`, and the live server at `live`.
+    pub fn of_run(capture: &CaptureSection, out_dir: Option<&Path>, live: Option<LiveAddress>) -> Self {
+        Self { mcap: out_dir.filter(|_| capture.mcap).map(|dir| dir.join(MCAP_FILE)), live, packets: capture.bus_packets }
+    }
+
     pub fn is_off(&self) -> bool {
         self.mcap.is_none() && self.live.is_none()
     }
@@ -222,8 +229,8 @@ impl View {
             timestamp: Some(timestamp(t)),
             parent_frame_id: frame.parent.clone(),
             child_frame_id: frame.name.clone(),
-            translation: Some(Vector3 { x: f64::from(frame.pose.translation.x), y: f64::from(frame.pose.translation.y), z: f64::from(frame.pose.translation.z) }),
-            rotation: Some(Quaternion { x: f64::from(frame.pose.rotation.x), y: f64::from(frame.pose.rotation.y), z: f64::from(frame.pose.rotation.z), w: f64::from(frame.pose.rotation.w) }),
+            translation: Some(scene::vector3(frame.pose.translation)),
+            rotation: Some(scene::quaternion(frame.pose.rotation)),
         }));
         self.channels.transforms.log_with_time(&FrameTransforms { transforms }, nanos(t));
         self.channels.magnets.log_with_time(&scene::magnet_arrows(timestamp(t), magnet_pulls, WEAK_MAGNET_N), nanos(t));
@@ -287,7 +294,7 @@ impl View {
 
     /// The servos' key registers at `t`, as the controller would read them (raw register
     /// values), each servo under its name.
-    pub fn servos(&mut self, t: Duration, servos: &[(String, &Servo)]) {
+    pub fn servos(&mut self, t: Duration, servos: &[(&str, &Servo)]) {
         use std::fmt::Write as _;
         let json = &mut self.json;
         json.clear();
