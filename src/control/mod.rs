@@ -9,8 +9,10 @@ mod client;
 mod line_follower;
 mod pid;
 mod reference;
+mod transition;
 
 pub use client::{BusLink, ControlError, ServoClient};
 pub use line_follower::LineFollowerGains;
 pub use pid::{Pid, PidGains};
 pub use reference::{ControlSample, LineError, ReferenceConfig, ReferenceController};
+pub use transition::{Phase, WallSighting, WallTransition, WallTransitionConfig};

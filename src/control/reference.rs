@@ -24,6 +24,7 @@ use crate::robot::{RobotDescription, ServoRole, WheelPosition};
 use super::client::{BusLink, ControlError, ServoClient};
 use super::line_follower::{LineFollower, LineFollowerGains};
 use super::pid::{Pid, PidGains};
+use super::transition::{WallSighting, WallTransition, WallTransitionConfig};
 
 fn default_period_s() -> f64 {
     0.02
@@ -88,6 +89,9 @@ pub struct ReferenceConfig {
     /// Window (s) over which wheel rates are taken from position differences.
     #[serde(default = "default_speed_window_s")]
     pub speed_window_s: f64,
+    /// The seed's wall transition (see [`WallTransition`]); none without the table.
+    #[serde(default)]
+    pub wall_transition: Option<WallTransitionConfig>,
 }
 
 impl Default for ReferenceConfig {
@@ -105,6 +109,7 @@ impl Default for ReferenceConfig {
             kd: 0.0,
             normal_compensation: true,
             speed_window_s: default_speed_window_s(),
+            wall_transition: None,
         }
     }
 }
@@ -138,6 +143,8 @@ pub struct ControlSample {
     pub yaw_rate_command_rad_s: f64,
     /// Goal Velocity written to each wheel (velocity units).
     pub goal_velocity: [i32; 4],
+    /// The wall transition's phase ([`super::Phase::code`]; NaN without one).
+    pub transition_phase: f64,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -166,6 +173,7 @@ pub struct ReferenceController {
     last_tick: Option<Duration>,
     sample: ControlSample,
     addresses: Addresses,
+    transition: Option<WallTransition>,
 }
 
 /// Control-table addresses and values the controller uses, from the firmware profile (resolved
@@ -174,7 +182,9 @@ pub struct ReferenceController {
 struct Addresses {
     operating_mode: u16,
     velocity_mode: u8,
+    position_mode: u8,
     torque_enable: u16,
+    goal_position: u16,
     goal_velocity: u16,
     present_position: u16,
 }
@@ -185,7 +195,9 @@ impl Addresses {
         Addresses {
             operating_mode: at("operating_mode"),
             velocity_mode: profile.operating_modes.velocity,
+            position_mode: profile.operating_modes.position,
             torque_enable: at("torque_enable"),
+            goal_position: at("goal_position"),
             goal_velocity: at("goal_velocity"),
             present_position: at("present_position"),
         }
@@ -211,6 +223,7 @@ impl ReferenceController {
         let rpm_per_velocity_unit = goal_velocity.spec.scale.unwrap_or(0.229);
         let velocity_limit_units = velocity_limit.spec.default.unwrap_or(128) as f64;
         let top_speed = velocity_limit_units * rpm_per_velocity_unit / 60.0 * TAU * radius_m;
+        let transition = config.wall_transition.clone().map(WallTransition::new);
         Ok(Self {
             pid: Pid::new(PidGains { kp: config.kp, ki: config.ki, kd: config.kd }, top_speed),
             line_follower: LineFollower::new(LineFollowerGains { zeta: config.zeta, omega_n: config.omega_n, integral_pole_rad_s: config.integral_pole_rad_s }),
@@ -228,6 +241,7 @@ impl ReferenceController {
             last_tick: None,
             sample: ControlSample::default(),
             addresses: Addresses::of(profile),
+            transition,
         })
     }
 
@@ -264,8 +278,9 @@ impl ReferenceController {
         Ok(())
     }
 
-    /// One control period at time `now`; `line` is the latest valid line measurement, if any.
-    pub fn tick<L: BusLink>(&mut self, link: &mut L, now: Duration, line: Option<LineError>) -> Result<&ControlSample, ControlError> {
+    /// One control period at time `now`; `line` is the latest valid line measurement, if any,
+    /// and `wall` what the LIDAR sees ahead (for the wall transition).
+    pub fn tick<L: BusLink>(&mut self, link: &mut L, now: Duration, line: Option<LineError>, wall: Option<WallSighting>) -> Result<&ControlSample, ControlError> {
         let at = self.addresses;
         let dt = self.last_tick.map_or(0.0, |last| (now - last).as_secs_f64());
         self.last_tick = Some(now);
@@ -309,12 +324,33 @@ impl ReferenceController {
         let feedforward = if self.config.feedforward { self.target_speed_m_s } else { 0.0 };
         let speed_command_m_s = feedforward + self.pid.update(self.target_speed_m_s - measured_speed_m_s, dt);
 
-        let yaw_rate = match line {
-            Some(error) if self.config.follow_line && self.target_speed_m_s > 0.0 => {
-                self.line_follower.yaw_rate(self.target_speed_m_s, error.d_err_m, error.psi_err_rad, dt, self.config.max_yaw_rate_rad_s)
+        // Odometry: the wheels' mean roll since the start.
+        let odometry_m = wheel_pulses.iter().sum::<i64>() as f64 / 4.0 * self.rad_per_pulse * self.radius_m;
+        let decision = self.transition.as_mut().map(|t| t.update(wall, odometry_m)).unwrap_or_default();
+        let limit = self.config.max_yaw_rate_rad_s;
+        let yaw_rate = match (decision.yaw_rate_rad_s, line) {
+            (Some(rate), _) => rate.clamp(-limit, limit),
+            (None, Some(error)) if self.config.follow_line && self.target_speed_m_s > 0.0 => {
+                self.line_follower.yaw_rate(self.target_speed_m_s, error.d_err_m, error.psi_err_rad, dt, limit)
             }
             _ => 0.0,
         };
+        let front_magnets = [self.wheels[WheelPosition::FrontLeft.index()].magnet, self.wheels[WheelPosition::FrontRight.index()].magnet];
+        if let Some(angle) = decision.hold_front_magnets_rad {
+            // Torque-on sets Goal Position to Present Position (so the shaft does not jump): the
+            // goal is written after it.
+            let goal = self.magnet_zero_pulses + (angle / self.rad_per_pulse).round() as i64;
+            for id in front_magnets {
+                client.write(id, at.operating_mode, &[at.position_mode], "Operating Mode = position")?;
+                client.write(id, at.torque_enable, &[1], "Torque Enable = 1")?;
+                client.write(id, at.goal_position, &(goal as i32).to_le_bytes(), "Goal Position")?;
+            }
+        }
+        if decision.release_front_magnets {
+            for id in front_magnets {
+                client.write(id, at.torque_enable, &[0], "Torque Enable = 0")?;
+            }
+        }
 
         // Skid steering: a left turn (positive yaw rate) speeds the right wheels up.
         let half_track = self.track_m / 2.0;
@@ -332,7 +368,8 @@ impl ReferenceController {
         }
         client.sync_write(at.goal_velocity, &blocks);
 
-        self.sample = ControlSample { wheel_rate_rad_s, magnet_angle_rad, measured_speed_m_s, speed_command_m_s, yaw_rate_command_rad_s: yaw_rate, goal_velocity };
+        let transition_phase = self.transition.as_ref().map_or(f64::NAN, |t| t.phase().code());
+        self.sample = ControlSample { wheel_rate_rad_s, magnet_angle_rad, measured_speed_m_s, speed_command_m_s, yaw_rate_command_rad_s: yaw_rate, goal_velocity, transition_phase };
         Ok(&self.sample)
     }
 }

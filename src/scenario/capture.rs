@@ -88,6 +88,9 @@ pub const COLUMNS: &[&str] = &[
     "contact_lateral_fr_rad",
     "contact_lateral_rl_rad",
     "contact_lateral_rr_rad",
+    // The built-in controller's wall transition: 0 following, 1 squaring up to the surface
+    // ahead, 2 climbing with the front magnets held, 3 done (NaN without one).
+    "transition_phase",
 ];
 
 /// The metric track's sampling period (s of simulated time): the built-in controller's default

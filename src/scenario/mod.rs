@@ -15,6 +15,7 @@ pub mod capture;
 pub mod view;
 pub mod replay;
 pub mod run;
+pub mod surfaces;
 pub mod sweep;
 pub mod validate;
 pub mod watch;
@@ -26,8 +27,8 @@ use crate::fault::{Fault, ScheduledFault};
 use crate::sim::LineCameraSettings;
 use crate::sim::lidar::LidarSettings;
 use crate::sim::obstacles::ObstacleSpec;
-use crate::sim::terrain::{TerrainError, TerrainSpec, generate};
-use crate::sim::{SolverSettings, StartPose, WorldConfig};
+use crate::sim::terrain::{TerrainError, TerrainSpec, UnrolledProfile, generate};
+use crate::sim::{SolverSettings, StartPose, SurfaceFrame, WorldConfig};
 use crate::source_location::{DataFileError, load_toml};
 
 #[derive(Debug, Error)]
@@ -256,6 +257,10 @@ impl Event {
 fn default_capture_hz() -> f64 {
     50.0
 }
+fn default_adhesion_floor_n() -> f64 {
+    f64::from(surfaces::DEFAULT_ADHESION_FLOOR_N)
+}
+
 fn default_on_line_m() -> f64 {
     0.002
 }
@@ -282,11 +287,15 @@ pub struct CaptureSection {
     /// `/bus/packets` topic.
     #[serde(default)]
     pub bus_packets: bool,
+    /// The stated pull (N) no magnet should stay under for long: `adhesion.longest_below_s`
+    /// measures how long one did (the view draws such a magnet's arrow red).
+    #[serde(default = "default_adhesion_floor_n")]
+    pub adhesion_floor_n: f64,
 }
 
 impl Default for CaptureSection {
     fn default() -> Self {
-        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m(), signals: None, mcap: true, bus_packets: false }
+        Self { rate_hz: default_capture_hz(), on_line_tolerance_m: default_on_line_m(), signals: None, mcap: true, bus_packets: false, adhesion_floor_n: default_adhesion_floor_n() }
     }
 }
 
@@ -454,12 +463,18 @@ impl Scenario {
         // y up, z to the robot's right: the line's left is up × along = (uz, −ux), and a heading
         // along (ux, uz) is a yaw (about +y) of atan2(−uz, ux).
         let (left_x, left_z) = (uz, -ux);
-        StartPose {
-            x_m: x0 + given.x_m * ux + given.line_offset_m * left_x,
-            z_m: z0 + given.x_m * uz + given.line_offset_m * left_z,
-            yaw_deg: (-uz).atan2(ux).to_degrees() + given.yaw_deg,
-            ..StartPose::default()
-        }
+        let (x_m, z_m) = (x0 + given.x_m * ux + given.line_offset_m * left_x, z0 + given.x_m * uz + given.line_offset_m * left_z);
+        let yaw_deg = (-uz).atan2(ux).to_degrees() + given.yaw_deg;
+        // A line painted on a wall terrain is in the unrolled sheet's coordinates: the start is
+        // where the sheet puts that point, floor or wall, heading along the sheet.
+        let on_surface = UnrolledProfile::of(&self.terrain).and_then(|sheet| {
+            let (point, normal) = sheet.point(x_m, z_m)?;
+            let along = sheet.along(x_m)?;
+            let (sin, cos) = yaw_deg.to_radians().sin_cos();
+            // Heading 0 runs along the sheet's u, a positive heading turns toward −z (left).
+            Some(SurfaceFrame { point, normal, forward: along * cos - Vector::Z * sin })
+        });
+        StartPose { x_m, z_m, yaw_deg, on_surface, ..StartPose::default() }
     }
 
     /// The world this scenario describes (terrain generated from its seed).

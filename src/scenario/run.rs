@@ -19,16 +19,18 @@ use foxglove::messages::log::Level as LogLevel;
 
 use crate::bus::{Bus, BusFaults, Timing};
 use crate::device::Servo;
-use crate::control::{ControlError, ControlSample, LineError, ReferenceController};
+use crate::control::{ControlError, ControlSample, LineError, ReferenceController, WallSighting};
 use crate::report::{self, HeightGrid, Summary, TimeSeries};
 use crate::robot::{RobotDescription, WheelPosition};
 use crate::sim::detector::DetectorError;
 use crate::sim::line::LineError as WeldLineError;
 use crate::sim::lidar::{Lidar, LidarScan};
-use crate::sim::{magnet_frame, DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, WeldLine};
+use crate::sim::terrain::UnrolledProfile;
+use crate::sim::{magnet_frame, DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, Surface, WeldLine};
 
 pub use super::capture::{COLUMNS, MetricTrack, summarise};
 use super::capture::Capture;
+use super::surfaces::{SurfaceSample, SurfaceTrack};
 use super::view::{LiveAddress, View, ViewOptions};
 use super::watch::{self, WorldFailure, WorldWatch};
 use super::{ControllerSection, Event, Scenario, ScenarioError, mm_min_to_m_s};
@@ -82,6 +84,8 @@ pub struct GroundTruth {
     pub psi_err_rad: f64,
     /// Ground speed along the body's forward axis (m/s).
     pub speed_m_s: f64,
+    /// How far along the line the robot's nearest point is (m; NaN without a line).
+    pub arc_m: f64,
 }
 
 /// What [`Observer::on_tick`] saw.
@@ -133,6 +137,8 @@ pub struct Observer {
     line: Option<WeldLine>,
     /// Control points as given, for line-offset events (the line is rebuilt and draped again).
     line_points: Vec<[f32; 2]>,
+    /// The terrain laid flat when the line is painted on a wall terrain (see [`UnrolledProfile`]).
+    sheet: Option<UnrolledProfile>,
     camera: LineCamera,
     detector: LineDetector,
     /// The detector's output on the newest frame (None before the first frame).
@@ -156,6 +162,8 @@ pub struct Observer {
     faults_acting: Vec<bool>,
     /// The servos' names (robot description) by ID.
     servo_names: Vec<(u8, String)>,
+    /// Transitions, adhesion and slides (see [`SurfaceTrack`]).
+    surfaces: SurfaceTrack,
 }
 
 /// How often the view gets the robot's frames and the servos' registers (Foxglove's 3D panel
@@ -170,7 +178,8 @@ impl Observer {
                 return Err(RunError::UnknownSignal { path, name: name.clone(), known: COLUMNS[1..].join(", ") });
             }
         }
-        let line = scenario.line.as_ref().map(|l| build_line(&l.points, l.smoothness, l.width_m, 0.0, world)).transpose().map_err(|source| RunError::Line { path: path.clone(), source })?;
+        let sheet = UnrolledProfile::of(&scenario.terrain);
+        let line = scenario.line.as_ref().map(|l| build_line(&l.points, l.smoothness, l.width_m, 0.0, surface(&sheet, world))).transpose().map_err(|source| RunError::Line { path: path.clone(), source })?;
         let settings = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
         let camera = LineCamera::new(settings).map_err(|e| RunError::Camera { path: path.clone(), message: e.to_string() })?;
         let detector = LineDetector::new(DetectorSettings::default())?;
@@ -185,6 +194,7 @@ impl Observer {
         Ok(Self {
             line,
             line_points: scenario.line.as_ref().map(|l| l.points.clone()).unwrap_or_default(),
+            sheet,
             camera,
             detector,
             latest: None,
@@ -201,6 +211,7 @@ impl Observer {
             next_view_s: 0.0,
             faults_acting: Vec::new(),
             servo_names: robot.servo.iter().map(|s| (s.id, s.name.clone())).collect(),
+            surfaces: SurfaceTrack::new(scenario.capture.adhesion_floor_n as f32),
         })
     }
 
@@ -231,7 +242,7 @@ impl Observer {
             if let Some(offset) = event.line_offset_m {
                 // Validation refuses a line offset without a line.
                 let Some(line) = &self.line else { continue };
-                let moved = build_line(&self.line_points, line.smoothness(), line.width_m(), offset, world).map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
+                let moved = build_line(&self.line_points, line.smoothness(), line.width_m(), offset, surface(&self.sheet, world)).map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
                 self.note(at, LogLevel::Info, format!("event at {} s: the line moves {} mm to the left", event.at_s, offset * 1000.0));
                 if let Some(view) = &self.view {
                     view.terrain(at, world, moved.samples());
@@ -330,7 +341,7 @@ impl Observer {
         let centre = pose.translation;
         let forward = pose.rotation * Vector::X;
         let speed_m_s = f64::from(world.chassis_velocity().dot(forward));
-        let Some(line) = &self.line else { return GroundTruth { d_err_m: f64::NAN, psi_err_rad: f64::NAN, speed_m_s } };
+        let Some(line) = &self.line else { return GroundTruth { d_err_m: f64::NAN, psi_err_rad: f64::NAN, speed_m_s, arc_m: f64::NAN } };
         let projection = line.nearest(centre);
         let normal = projection.normal;
         let tangent = projection.tangent;
@@ -342,6 +353,7 @@ impl Observer {
             d_err_m: f64::from((centre - projection.point).dot(left)),
             psi_err_rad: f64::from(psi),
             speed_m_s,
+            arc_m: f64::from(projection.arc_length_m),
         }
     }
 
@@ -368,6 +380,14 @@ impl Observer {
         if track_due {
             self.capture.record_track(t_s, truth.d_err_m, d_m, truth.speed_m_s, target);
             self.capture.record_position(t_s, position.x, position.z);
+            let adhesion = world.adhesion();
+            self.surfaces.push(&SurfaceSample {
+                t_s,
+                pull_n: adhesion.each_ref().map(|a| a.force_n),
+                normal: adhesion.each_ref().map(|a| a.contact.map(|(_, n)| n.to_array())),
+                d_true_m: truth.d_err_m,
+                arc_m: truth.arc_m,
+            });
         }
         if !row_due {
             return Ok(());
@@ -406,6 +426,7 @@ impl Observer {
         let contacts = WheelPosition::ALL.map(|w| world.contact_angles(w));
         row.extend(contacts.map(|c| c.map_or(f64::NAN, |(in_plane, _)| f64::from(in_plane))));
         row.extend(contacts.map(|c| c.map_or(f64::NAN, |(_, lateral)| f64::from(lateral))));
+        row.push(control.map_or(f64::NAN, |c| c.transition_phase));
         if let Some(view) = &mut self.view {
             view.signals(Duration::from_secs_f64(t_s), &row);
         }
@@ -476,7 +497,9 @@ impl Observer {
 
     /// The seed's metrics over the metric track (the same whatever `[capture] rate_hz`).
     pub fn summary(&self, on_line_tolerance_m: f64) -> Summary {
-        summarise(self.capture.track(), self.speed_step_at_s, on_line_tolerance_m)
+        let mut summary = summarise(self.capture.track(), self.speed_step_at_s, on_line_tolerance_m);
+        summary.extend(self.surfaces.summary());
+        summary
     }
 }
 
@@ -506,11 +529,20 @@ fn heights_around(line: &[[f32; 2]], world: &RobotWorld) -> HeightGrid {
 /// The longer side of `path.png`'s height grid, in cells.
 const HEIGHT_GRID_CELLS: usize = 160;
 
-fn build_line(points: &[[f32; 2]], smoothness: u32, width_m: f32, offset_m: f64, world: &RobotWorld) -> Result<WeldLine, WeldLineError> {
+fn build_line(points: &[[f32; 2]], smoothness: u32, width_m: f32, offset_m: f64, surface: &dyn Surface) -> Result<WeldLine, WeldLineError> {
     let shifted = offset_points(points, offset_m as f32);
     let mut line = WeldLine::new(&shifted, smoothness, width_m)?;
-    line.drape(world)?;
+    line.drape(surface)?;
     Ok(line)
+}
+
+/// What a line is painted on: a wall terrain's unrolled sheet (so it can go up the wall), or
+/// whatever is below its points.
+fn surface<'a>(sheet: &'a Option<UnrolledProfile>, world: &'a RobotWorld) -> &'a dyn Surface {
+    match sheet {
+        Some(sheet) => sheet,
+        None => world,
+    }
 }
 
 /// The control points moved `offset` to the left of the line's direction (per segment, joined
@@ -706,6 +738,7 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;
     controller.start(&mut sim)?;
     let period = config.period();
+    let wall_window_rad = config.wall_transition.as_ref().map_or(0.0, |t| t.square_window_deg.to_radians() as f32);
     let end = Duration::from_secs_f64(scenario.world.duration_s);
     let mut interrupted = false;
     while sim.now() < end {
@@ -718,7 +751,11 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
         observer.apply_events(t_s, sim.world_mut())?;
         controller.set_target_speed(observer.target_speed_m_s(t_s));
         let line = observer.sense(sim.world(), now);
-        let sample = match controller.tick(&mut sim, now, line) {
+        let wall = observer.lidar_scan().map(|scan| WallSighting {
+            ahead_m: f64::from(scan.ahead_m()),
+            angle_rad: scan.wall_angle_rad(wall_window_rad).map(f64::from),
+        });
+        let sample = match controller.tick(&mut sim, now, line, wall) {
             Ok(sample) => *sample,
             // With faults on the bus a lost or corrupted reply is expected: the controller skips
             // the period (its wheels keep the last command) and tries again next period, as a

@@ -117,6 +117,16 @@ pub const PAYLOAD_KG: Range = Range::closed(0.0, 200.0, "kg");
 pub const SOLVER_ITERATIONS: std::ops::RangeInclusive<usize> = 1..=100;
 /// Start position and line offsets: the terrains are at most a few hundred metres across.
 pub const POSITION_M: Range = Range::closed(-10_000.0, 10_000.0, "m");
+/// Distances the LIDAR measures (the wall transition's triggers).
+pub const LIDAR_DISTANCE_M: Range = Range::closed(0.0, 100.0, "m");
+/// A magnet shaft turns within ±180° of straight down (one turn in position mode).
+pub const MAGNET_TURN_DEG: Range = Range::closed(-180.0, 180.0, "°");
+/// Wheel travel for the wall transition's release.
+pub const TRAVEL_M: Range = Range::closed(0.0, 100.0, "m");
+/// Yaw rate per radian of wall angle.
+pub const SQUARE_GAIN: Range = Range::closed(0.0, 100.0, "(rad/s per rad)");
+/// The LIDAR's window for the wall fit, either side of ahead.
+pub const SQUARE_WINDOW_DEG: Range = Range::above(0.0, 180.0, "°");
 pub const YAW_DEG: Range = Range::closed(-360.0, 360.0, "deg");
 pub const LINE_OFFSET_M: Range = Range::closed(-10.0, 10.0, "m");
 /// Smoothing subdivides every corner; beyond 100 the curve no longer changes but memory grows.
@@ -152,6 +162,8 @@ pub const CAMERA_NOISE: Range = Range::closed(0.0, 255.0, "gray levels");
 pub const OBSTACLE_SIZE_M: Range = Range::above(0.0, crate::sim::obstacles::MAX_OBSTACLE_M as f64, "m");
 pub const CAPTURE_RATE_HZ: Range = Range::above(0.0, 1_000.0, "Hz");
 pub const ON_LINE_TOLERANCE_M: Range = Range::closed(0.0, 10.0, "m");
+/// A magnet pulls up to a few hundred newtons; 10 kN leaves room for any robot.
+pub const ADHESION_FLOOR_N: Range = Range::closed(0.0, 10_000.0, "N");
 
 struct Checker {
     prefix: Vec<KeyPart>,
@@ -205,6 +217,9 @@ pub fn check(scenario: &Scenario) -> Result<(), Problem> {
     speed.range("step_at_s", scenario.speed.step_at_s, Range::closed(0.0, crate::fault::MAX_FAULT_TIME_S, "s"))?;
     if let ControllerSection::Builtin(config) = &scenario.controller {
         check_controller(config)?;
+        if config.wall_transition.is_some() && scenario.lidar.is_none() {
+            return Err(Checker::at(&["controller"]).problem(&[key("wall_transition")], "the wall transition watches the front LIDAR: add a [lidar] table".to_owned()));
+        }
     }
     check_events(scenario)?;
     check_obstacles(scenario)?;
@@ -218,6 +233,7 @@ pub fn check(scenario: &Scenario) -> Result<(), Problem> {
     let capture = Checker::at(&["capture"]);
     capture.range("rate_hz", scenario.capture.rate_hz, CAPTURE_RATE_HZ)?;
     capture.range("on_line_tolerance_m", scenario.capture.on_line_tolerance_m, ON_LINE_TOLERANCE_M)?;
+    capture.range("adhesion_floor_n", scenario.capture.adhesion_floor_n, ADHESION_FLOOR_N)?;
     let expect = Checker::at(&["expect"]);
     for (metric, threshold) in &scenario.expect {
         for (bound, value) in [("min", threshold.min), ("max", threshold.max)] {
@@ -344,7 +360,17 @@ fn check_controller(config: &ReferenceConfig) -> Result<(), Problem> {
     c.range("kp", config.kp, PID_GAIN)?;
     c.range("ki", config.ki, PID_GAIN)?;
     c.range("kd", config.kd, PID_GAIN)?;
-    c.range("speed_window_s", config.speed_window_s, SPEED_WINDOW_S)
+    c.range("speed_window_s", config.speed_window_s, SPEED_WINDOW_S)?;
+    if let Some(t) = &config.wall_transition {
+        let c = Checker::at(&["controller", "wall_transition"]);
+        c.range("detect_m", t.detect_m, LIDAR_DISTANCE_M)?;
+        c.range("magnets_at_m", t.magnets_at_m, LIDAR_DISTANCE_M)?;
+        c.range("front_magnet_deg", t.front_magnet_deg, MAGNET_TURN_DEG)?;
+        c.range("release_after_m", t.release_after_m, TRAVEL_M)?;
+        c.range("square_gain", t.square_gain, SQUARE_GAIN)?;
+        c.range("square_window_deg", t.square_window_deg, SQUARE_WINDOW_DEG)?;
+    }
+    Ok(())
 }
 
 fn check_obstacles(scenario: &Scenario) -> Result<(), Problem> {

@@ -124,6 +124,35 @@ impl LidarScan {
         self.ranges_m.get(index.max(0.0) as usize).copied().unwrap_or(f32::INFINITY)
     }
 
+    /// The surface ahead, fitted as a straight wall through the returns within `half_width_rad`
+    /// of straight ahead (least squares, at least 3 of them): how far the robot should turn to
+    /// face it square (rad, + = to the left), or None without enough returns.
+    pub fn wall_angle_rad(&self, half_width_rad: f32) -> Option<f32> {
+        let points: Vec<(f32, f32)> = self
+            .ranges_m
+            .iter()
+            .enumerate()
+            .map(|(k, r)| (self.start_angle_rad + self.step_rad * k as f32, *r))
+            .filter(|(angle, r)| angle.abs() <= half_width_rad && r.is_finite())
+            .map(|(angle, r)| (r * angle.cos(), r * angle.sin()))
+            .collect();
+        if points.len() < 3 {
+            return None;
+        }
+        let n = points.len() as f32;
+        let (mx, my) = points.iter().fold((0.0, 0.0), |(sx, sy), (x, y)| (sx + x / n, sy + y / n));
+        let (sxx, syy, sxy) = points.iter().fold((0.0, 0.0, 0.0), |(a, b, c), (x, y)| {
+            let (dx, dy) = (x - mx, y - my);
+            (a + dx * dx, b + dy * dy, c + dx * dy)
+        });
+        // The wall runs along the points' principal direction; its normal is the other one.
+        let along = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+        let (nx, ny) = (along.sin(), -along.cos());
+        // The normal that points away from the sensor, into the wall.
+        let (nx, ny) = if nx * mx + ny * my >= 0.0 { (nx, ny) } else { (-nx, -ny) };
+        Some(ny.atan2(nx))
+    }
+
     /// The nearest return of the scan (infinity without any).
     pub fn nearest_m(&self) -> f32 {
         self.ranges_m.iter().copied().fold(f32::INFINITY, f32::min)
@@ -225,6 +254,32 @@ mod tests {
         assert!((s.end_angle_rad() - std::f32::consts::FRAC_PI_2).abs() < 1e-6);
         let json = s.to_json();
         assert!(json["ranges_m"][1].is_null() && json["ranges_m"][0] == 3.0, "{json}");
+    }
+
+    /// A straight wall whose into-wall normal points `normal_deg` left of ahead, `distance` away,
+    /// seen by 61 beams over 180°.
+    fn wall_scan(normal_deg: f32, distance: f32) -> LidarScan {
+        let normal = normal_deg.to_radians();
+        let ranges = (0..61)
+            .map(|k| {
+                let angle = -std::f32::consts::FRAC_PI_2 + std::f32::consts::PI * k as f32 / 60.0;
+                // r · cos(angle − normal) = distance along the normal.
+                let c = (angle - normal).cos();
+                if c > 0.05 { distance / c } else { f32::INFINITY }
+            })
+            .collect();
+        scan(ranges)
+    }
+
+    #[test]
+    fn the_wall_angle_is_the_turn_that_faces_the_wall_square() {
+        for normal_deg in [-25.0f32, -5.0, 0.0, 10.0, 30.0] {
+            let angle = wall_scan(normal_deg, 0.4).wall_angle_rad(20f32.to_radians()).unwrap();
+            assert!((angle.to_degrees() - normal_deg).abs() < 1e-3, "{normal_deg}° → {}°", angle.to_degrees());
+        }
+        // Too few returns within the window: no answer.
+        assert_eq!(scan(vec![f32::INFINITY; 61]).wall_angle_rad(0.3), None);
+        assert_eq!(wall_scan(0.0, 0.4).wall_angle_rad(0.01), None);
     }
 
     #[test]

@@ -35,7 +35,7 @@
 use rapier3d::math::Vector;
 use thiserror::Error;
 
-use super::terrain::TerrainGeometry;
+use super::terrain::{TerrainGeometry, UnrolledProfile};
 
 /// Largest spacing between draped samples: short enough to follow terrain bumps of a few cm
 /// and to make the stripe's edges look straight in a camera pixel (~1 mm).
@@ -56,7 +56,8 @@ pub(crate) const CHUNK: usize = 32;
 pub trait Surface {
     /// The surface point straight below/above (x, z) (the highest one for a heightfield there is
     /// only one) and its unit normal pointing to the side the robot drives on; `None` off the
-    /// surface.
+    /// surface. A surface laid out flat ([`UnrolledProfile`]) takes (x, z) as its own sheet
+    /// coordinates instead.
     fn project_down(&self, x: f32, z: f32) -> Option<(Vector, Vector)>;
 }
 
@@ -77,6 +78,13 @@ impl Surface for TerrainGeometry {
         let dx = slope(self.height_at(x - E, z), self.height_at(x + E, z));
         let dz = slope(self.height_at(x, z - E), self.height_at(x, z + E));
         Some((Vector::new(x, y, z), Vector::new(-dx, 1.0, -dz).normalize()))
+    }
+}
+
+/// A wall terrain's unrolled sheet: (x, z) are the sheet's (u, z), see [`UnrolledProfile`].
+impl Surface for UnrolledProfile {
+    fn project_down(&self, u: f32, z: f32) -> Option<(Vector, Vector)> {
+        self.point(u, z)
     }
 }
 

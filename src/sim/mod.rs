@@ -10,7 +10,7 @@ pub mod obstacles;
 pub mod terrain;
 pub mod world;
 
-pub use world::{AdhesionSample, magnet_frame, wheel_frame, PartFrame, PartShape, PartShapeKind, RobotWorld, TerrainMesh, SolverSettings, StartPose, WorldConfig, WorldError};
+pub use world::{AdhesionSample, SurfaceFrame, magnet_frame, wheel_frame, PartFrame, PartShape, PartShapeKind, RobotWorld, TerrainMesh, SolverSettings, StartPose, WorldConfig, WorldError};
 pub use camera::{Frame, LineCamera, LineCameraSettings};
 pub use detector::{DetectorSettings, LineDetector, LineMeasurement};
 pub use line::{LineProjection, Surface, WeldLine};

@@ -429,8 +429,22 @@ fn pipe(radius: f32, length: f32, axis: Axis, segments: usize) -> TerrainGeometr
 }
 
 fn wall(distance: f32, height: f32, width: f32, fillet: f32, segments: usize) -> TerrainGeometry {
+    let profile = wall_profile(distance, height, width, fillet, segments);
+    let n = profile.len();
+    let half = width / 2.0;
+    let vertices = [-half, half]
+        .into_iter()
+        .flat_map(|z| profile.iter().map(move |[x, y]| Vector::new(*x as f32, *y as f32, z)))
+        .collect();
+    let (a, b) = (|k: usize| k as u32, |k: usize| (n + k) as u32);
+    let indices = (0..n - 1).flat_map(|k| [[a(k), b(k + 1), a(k + 1)], [a(k), b(k), b(k + 1)]]).collect();
+    TerrainGeometry::TriMesh { vertices, indices }
+}
+
+/// The wall terrain's (x, y) profile, floor start to wall top: the polyline its mesh extrudes
+/// along Z.
+fn wall_profile(distance: f32, height: f32, width: f32, fillet: f32, segments: usize) -> Vec<[f64; 2]> {
     let (d, h, r) = (f64::from(distance), f64::from(height), f64::from(fillet));
-    // The (x, y) profile, floor start to wall top, extruded along Z.
     let mut profile = vec![[-(d.max(f64::from(width) / 2.0)), 0.0]];
     if r > 0.0 {
         // Quarter circle centred (d − r, r), from straight below the centre to straight right of it.
@@ -446,15 +460,63 @@ fn wall(distance: f32, height: f32, width: f32, fillet: f32, segments: usize) ->
     if h > r {
         profile.push([d, h]);
     }
-    let n = profile.len();
-    let half = width / 2.0;
-    let vertices = [-half, half]
-        .into_iter()
-        .flat_map(|z| profile.iter().map(move |[x, y]| Vector::new(*x as f32, *y as f32, z)))
-        .collect();
-    let (a, b) = (|k: usize| k as u32, |k: usize| (n + k) as u32);
-    let indices = (0..n - 1).flat_map(|k| [[a(k), b(k + 1), a(k + 1)], [a(k), b(k), b(k + 1)]]).collect();
-    TerrainGeometry::TriMesh { vertices, indices }
+    profile
+}
+
+/// A terrain that is a profile extruded along Z (the floor-to-wall terrain), laid flat: a point
+/// (u, z) of the unrolled sheet is `u` metres along the profile, counted so that the floor keeps
+/// its own x (u = x wherever the floor is), and z across. A weld line painted across floor,
+/// fillet and wall is written in these coordinates: `[[0, 0], [2, 0]]` on a wall 0.5 m ahead runs
+/// 0.5 m over the floor, round the fillet and on up the wall. Points lie exactly on the mesh's
+/// facets, so a faceted fillet carries a faceted line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UnrolledProfile {
+    /// Profile vertices (x, y), floor start first.
+    vertices: Vec<[f32; 2]>,
+    /// u of each vertex.
+    u: Vec<f32>,
+    half_width_m: f32,
+}
+
+impl UnrolledProfile {
+    /// The unrolled sheet of a wall terrain; `None` for every other kind (those are draped from
+    /// above instead).
+    pub fn of(spec: &TerrainSpec) -> Option<Self> {
+        let TerrainSpec::Wall { wall_distance_m, wall_height_m, width_m, fillet_radius_m, segments } = *spec else { return None };
+        let vertices: Vec<[f32; 2]> = wall_profile(wall_distance_m, wall_height_m, width_m, fillet_radius_m, segments as usize).into_iter().map(|[x, y]| [x as f32, y as f32]).collect();
+        let mut u = vec![vertices.first()?[0]];
+        for w in vertices.windows(2) {
+            let last = u[u.len() - 1];
+            u.push(last + (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]));
+        }
+        Some(Self { vertices, u, half_width_m: width_m / 2.0 })
+    }
+
+    /// The point of the surface at unrolled (u, z) and its normal (toward the robot's side), or
+    /// `None` off the sheet.
+    pub fn point(&self, u: f32, z: f32) -> Option<(Vector, Vector)> {
+        if !(u.is_finite() && z.is_finite()) || z.abs() > self.half_width_m {
+            return None;
+        }
+        let (first, last) = (self.u[0], self.u[self.u.len() - 1]);
+        if !(first..=last).contains(&u) {
+            return None;
+        }
+        // The segment holding u (the last one for u at the top).
+        let k = self.u.windows(2).position(|w| u <= w[1]).unwrap_or(self.u.len() - 2);
+        let ([x0, y0], [x1, y1]) = (self.vertices[k], self.vertices[k + 1]);
+        let length = (self.u[k + 1] - self.u[k]).max(f32::EPSILON);
+        let s = ((u - self.u[k]) / length).clamp(0.0, 1.0);
+        let (dx, dy) = ((x1 - x0) / length, (y1 - y0) / length);
+        // The profile runs floor → wall; its left (the robot's side) is (−dy, dx).
+        Some((Vector::new(x0 + s * (x1 - x0), y0 + s * (y1 - y0), z), Vector::new(-dy, dx, 0.0)))
+    }
+
+    /// The unit direction of increasing u at `u` (along the profile, in the x-y plane).
+    pub fn along(&self, u: f32) -> Option<Vector> {
+        let (_, normal) = self.point(u, 0.0)?;
+        Some(Vector::new(normal.y, -normal.x, 0.0))
+    }
 }
 
 fn heightmap(path: &Path, size_m: f32, max_height_m: f32) -> Result<TerrainGeometry, TerrainError> {
@@ -487,4 +549,62 @@ fn heightmap(path: &Path, size_m: f32, max_height_m: f32) -> Result<TerrainGeome
     }
     let size_z = size_m * (rows as f32 - 1.0) / (cols as f32 - 1.0);
     Ok(recentre(TerrainGeometry::HeightField { heights, rows, cols, scale: Vector::new(size_m, 1.0, size_z) }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn wall_spec(fillet_radius_m: f32, segments: u32) -> TerrainSpec {
+        TerrainSpec::Wall { wall_distance_m: 0.5, wall_height_m: 1.5, width_m: 2.0, fillet_radius_m, segments }
+    }
+
+    #[test]
+    fn the_unrolled_wall_keeps_the_floors_x_and_climbs_by_arc_length() {
+        let sharp = UnrolledProfile::of(&wall_spec(0.0, 0)).unwrap();
+        // Floor: u = x, normal up.
+        let (p, n) = sharp.point(0.2, 0.3).unwrap();
+        assert!((p - Vector::new(0.2, 0.0, 0.3)).length() < 1e-6 && (n - Vector::Y).length() < 1e-6, "{p:?} {n:?}");
+        // 0.7 m along from x = 0 is 0.2 m up a wall 0.5 m ahead, facing the robot (−x).
+        let (p, n) = sharp.point(0.7, -0.1).unwrap();
+        assert!((p - Vector::new(0.5, 0.2, -0.1)).length() < 1e-6, "{p:?}");
+        assert!((n - Vector::NEG_X).length() < 1e-6, "{n:?}");
+        assert!((sharp.along(0.7).unwrap() - Vector::Y).length() < 1e-6);
+        // Off the sheet: beyond its width, above the wall's top, before the floor's start.
+        assert!(sharp.point(0.2, 1.01).is_none());
+        assert!(sharp.point(0.5 + 1.5 + 0.01, 0.0).is_none());
+        assert!(sharp.point(-1.01, 0.0).is_none());
+        assert!(sharp.point(f32::NAN, 0.0).is_none());
+        assert!(UnrolledProfile::of(&TerrainSpec::Flat { size_m: 1.0 }).is_none());
+    }
+
+    #[test]
+    fn the_unrolled_fillet_lies_on_the_mesh_facets() {
+        let spec = wall_spec(0.15, 24);
+        let sheet = UnrolledProfile::of(&spec).unwrap();
+        // The floor ends at x = 0.35; the 24 chords of the quarter circle are a little shorter
+        // than its arc (π/2 · 0.15 = 0.2356 m).
+        let chords = 24.0 * 2.0 * 0.15 * (std::f32::consts::FRAC_PI_4 / 24.0).sin();
+        let (top, _) = sheet.point(0.35 + chords, 0.0).unwrap();
+        assert!((top - Vector::new(0.5, 0.15, 0.0)).length() < 1e-5, "{top:?}");
+        let (_, n) = sheet.point(0.35 + chords + 1e-3, 0.0).unwrap();
+        assert!((n - Vector::NEG_X).length() < 1e-5, "{n:?}");
+        // Halfway round the fillet the normal points about 45° between up and −x (within a
+        // facet's 3.75°), toward the centre of the quarter circle (0.35, 0.15).
+        let (mid, n) = sheet.point(0.35 + chords / 2.0, 0.0).unwrap();
+        assert!(n.angle_between(Vector::new(-1.0, 1.0, 0.0)).to_degrees() <= 3.76, "{n:?}");
+        assert!(((mid - Vector::new(0.35, 0.15, 0.0)).length() - 0.15).abs() < 1e-3, "{mid:?}");
+        // Every point is on the generated mesh: a ray from the fillet's centre hits it there.
+        let geometry = generate(&spec, 1, Path::new(".")).unwrap();
+        let TerrainGeometry::TriMesh { vertices, indices } = geometry else { panic!("a wall is a trimesh") };
+        let mesh = TriMesh::new(vertices, indices).unwrap();
+        for k in 0..=40 {
+            let u = 0.3 + 0.3 * k as f32 / 40.0;
+            let (p, n) = sheet.point(u, 0.2).unwrap();
+            let from = p + n * 0.05;
+            let ray = rapier3d::parry::query::Ray::new(from, -n);
+            let toi = rapier3d::parry::query::RayCast::cast_local_ray(&mesh, &ray, 1.0, false).unwrap();
+            assert!((toi - 0.05).abs() < 1e-4, "u = {u}: the mesh is {toi} m away along the normal, not 0.05");
+        }
+    }
 }

@@ -53,11 +53,23 @@ pub struct StartPose {
     pub yaw_deg: f32,
     /// Height of the wheel bottoms above the terrain at the start.
     pub clearance_m: f32,
+    /// A start on a given plane of the surface (a wall, say) instead of on the ground below
+    /// (x, z): the robot's centre at `point`, its up along `normal`, its nose along `forward`
+    /// (in the plane); `x_m`, `z_m` and `yaw_deg` are then not used.
+    pub on_surface: Option<SurfaceFrame>,
+}
+
+/// A point of the surface, its outward normal and a direction in it (see [`StartPose`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceFrame {
+    pub point: Vector,
+    pub normal: Vector,
+    pub forward: Vector,
 }
 
 impl Default for StartPose {
     fn default() -> Self {
-        Self { x_m: 0.0, z_m: 0.0, yaw_deg: 0.0, clearance_m: 0.002 }
+        Self { x_m: 0.0, z_m: 0.0, yaw_deg: 0.0, clearance_m: 0.002, on_surface: None }
     }
 }
 
@@ -964,6 +976,13 @@ fn terrain_below(physics: &PhysicsWorld, terrain: ColliderHandle, x: f32, z: f32
 /// tilted to the plane through the terrain under the four wheels, so the robot starts resting on
 /// slopes and pipes instead of inside them.
 fn start_frame(physics: &PhysicsWorld, start: &StartPose, half_base: f32, half_track: f32) -> (Vector, Rotation) {
+    if let Some(frame) = start.on_surface {
+        // Body axes: x forward, y up (the normal), z to the right = x × y.
+        let up = frame.normal.normalize_or(Vector::Y);
+        let forward = (frame.forward - up * frame.forward.dot(up)).normalize_or(Vector::X);
+        let right = forward.cross(up);
+        return (frame.point, Rotation::from_mat3(&rapier3d::math::Matrix::from_cols(forward, up, right)));
+    }
     let yaw = Rotation::from_rotation_y(start.yaw_deg.to_radians());
     let at = |x: f32, z: f32| {
         let p = Vector::new(start.x_m, 0.0, start.z_m) + yaw * Vector::new(x, 0.0, z);
