@@ -1,5 +1,6 @@
 //! The built-in reference controllers (seed report §4–5): a linear line follower, a PID
-//! wheel-speed controller with optional normal compensation, and the bus client they share.
+//! wheel-speed controller with optional normal compensation, the seed's wall transition, an
+//! occupancy-grid planner for relocation between welds, and the bus client they share.
 //!
 //! They are ordinary Dynamixel clients: every read and write is a real Protocol 2.0 packet
 //! through the codec and the bus ([`BusLink`]), as an external controller's would be, only
@@ -8,6 +9,7 @@
 mod client;
 mod line_follower;
 mod pid;
+pub mod planner;
 mod reference;
 mod transition;
 
