@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use thiserror::Error;
 
 pub use atomic::write_atomically;
-pub use path::{HeightGrid, plot_path};
+pub use path::{HeightGrid, PathView, plot_path};
 pub use plot::{
     PLOT_SIZE_PX, PlotFiles, PlotLabels, PlotSeries, plot_metric_vs_parameter, plot_series,
 };

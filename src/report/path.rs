@@ -48,22 +48,33 @@ const SHADES: usize = 16;
 const LOW_RGB: (f64, f64, f64) = (246.0, 243.0, 232.0);
 const HIGH_RGB: (f64, f64, f64) = (196.0, 184.0, 140.0);
 
+/// How the path picture looks at the ground.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PathView {
+    /// From above: (x, z) of the world.
+    #[default]
+    FromAbove,
+    /// A wall terrain laid flat: x along the surface (floor, fillet, wall), z across.
+    LaidFlat,
+}
+
 /// Plots `track` over `line` (both (x, z) in metres, seen from above: x to the right, z down,
 /// so that the robot's left is up when it drives along +x) into `out_dir/STEM.png` and `.svg`,
 /// over the terrain's height (`heights`) when it is given and not flat.
-pub fn plot_path(out_dir: &Path, stem: &str, line: &[[f32; 2]], track: &[[f32; 2]], heights: Option<&HeightGrid>) -> Result<PlotFiles, ReportError> {
-    write_figure(out_dir, stem, &PathPlot { line, track, heights })
+pub fn plot_path(out_dir: &Path, stem: &str, line: &[[f32; 2]], track: &[[f32; 2]], heights: Option<&HeightGrid>, view: PathView) -> Result<PlotFiles, ReportError> {
+    write_figure(out_dir, stem, &PathPlot { line, track, heights, view })
 }
 
 struct PathPlot<'a> {
     line: &'a [[f32; 2]],
     track: &'a [[f32; 2]],
     heights: Option<&'a HeightGrid>,
+    view: PathView,
 }
 
 impl Figure for PathPlot<'_> {
     fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
-        draw(root, self.line, self.track, self.heights)
+        draw(root, self)
     }
 }
 
@@ -122,7 +133,8 @@ fn equal_ranges(points: impl Iterator<Item = (f64, f64)>) -> (std::ops::Range<f6
     (cx - span * area_w / 2.0..cx + span * area_w / 2.0, cy - span * area_h / 2.0..cy + span * area_h / 2.0)
 }
 
-fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, line: &[[f32; 2]], track: &[[f32; 2]], heights: Option<&HeightGrid>) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, plot: &PathPlot<'_>) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let PathPlot { line, track, heights, view } = *plot;
     root.fill(&WHITE)?;
     // Seen from above with z pointing to the robot's right: plot −z upwards.
     let plan = |p: &[f32; 2]| (f64::from(p[0]), -f64::from(p[1]));
@@ -131,8 +143,10 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, line: &[[f32; 2]], tra
     let caption = match shading {
         // `+ 0.0` turns a rounded −0 into 0.
         Some((_, (low, high))) => format!("Path seen from above (terrain {} to {} mm, darker higher)", (low * 1000.0).round() + 0.0, (high * 1000.0).round() + 0.0),
+        None if view == PathView::LaidFlat => "Path on the surface laid flat (floor, fillet, wall)".to_owned(),
         None => "Path seen from above".to_owned(),
     };
+    let x_desc = if view == PathView::LaidFlat { "x along the surface (m)" } else { "x (m)" };
     let mut chart = ChartBuilder::on(&root)
         .caption(caption, (FONT_FAMILY, 26))
         .margin(MARGIN_PX)
@@ -152,7 +166,7 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, line: &[[f32; 2]], tra
     }
     chart
         .configure_mesh()
-        .x_desc("x (m)")
+        .x_desc(x_desc)
         .y_desc("left of +x (m)")
         .x_label_formatter(&|v| significant(*v))
         .y_label_formatter(&|v| significant(*v))

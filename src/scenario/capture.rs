@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use crate::metrics::{self, StepOptions};
-use crate::report::{self, HeightGrid, ReportError, Summary, TimeSeries, TimeSeriesWriter};
+use crate::report::{self, HeightGrid, PathView, ReportError, Summary, TimeSeries, TimeSeriesWriter};
 
 /// The time series' columns, in order.
 pub const COLUMNS: &[&str] = &[
@@ -114,6 +114,8 @@ pub struct MetricTrack {
     line: Vec<[f32; 2]>,
     /// The terrain's height around the line, for `path.png`'s shading.
     heights: Option<HeightGrid>,
+    /// Whether `path` and `line` are seen from above or on a wall terrain laid flat.
+    view: PathView,
 }
 
 /// How often the robot's position goes into the track's path (a 5-hour run: 90 000 points).
@@ -163,6 +165,10 @@ impl MetricTrack {
     /// The terrain's height around the line, if it was sampled.
     pub fn heights(&self) -> Option<&HeightGrid> {
         self.heights.as_ref()
+    }
+
+    pub fn view(&self) -> PathView {
+        self.view
     }
 
     pub fn is_empty(&self) -> bool {
@@ -242,6 +248,11 @@ impl Capture {
     /// The terrain's height around the line, for `path.png`.
     pub fn set_heights(&mut self, heights: HeightGrid) {
         self.track.heights = Some(heights);
+    }
+
+    /// The path picture's view (positions are then recorded in its coordinates).
+    pub fn set_view(&mut self, view: PathView) {
+        self.track.view = view;
     }
 
     /// The robot at (x, z) at `t_s`: kept if a path point is due (every [`PATH_PERIOD_S`]).

@@ -20,7 +20,7 @@ use foxglove::messages::log::Level as LogLevel;
 use crate::bus::{Bus, BusFaults, Timing};
 use crate::device::Servo;
 use crate::control::{ControlError, ControlSample, LineError, ReferenceController, WallSighting};
-use crate::report::{self, HeightGrid, Summary, TimeSeries};
+use crate::report::{self, HeightGrid, PathView, Summary, TimeSeries};
 use crate::robot::{RobotDescription, WheelPosition};
 use crate::sim::detector::DetectorError;
 use crate::sim::line::LineError as WeldLineError;
@@ -189,7 +189,12 @@ impl Observer {
         let mut capture = Capture::new(scenario.capture.rate_hz, scenario.capture.signals.as_deref());
         if let Some(line) = &line {
             capture.set_line(line.smoothed().to_vec());
-            capture.set_heights(heights_around(line.smoothed(), world));
+            // On a wall terrain the picture is the sheet laid flat, in the line's own
+            // coordinates: no heights from above.
+            match &sheet {
+                Some(_) => capture.set_view(PathView::LaidFlat),
+                None => capture.set_heights(heights_around(line.smoothed(), world)),
+            }
         }
         Ok(Self {
             line,
@@ -379,7 +384,8 @@ impl Observer {
         let position = world.chassis_pose().translation;
         if track_due {
             self.capture.record_track(t_s, truth.d_err_m, d_m, truth.speed_m_s, target);
-            self.capture.record_position(t_s, position.x, position.z);
+            let [x, z] = self.sheet.as_ref().map_or([position.x, position.z], |sheet| sheet.unroll(position));
+            self.capture.record_position(t_s, x, z);
             let adhesion = world.adhesion();
             self.surfaces.push(&SurfaceSample {
                 t_s,
@@ -840,7 +846,7 @@ pub fn write_outputs(outcome: &RunOutcome, out_dir: &std::path::Path) -> Result<
         )?;
     }
     if !outcome.track.path().is_empty() {
-        report::plot_path(out_dir, "path", outcome.track.line(), outcome.track.path(), outcome.track.heights())?;
+        report::plot_path(out_dir, "path", outcome.track.line(), outcome.track.path(), outcome.track.heights(), outcome.track.view())?;
     }
     Ok(())
 }

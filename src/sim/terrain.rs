@@ -512,6 +512,23 @@ impl UnrolledProfile {
         Some((Vector::new(x0 + s * (x1 - x0), y0 + s * (y1 - y0), z), Vector::new(-dy, dx, 0.0)))
     }
 
+    /// The sheet's (u, z) of the surface point nearest `p` (a point in the world near the
+    /// surface, such as the robot's centre).
+    pub fn unroll(&self, p: Vector) -> [f32; 2] {
+        let mut best = (f32::INFINITY, self.u[0]);
+        for (k, w) in self.vertices.windows(2).enumerate() {
+            let ([x0, y0], [x1, y1]) = (w[0], w[1]);
+            let (dx, dy) = (x1 - x0, y1 - y0);
+            let length2 = (dx * dx + dy * dy).max(f32::EPSILON);
+            let s = (((p.x - x0) * dx + (p.y - y0) * dy) / length2).clamp(0.0, 1.0);
+            let distance2 = (x0 + s * dx - p.x).powi(2) + (y0 + s * dy - p.y).powi(2);
+            if distance2 < best.0 {
+                best = (distance2, self.u[k] + s * (self.u[k + 1] - self.u[k]));
+            }
+        }
+        [best.1, p.z]
+    }
+
     /// The unit direction of increasing u at `u` (along the profile, in the x-y plane).
     pub fn along(&self, u: f32) -> Option<Vector> {
         let (_, normal) = self.point(u, 0.0)?;
@@ -576,6 +593,10 @@ mod tests {
         assert!(sharp.point(-1.01, 0.0).is_none());
         assert!(sharp.point(f32::NAN, 0.0).is_none());
         assert!(UnrolledProfile::of(&TerrainSpec::Flat { size_m: 1.0 }).is_none());
+        // Laid flat again: a robot's centre 60 mm off the wall, 0.2 m up it, is at u = 0.7.
+        let [u, z] = sharp.unroll(Vector::new(0.44, 0.2, 0.1));
+        assert!((u - 0.7).abs() < 1e-6 && z == 0.1, "{u} {z}");
+        assert!((sharp.unroll(Vector::new(-0.3, 0.06, 0.0))[0] + 0.3).abs() < 1e-6);
     }
 
     #[test]
