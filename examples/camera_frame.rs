@@ -37,7 +37,7 @@ fn main() -> anyhow::Result<()> {
         let pose = Pose::from_parts(p.point + Vector::new(0.0, 0.1, 0.01), Rotation::from_rotation_y(yaw));
         let t = Duration::from_millis(k as u64);
         let start = Instant::now();
-        let frame = camera.render(pose, &line, t);
+        let frame = camera.render(pose, std::slice::from_ref(&line), t);
         micros.push(start.elapsed().as_secs_f64() * 1e6);
         if let Some(frame) = frame {
             valid += usize::from(detector.detect(frame).valid);

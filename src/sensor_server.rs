@@ -11,7 +11,10 @@
 //! - `GET /state`: the ground-truth pose, for debugging only (a real robot has no such thing);
 //! - `GET /lidar`: the front LIDAR's latest scan, when the scenario has a `[lidar]`: JSON with its
 //!   time, the sensor's pose in the world, the beams' angles and one range per beam (`null`: no
-//!   return).
+//!   return);
+//! - `GET /welds`: the job: every weld of the scenario (`[line]`, then `[[welds]]`) in order,
+//!   each with its points as written and as smoothed, and its length, JSON
+//!   `{"welds": [{"index": 0, "points": [[x, z], …], "smoothed": …, "length_m": m}, …]}`.
 //!
 //! The simulation publishes into a [`SensorFeed`]; the server only reads it, so a slow or stuck
 //! HTTP client never holds up the physics. Frames are published raw and encoded (PNG, JPEG) only
@@ -90,6 +93,7 @@ struct Snapshot {
     line: Option<serde_json::Value>,
     state: Option<serde_json::Value>,
     lidar: Option<serde_json::Value>,
+    welds: Option<serde_json::Value>,
 }
 
 /// Told of every read the server answers: (path, HTTP status code, content type, body). For
@@ -153,6 +157,11 @@ impl SensorFeed {
     /// The LIDAR's latest scan.
     pub fn publish_lidar(&self, scan: serde_json::Value) {
         self.update(|s| s.lidar = Some(scan));
+    }
+
+    /// The scenario's welds (published once).
+    pub fn publish_welds(&self, welds: serde_json::Value) {
+        self.update(|s| s.welds = Some(welds));
     }
 
     /// Ground truth for debugging.
@@ -234,7 +243,8 @@ async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Resu
         "/line" => json(snapshot.line, "line measurement"),
         "/state" => json(snapshot.state, "state"),
         "/lidar" => json(snapshot.lidar, "LIDAR scan (the scenario needs a [lidar])"),
-        "/" => (200, "text/plain", b"climbsim sensors: /camera.png /camera.mjpg /line /state /lidar\n".to_vec()),
+        "/welds" => json(snapshot.welds, "weld list"),
+        "/" => (200, "text/plain", b"climbsim sensors: /camera.png /camera.mjpg /line /state /lidar /welds\n".to_vec()),
         _ => (404, "text/plain", b"not found\n".to_vec()),
     };
     if let Some(hook) = feed.on_read.get() {

@@ -62,10 +62,5 @@ fn a_wall_transition_without_a_lidar_and_out_of_range_settings_are_refused_by_na
     assert_eq!(output.status.code(), Some(2), "{}", support::output_text(&output));
     assert!(support::output_text(&output).contains("controller.wall_transition") && support::output_text(&output).contains("[lidar]"), "{}", support::output_text(&output));
     let scenario = support::repo().join("scenarios/floor-to-wall-line.toml");
-    for set in ["controller.wall_transition.front_magnet_deg=200", "controller.wall_transition.detect_m=-1", "capture.adhesion_floor_n=-5"] {
-        let output = support::climbsim(&["run", &scenario.display().to_string(), "--set", set, "--out", &dir.join("out").display().to_string()]);
-        assert_eq!(output.status.code(), Some(2), "{set}: {}", support::output_text(&output));
-        let key = set.split('=').next().unwrap_or_default();
-        assert!(support::output_text(&output).contains(key), "{set}: {}", support::output_text(&output));
-    }
+    support::assert_each_set_refused(&scenario, &dir.join("out"), &["controller.wall_transition.front_magnet_deg=200", "controller.wall_transition.detect_m=-1", "capture.adhesion_floor_n=-5"]);
 }

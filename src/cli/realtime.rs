@@ -249,6 +249,7 @@ const STATE_RATE_HZ: f64 = 30.0;
 pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, errors: Arc<Mutex<Option<String>>>) -> TickHook {
     let mut next_state_s = 0.0;
     let mut lidar_published = None;
+    let mut welds_published = false;
     Box::new(move |bus, now| {
         let mut observer = observer.lock().unwrap_or_else(PoisonError::into_inner);
         let t_s = now.as_secs_f64();
@@ -270,6 +271,10 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
                 warn!(%error, "camera frame not published");
             }
         }
+        if !welds_published {
+            welds_published = true;
+            feed.publish_welds(observer.welds_json());
+        }
         if let Some(scan) = observer.lidar_scan().filter(|scan| lidar_published != Some(scan.t)) {
             lidar_published = Some(scan.t);
             feed.publish_lidar(scan.to_json());
@@ -278,11 +283,14 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
         if observation.new_frame || (!observer.has_line() && t_s >= next_state_s) {
             next_state_s = t_s + 1.0 / STATE_RATE_HZ;
             let pose = world.chassis_pose();
+            let forward = pose.rotation * rapier3d::math::Vector::X;
             let truth = observer.ground_truth(world);
             feed.publish_state(json!({
                 "t": t_s,
                 "x": pose.translation.x, "y": pose.translation.y, "z": pose.translation.z,
+                "heading_rad": (-forward.z).atan2(forward.x),
                 "d_err_m": truth.d_err_m, "psi_err_rad": truth.psi_err_rad, "speed_m_s": truth.speed_m_s,
+                "weld": truth.weld,
             }));
         }
     })

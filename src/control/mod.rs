@@ -10,11 +10,13 @@ mod client;
 mod line_follower;
 mod pid;
 pub mod planner;
+mod relocation;
 mod reference;
 mod transition;
 
 pub use client::{BusLink, ControlError, ServoClient};
 pub use line_follower::LineFollowerGains;
 pub use pid::{Pid, PidGains};
-pub use reference::{ControlSample, LineError, ReferenceConfig, ReferenceController};
+pub use reference::{ControlSample, LineError, ReferenceConfig, ReferenceController, Senses};
+pub use relocation::{Leg, Pose2, Relocation, RelocationConfig, RelocationDecision, WeldTask};
 pub use transition::{Phase, WallSighting, WallTransition, WallTransitionConfig};

@@ -181,6 +181,24 @@ impl OccupancyGrid {
         Ok(PlannedPath { points, length_m })
     }
 
+    /// [`OccupancyGrid::plan`] from `from`, or, when `from` is blocked (a robot that ended a weld
+    /// closer to an obstacle than the clearance), from the nearest free cell within half a metre:
+    /// the path then starts at `from` and steps out to that cell first.
+    pub fn plan_from_nearest_free(&self, from: [f32; 2], to: [f32; 2]) -> Result<PlannedPath, PlanError> {
+        let Some((col, row)) = self.cell_of(from[0], from[1]) else { return self.plan(from, to) };
+        let reach = (0.5 / self.cell_m).ceil() as isize;
+        let nearest = (-reach..=reach)
+            .flat_map(|dr| (-reach..=reach).map(move |dc| (dc, dr)))
+            .filter(|&(dc, dr)| self.free(col as isize + dc, row as isize + dr))
+            .min_by_key(|&(dc, dr)| dc * dc + dr * dr);
+        let Some((dc, dr)) = nearest else { return self.plan(from, to) };
+        let exit = self.centre(((col as isize + dc) as usize, (row as isize + dr) as usize));
+        let mut path = self.plan(exit, to)?;
+        path.length_m += (exit[0] - from[0]).hypot(exit[1] - from[1]);
+        path.points.insert(0, from);
+        Ok(path)
+    }
+
     fn free_cell(&self, which: &'static str, [x, z]: [f32; 2]) -> Result<Cell, PlanError> {
         let cell = self.cell_of(x, z).ok_or(PlanError::OutOfBounds { which, x, z })?;
         if self.blocked[cell.1 * self.cols + cell.0] {

@@ -24,6 +24,7 @@ use crate::robot::{RobotDescription, ServoRole, WheelPosition};
 use super::client::{BusLink, ControlError, ServoClient};
 use super::line_follower::{LineFollower, LineFollowerGains};
 use super::pid::{Pid, PidGains};
+use super::relocation::{Pose2, Relocation};
 use super::transition::{WallSighting, WallTransition, WallTransitionConfig};
 
 fn default_period_s() -> f64 {
@@ -129,6 +130,19 @@ pub struct LineError {
     pub psi_err_rad: f64,
 }
 
+/// What the controller perceives in one period besides its servos.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Senses<'a> {
+    /// The latest valid line measurement, if any.
+    pub line: Option<LineError>,
+    /// What the LIDAR sees ahead (for the wall transition).
+    pub wall: Option<WallSighting>,
+    /// The robot's pose (for relocation; see [`Relocation`]).
+    pub pose: Option<Pose2>,
+    /// The LIDAR's returns in plan (for relocation's map).
+    pub lidar_returns: &'a [[f32; 2]],
+}
+
 /// One period's view and decisions, for the time series.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ControlSample {
@@ -145,6 +159,8 @@ pub struct ControlSample {
     pub goal_velocity: [i32; 4],
     /// The wall transition's phase ([`super::Phase::code`]; NaN without one).
     pub transition_phase: f64,
+    /// Relocation's leg ([`super::Leg::code`]; NaN without relocation).
+    pub relocation_leg: f64,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -174,6 +190,7 @@ pub struct ReferenceController {
     sample: ControlSample,
     addresses: Addresses,
     transition: Option<WallTransition>,
+    relocation: Option<Relocation>,
 }
 
 /// Control-table addresses and values the controller uses, from the firmware profile (resolved
@@ -242,7 +259,18 @@ impl ReferenceController {
             sample: ControlSample::default(),
             addresses: Addresses::of(profile),
             transition,
+            relocation: None,
         })
+    }
+
+    /// Relocate between welds (see [`Relocation`]).
+    pub fn with_relocation(mut self, relocation: Relocation) -> Self {
+        self.relocation = Some(relocation);
+        self
+    }
+
+    pub fn relocation(&self) -> Option<&Relocation> {
+        self.relocation.as_ref()
     }
 
     pub fn config(&self) -> &ReferenceConfig {
@@ -278,9 +306,9 @@ impl ReferenceController {
         Ok(())
     }
 
-    /// One control period at time `now`; `line` is the latest valid line measurement, if any,
-    /// and `wall` what the LIDAR sees ahead (for the wall transition).
-    pub fn tick<L: BusLink>(&mut self, link: &mut L, now: Duration, line: Option<LineError>, wall: Option<WallSighting>) -> Result<&ControlSample, ControlError> {
+    /// One control period at time `now` with what the robot perceives.
+    pub fn tick<L: BusLink>(&mut self, link: &mut L, now: Duration, senses: &Senses<'_>) -> Result<&ControlSample, ControlError> {
+        let Senses { line, wall, pose, lidar_returns } = *senses;
         let at = self.addresses;
         let dt = self.last_tick.map_or(0.0, |last| (now - last).as_secs_f64());
         self.last_tick = Some(now);
@@ -321,17 +349,23 @@ impl ReferenceController {
             }
         };
         let measured_speed_m_s = (0..4).map(|i| wheel_rate_rad_s[i] * radius(magnet_angle_rad[i])).sum::<f64>() / 4.0;
-        let feedforward = if self.config.feedforward { self.target_speed_m_s } else { 0.0 };
-        let speed_command_m_s = feedforward + self.pid.update(self.target_speed_m_s - measured_speed_m_s, dt);
+        // Relocation drives between welds at its own speed and steers on its path.
+        let relocating = match (self.relocation.as_mut(), pose) {
+            (Some(relocation), Some(pose)) => relocation.update(pose, lidar_returns, line.is_some()),
+            _ => Default::default(),
+        };
+        let target = relocating.speed_m_s.unwrap_or(self.target_speed_m_s);
+        let feedforward = if self.config.feedforward { target } else { 0.0 };
+        let speed_command_m_s = feedforward + self.pid.update(target - measured_speed_m_s, dt);
 
         // Odometry: the wheels' mean roll since the start.
         let odometry_m = wheel_pulses.iter().sum::<i64>() as f64 / 4.0 * self.rad_per_pulse * self.radius_m;
         let decision = self.transition.as_mut().map(|t| t.update(wall, odometry_m)).unwrap_or_default();
         let limit = self.config.max_yaw_rate_rad_s;
-        let yaw_rate = match (decision.yaw_rate_rad_s, line) {
+        let yaw_rate = match (decision.yaw_rate_rad_s.or(relocating.yaw_rate_rad_s), line) {
             (Some(rate), _) => rate.clamp(-limit, limit),
-            (None, Some(error)) if self.config.follow_line && self.target_speed_m_s > 0.0 => {
-                self.line_follower.yaw_rate(self.target_speed_m_s, error.d_err_m, error.psi_err_rad, dt, limit)
+            (None, Some(error)) if self.config.follow_line && target > 0.0 => {
+                self.line_follower.yaw_rate(target, error.d_err_m, error.psi_err_rad, dt, limit)
             }
             _ => 0.0,
         };
@@ -369,7 +403,8 @@ impl ReferenceController {
         client.sync_write(at.goal_velocity, &blocks);
 
         let transition_phase = self.transition.as_ref().map_or(f64::NAN, |t| t.phase().code());
-        self.sample = ControlSample { wheel_rate_rad_s, magnet_angle_rad, measured_speed_m_s, speed_command_m_s, yaw_rate_command_rad_s: yaw_rate, goal_velocity, transition_phase };
+        let relocation_leg = self.relocation.as_ref().map_or(f64::NAN, |r| r.leg().code());
+        self.sample = ControlSample { wheel_rate_rad_s, magnet_angle_rad, measured_speed_m_s, speed_command_m_s, yaw_rate_command_rad_s: yaw_rate, goal_velocity, transition_phase, relocation_leg };
         Ok(&self.sample)
     }
 }

@@ -61,12 +61,13 @@ pub enum PathView {
 /// Plots `track` over `line` (both (x, z) in metres, seen from above: x to the right, z down,
 /// so that the robot's left is up when it drives along +x) into `out_dir/STEM.png` and `.svg`,
 /// over the terrain's height (`heights`) when it is given and not flat.
-pub fn plot_path(out_dir: &Path, stem: &str, line: &[[f32; 2]], track: &[[f32; 2]], heights: Option<&HeightGrid>, view: PathView) -> Result<PlotFiles, ReportError> {
-    write_figure(out_dir, stem, &PathPlot { line, track, heights, view })
+pub fn plot_path(out_dir: &Path, stem: &str, lines: &[Vec<[f32; 2]>], track: &[[f32; 2]], heights: Option<&HeightGrid>, view: PathView) -> Result<PlotFiles, ReportError> {
+    write_figure(out_dir, stem, &PathPlot { lines, track, heights, view })
 }
 
 struct PathPlot<'a> {
-    line: &'a [[f32; 2]],
+    /// The weld lines (a scenario's `[line]`, then its `[[welds]]`).
+    lines: &'a [Vec<[f32; 2]>],
     track: &'a [[f32; 2]],
     heights: Option<&'a HeightGrid>,
     view: PathView,
@@ -134,11 +135,11 @@ fn equal_ranges(points: impl Iterator<Item = (f64, f64)>) -> (std::ops::Range<f6
 }
 
 fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, plot: &PathPlot<'_>) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
-    let PathPlot { line, track, heights, view } = *plot;
+    let PathPlot { lines, track, heights, view } = *plot;
     root.fill(&WHITE)?;
     // Seen from above with z pointing to the robot's right: plot −z upwards.
     let plan = |p: &[f32; 2]| (f64::from(p[0]), -f64::from(p[1]));
-    let (x_range, y_range) = equal_ranges(line.iter().chain(track).map(plan));
+    let (x_range, y_range) = equal_ranges(lines.iter().flatten().chain(track).map(plan));
     let shading = heights.and_then(|grid| grid.range().filter(|(low, high)| high - low >= FLAT_M).map(|range| (grid, range)));
     let caption = match shading {
         // `+ 0.0` turns a rounded −0 into 0.
@@ -174,10 +175,12 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, plot: &PathPlot<'_>) -
         .axis_desc_style((FONT_FAMILY, 18))
         .draw()?;
     let (line_colour, track_colour) = (RGBColor(LINE_RGB.0, LINE_RGB.1, LINE_RGB.2), RGBColor(TRACK_RGB.0, TRACK_RGB.1, TRACK_RGB.2));
-    chart
-        .draw_series(LineSeries::new(line.iter().map(plan), line_colour.stroke_width(4)))?
-        .label("weld line")
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], line_colour.stroke_width(4)));
+    for (k, line) in lines.iter().enumerate() {
+        let series = chart.draw_series(LineSeries::new(line.iter().map(plan), line_colour.stroke_width(4)))?;
+        if k == 0 {
+            series.label(if lines.len() > 1 { "welds" } else { "weld line" }).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], line_colour.stroke_width(4)));
+        }
+    }
     chart
         .draw_series(LineSeries::new(track.iter().map(plan), track_colour.stroke_width(2)))?
         .label("robot")

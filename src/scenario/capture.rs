@@ -91,6 +91,9 @@ pub const COLUMNS: &[&str] = &[
     // The built-in controller's wall transition: 0 following, 1 squaring up to the surface
     // ahead, 2 climbing with the front magnets held, 3 done (NaN without one).
     "transition_phase",
+    // The built-in controller's relocation between welds: the weld it follows (0 = [line]),
+    // that minus 0.5 while driving to it, -1 finished, -2 stuck (NaN without relocation).
+    "relocation_leg",
 ];
 
 /// The metric track's sampling period (s of simulated time): the built-in controller's default
@@ -110,8 +113,8 @@ pub struct MetricTrack {
     target_speed_m_s: Vec<f64>,
     /// The robot's position seen from above, (x, z) every [`PATH_PERIOD_S`], for `path.png`.
     path: Vec<[f32; 2]>,
-    /// The weld line seen from above, (x, z), as the run began.
-    line: Vec<[f32; 2]>,
+    /// The weld lines seen from above, (x, z), as the run began: `[line]`, then `[[welds]]`.
+    lines: Vec<Vec<[f32; 2]>>,
     /// The terrain's height around the line, for `path.png`'s shading.
     heights: Option<HeightGrid>,
     /// Whether `path` and `line` are seen from above or on a wall terrain laid flat.
@@ -157,9 +160,9 @@ impl MetricTrack {
         &self.path
     }
 
-    /// The weld line seen from above, (x, z) in metres.
-    pub fn line(&self) -> &[[f32; 2]] {
-        &self.line
+    /// The weld lines seen from above, (x, z) in metres.
+    pub fn lines(&self) -> &[Vec<[f32; 2]>] {
+        &self.lines
     }
 
     /// The terrain's height around the line, if it was sampled.
@@ -240,9 +243,9 @@ impl Capture {
         t_s + 1e-9 >= self.next_track_s
     }
 
-    /// The weld line, seen from above, for the path picture.
-    pub fn set_line(&mut self, points: Vec<[f32; 2]>) {
-        self.track.line = points;
+    /// The weld lines, seen from above, for the path picture.
+    pub fn set_lines(&mut self, lines: Vec<Vec<[f32; 2]>>) {
+        self.track.lines = lines;
     }
 
     /// The terrain's height around the line, for `path.png`.

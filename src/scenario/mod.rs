@@ -13,6 +13,7 @@ use thiserror::Error;
 mod overrides;
 pub mod capture;
 pub mod view;
+pub mod relocation;
 pub mod replay;
 pub mod run;
 pub mod surfaces;
@@ -340,6 +341,13 @@ pub struct Scenario {
     pub terrain: TerrainSpec,
     #[serde(default)]
     pub line: Option<LineSection>,
+    /// More welds after `[line]`, in order (`[[welds]]`): the robot relocates from the end of one
+    /// to the start of the next.
+    #[serde(default)]
+    pub welds: Vec<LineSection>,
+    /// How the built-in controller relocates between welds.
+    #[serde(default)]
+    pub relocation: Option<crate::control::RelocationConfig>,
     /// Boxes and cylinders standing on the terrain (`[[obstacles]]`).
     #[serde(default)]
     pub obstacles: Vec<ObstacleSpec>,

@@ -19,17 +19,19 @@ use foxglove::messages::log::Level as LogLevel;
 
 use crate::bus::{Bus, BusFaults, Timing};
 use crate::device::Servo;
-use crate::control::{ControlError, ControlSample, LineError, ReferenceController, WallSighting};
+use crate::control::planner::OccupancyGrid;
+use crate::control::{ControlError, ControlSample, Leg, LineError, Pose2, ReferenceController, Relocation, RelocationConfig, Senses, WallSighting, WeldTask};
 use crate::report::{self, HeightGrid, PathView, Summary, TimeSeries};
 use crate::robot::{RobotDescription, WheelPosition};
 use crate::sim::detector::DetectorError;
-use crate::sim::line::LineError as WeldLineError;
+use crate::sim::line::{LineError as WeldLineError, LineSample};
 use crate::sim::lidar::{Lidar, LidarScan};
 use crate::sim::terrain::UnrolledProfile;
 use crate::sim::{magnet_frame, DetectorSettings, LineCamera, LineCameraSettings, LineDetector, LineMeasurement, Lockstep, RobotWorld, SimError, Surface, WeldLine};
 
 pub use super::capture::{COLUMNS, MetricTrack, summarise};
 use super::capture::Capture;
+use super::relocation::{self, MAX_WELDS, RelocationSample, RelocationTrack, WeldView};
 use super::surfaces::{SurfaceSample, SurfaceTrack};
 use super::view::{LiveAddress, View, ViewOptions};
 use super::watch::{self, WorldFailure, WorldWatch};
@@ -49,6 +51,8 @@ pub enum RunError {
     Camera { path: PathBuf, message: String },
     #[error("scenario {path}: {message}")]
     Lidar { path: PathBuf, message: String },
+    #[error("scenario {path}: [relocation]: {message}")]
+    Relocation { path: PathBuf, message: String },
     #[error("scenario {path} has no [line]: a run needs a weld line to follow")]
     NoLine { path: PathBuf },
     #[error("scenario {path}: [capture] signals: no signal `{name}` (known: {known})")]
@@ -86,6 +90,9 @@ pub struct GroundTruth {
     pub speed_m_s: f64,
     /// How far along the line the robot's nearest point is (m; NaN without a line).
     pub arc_m: f64,
+    /// Which weld (0 = `[line]`, then `[[welds]]` in order) these are measured against: the
+    /// nearest.
+    pub weld: Option<usize>,
 }
 
 /// What [`Observer::on_tick`] saw.
@@ -132,11 +139,12 @@ pub fn require_line(scenario: &Scenario) -> Result<(), RunError> {
 
 /// Everything that watches the world during a run.
 pub struct Observer {
-    /// The weld line, when the scenario has one (a world without one is still watched: the
-    /// view, the robot's state).
-    line: Option<WeldLine>,
-    /// Control points as given, for line-offset events (the line is rebuilt and draped again).
-    line_points: Vec<[f32; 2]>,
+    /// The weld lines: `[line]`, then `[[welds]]` (none: the world is still watched, the view
+    /// and the robot's state).
+    welds: Vec<WeldLine>,
+    /// Their control points as given, for line-offset events (the lines are rebuilt and draped
+    /// again).
+    weld_points: Vec<Vec<[f32; 2]>>,
     /// The terrain laid flat when the line is painted on a wall terrain (see [`UnrolledProfile`]).
     sheet: Option<UnrolledProfile>,
     camera: LineCamera,
@@ -164,6 +172,9 @@ pub struct Observer {
     servo_names: Vec<(u8, String)>,
     /// Transitions, adhesion and slides (see [`SurfaceTrack`]).
     surfaces: SurfaceTrack,
+    /// With more than one weld: how the robot is to relocate, the map it is given, and the
+    /// metrics of its moves.
+    relocation: Option<(RelocationConfig, OccupancyGrid, RelocationTrack)>,
 }
 
 /// How often the view gets the robot's frames and the servos' registers (Foxglove's 3D panel
@@ -179,26 +190,35 @@ impl Observer {
             }
         }
         let sheet = UnrolledProfile::of(&scenario.terrain);
-        let line = scenario.line.as_ref().map(|l| build_line(&l.points, l.smoothness, l.width_m, 0.0, surface(&sheet, world))).transpose().map_err(|source| RunError::Line { path: path.clone(), source })?;
+        let sections: Vec<&super::LineSection> = scenario.line.iter().chain(&scenario.welds).collect();
+        let welds = sections.iter().map(|l| build_line(&l.points, l.smoothness, l.width_m, 0.0, surface(&sheet, world))).collect::<Result<Vec<_>, _>>().map_err(|source| RunError::Line { path: path.clone(), source })?;
         let settings = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
         let camera = LineCamera::new(settings).map_err(|e| RunError::Camera { path: path.clone(), message: e.to_string() })?;
         let detector = LineDetector::new(DetectorSettings::default())?;
         let lidar = scenario.lidar.clone().map(|settings| Lidar::new(settings, robot.lidar.position_m)).transpose().map_err(|e| RunError::Lidar { path: path.clone(), message: e.to_string() })?;
         let mut events = scenario.events.clone();
         events.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+        let relocation = if welds.len() > 1 {
+            let config = scenario.relocation.clone().unwrap_or_default();
+            let (given, truth) = relocation::maps(world, &welds, &config).map_err(|e| RunError::Relocation { path: path.clone(), message: e.to_string() })?;
+            let track = RelocationTrack::new(truth, config.clearance_m as f32, welds.len());
+            Some((config, given, track))
+        } else {
+            None
+        };
         let mut capture = Capture::new(scenario.capture.rate_hz, scenario.capture.signals.as_deref());
-        if let Some(line) = &line {
-            capture.set_line(line.smoothed().to_vec());
+        if !welds.is_empty() {
+            capture.set_lines(welds.iter().map(|w| w.smoothed().to_vec()).collect());
             // On a wall terrain the picture is the sheet laid flat, in the line's own
             // coordinates: no heights from above.
             match &sheet {
                 Some(_) => capture.set_view(PathView::LaidFlat),
-                None => capture.set_heights(heights_around(line.smoothed(), world)),
+                None => capture.set_heights(heights_around(welds.iter().flat_map(|w| w.smoothed().iter().copied()), world)),
             }
         }
         Ok(Self {
-            line,
-            line_points: scenario.line.as_ref().map(|l| l.points.clone()).unwrap_or_default(),
+            welds,
+            weld_points: sections.iter().map(|l| l.points.clone()).collect(),
             sheet,
             camera,
             detector,
@@ -217,12 +237,13 @@ impl Observer {
             faults_acting: Vec::new(),
             servo_names: robot.servo.iter().map(|s| (s.id, s.name.clone())).collect(),
             surfaces: SurfaceTrack::new(scenario.capture.adhesion_floor_n as f32),
+            relocation,
         })
     }
 
     /// Whether the world has a weld line (and so a camera image and line measurements).
     pub fn has_line(&self) -> bool {
-        self.line.is_some()
+        !self.welds.is_empty()
     }
 
     /// The target speed in force at `t_s` (zero before the speed step).
@@ -245,14 +266,19 @@ impl Observer {
                 self.note(at, LogLevel::Info, format!("event at {} s: magnets {}", event.at_s, if on { "on" } else { "off" }));
             }
             if let Some(offset) = event.line_offset_m {
-                // Validation refuses a line offset without a line.
-                let Some(line) = &self.line else { continue };
-                let moved = build_line(&self.line_points, line.smoothness(), line.width_m(), offset, surface(&self.sheet, world)).map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
+                // Validation refuses a line offset without a line; every weld moves.
+                let moved = self
+                    .welds
+                    .iter()
+                    .zip(&self.weld_points)
+                    .map(|(line, points)| build_line(points, line.smoothness(), line.width_m(), offset, surface(&self.sheet, world)))
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(|source| RunError::Line { path: self.scenario_path.clone(), source })?;
                 self.note(at, LogLevel::Info, format!("event at {} s: the line moves {} mm to the left", event.at_s, offset * 1000.0));
+                self.welds = moved;
                 if let Some(view) = &self.view {
-                    view.terrain(at, world, moved.samples());
+                    view.terrain(at, world, &self.weld_samples());
                 }
-                self.line = Some(moved);
             }
         }
         Ok(())
@@ -281,7 +307,7 @@ impl Observer {
         let Some(world) = bus.plant::<RobotWorld>() else { return Ok(None) };
         let names: Vec<String> = self.servo_names.iter().map(|(_, name)| name.clone()).collect();
         let view = View::start(options, COLUMNS, &names)?;
-        view.terrain(Duration::ZERO, world, self.line.as_ref().map_or(&[], WeldLine::samples));
+        view.terrain(Duration::ZERO, world, &self.weld_samples());
         view.robot(Duration::ZERO, world);
         view.log(Duration::ZERO, LogLevel::Info, format!("{}: the run starts", self.scenario_path.display()));
         let url = view.live_url();
@@ -305,8 +331,10 @@ impl Observer {
             view.lidar(scan);
         }
         // Without a weld line there is nothing for the camera and its detector to find.
-        let Some(line) = &self.line else { return None };
-        if let Some(frame) = self.camera.render(world.camera_pose(), line, t) {
+        if self.welds.is_empty() {
+            return None;
+        }
+        if let Some(frame) = self.camera.render(world.camera_pose(), &self.welds, t) {
             self.latest = Some(self.detector.detect(frame));
             self.frames_seen += 1;
             if let Some(view) = &self.view {
@@ -318,6 +346,56 @@ impl Observer {
             }
         }
         self.latest.filter(|m| m.valid).map(|m| robot_relative(&m))
+    }
+
+    /// The robot seen from each weld, in plan (for the relocation metrics).
+    fn weld_views(&self, world: &RobotWorld) -> [Option<WeldView>; MAX_WELDS] {
+        let pose = world.chassis_pose();
+        let centre = pose.translation;
+        let forward = pose.rotation * Vector::X;
+        let mut views = [None; MAX_WELDS];
+        for (view, line) in views.iter_mut().zip(&self.welds) {
+            let p = line.nearest(centre);
+            let left = p.normal.cross(p.tangent);
+            let forward_in_plane = forward - p.normal * forward.dot(p.normal);
+            *view = Some(WeldView {
+                distance_m: (p.point.x - centre.x).hypot(p.point.z - centre.z),
+                inside: p.arc_length_m > 1e-3 && p.arc_length_m < line.length_m() - 1e-3,
+                d_m: (centre - p.point).dot(left),
+                psi_rad: p.tangent.cross(forward_in_plane).dot(p.normal).atan2(p.tangent.dot(forward_in_plane)),
+            });
+        }
+        views
+    }
+
+    /// The built-in controller's relocation between the welds, on the map it is given; None with
+    /// a single weld.
+    pub fn relocation_plan(&self) -> Option<Relocation> {
+        let (config, given, _) = self.relocation.as_ref()?;
+        let tasks = self.welds.iter().map(|w| WeldTask { points: w.smoothed().to_vec() }).collect();
+        Some(Relocation::new(config.clone(), tasks, given.clone()))
+    }
+
+    /// Every weld's draped samples (for the view's stripes).
+    fn weld_samples(&self) -> Vec<&[LineSample]> {
+        self.welds.iter().map(WeldLine::samples).collect()
+    }
+
+    /// The welds, `[line]` first.
+    pub fn welds(&self) -> &[WeldLine] {
+        &self.welds
+    }
+
+    /// The weld list as the sensor server's `/welds` serves it.
+    pub fn welds_json(&self) -> Value {
+        let welds: Vec<Value> = self
+            .welds
+            .iter()
+            .zip(&self.weld_points)
+            .enumerate()
+            .map(|(index, (line, points))| json!({ "index": index, "points": points, "smoothed": line.smoothed(), "length_m": line.length_m() }))
+            .collect();
+        json!({ "welds": welds })
     }
 
     /// The detector's output on the newest frame, in the detector's own convention (where the
@@ -346,8 +424,9 @@ impl Observer {
         let centre = pose.translation;
         let forward = pose.rotation * Vector::X;
         let speed_m_s = f64::from(world.chassis_velocity().dot(forward));
-        let Some(line) = &self.line else { return GroundTruth { d_err_m: f64::NAN, psi_err_rad: f64::NAN, speed_m_s, arc_m: f64::NAN } };
-        let projection = line.nearest(centre);
+        // Against the weld nearest the robot (the one it follows, or is about to).
+        let nearest = self.welds.iter().enumerate().map(|(k, line)| (k, line.nearest(centre))).min_by(|(_, a), (_, b)| (a.point - centre).length().total_cmp(&(b.point - centre).length()));
+        let Some((weld, projection)) = nearest else { return GroundTruth { d_err_m: f64::NAN, psi_err_rad: f64::NAN, speed_m_s, arc_m: f64::NAN, weld: None } };
         let normal = projection.normal;
         let tangent = projection.tangent;
         let left = normal.cross(tangent);
@@ -359,6 +438,7 @@ impl Observer {
             psi_err_rad: f64::from(psi),
             speed_m_s,
             arc_m: f64::from(projection.arc_length_m),
+            weld: Some(weld),
         }
     }
 
@@ -394,6 +474,12 @@ impl Observer {
                 d_true_m: truth.d_err_m,
                 arc_m: truth.arc_m,
             });
+            if self.relocation.is_some() {
+                let sample = RelocationSample { t_s, position: [position.x, position.z], nearest: self.weld_views(world) };
+                if let Some((_, _, track)) = &mut self.relocation {
+                    track.push(&sample);
+                }
+            }
         }
         if !row_due {
             return Ok(());
@@ -433,6 +519,7 @@ impl Observer {
         row.extend(contacts.map(|c| c.map_or(f64::NAN, |(in_plane, _)| f64::from(in_plane))));
         row.extend(contacts.map(|c| c.map_or(f64::NAN, |(_, lateral)| f64::from(lateral))));
         row.push(control.map_or(f64::NAN, |c| c.transition_phase));
+        row.push(control.map_or(f64::NAN, |c| c.relocation_leg));
         if let Some(view) = &mut self.view {
             view.signals(Duration::from_secs_f64(t_s), &row);
         }
@@ -505,8 +592,19 @@ impl Observer {
     pub fn summary(&self, on_line_tolerance_m: f64) -> Summary {
         let mut summary = summarise(self.capture.track(), self.speed_step_at_s, on_line_tolerance_m);
         summary.extend(self.surfaces.summary());
+        if let Some((_, _, track)) = &self.relocation {
+            summary.extend(track.summary());
+        }
         summary
     }
+}
+
+/// The robot's pose in plan, as relocation takes it (the simulator's own: a stand-in for a real
+/// robot's localisation).
+fn plan_pose(world: &RobotWorld) -> Pose2 {
+    let pose = world.chassis_pose();
+    let forward = pose.rotation * Vector::X;
+    Pose2 { x: f64::from(pose.translation.x), z: f64::from(pose.translation.z), heading_rad: f64::from((-forward.z).atan2(forward.x)) }
 }
 
 /// A line measurement in the run's one convention, that of the ground truth and the controller:
@@ -519,10 +617,10 @@ pub fn robot_relative(measurement: &LineMeasurement) -> LineError {
 /// The terrain's height on a grid around `line` (x, z), for `path.png`'s shading: the line's
 /// extent and half a metre round it (where a robot that leaves the line may go), at most
 /// [`HEIGHT_GRID_CELLS`] cells on the longer side.
-fn heights_around(line: &[[f32; 2]], world: &RobotWorld) -> HeightGrid {
+fn heights_around(line: impl Iterator<Item = [f32; 2]>, world: &RobotWorld) -> HeightGrid {
     const MARGIN_M: f32 = 0.5;
     let (mut x, mut z) = ((f32::INFINITY, f32::NEG_INFINITY), (f32::INFINITY, f32::NEG_INFINITY));
-    for &[px, pz] in line {
+    for [px, pz] in line {
         x = (x.0.min(px - MARGIN_M), x.1.max(px + MARGIN_M));
         z = (z.0.min(pz - MARGIN_M), z.1.max(pz + MARGIN_M));
     }
@@ -742,6 +840,10 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
         (live.announce)(&url);
     }
     let mut controller = ReferenceController::new(robot, &profile, config.clone(), observer.target_speed_m_s(0.0))?;
+    if let Some(relocation) = observer.relocation_plan() {
+        controller = controller.with_relocation(relocation);
+    }
+    let relocating = controller.relocation().is_some();
     controller.start(&mut sim)?;
     let period = config.period();
     let wall_window_rad = config.wall_transition.as_ref().map_or(0.0, |t| t.square_window_deg.to_radians() as f32);
@@ -761,7 +863,10 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
             ahead_m: f64::from(scan.ahead_m()),
             angle_rad: scan.wall_angle_rad(wall_window_rad).map(f64::from),
         });
-        let sample = match controller.tick(&mut sim, now, line, wall) {
+        let returns = if relocating { observer.lidar_scan().map(LidarScan::returns_in_plan).unwrap_or_default() } else { Vec::new() };
+        let pose = relocating.then(|| plan_pose(sim.world()));
+        let senses = Senses { line, wall, pose, lidar_returns: &returns };
+        let sample = match controller.tick(&mut sim, now, &senses) {
             Ok(sample) => *sample,
             // With faults on the bus a lost or corrupted reply is expected: the controller skips
             // the period (its wheels keep the last command) and tries again next period, as a
@@ -809,6 +914,12 @@ pub fn run_lockstep_until(scenario: &Scenario, robot: &RobotDescription, stop: &
     if !sim.bus().faults().is_empty() {
         summary.insert("faults.control_periods_skipped".to_owned(), json!(controller_errors));
     }
+    if let Some(relocation) = controller.relocation() {
+        summary.insert("relocation.replans".to_owned(), json!(relocation.replans()));
+        if let Leg::Stuck { reason } = relocation.leg() {
+            summary.insert("relocation.stuck".to_owned(), json!(reason));
+        }
+    }
     let (series, track) = observer.finish()?;
     Ok(RunOutcome { series, track, summary, settings: settings_json(scenario, robot), sim_s, wall_s })
 }
@@ -846,7 +957,7 @@ pub fn write_outputs(outcome: &RunOutcome, out_dir: &std::path::Path) -> Result<
         )?;
     }
     if !outcome.track.path().is_empty() {
-        report::plot_path(out_dir, "path", outcome.track.line(), outcome.track.path(), outcome.track.heights(), outcome.track.view())?;
+        report::plot_path(out_dir, "path", outcome.track.lines(), outcome.track.path(), outcome.track.heights(), outcome.track.view())?;
     }
     Ok(())
 }

@@ -117,6 +117,8 @@ pub const PAYLOAD_KG: Range = Range::closed(0.0, 200.0, "kg");
 pub const SOLVER_ITERATIONS: std::ops::RangeInclusive<usize> = 1..=100;
 /// Start position and line offsets: the terrains are at most a few hundred metres across.
 pub const POSITION_M: Range = Range::closed(-10_000.0, 10_000.0, "m");
+/// An occupancy grid's cell: from a centimetre to a metre.
+pub const GRID_CELL_M: Range = Range::closed(0.01, 1.0, "m");
 /// Distances the LIDAR measures (the wall transition's triggers).
 pub const LIDAR_DISTANCE_M: Range = Range::closed(0.0, 100.0, "m");
 /// A magnet shaft turns within ±180° of straight down (one turn in position mode).
@@ -323,15 +325,30 @@ fn check_line_and_start(scenario: &Scenario) -> Result<(), Problem> {
     s.range("z_m", f64::from(start.z_m), POSITION_M)?;
     s.range("yaw_deg", f64::from(start.yaw_deg), YAW_DEG)?;
     s.range("line_offset_m", f64::from(start.line_offset_m), LINE_OFFSET_M)?;
-    let Some(line) = &scenario.line else { return Ok(()) };
-    let c = Checker::at(&["line"]);
-    for (i, point) in line.points.iter().enumerate() {
-        for (j, v) in point.iter().enumerate() {
-            c.range_at(&[key("points"), KeyPart::Index(i), KeyPart::Index(j)], f64::from(*v), POSITION_M)?;
+    let Some(line) = &scenario.line else {
+        if !scenario.welds.is_empty() {
+            return Err(Checker::at(&[]).problem(&[key("welds")], "[[welds]] come after the first weld, [line]: add one".to_owned()));
         }
+        return Ok(());
+    };
+    check_line_section(&Checker::at(&["line"]), line)?;
+    if scenario.welds.len() + 1 > crate::scenario::relocation::MAX_WELDS {
+        return Err(Checker::at(&[]).problem(&[key("welds")], format!("{} welds with [line]; at most {}", scenario.welds.len() + 1, crate::scenario::relocation::MAX_WELDS)));
     }
-    c.count("smoothness", line.smoothness, &LINE_SMOOTHNESS, "(1 = sharp corners)")?;
-    c.range("width_m", f64::from(line.width_m), LINE_WIDTH_M)?;
+    for (i, weld) in scenario.welds.iter().enumerate() {
+        check_line_section(&Checker { prefix: vec![key("welds"), KeyPart::Index(i)] }, weld)?;
+    }
+    if let Some(r) = &scenario.relocation {
+        let c = Checker::at(&["relocation"]);
+        c.range("speed_mm_min", r.speed_mm_min, Range::above(0.0, SPEED_MM_MIN.max, "mm/min"))?;
+        c.range("cell_m", r.cell_m, GRID_CELL_M)?;
+        c.range("clearance_m", r.clearance_m, TRAVEL_M)?;
+        c.range("approach_m", r.approach_m, TRAVEL_M)?;
+        c.range("arrive_tolerance_m", r.arrive_tolerance_m, Range::above(0.0, 10.0, "m"))?;
+        c.range("lookahead_m", r.lookahead_m, Range::above(0.0, 10.0, "m"))?;
+        c.range("max_slope_deg", r.max_slope_deg, Range::closed(0.0, 90.0, "°"))?;
+        c.range("map_margin_m", r.map_margin_m, TRAVEL_M)?;
+    }
     // The start is placed along the first segment (see `Scenario::start_pose`): beyond its ends
     // the robot starts off the line, and past the line's end there is nothing to follow.
     if let [[x0, z0], [x1, z1], ..] = line.points[..] {
@@ -339,6 +356,16 @@ fn check_line_and_start(scenario: &Scenario) -> Result<(), Problem> {
         s.range("x_m", f64::from(start.x_m), Range::closed(0.0, first, "m (along the line's first segment)"))?;
     }
     Ok(())
+}
+
+fn check_line_section(c: &Checker, line: &super::LineSection) -> Result<(), Problem> {
+    for (i, point) in line.points.iter().enumerate() {
+        for (j, v) in point.iter().enumerate() {
+            c.range_at(&[key("points"), KeyPart::Index(i), KeyPart::Index(j)], f64::from(*v), POSITION_M)?;
+        }
+    }
+    c.count("smoothness", line.smoothness, &LINE_SMOOTHNESS, "(1 = sharp corners)")?;
+    c.range("width_m", f64::from(line.width_m), LINE_WIDTH_M)
 }
 
 fn check_camera(scenario: &Scenario) -> Result<(), Problem> {

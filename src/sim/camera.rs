@@ -254,8 +254,9 @@ impl LineCamera {
     /// If a capture is due (t has reached the next k / rate) the line is rendered now; missed
     /// captures (t jumped several periods) are skipped, not rendered late. Returns the frame that
     /// becomes visible at this call (the capture `latency_frames` captures ago), or `None` if
-    /// none does; [`LineCamera::latest`] keeps returning the last visible frame.
-    pub fn render(&mut self, camera_pose: Pose, line: &WeldLine, t: Duration) -> Option<&Frame> {
+    /// none does; [`LineCamera::latest`] keeps returning the last visible frame. Every line of
+    /// `lines` is painted (a scenario's welds).
+    pub fn render(&mut self, camera_pose: Pose, lines: &[WeldLine], t: Duration) -> Option<&Frame> {
         // Position on the capture grid in frames; the 1e-6 frame tolerance absorbs rounding of
         // callers that compute k / rate in floating point.
         let frames = t.as_secs_f64() * f64::from(self.settings.frame_rate_hz) + 1e-6;
@@ -263,7 +264,7 @@ impl LineCamera {
             return None;
         }
         self.next_capture = (frames.floor() as u64).max(self.next_capture) + 1;
-        let frame = self.capture(camera_pose, line, t);
+        let frame = self.capture(camera_pose, lines, t);
         self.in_flight.push_back(frame);
         if self.in_flight.len() > self.settings.latency_frames as usize {
             let shown = self.in_flight.pop_front();
@@ -282,11 +283,14 @@ impl LineCamera {
 
     /// Render one frame now, ignoring the frame rate and the latency queue (for tools and tests;
     /// it does advance the noise stream).
-    pub fn capture(&mut self, camera_pose: Pose, line: &WeldLine, t: Duration) -> Frame {
+    pub fn capture(&mut self, camera_pose: Pose, lines: &[WeldLine], t: Duration) -> Frame {
         let n = self.size;
         let (h, w) = (self.settings.height_factor(), self.settings.width_factor());
         self.masks.fill(0);
-        self.project(camera_pose, line, h, w);
+        self.projected.clear();
+        for line in lines {
+            self.project(camera_pose, line, h, w);
+        }
         // Each pair is two consecutive samples k, k+1 as [left col, left row, right col, right
         // row]; their quad L_k R_k R_k+1 L_k+1 is two triangles.
         for pair in self.projected.chunks_exact(2) {
@@ -340,7 +344,6 @@ impl LineCamera {
             let l = pose.inverse_transform_point(q);
             [(l.z + half_cols_m) / w, (half_rows_m - l.x) / h]
         };
-        self.projected.clear();
         let samples = line.samples();
         for (c, &(centre, radius)) in line.chunks().iter().enumerate() {
             let l = pose.inverse_transform_point(centre);
@@ -484,7 +487,7 @@ mod tests {
     #[test]
     fn renders_a_dark_stripe_on_bright_ground() {
         let mut camera = LineCamera::new(settings()).unwrap();
-        let frame = camera.capture(at(0.0), &line(), Duration::ZERO);
+        let frame = camera.capture(at(0.0), &[line()], Duration::ZERO);
         assert_eq!((frame.width, frame.height, frame.pixels.len()), (64, 64, 64 * 64));
         // 20 mm = 6.4 px centred on column 32: columns 29..=34 fully dark, 28 and 35 partly.
         for row in [0, 31, 63] {
@@ -497,7 +500,7 @@ mod tests {
         }
         // The line turning left of the robot appears towards column 0 at the top (row 0 = +x).
         let left = WeldLine::new(&[[-0.05, 0.0], [0.05, -0.05]], 1, 0.01).unwrap();
-        let frame = camera.capture(at(0.0), &left, Duration::ZERO);
+        let frame = camera.capture(at(0.0), std::slice::from_ref(&left), Duration::ZERO);
         let darkest = |row| (0..64).min_by_key(|&c| frame.pixel(c, row)).unwrap();
         assert!(darkest(16) < darkest(48), "top {} bottom {}", darkest(16), darkest(48));
     }
@@ -510,7 +513,7 @@ mod tests {
         for ms in 0..=200u32 {
             let t = Duration::from_millis(u64::from(ms));
             // The pose encodes the time it was captured at.
-            if let Some(frame) = camera.render(at(ms as f32 * 1e-3), &line, t) {
+            if let Some(frame) = camera.render(at(ms as f32 * 1e-3), std::slice::from_ref(&line), t) {
                 shown.push((ms, frame.t, frame.pose.translation.x));
             }
         }
@@ -528,13 +531,13 @@ mod tests {
     fn no_latency_shows_each_capture_and_skips_missed_ones() {
         let mut camera = LineCamera::new(settings()).unwrap();
         let line = line();
-        assert!(camera.render(at(0.0), &line, Duration::ZERO).is_some());
-        assert!(camera.render(at(0.0), &line, Duration::from_millis(20)).is_none());
-        assert!(camera.render(at(0.0), &line, Duration::from_millis(34)).is_some());
+        assert!(camera.render(at(0.0), std::slice::from_ref(&line), Duration::ZERO).is_some());
+        assert!(camera.render(at(0.0), std::slice::from_ref(&line), Duration::from_millis(20)).is_none());
+        assert!(camera.render(at(0.0), std::slice::from_ref(&line), Duration::from_millis(34)).is_some());
         // A jump over several periods renders once, then waits for the next grid point.
-        assert!(camera.render(at(0.0), &line, Duration::from_millis(500)).is_some());
-        assert!(camera.render(at(0.0), &line, Duration::from_millis(510)).is_none());
-        assert!(camera.render(at(0.0), &line, Duration::from_millis(534)).is_some());
+        assert!(camera.render(at(0.0), std::slice::from_ref(&line), Duration::from_millis(500)).is_some());
+        assert!(camera.render(at(0.0), std::slice::from_ref(&line), Duration::from_millis(510)).is_none());
+        assert!(camera.render(at(0.0), std::slice::from_ref(&line), Duration::from_millis(534)).is_some());
     }
 
     #[test]
@@ -542,13 +545,13 @@ mod tests {
         let noisy = |seed| LineCameraSettings { noise_std: 6.0, seed, ..settings() };
         let frames = |seed| {
             let mut camera = LineCamera::new(noisy(seed)).unwrap();
-            (0..3).map(|k| camera.capture(at(0.0), &line(), frame_time(k)).pixels).collect::<Vec<_>>()
+            (0..3).map(|k| camera.capture(at(0.0), &[line()], frame_time(k)).pixels).collect::<Vec<_>>()
         };
         let (a, b, c) = (frames(1), frames(1), frames(2));
         assert_eq!(a, b);
         assert_ne!(a, c);
         assert_ne!(a[0], a[1], "the stream advances from frame to frame");
-        let clean = LineCamera::new(settings()).unwrap().capture(at(0.0), &line(), Duration::ZERO).pixels;
+        let clean = LineCamera::new(settings()).unwrap().capture(at(0.0), &[line()], Duration::ZERO).pixels;
         let mean_abs = a[0].iter().zip(&clean).map(|(x, y)| f32::from(x.abs_diff(*y))).sum::<f32>() / clean.len() as f32;
         // E|N(0, 6)| = 6·√(2/π) ≈ 4.8
         assert!((3.5..6.0).contains(&mean_abs), "mean |noise| {mean_abs}");
@@ -558,7 +561,7 @@ mod tests {
     fn blur_softens_the_edges() {
         let mut sharp = LineCamera::new(settings()).unwrap();
         let mut soft = LineCamera::new(LineCameraSettings { blur_px: 2, ..settings() }).unwrap();
-        let (a, b) = (sharp.capture(at(0.0), &line(), Duration::ZERO), soft.capture(at(0.0), &line(), Duration::ZERO));
+        let (a, b) = (sharp.capture(at(0.0), &[line()], Duration::ZERO), soft.capture(at(0.0), &[line()], Duration::ZERO));
         assert!(b.pixel(27, 10) < a.pixel(27, 10) && b.pixel(30, 10) > a.pixel(30, 10));
         // Far from the line nothing changes.
         assert_eq!(a.pixel(5, 5), b.pixel(5, 5));
@@ -566,7 +569,7 @@ mod tests {
 
     #[test]
     fn png_round_trip() {
-        let frame = LineCamera::new(settings()).unwrap().capture(at(0.0), &line(), Duration::ZERO);
+        let frame = LineCamera::new(settings()).unwrap().capture(at(0.0), &[line()], Duration::ZERO);
         let bytes = frame.to_png().unwrap();
         let mut reader = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().unwrap();
         let mut buffer = vec![0; reader.output_buffer_size().unwrap()];

@@ -220,7 +220,7 @@ mod tests {
 
     fn measure(settings: LineCameraSettings, pose: Pose, line: &WeldLine) -> LineMeasurement {
         let mut camera = LineCamera::new(settings).unwrap();
-        let frame = camera.capture(pose, line, Duration::ZERO);
+        let frame = camera.capture(pose, std::slice::from_ref(line), Duration::ZERO);
         LineDetector::new(DetectorSettings::default()).unwrap().detect(&frame)
     }
 

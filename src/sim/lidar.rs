@@ -153,6 +153,21 @@ impl LidarScan {
         Some(ny.atan2(nx))
     }
 
+    /// Every return as a point in the world, seen from above: (x, z).
+    pub fn returns_in_plan(&self) -> Vec<[f32; 2]> {
+        self.ranges_m
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| r.is_finite())
+            .map(|(k, r)| {
+                let angle = self.start_angle_rad + self.step_rad * k as f32;
+                // Sensor frame: x ahead, z to the right, so a beam turned left goes toward −z.
+                let p = self.pose.transform_point(Vector::new(r * angle.cos(), 0.0, -r * angle.sin()));
+                [p.x, p.z]
+            })
+            .collect()
+    }
+
     /// The nearest return of the scan (infinity without any).
     pub fn nearest_m(&self) -> f32 {
         self.ranges_m.iter().copied().fold(f32::INFINITY, f32::min)
@@ -280,6 +295,18 @@ mod tests {
         // Too few returns within the window: no answer.
         assert_eq!(scan(vec![f32::INFINITY; 61]).wall_angle_rad(0.3), None);
         assert_eq!(wall_scan(0.0, 0.4).wall_angle_rad(0.01), None);
+    }
+
+    #[test]
+    fn returns_land_where_the_beams_point() {
+        // The sensor at (1, 0.1, 2) turned 90° left (facing −z): ahead is −z, its left is −x.
+        let mut s = scan(vec![1.0, f32::INFINITY, 2.0]);
+        s.pose = Pose::from_parts(Vector::new(1.0, 0.1, 2.0), Rotation::from_rotation_y(std::f32::consts::FRAC_PI_2));
+        let points = s.returns_in_plan();
+        assert_eq!(points.len(), 2);
+        // Beam 0 is 90° right of ahead (+x here), beam 2 90° left (−x).
+        assert!((points[0][0] - 2.0).abs() < 1e-5 && (points[0][1] - 2.0).abs() < 1e-5, "{points:?}");
+        assert!((points[1][0] + 1.0).abs() < 1e-5 && (points[1][1] - 2.0).abs() < 1e-5, "{points:?}");
     }
 
     #[test]

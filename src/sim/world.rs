@@ -672,6 +672,11 @@ impl RobotWorld {
         surface_below(&self.physics, x, z)
     }
 
+    /// The terrain's own surface straight below (x, z) and its normal, obstacles ignored.
+    pub fn terrain_surface_below(&self, x: f32, z: f32) -> Option<(Vector, Vector)> {
+        terrain_and_normal_below(&self.physics, self.terrain, x, z)
+    }
+
     /// How far along `direction` (unit) from `origin` the nearest surface of the terrain or an
     /// obstacle is, up to `max_m`; the robot's own parts are never hit. For range sensors.
     pub fn cast_ray_at_surroundings(&self, origin: Vector, direction: Vector, max_m: f32) -> Option<f32> {
@@ -966,10 +971,15 @@ fn ray_down(x: f32, z: f32) -> Ray {
 
 /// The terrain collider's surface straight below (x, z), obstacles ignored.
 fn terrain_below(physics: &PhysicsWorld, terrain: ColliderHandle, x: f32, z: f32) -> Option<Vector> {
+    terrain_and_normal_below(physics, terrain, x, z).map(|(point, _)| point)
+}
+
+/// [`terrain_below`] with the surface's outward normal there.
+fn terrain_and_normal_below(physics: &PhysicsWorld, terrain: ColliderHandle, x: f32, z: f32) -> Option<(Vector, Vector)> {
     let ray = ray_down(x, z);
     let collider = physics.colliders.get(terrain)?;
-    let toi = collider.shape().cast_ray(collider.position(), &ray, 2.0 * RAY_DOWN_FROM_M, true)?;
-    Some(ray.point_at(toi))
+    let hit = collider.shape().cast_ray_and_get_normal(collider.position(), &ray, 2.0 * RAY_DOWN_FROM_M, true)?;
+    Some((ray.point_at(hit.time_of_impact), hit.normal))
 }
 
 /// The robot's start frame: origin on the ground under the start point, rotated by the yaw and

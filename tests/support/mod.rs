@@ -352,6 +352,17 @@ pub fn output_text(output: &std::process::Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr))
 }
 
+/// `climbsim run SCENARIO --set SET` for each of `sets`: every one is refused before the run
+/// (exit 2) with its key named.
+pub fn assert_each_set_refused(scenario: &Path, out: &Path, sets: &[&str]) {
+    for set in sets {
+        let output = climbsim(&["run", &scenario.display().to_string(), "--set", set, "--out", &out.display().to_string()]);
+        assert_eq!(output.status.code(), Some(2), "{set}: {}", output_text(&output));
+        let key = set.split('=').next().unwrap_or_default();
+        assert!(output_text(&output).contains(key), "{set}: {}", output_text(&output));
+    }
+}
+
 /// The robot of `hil/robot.toml` in a rapier world, driven through the bus in lockstep, and the
 /// measurements the physics tests and the solver-fidelity bench share.
 pub mod physics;

@@ -206,8 +206,8 @@ impl View {
     }
 
     /// The terrain and the weld line at `t` (at the start, and again when the line moves).
-    pub fn terrain(&self, t: Duration, world: &RobotWorld, line: &[LineSample]) {
-        let update = scene::terrain_and_line(timestamp(t), &world.terrain_mesh(TERRAIN_VERTICES_PER_SIDE), line, &world.obstacle_shapes());
+    pub fn terrain(&self, t: Duration, world: &RobotWorld, lines: &[&[LineSample]]) {
+        let update = scene::terrain_and_line(timestamp(t), &world.terrain_mesh(TERRAIN_VERTICES_PER_SIDE), lines, &world.obstacle_shapes());
         self.channels.terrain.log_with_time(&update, nanos(t));
         self.latest.lock().unwrap_or_else(PoisonError::into_inner).terrain = Some(update);
     }

@@ -52,7 +52,7 @@ fn height_colour(height: f32, low: f32, high: f32) -> Color {
 
 /// The terrain (`terrain`), the weld line's stripe (`weld_line`) and the obstacles
 /// (`obstacles`, rust brown), in `world`.
-pub fn terrain_and_line(timestamp: Timestamp, terrain: &TerrainMesh, line: &[LineSample], obstacles: &[PartShape]) -> SceneUpdate {
+pub fn terrain_and_line(timestamp: Timestamp, terrain: &TerrainMesh, lines: &[&[LineSample]], obstacles: &[PartShape]) -> SceneUpdate {
     let (low, high) = terrain.vertices.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(v.y), hi.max(v.y)));
     let mut ground = entity(timestamp, "world", "terrain");
     ground.triangles.push(TriangleListPrimitive {
@@ -64,8 +64,8 @@ pub fn terrain_and_line(timestamp: Timestamp, terrain: &TerrainMesh, line: &[Lin
     });
     let mut stripe = entity(timestamp, "world", "weld_line");
     let lifted = |p: Vector, normal: Vector| point(p + normal * STRIPE_LIFT_M);
-    let mut points = Vec::with_capacity(line.len().saturating_sub(1) * 6);
-    for pair in line.windows(2) {
+    let mut points = Vec::with_capacity(lines.iter().map(|l| l.len().saturating_sub(1) * 6).sum());
+    for pair in lines.iter().flat_map(|line| line.windows(2)) {
         let (a, b) = (&pair[0], &pair[1]);
         let (al, ar, bl, br) = (lifted(a.left_edge, a.normal), lifted(a.right_edge, a.normal), lifted(b.left_edge, b.normal), lifted(b.right_edge, b.normal));
         points.extend([al, ar, bl, bl, ar, br]);
@@ -155,7 +155,7 @@ mod tests {
     #[test]
     fn the_stripe_is_two_triangles_per_segment_lifted_off_the_surface() {
         let sample = |x: f32| LineSample { point: Vector::new(x, 0.0, 0.0), normal: Vector::Y, arc_length_m: x, left_edge: Vector::new(x, 0.0, -0.01), right_edge: Vector::new(x, 0.0, 0.01) };
-        let update = terrain_and_line(at_zero(), &TerrainMesh { vertices: Vec::new(), indices: Vec::new() }, &[sample(0.0), sample(0.1), sample(0.2)], &[]);
+        let update = terrain_and_line(at_zero(), &TerrainMesh { vertices: Vec::new(), indices: Vec::new() }, &[&[sample(0.0), sample(0.1), sample(0.2)]], &[]);
         let stripe = &update.entities[1].triangles[0];
         assert_eq!(stripe.points.len(), 12);
         assert!(stripe.points.iter().all(|p| (p.y - f64::from(STRIPE_LIFT_M)).abs() < 1e-9));
