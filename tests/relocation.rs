@@ -74,5 +74,5 @@ fn welds_without_a_first_line_and_bad_relocation_settings_are_refused_by_name() 
     assert_eq!(output.status.code(), Some(2), "{}", support::output_text(&output));
     assert!(support::output_text(&output).contains("welds") && support::output_text(&output).contains("[line]"), "{}", support::output_text(&output));
     let scenario = support::repo().join("scenarios/three-welds.toml");
-    support::assert_each_set_refused(&scenario, &dir.join("out"), &["relocation.cell_m=0", "relocation.speed_mm_min=-1", "welds[1].width_m=0"]);
+    support::assert_each_set_refused(&scenario, &dir.join("out"), &["relocation.cell_m=0", "relocation.clearance_m=5", "relocation.speed_mm_min=-1", "welds[1].width_m=0"]);
 }

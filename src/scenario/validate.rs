@@ -117,6 +117,8 @@ pub const PAYLOAD_KG: Range = Range::closed(0.0, 200.0, "kg");
 pub const SOLVER_ITERATIONS: std::ops::RangeInclusive<usize> = 1..=100;
 /// Start position and line offsets: the terrains are at most a few hundred metres across.
 pub const POSITION_M: Range = Range::closed(-10_000.0, 10_000.0, "m");
+/// Relocation's clearance in cells of its grid, at most.
+pub const MAX_CLEARANCE_CELLS: f64 = 50.0;
 /// An occupancy grid's cell: from a centimetre to a metre.
 pub const GRID_CELL_M: Range = Range::closed(0.01, 1.0, "m");
 /// Distances the LIDAR measures (the wall transition's triggers).
@@ -343,6 +345,10 @@ fn check_line_and_start(scenario: &Scenario) -> Result<(), Problem> {
         c.range("speed_mm_min", r.speed_mm_min, Range::above(0.0, SPEED_MM_MIN.max, "mm/min"))?;
         c.range("cell_m", r.cell_m, GRID_CELL_M)?;
         c.range("clearance_m", r.clearance_m, TRAVEL_M)?;
+        // Growing the map costs (clearance / cell)² per blocked cell, at every plan.
+        if r.clearance_m > MAX_CLEARANCE_CELLS * r.cell_m {
+            return Err(c.problem(&[key("clearance_m")], format!("{} m is more than {MAX_CLEARANCE_CELLS} cells of {} m; use a coarser cell_m", r.clearance_m, r.cell_m)));
+        }
         c.range("approach_m", r.approach_m, TRAVEL_M)?;
         c.range("arrive_tolerance_m", r.arrive_tolerance_m, Range::above(0.0, 10.0, "m"))?;
         c.range("lookahead_m", r.lookahead_m, Range::above(0.0, 10.0, "m"))?;
