@@ -14,7 +14,7 @@ use tracing::{info, warn};
 use climbsim::bus::Timing;
 use climbsim::robot::RobotDescription;
 use climbsim::bus::Bus;
-use climbsim::scenario::run::{Observer, RunOutcome, robot_relative, settings_json, write_outputs};
+use climbsim::scenario::run::{Observer, RunOutcome, plan_pose, robot_relative, settings_json, write_outputs};
 use climbsim::scenario::view::{LiveAddress, ViewOptions};
 use climbsim::scenario::{ExternalController, Scenario};
 use climbsim::sensor_server::{SensorFeed, SensorServer};
@@ -283,12 +283,11 @@ pub fn observer_hook(observer: Arc<Mutex<Observer>>, feed: Arc<SensorFeed>, erro
         if observation.new_frame || (!observer.has_line() && t_s >= next_state_s) {
             next_state_s = t_s + 1.0 / STATE_RATE_HZ;
             let pose = world.chassis_pose();
-            let forward = pose.rotation * rapier3d::math::Vector::X;
             let truth = observer.ground_truth(world);
             feed.publish_state(json!({
                 "t": t_s,
                 "x": pose.translation.x, "y": pose.translation.y, "z": pose.translation.z,
-                "heading_rad": (-forward.z).atan2(forward.x),
+                "heading_rad": plan_pose(world).heading_rad,
                 "d_err_m": truth.d_err_m, "psi_err_rad": truth.psi_err_rad, "speed_m_s": truth.speed_m_s,
                 "weld": truth.weld,
             }));

@@ -97,7 +97,7 @@ impl OccupancyGrid {
                 }
                 for dr in -reach..=reach {
                     for dc in -reach..=reach {
-                        let distance = ((dr * dr + dc * dc) as f32).sqrt() * self.cell_m;
+                        let distance = self.offset_m(dc, dr);
                         let (r, c) = (row as isize + dr, col as isize + dc);
                         if distance <= radius_m && r >= 0 && c >= 0 && (r as usize) < self.rows && (c as usize) < self.cols {
                             grown.blocked[r as usize * self.cols + c as usize] = true;
@@ -107,6 +107,18 @@ impl OccupancyGrid {
             }
         }
         grown
+    }
+
+    /// Whether the centres of the cells holding `a` and `b` lie within `radius_m` of each other:
+    /// the rule by which [`OccupancyGrid::inflated`] grows a blocked cell. False outside the grid.
+    pub fn cells_within(&self, a: [f32; 2], b: [f32; 2], radius_m: f32) -> bool {
+        let (Some(ca), Some(cb)) = (self.cell_of(a[0], a[1]), self.cell_of(b[0], b[1])) else { return false };
+        self.offset_m(ca.0 as isize - cb.0 as isize, ca.1 as isize - cb.1 as isize) <= radius_m
+    }
+
+    /// The distance between the centres of two cells `dc` columns and `dr` rows apart.
+    fn offset_m(&self, dc: isize, dr: isize) -> f32 {
+        ((dr * dr + dc * dc) as f32).sqrt() * self.cell_m
     }
 
     /// Whether (x, z) is blocked; everything outside the grid is.
@@ -185,7 +197,7 @@ impl OccupancyGrid {
     /// closer to an obstacle than the clearance), from the nearest free cell within half a metre:
     /// the path then starts at `from` and steps out to that cell first.
     pub fn plan_from_nearest_free(&self, from: [f32; 2], to: [f32; 2]) -> Result<PlannedPath, PlanError> {
-        let Some((col, row)) = self.cell_of(from[0], from[1]) else { return self.plan(from, to) };
+        let Some((col, row)) = self.cell_of(from[0], from[1]).filter(|&(c, r)| !self.free(c as isize, r as isize)) else { return self.plan(from, to) };
         let reach = (0.5 / self.cell_m).ceil() as isize;
         let nearest = (-reach..=reach)
             .flat_map(|dr| (-reach..=reach).map(move |dc| (dc, dr)))

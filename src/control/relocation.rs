@@ -12,7 +12,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::planner::{OccupancyGrid, PlanError, PlannedPath};
+use super::planner::{OccupancyGrid, PlannedPath};
 
 fn default_speed_mm_min() -> f64 {
     3000.0
@@ -218,11 +218,12 @@ impl Relocation {
     /// One control period: the robot's pose, the LIDAR's new returns in plan, whether the camera
     /// sees a line, and the welding speed.
     pub fn update(&mut self, pose: Pose2, returns: &[[f32; 2]], line_seen: bool) -> RelocationDecision {
-        let mut news = false;
+        // Returns in cells not yet blocked (and inside the map: outside counts as blocked).
+        let mut fresh = Vec::new();
         for &[x, z] in returns {
             if !self.map.is_blocked(x, z) {
                 self.map.block_point(x, z);
-                news = true;
+                fresh.push([x, z]);
             }
         }
         let speed = self.config.speed_mm_min / 60_000.0;
@@ -253,7 +254,7 @@ impl Relocation {
                     self.leg = Leg::Aligning { weld };
                     return stop;
                 }
-                if news && self.blocked_ahead(&path, pose) {
+                if self.blocked_ahead(&path, pose, &fresh) {
                     self.replans += 1;
                     self.plan_to(weld, pose);
                     return stop;
@@ -283,17 +284,13 @@ impl Relocation {
     fn plan_to(&mut self, weld: usize, pose: Pose2) {
         let goal = self.welds[weld].approach(self.config.approach_m).map(|v| v as f32);
         let grown = self.map.inflated(self.config.clearance_m as f32);
-        self.leg = match grown.plan([pose.x as f32, pose.z as f32], goal) {
+        // A robot inside a grown cell (the end of a weld next to an obstacle) steps out to the
+        // nearest free cell first instead of giving up.
+        self.leg = match grown.plan_from_nearest_free([pose.x as f32, pose.z as f32], goal) {
             Ok(path) => {
                 tracing::info!(weld, length_m = path.length_m, "relocation: path planned");
                 Leg::Driving { weld, path }
             }
-            // Starting inside a grown cell (the end of a weld next to an obstacle): plan from the
-            // nearest free cell instead of giving up.
-            Err(PlanError::Blocked { which: "start", .. }) => match grown.plan_from_nearest_free([pose.x as f32, pose.z as f32], goal) {
-                Ok(path) => Leg::Driving { weld, path },
-                Err(error) => Leg::Stuck { reason: error.to_string() },
-            },
             Err(error) => {
                 tracing::warn!(%error, weld, "relocation: no path");
                 Leg::Stuck { reason: error.to_string() }
@@ -301,11 +298,15 @@ impl Relocation {
         };
     }
 
-    /// Some point of the path still ahead lies within the clearance of a blocked cell.
-    fn blocked_ahead(&self, path: &PlannedPath, pose: Pose2) -> bool {
+    /// Some point of the path still ahead lies within the clearance of a newly blocked cell (the
+    /// rule the map's growing applies; the path was planned clear of the cells blocked before).
+    fn blocked_ahead(&self, path: &PlannedPath, pose: Pose2, fresh: &[[f32; 2]]) -> bool {
+        if fresh.is_empty() {
+            return false;
+        }
         let from = nearest_index(path, pose);
-        let grown = self.map.inflated(self.config.clearance_m as f32);
-        path.points[from..].iter().any(|&[x, z]| grown.is_blocked(x, z))
+        let clearance = self.config.clearance_m as f32;
+        path.points[from..].iter().any(|&p| fresh.iter().any(|&q| self.map.cells_within(p, q, clearance)))
     }
 
     /// Pure pursuit toward the point `lookahead_m` ahead on the path.

@@ -356,13 +356,12 @@ impl Observer {
         let mut views = [None; MAX_WELDS];
         for (view, line) in views.iter_mut().zip(&self.welds) {
             let p = line.nearest(centre);
-            let left = p.normal.cross(p.tangent);
-            let forward_in_plane = forward - p.normal * forward.dot(p.normal);
+            let (d_m, psi_rad) = p.relative_pose(centre, forward);
             *view = Some(WeldView {
                 distance_m: (p.point.x - centre.x).hypot(p.point.z - centre.z),
                 inside: p.arc_length_m > 1e-3 && p.arc_length_m < line.length_m() - 1e-3,
-                d_m: (centre - p.point).dot(left),
-                psi_rad: p.tangent.cross(forward_in_plane).dot(p.normal).atan2(p.tangent.dot(forward_in_plane)),
+                d_m,
+                psi_rad,
             });
         }
         views
@@ -427,14 +426,9 @@ impl Observer {
         // Against the weld nearest the robot (the one it follows, or is about to).
         let nearest = self.welds.iter().enumerate().map(|(k, line)| (k, line.nearest(centre))).min_by(|(_, a), (_, b)| (a.point - centre).length().total_cmp(&(b.point - centre).length()));
         let Some((weld, projection)) = nearest else { return GroundTruth { d_err_m: f64::NAN, psi_err_rad: f64::NAN, speed_m_s, arc_m: f64::NAN, weld: None } };
-        let normal = projection.normal;
-        let tangent = projection.tangent;
-        let left = normal.cross(tangent);
-        // Heading error in the surface's plane: from the line's tangent to the robot's forward.
-        let forward_in_plane = forward - normal * forward.dot(normal);
-        let psi = tangent.cross(forward_in_plane).dot(normal).atan2(tangent.dot(forward_in_plane));
+        let (d, psi) = projection.relative_pose(centre, forward);
         GroundTruth {
-            d_err_m: f64::from((centre - projection.point).dot(left)),
+            d_err_m: f64::from(d),
             psi_err_rad: f64::from(psi),
             speed_m_s,
             arc_m: f64::from(projection.arc_length_m),
@@ -470,7 +464,7 @@ impl Observer {
             self.surfaces.push(&SurfaceSample {
                 t_s,
                 pull_n: adhesion.each_ref().map(|a| a.force_n),
-                normal: adhesion.each_ref().map(|a| a.contact.map(|(_, n)| n.to_array())),
+                normal: adhesion.each_ref().map(|a| a.contact.map(|(_, n)| n)),
                 d_true_m: truth.d_err_m,
                 arc_m: truth.arc_m,
             });
@@ -600,8 +594,8 @@ impl Observer {
 }
 
 /// The robot's pose in plan, as relocation takes it (the simulator's own: a stand-in for a real
-/// robot's localisation).
-fn plan_pose(world: &RobotWorld) -> Pose2 {
+/// robot's localisation) and the sensor server's `/state` gives it.
+pub fn plan_pose(world: &RobotWorld) -> Pose2 {
     let pose = world.chassis_pose();
     let forward = pose.rotation * Vector::X;
     Pose2 { x: f64::from(pose.translation.x), z: f64::from(pose.translation.z), heading_rad: f64::from((-forward.z).atan2(forward.x)) }

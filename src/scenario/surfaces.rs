@@ -11,6 +11,7 @@
 //! that mean has turned at least [`NEW_SURFACE_DEG`] from the start's. Only the first transition
 //! is measured.
 
+use rapier3d::math::Vector;
 use serde_json::{Value, json};
 
 /// A wheel whose contact normal turned this far from the start surface's has left it (deg).
@@ -34,7 +35,7 @@ pub const DEFAULT_ADHESION_FLOOR_N: f32 = 20.0;
 pub struct SurfaceSample {
     pub t_s: f64,
     pub pull_n: [f32; 4],
-    pub normal: [Option<[f32; 3]>; 4],
+    pub normal: [Option<Vector>; 4],
     pub d_true_m: f64,
     pub arc_m: f64,
 }
@@ -44,7 +45,7 @@ pub struct SurfaceSample {
 pub struct SurfaceTrack {
     /// The pull (N) a magnet may not stay under for long (`adhesion.longest_below_s`).
     floor_n: f32,
-    start_normal: Option<[f32; 3]>,
+    start_normal: Option<Vector>,
     started_at_s: Option<f64>,
     completed_at_s: Option<f64>,
     max_abs_d_in_transition_m: f64,
@@ -106,7 +107,7 @@ impl SurfaceTrack {
     }
 
     fn follow_transition(&mut self, sample: &SurfaceSample) {
-        let all = sample.normal.iter().copied().collect::<Option<Vec<[f32; 3]>>>();
+        let all = sample.normal.iter().copied().collect::<Option<Vec<Vector>>>();
         let Some(start) = self.start_normal else {
             self.start_normal = all.as_deref().and_then(mean_direction);
             return;
@@ -158,26 +159,22 @@ impl SurfaceTrack {
     }
 }
 
-fn angle_deg(a: [f32; 3], b: [f32; 3]) -> f32 {
-    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let norm = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt() * (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-    if norm <= 0.0 { 180.0 } else { (dot / norm).clamp(-1.0, 1.0).acos().to_degrees() }
+fn angle_deg(a: Vector, b: Vector) -> f32 {
+    a.angle_between(b).to_degrees()
 }
 
-fn mean_direction(normals: &[[f32; 3]]) -> Option<[f32; 3]> {
-    let sum = normals.iter().fold([0.0f32; 3], |s, n| [s[0] + n[0], s[1] + n[1], s[2] + n[2]]);
-    let length = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
-    (length > 1e-6).then(|| sum.map(|c| c / length))
+fn mean_direction(normals: &[Vector]) -> Option<Vector> {
+    normals.iter().sum::<Vector>().try_normalize()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    const UP: [f32; 3] = [0.0, 1.0, 0.0];
-    const WALL: [f32; 3] = [-1.0, 0.0, 0.0];
+    const UP: Vector = Vector::Y;
+    const WALL: Vector = Vector::NEG_X;
 
-    fn sample(t_s: f64, normal: [Option<[f32; 3]>; 4], pull_n: [f32; 4], arc_m: f64) -> SurfaceSample {
+    fn sample(t_s: f64, normal: [Option<Vector>; 4], pull_n: [f32; 4], arc_m: f64) -> SurfaceSample {
         SurfaceSample { t_s, pull_n, normal, d_true_m: 0.001 * t_s, arc_m }
     }
 
@@ -188,8 +185,8 @@ mod tests {
     #[test]
     fn a_floor_to_wall_transition_starts_when_a_wheel_turns_and_ends_when_all_four_stand_on_the_wall() {
         let mut track = SurfaceTrack::new(20.0);
-        let tilted = [-0.5f32, 0.866, 0.0]; // 30° up the fillet
-        let frames: [(f64, [Option<[f32; 3]>; 4]); 6] = [
+        let tilted = Vector::new(-0.5, 0.866, 0.0); // 30° up the fillet
+        let frames: [(f64, [Option<Vector>; 4]); 6] = [
             (0.0, [Some(UP); 4]),
             (1.0, [Some(UP); 4]),
             (2.0, [Some(tilted), Some(tilted), Some(UP), Some(UP)]),
@@ -217,7 +214,7 @@ mod tests {
         }
         assert!(!metrics(&flat).contains_key("transition.started_at_s"));
         let mut stuck = SurfaceTrack::new(20.0);
-        let tilted = [-0.5f32, 0.866, 0.0];
+        let tilted = Vector::new(-0.5, 0.866, 0.0);
         for k in 0..10 {
             let n = if k < 3 { UP } else { tilted };
             stuck.push(&sample(f64::from(k), [Some(n), Some(n), Some(UP), Some(UP)], [80.0; 4], 0.0));

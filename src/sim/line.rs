@@ -138,6 +138,18 @@ pub struct LineProjection {
     pub heading_rad: f32,
 }
 
+impl LineProjection {
+    /// Where a body at `centre` facing `forward` stands relative to the line here, in the run's
+    /// convention: its distance (m, + when it is left of the line) and its heading error in the
+    /// surface's plane, from the line's tangent to its forward (rad, + when it points left).
+    pub fn relative_pose(&self, centre: Vector, forward: Vector) -> (f32, f32) {
+        let left = self.normal.cross(self.tangent);
+        let forward_in_plane = forward - self.normal * forward.dot(self.normal);
+        let psi = self.tangent.cross(forward_in_plane).dot(self.normal).atan2(self.tangent.dot(forward_in_plane));
+        ((centre - self.point).dot(left), psi)
+    }
+}
+
 /// A painted line: control points, smoothing and the draped samples.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WeldLine {
