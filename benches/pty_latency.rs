@@ -1,6 +1,9 @@
 //! Round-trip latency over a real pseudo-terminal: climbsim (`serve --timing off`) against a raw
-//! pty echo, the floor any pty-based emulator sits on. Target (issue): median(climbsim) ≤ 1.5 ×
+//! pty echo, the floor any pty-based emulator sits on. Target: median(climbsim) ≤ 1.25 ×
 //! median(echo). Reported, not asserted.
+//!
+//! `CLIMBSIM_BASELINE=<another climbsim binary>` adds it as a third path, interleaved with the
+//! other two, for an A/B of two builds under the same machine conditions.
 //!
 //! (a) echo: a thread does a blocking read on a pty master and writes the same bytes back; the
 //!     client, on the slave (raw, 57600 nominal), writes a 14-byte packet (exactly a Read request,
@@ -18,7 +21,6 @@
 mod support;
 
 use std::fs::File;
-use std::os::fd::{AsFd, OwnedFd};
 use std::time::Instant;
 
 use climbsim::protocol::{crc16, encode_instruction};
@@ -27,6 +29,36 @@ use support::Emulator;
 
 const READ: u8 = 0x02;
 const REPLY_LEN: usize = 15; // 11 + 4 data bytes
+/// The issue's target for median(climbsim) / median(echo).
+const TARGET_RATIO: f64 = 1.25;
+
+/// One timed path: a client port and how many bytes come back.
+struct Path<'a> {
+    client: &'a File,
+    expect: usize,
+    is_echo: bool,
+}
+
+impl<'a> Path<'a> {
+    fn echo(client: &'a File) -> Self {
+        Self { client, expect: 14, is_echo: true }
+    }
+
+    fn climbsim(client: &'a File) -> Self {
+        Self { client, expect: REPLY_LEN, is_echo: false }
+    }
+
+    fn round_trip(&self, request: &[u8], buf: &mut [u8]) -> u64 {
+        let ns = support::round_trip(self.client, request, self.expect, buf);
+        if self.is_echo {
+            assert_eq!(&buf[..self.expect], request, "echo returned other bytes");
+        } else {
+            // Spot-check: every reply is the full, valid status packet.
+            check_reply(&buf[..REPLY_LEN]);
+        }
+        ns
+    }
+}
 
 struct Config {
     full: bool,
@@ -46,59 +78,56 @@ fn main() {
     assert_eq!(request.len(), 14, "a Read request is 14 bytes");
 
     // (a) Raw pty echo.
-    let pty = nix::pty::openpty(None, None).expect("openpty");
-    set_cloexec(&pty.master);
-    set_cloexec(&pty.slave);
-    let echo_client = File::from(pty.slave);
-    support::configure_raw(&echo_client, BaudRate::B57600);
-    let master = pty.master;
-    let echo = std::thread::Builder::new()
-        .name("echo".into())
-        .spawn(move || echo_loop(master))
-        .expect("spawn echo thread");
+    let echo = support::PtyEcho::start(BaudRate::B57600);
+    let echo_client = echo.client();
 
-    // (b) climbsim.
+    // (b) climbsim, and (c) a baseline build of it if one is given (an A/B in one run).
     let mut emulator = Emulator::start(&["--timing", "off"]);
     let sim_client = support::open_raw_port(emulator.port(), BaudRate::B57600);
+    let baseline_bin = support::baseline_binary();
+    let mut baseline = baseline_bin.map(|binary| support::Options::default().binary(binary).start(&["--timing", "off"]));
+    let baseline_client = baseline.as_ref().map(|emulator| support::open_raw_port(emulator.port(), BaudRate::B57600));
 
     let mut buf = [0u8; 64];
-    // Check both paths answer what they should before timing anything.
+    // Check every path answers what it should before timing anything.
     support::round_trip(&echo_client, &request, request.len(), &mut buf);
     assert_eq!(&buf[..request.len()], &request[..], "echo returned other bytes");
-    support::round_trip(&sim_client, &request, REPLY_LEN, &mut buf);
-    check_reply(&buf[..REPLY_LEN]);
+    let mut paths: Vec<Path> = vec![Path::echo(&echo_client), Path::climbsim(&sim_client)];
+    if let Some(client) = &baseline_client {
+        paths.push(Path::climbsim(client));
+    }
+    for path in &paths {
+        path.round_trip(&request, &mut buf);
+    }
 
     for _ in 0..cfg.warmup {
-        support::round_trip(&echo_client, &request, request.len(), &mut buf);
-        support::round_trip(&sim_client, &request, REPLY_LEN, &mut buf);
+        for path in &paths {
+            path.round_trip(&request, &mut buf);
+        }
     }
-    let mut echo_ns = Vec::with_capacity(cfg.blocks * cfg.per_block);
-    let mut sim_ns = Vec::with_capacity(cfg.blocks * cfg.per_block);
+    let mut samples: Vec<Vec<u64>> = vec![Vec::with_capacity(cfg.blocks * cfg.per_block); paths.len()];
     let started = Instant::now();
     for block in 0..cfg.blocks {
-        // Alternate which one goes first in a block, so neither always follows the other.
-        let order: [bool; 2] = if block % 2 == 0 { [true, false] } else { [false, true] };
-        for is_echo in order {
+        // Rotate which one goes first in a block, so none always follows another.
+        for turn in 0..paths.len() {
+            let index = (block + turn) % paths.len();
             for _ in 0..cfg.per_block {
-                if is_echo {
-                    echo_ns.push(support::round_trip(&echo_client, &request, request.len(), &mut buf));
-                } else {
-                    sim_ns.push(support::round_trip(&sim_client, &request, REPLY_LEN, &mut buf));
-                    // Spot-check: every reply is the full, valid status packet.
-                    check_reply(&buf[..REPLY_LEN]);
-                }
+                samples[index].push(paths[index].round_trip(&request, &mut buf));
             }
         }
     }
     let wall = started.elapsed();
 
+    drop(paths);
     drop(sim_client);
-    let exit_ok = emulator.stop();
-    drop(echo_client); // the echo thread reads EIO and ends
-    echo.join().expect("echo thread");
+    drop(baseline_client);
+    let exit_ok = emulator.stop() && baseline.as_mut().is_none_or(|b| b.stop());
+    echo.stop();
 
-    let echo_stats = Stats::of(&mut echo_ns);
-    let sim_stats = Stats::of(&mut sim_ns);
+    let mut samples = samples.into_iter();
+    let echo_stats = Stats::of(&mut samples.next().expect("echo samples"));
+    let sim_stats = Stats::of(&mut samples.next().expect("climbsim samples"));
+    let baseline_stats = samples.next().map(|mut s| Stats::of(&mut s));
     let ratio = sim_stats.median_ns as f64 / echo_stats.median_ns as f64;
 
     println!();
@@ -108,9 +137,17 @@ fn main() {
     println!("|------------------------------------------|------:|-------:|----------:|-------:|-------:|-------:|");
     echo_stats.row("raw pty echo (14 B out, 14 B back)");
     sim_stats.row("climbsim --timing off (14 B, 15 B reply)");
+    if let Some(stats) = &baseline_stats {
+        stats.row("baseline (CLIMBSIM_BASELINE), same");
+    }
     println!();
-    println!("ratio median(climbsim) / median(echo) = {ratio:.2}  (target ≤ 1.5: {})", if ratio <= 1.5 { "met" } else { "NOT met" });
+    let met = ratio <= TARGET_RATIO;
+    println!("ratio median(climbsim) / median(echo) = {ratio:.2}  (target ≤ {TARGET_RATIO}: {})", if met { "met" } else { "NOT met" });
     println!("climbsim overhead over the echo floor (median) = {:.1} µs", (sim_stats.median_ns as f64 - echo_stats.median_ns as f64) / 1e3);
+    let baseline_ratio = baseline_stats.as_ref().map(|b| sim_stats.median_ns as f64 / b.median_ns as f64);
+    if let (Some(stats), Some(ab)) = (&baseline_stats, baseline_ratio) {
+        println!("baseline: ratio to echo {:.2}; median(climbsim) / median(baseline) = {ab:.3}", stats.median_ns as f64 / echo_stats.median_ns as f64);
+    }
 
     if cfg.full {
         let json = serde_json::json!({
@@ -121,9 +158,12 @@ fn main() {
             "request_bytes": request.len(),
             "echo": echo_stats.json(),
             "climbsim_timing_off": sim_stats.json(),
+            "baseline": baseline_stats.as_ref().map(Stats::json),
+            "baseline_binary": baseline_bin.map(|p| p.display().to_string()),
             "ratio_median": ratio,
-            "target_ratio_max": 1.5,
-            "target_met": ratio <= 1.5,
+            "ratio_to_baseline": baseline_ratio,
+            "target_ratio_max": TARGET_RATIO,
+            "target_met": met,
             "emulator_exit_ok": exit_ok,
             "nominal_baud": 57600,
         });
@@ -134,39 +174,10 @@ fn main() {
     assert!(exit_ok, "climbsim did not exit 0 on SIGTERM");
 }
 
-/// openpty(3) descriptors are inheritable; keep them out of the emulator process.
-fn set_cloexec(fd: &OwnedFd) {
-    use std::os::fd::AsRawFd;
-    // SAFETY: fcntl on a descriptor we own.
-    let rc = unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_SETFD, libc::FD_CLOEXEC) };
-    assert_eq!(rc, 0, "fcntl(FD_CLOEXEC)");
-}
-
 fn check_reply(reply: &[u8]) {
     assert_eq!(&reply[..9], &[0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x08, 0x00, 0x55, 0x00], "status header of the Present Position reply: {reply:02X?}");
     let crc = u16::from_le_bytes([reply[13], reply[14]]);
     assert_eq!(crc, crc16(&reply[..13]), "CRC of the reply {reply:02X?}");
-}
-
-fn echo_loop(master: OwnedFd) {
-    let mut buf = [0u8; 256];
-    loop {
-        match nix::unistd::read(master.as_fd(), &mut buf) {
-            Ok(0) | Err(nix::errno::Errno::EIO) => return,
-            Ok(n) => {
-                let mut data = &buf[..n];
-                while !data.is_empty() {
-                    match nix::unistd::write(master.as_fd(), data) {
-                        Ok(w) => data = &data[w..],
-                        Err(nix::errno::Errno::EINTR) => {}
-                        Err(_) => return,
-                    }
-                }
-            }
-            Err(nix::errno::Errno::EINTR) => {}
-            Err(_) => return,
-        }
-    }
 }
 
 struct Stats {

@@ -7,9 +7,13 @@
 //! 250 × 2 µs = 500 µs) is started; the client opens the pty raw at that baud, writes a Read of
 //! Present Position (ID 1, 4 bytes: 14-byte instruction, 15-byte status) and a Ping (10 → 14
 //! bytes), and times from the write to the reply's last byte. Results: a table on stdout and
-//! `target/bench-results/timing_fidelity.json`.
+//! `target/bench-results/timing_fidelity.json`. A raw pty echo of the same request, timed in
+//! blocks interleaved with the emulator's, shows what the host's pty and wake-ups cost by
+//! themselves (a floor the wire model does not include).
 //!
 //! `cargo bench --bench timing_fidelity` measures; without `--bench` a short smoke pass.
+//! `CLIMBSIM_BASELINE=<another climbsim binary>` also times that build, in blocks interleaved
+//! with this one's, for an A/B under the same machine conditions (rows marked "baseline").
 
 #[path = "../tests/support/mod.rs"]
 mod support;
@@ -40,35 +44,63 @@ fn main() {
     println!("request→reply over a real pty, --timing wire, Return Delay Time 500 µs{}", if full { "" } else { "  [smoke run, not a measurement]" });
     println!("| baud | packet | n | predicted µs | median µs | p99 µs | median − predicted µs | % | within 5 % or 50 µs |");
     println!("|---:|---|---:|---:|---:|---:|---:|---:|---|");
+    let baseline_bin = support::baseline_binary();
     for (bps, baud) in bauds {
         let bps_text = bps.to_string();
         let report = support::scratch_dir("timing-fidelity").join(format!("timing-{bps}.json"));
         let report_text = report.display().to_string();
         let mut emulator = Emulator::start(&["--baud", &bps_text, "--report", &report_text]);
         let port = support::open_raw_port(emulator.port(), baud);
+        let mut baseline = baseline_bin.map(|binary| support::Options::default().binary(binary).start(&["--baud", &bps_text]));
+        let baseline_port = baseline.as_ref().map(|b| support::open_raw_port(b.port(), baud));
+        let echo = support::PtyEcho::start(baud);
         let mut buf = [0u8; 64];
         for case in &cases {
             // Round trips take 0.6–5.5 ms: a few seconds per case when measuring.
             let (warmup, n) = if full { (50, if bps < 100_000 { 500 } else { 2_000 }) } else { (5, 20) };
-            for _ in 0..warmup {
-                support::round_trip(&port, &case.request, case.reply_len, &mut buf);
+            let ports: Vec<&std::fs::File> = std::iter::once(&port).chain(baseline_port.as_ref()).chain([echo.client()]).collect();
+            // The echo (last) returns the request itself.
+            let expect = |index: usize| if index == ports.len() - 1 { case.request.len() } else { case.reply_len };
+            for (index, port) in ports.iter().enumerate() {
+                for _ in 0..warmup {
+                    support::round_trip(port, &case.request, expect(index), &mut buf);
+                }
             }
-            let mut us: Vec<f64> = (0..n).map(|_| support::round_trip(&port, &case.request, case.reply_len, &mut buf) as f64 / 1e3).collect();
-            assert_eq!(buf[4], 1, "reply from ID 1");
-            let median = support::median(&mut us);
-            let p99 = us[(us.len() * 99 / 100).min(us.len() - 1)];
+            let mut samples: Vec<Vec<f64>> = vec![Vec::with_capacity(n); ports.len()];
+            const BLOCK: usize = 50;
+            while samples[0].len() < n {
+                for (index, port) in ports.iter().enumerate() {
+                    let expect = expect(index);
+                    for _ in 0..BLOCK.min(n - samples[index].len()) {
+                        samples[index].push(support::round_trip(port, &case.request, expect, &mut buf) as f64 / 1e3);
+                        assert_eq!(buf[4], 1, "reply from ID 1");
+                    }
+                }
+            }
             let predicted = ((case.request.len() + case.reply_len) as f64 * BITS_PER_BYTE / f64::from(bps) + RETURN_DELAY_S) * 1e6;
-            let error = median - predicted;
-            let percent = 100.0 * error / predicted;
-            let met = error.abs() <= 50.0 || percent.abs() <= 5.0;
-            println!("| {bps} | {} | {n} | {predicted:.1} | {median:.1} | {p99:.1} | {error:+.1} | {percent:+.2} | {} |", case.name, if met { "yes" } else { "NO" });
-            rows.push(serde_json::json!({
-                "baud": bps, "packet": case.name, "n": n, "predicted_us": predicted, "median_us": median,
-                "p99_us": p99, "error_us": error, "error_pct": percent, "target_met": met,
-            }));
+            let mut echo_us = samples.pop().expect("echo samples");
+            let echo_median = support::median(&mut echo_us);
+            println!("|   | pty echo of the request, same blocks (the host's floor) | {n} | | {echo_median:.1} | | | | |");
+            rows.push(serde_json::json!({ "baud": bps, "packet": format!("{} (pty echo floor)", case.name), "n": n, "median_us": echo_median }));
+            for (index, mut us) in samples.into_iter().enumerate() {
+                let median = support::median(&mut us);
+                let p99 = us[(us.len() * 99 / 100).min(us.len() - 1)];
+                let error = median - predicted;
+                let percent = 100.0 * error / predicted;
+                let met = error.abs() <= 50.0 || percent.abs() <= 5.0;
+                let name = if index == 0 { case.name.to_owned() } else { format!("{} (baseline)", case.name) };
+                println!("| {bps} | {name} | {n} | {predicted:.1} | {median:.1} | {p99:.1} | {error:+.1} | {percent:+.2} | {} |", if met { "yes" } else { "NO" });
+                rows.push(serde_json::json!({
+                    "baud": bps, "packet": name, "n": n, "predicted_us": predicted, "median_us": median,
+                    "p99_us": p99, "error_us": error, "error_pct": percent, "target_met": met,
+                }));
+            }
         }
         drop(port);
+        drop(baseline_port);
+        echo.stop();
         assert!(emulator.stop(), "climbsim did not exit 0 on SIGTERM");
+        assert!(baseline.as_mut().is_none_or(|b| b.stop()), "the baseline did not exit 0 on SIGTERM");
         // The emulator's own part of the error: how long after the wire model's due time it
         // handed replies to the pty (the rest is the pty and the client waking up).
         let timing: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).expect("timing report")).expect("report JSON");

@@ -773,7 +773,8 @@ async fn start_can(_options: CanOptions, _handle: Arc<BusHandle>) -> Result<std:
 /// every controller connection.
 async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) -> Result<()> {
     let line = port.line();
-    serve_stream_through(port.stream(), handle, &line, AdapterModel::new(adapter)).await?;
+    let spin_for_requests = handle.with_bus(|bus| bus.timing()) == Timing::Off;
+    serve_stream_through(port.stream(spin_for_requests)?, handle, &line, AdapterModel::new(adapter)).await?;
     Ok(())
 }
 

@@ -3,6 +3,7 @@
 //! over any `AsyncRead + AsyncWrite`.
 
 pub mod adapter;
+mod busy_poll;
 pub mod can;
 mod echo;
 pub mod latency;
@@ -283,8 +284,11 @@ where
         gap,
         decoder: Decoder::new(gap, DEFAULT_MAX_LEN),
         buf: vec![0u8; 4096],
+        out: Vec::new(),
         decoded: VecDeque::new(),
         last_reply_lens: Vec::new(),
+        replies_since_unread_check: false,
+        baud: line.baud(),
         controller_tx_free_at: Duration::ZERO,
         physical_wire: line.physical_wire(),
         servo_bauds: Vec::new(),
@@ -306,10 +310,17 @@ struct Session<'a, S> {
     gap: Duration,
     decoder: Decoder,
     buf: Vec<u8>,
+    /// Reply bytes gathered for one write (when there is no wire timing to follow).
+    out: Vec<u8>,
     /// Framed packets (or framing errors) not handled yet, with when their bytes arrived.
     decoded: VecDeque<(Result<RawPacket, FrameError>, Duration)>,
     /// Lengths of the replies last delivered, to count unread ones.
     last_reply_lens: Vec<usize>,
+    /// Replies were handed over since [`Session::count_unread`] last looked.
+    replies_since_unread_check: bool,
+    /// The controller's baud, read when its bytes arrive (once per read, not per packet: the
+    /// packets of one read were all sent before it).
+    baud: Option<u32>,
     /// When the controller's own transmitter has shifted out everything it was given: a UART
     /// sends a second packet only after the first, however soon the program wrote it.
     controller_tx_free_at: Duration,
@@ -352,6 +363,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 Some(read) => match read? {
                     0 => return Ok(()),
                     n => {
+                        self.baud = self.line.baud();
                         let framed = self.decoder.push(now, &self.buf[..n]);
                         self.decoded.extend(framed.into_iter().map(|r| (r, now)));
                     }
@@ -370,7 +382,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 Ok(packet) => {
                     self.count_unread();
                     let span = info_span!("packet", id = packet.id, instruction = packet.instruction);
-                    let transaction = span.in_scope(|| self.handle.handle(packet, at, self.line.baud(), self.physical_wire));
+                    let transaction = span.in_scope(|| self.handle.handle(packet, at, self.baud, self.physical_wire));
                     self.controller_tx_free_at = self.controller_tx_free_at.max(transaction.instruction_end);
                     if self.deliver(transaction).instrument(span).await? {
                         return Ok(true);
@@ -396,11 +408,16 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         if now != self.servo_bauds {
             self.line.servo_bauds_changed(&now);
             self.servo_bauds = now;
+            self.baud = self.line.baud();
         }
     }
 
     /// A request while earlier replies sit unread: the controller moved on without them.
     fn count_unread(&mut self) {
+        // Nothing written since the last look: nothing new can be unread (and the ioctl is saved).
+        if !std::mem::take(&mut self.replies_since_unread_check) {
+            return;
+        }
         let Some(bytes) = self.line.unread_by_controller().filter(|&b| b > 0) else { return };
         let mut left = bytes;
         let mut replies = 0;
@@ -447,10 +464,24 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 let answer = stats::Answered { instruction: name, replies: replies.len(), latency, late, at: now, complete, replies_wire };
                 self.handle.with_stats(|stats| stats.answered(answer));
                 self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
+                self.replies_since_unread_check = true;
             }
             let reply = &replies[hand_over.reply];
-            self.stream.write_all(&reply.bytes[hand_over.bytes.clone()]).await?;
-            trace!(from = ?reply.from, bytes = hand_over.bytes.len(), "reply bytes written");
+            let bytes = &reply.bytes[hand_over.bytes.clone()];
+            if self.timing == Timing::Wire {
+                self.stream.write_all(bytes).await?;
+            } else {
+                // Nothing to wait for between them: one write for all the replies. Each write to a
+                // pty wakes the kernel's flush worker and then the reader; a Sync Read's eight
+                // replies written one by one cost eight (measured: docs/performance.md, loop rate).
+                self.out.extend_from_slice(bytes);
+            }
+            trace!(from = ?reply.from, bytes = hand_over.bytes.len(), "reply bytes handed over");
+        }
+        if !self.out.is_empty() {
+            let written = self.stream.write_all(&self.out).await;
+            self.out.clear();
+            written?;
         }
         self.stream.flush().await?;
         Ok(closed)
@@ -558,6 +589,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     /// `n` bytes in the buffer arrived while replies were still due.
     fn early_bytes(&mut self, n: usize, undelivered: &mut [Reply]) {
         let at = self.clock.now();
+        self.baud = self.line.baud();
         // A copy: rare (only a controller that does not wait), and `put_on_wire` needs `self`.
         let mut sent = self.buf[..n].to_vec();
         if !self.physical_wire {
@@ -571,7 +603,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     /// was given before; where they meet `replies` on the wire both are corrupted. Returns how
     /// many byte pairs collided.
     fn put_on_wire(&mut self, bytes: &mut [u8], at: Duration, replies: &mut [Reply]) -> usize {
-        let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.line.baud()));
+        let byte_time = self.handle.with_bus(|bus| bus.byte_time(self.baud));
         let on_wire = at.max(self.controller_tx_free_at);
         self.controller_tx_free_at = on_wire + byte_time * bytes.len() as u32;
         let collided = wire::collide_in_time(bytes, on_wire, replies, byte_time);

@@ -6,7 +6,7 @@
 //! close/reopen cycles, exactly like a real adapter.
 
 use std::io;
-use std::os::fd::{AsFd, AsRawFd, OwnedFd};
+use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd, RawFd};
 use std::path::{Path, PathBuf};
 use std::pin::Pin;
 use std::sync::Arc;
@@ -20,9 +20,10 @@ use nix::sys::stat::Mode;
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 use thiserror::Error;
 use tokio::io::unix::AsyncFd;
-use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
 use tracing::{info, warn};
 
+use super::busy_poll::BusyPoll;
 use super::{LineSettings, queued_bytes};
 
 /// How long a read waits in poll(2) before parking on the reactor.
@@ -42,7 +43,9 @@ pub enum PtyError {
 
 /// The emulator's end of a virtual serial port.
 pub struct VirtualPort {
-    master: AsyncFd<PtyMaster>,
+    /// Non-blocking; registered with a reactor only by [`VirtualPort::stream`], in the runtime of
+    /// the thread that serves it.
+    master: PtyMaster,
     /// Held open for the port's whole life (see the module comment).
     slave: OwnedFd,
     slave_path: PathBuf,
@@ -69,8 +72,6 @@ impl VirtualPort {
             }
             None => None,
         };
-        // SAFETY: PtyMaster owns its descriptor and returns the same one for its whole life.
-        let master = unsafe { AsyncFd::register(master) }.map_err(|e| PtyError::Io(e.into()))?;
         info!(slave = %slave_path.display(), link = ?link, "virtual serial port ready");
         Ok(Self { master, slave, slave_path, link })
     }
@@ -100,7 +101,7 @@ impl VirtualPort {
 
     /// A handle reporting the baud the controller set on the port.
     pub fn line(&self) -> PtyLine {
-        PtyLine { slave: self.slave.as_raw_fd(), master: self.master.get_ref().as_raw_fd() }
+        PtyLine { slave: self.slave.as_raw_fd(), master: self.master.as_raw_fd() }
     }
 
     /// Remove the link if it still points at this port (idempotent).
@@ -113,19 +114,77 @@ impl VirtualPort {
         }
     }
 
-    /// A byte stream over the master, sharable with the thread that serves it.
-    pub fn stream(self: &Arc<Self>) -> PortStream {
-        PortStream(Arc::clone(self))
+    /// A byte stream over the master, registered with the current runtime's reactor: call it on
+    /// the thread that serves the port. Registered anywhere else, every reply written would wake
+    /// that other thread (each write makes the master writable again, an edge for its epoll) and
+    /// each read readiness would cross threads (measured: docs/performance.md, pty latency).
+    ///
+    /// With `spin_for_requests` the stream spins for a tight-looping controller's next request
+    /// (see [`BusyPoll`]): for `--timing off`, where the reply's latency is the point. Under the
+    /// wire model it does not: a reply is due hundreds of microseconds later anyway, and on two
+    /// cores the spinning thread takes the CPU the kernel's pty worker and the controller need to
+    /// get the reply across (measured +25 µs per round trip at 1 and 4 Mbps).
+    pub fn stream(self: &Arc<Self>, spin_for_requests: bool) -> Result<PortStream, PtyError> {
+        // SAFETY: the descriptor is the port's master, which `MasterFd` keeps open (it holds the
+        // port) and which never changes for the port's life.
+        let registered = unsafe { AsyncFd::register_with_interest(MasterFd(Arc::clone(self)), Interest::READABLE | Interest::WRITABLE) }.map_err(|e| PtyError::Io(e.into()))?;
+        Ok(PortStream { master: registered, busy_poll: spin_for_requests.then(BusyPoll::default) })
     }
 
-    fn poll_read_master(&self, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+    fn master_fd(&self) -> BorrowedFd<'_> {
+        self.master.as_fd()
+    }
+}
+
+/// The master's descriptor as the reactor sees it, holding the port (its owner) open.
+struct MasterFd(Arc<VirtualPort>);
+
+impl AsRawFd for MasterFd {
+    fn as_raw_fd(&self) -> RawFd {
+        self.0.master.as_raw_fd()
+    }
+}
+
+impl PortStream {
+    fn poll_read_master(&mut self, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+        let read = self.read_master(cx, buf);
+        if matches!(read, Poll::Ready(Ok(()))) {
+            if let Some(busy_poll) = &mut self.busy_poll {
+                busy_poll.request_read(Instant::now());
+            }
+        }
+        read
+    }
+
+    fn read_master(&self, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
         // Fast path for the dedicated pty thread: wait briefly in poll(2) and read directly. A
         // controller's next request usually follows within a millisecond, and this skips the
         // reactor's epoll round trip and wake-up (measured: see docs/performance.md, pty latency). Only
         // after a quiet millisecond does the task park on the reactor like any other.
-        let mut fds = [PollFd::new(self.master.get_ref().as_fd(), PollFlags::POLLIN)];
+        let master = self.master.get_ref().0.master_fd();
+        if let Some(until) = self.busy_poll.as_ref().and_then(BusyPoll::spin_until) {
+            // A controller in a tight loop: its request is due within microseconds (see
+            // [`BusyPoll`]). Spin on FIONREAD, not on read(2): a read of an empty pty waits for
+            // the kernel's flush worker if it has bytes queued (flush_work), which is the sleep
+            // and wake-up this spin is meant to avoid (measured: docs/performance.md, loop rate).
+            while Instant::now() < until {
+                if queued_bytes(master.as_raw_fd()) == Some(0) {
+                    std::hint::spin_loop();
+                    continue;
+                }
+                match nix::unistd::read(master, buf.initialize_unfilled()) {
+                    Ok(n) => {
+                        buf.advance(n);
+                        return Poll::Ready(Ok(()));
+                    }
+                    Err(nix::errno::Errno::EAGAIN) => std::hint::spin_loop(),
+                    Err(_) => break,
+                }
+            }
+        }
+        let mut fds = [PollFd::new(master, PollFlags::POLLIN)];
         if matches!(poll(&mut fds, PollTimeout::from(QUICK_WAIT_MS)), Ok(n) if n > 0) {
-            match nix::unistd::read(self.master.get_ref().as_fd(), buf.initialize_unfilled()) {
+            match nix::unistd::read(master, buf.initialize_unfilled()) {
                 Ok(n) => {
                     buf.advance(n);
                     return Poll::Ready(Ok(()));
@@ -137,7 +196,7 @@ impl VirtualPort {
         loop {
             let mut guard = ready!(self.master.poll_read_ready(cx))?;
             let unfilled = buf.initialize_unfilled();
-            match guard.try_io(|fd| nix::unistd::read(fd.get_ref().as_fd(), unfilled).map_err(io::Error::from)) {
+            match guard.try_io(|_| nix::unistd::read(master, unfilled).map_err(io::Error::from)) {
                 Ok(Ok(n)) => {
                     buf.advance(n);
                     return Poll::Ready(Ok(()));
@@ -151,10 +210,28 @@ impl VirtualPort {
         }
     }
 
-    fn poll_write_master(&self, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+    fn poll_write_master(&mut self, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+        let written = self.write_master(cx, data);
+        if matches!(written, Poll::Ready(Ok(_))) {
+            if let Some(busy_poll) = &mut self.busy_poll {
+                busy_poll.reply_written(Instant::now());
+            }
+        }
+        written
+    }
+
+    fn write_master(&self, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+        let master = self.master.get_ref().0.master_fd();
+        // Write straight away: the master is almost always writable, and the reactor's readiness
+        // may not have been reported yet (it is read only when the thread parks).
+        match nix::unistd::write(master, data) {
+            Ok(n) => return Poll::Ready(Ok(n)),
+            Err(nix::errno::Errno::EAGAIN) => {}
+            Err(e) => return Poll::Ready(Err(e.into())),
+        }
         loop {
             let mut guard = ready!(self.master.poll_write_ready(cx))?;
-            match guard.try_io(|fd| nix::unistd::write(fd.get_ref(), data).map_err(io::Error::from)) {
+            match guard.try_io(|_| nix::unistd::write(master, data).map_err(io::Error::from)) {
                 Ok(result) => return Poll::Ready(result),
                 Err(_would_block) => continue,
             }
@@ -163,7 +240,10 @@ impl VirtualPort {
 }
 
 /// The master side as an `AsyncRead + AsyncWrite` stream.
-pub struct PortStream(Arc<VirtualPort>);
+pub struct PortStream {
+    master: AsyncFd<MasterFd>,
+    busy_poll: Option<BusyPoll>,
+}
 
 impl Drop for VirtualPort {
     fn drop(&mut self) {
@@ -217,13 +297,13 @@ impl LineSettings for PtyLine {
 
 impl AsyncRead for PortStream {
     fn poll_read(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
-        self.0.poll_read_master(cx, buf)
+        self.get_mut().poll_read_master(cx, buf)
     }
 }
 
 impl AsyncWrite for PortStream {
     fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
-        self.0.poll_write_master(cx, data)
+        self.get_mut().poll_write_master(cx, data)
     }
 
     fn poll_flush(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {

@@ -30,9 +30,16 @@ pub struct Options {
     temp_link: bool,
     stderr_log: bool,
     sensors: bool,
+    binary: Option<&'static Path>,
 }
 
 impl Options {
+    /// Run this climbsim binary instead of the one just built (a bench's A/B against a baseline).
+    pub fn binary(mut self, binary: &'static Path) -> Self {
+        self.binary = Some(binary);
+        self
+    }
+
     /// Pass `--link <dir>/ttyDXL`, `<dir>` a fresh temporary directory removed on drop.
     pub fn temp_link(mut self) -> Self {
         self.temp_link = true;
@@ -71,7 +78,7 @@ impl Options {
             _ => Stdio::inherit(),
         };
 
-        let mut command = Command::new(env!("CARGO_BIN_EXE_climbsim"));
+        let mut command = Command::new(self.binary.unwrap_or(Path::new(env!("CARGO_BIN_EXE_climbsim"))));
         command.arg("serve");
         if self.temp_link {
             command.arg("--link").arg(link.as_ref().expect("temp link"));
@@ -386,4 +393,67 @@ pub fn get_json(url: &str, path: &str) -> serde_json::Value {
     stream.read_to_string(&mut response).expect("response");
     let (_, body) = response.split_once("\r\n\r\n").expect("headers and body");
     serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {response}"))
+}
+
+/// `CLIMBSIM_BASELINE`: another climbsim binary a bench times beside this build (an A/B).
+pub fn baseline_binary() -> Option<&'static Path> {
+    // Leaked once per bench run: the emulator options keep a `'static` path.
+    std::env::var_os("CLIMBSIM_BASELINE").map(|path| &*Box::leak(PathBuf::from(path).into_boxed_path()))
+}
+
+/// A raw pseudo-terminal echo, the floor any pty-based emulator sits on: a thread does a blocking
+/// read on the master and writes the same bytes back; the client end is the slave, raw.
+pub struct PtyEcho {
+    client: std::fs::File,
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl PtyEcho {
+    pub fn start(baud: nix::sys::termios::BaudRate) -> Self {
+        use std::os::fd::AsRawFd;
+        let pty = nix::pty::openpty(None, None).expect("openpty");
+        // openpty(3) descriptors are inheritable; keep them out of emulator processes.
+        for fd in [&pty.master, &pty.slave] {
+            // SAFETY: fcntl on a descriptor we own.
+            let rc = unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_SETFD, libc::FD_CLOEXEC) };
+            assert_eq!(rc, 0, "fcntl(FD_CLOEXEC)");
+        }
+        let client = std::fs::File::from(pty.slave);
+        configure_raw(&client, baud);
+        let master = pty.master;
+        let thread = std::thread::Builder::new().name("echo".into()).spawn(move || echo_loop(master)).expect("spawn echo thread");
+        Self { client, thread }
+    }
+
+    pub fn client(&self) -> &std::fs::File {
+        &self.client
+    }
+
+    /// Close the client end: the echo thread reads EIO and ends.
+    pub fn stop(self) {
+        drop(self.client);
+        self.thread.join().expect("echo thread");
+    }
+}
+
+fn echo_loop(master: std::os::fd::OwnedFd) {
+    use std::os::fd::AsFd;
+    let mut buf = [0u8; 256];
+    loop {
+        match nix::unistd::read(master.as_fd(), &mut buf) {
+            Ok(0) | Err(nix::errno::Errno::EIO) => return,
+            Ok(n) => {
+                let mut data = &buf[..n];
+                while !data.is_empty() {
+                    match nix::unistd::write(master.as_fd(), data) {
+                        Ok(w) => data = &data[w..],
+                        Err(nix::errno::Errno::EINTR) => {}
+                        Err(_) => return,
+                    }
+                }
+            }
+            Err(nix::errno::Errno::EINTR) => {}
+            Err(_) => return,
+        }
+    }
 }
