@@ -256,6 +256,17 @@ fn main() {
         let path = support::results_dir().join("loop_rate.json");
         std::fs::write(&path, serde_json::to_string_pretty(&json).expect("json") + "\n").expect("write results");
         println!("results: {}", path.display());
+        use support::history::figure;
+        let mut figures = vec![
+            figure("timing_off_cycles_per_s", off.rate(), "1/s"),
+            figure("pty_floor_cycles_per_s", floor.rate(), "1/s"),
+            figure("ratio_to_floor", off.rate() / floor.rate(), "x"),
+        ];
+        figures.extend(baseline_off.as_ref().map(|b| figure("ratio_to_baseline", off.rate() / b.rate(), "x")));
+        for (rdt_code, measured, predicted_cycle_s) in &wire {
+            figures.push(figure(format!("wire_rdt{rdt_code}_difference"), 100.0 * (measured.rate() * predicted_cycle_s - 1.0), "%"));
+        }
+        support::history::record("loop_rate", &figures);
     }
     assert!(off_exit_ok && wire_exit_ok, "climbsim did not exit 0 on SIGTERM");
     assert_eq!(errors, 0, "some Sync Read replies were missing or wrong: the numbers above are not valid");

@@ -170,6 +170,14 @@ fn main() {
         let path = support::results_dir().join("pty_latency.json");
         std::fs::write(&path, serde_json::to_string_pretty(&json).expect("json") + "\n").expect("write results");
         println!("results: {}", path.display());
+        use support::history::figure;
+        let mut figures = vec![
+            figure("echo_median", echo_stats.median_ns as f64 / 1e3, "us"),
+            figure("climbsim_median", sim_stats.median_ns as f64 / 1e3, "us"),
+            figure("ratio_to_echo", ratio, "x"),
+        ];
+        figures.extend(baseline_ratio.map(|r| figure("ratio_to_baseline", r, "x")));
+        support::history::record("pty_latency", &figures);
     }
     assert!(exit_ok, "climbsim did not exit 0 on SIGTERM");
 }

@@ -90,5 +90,21 @@ fn main() {
         let path = support::results_dir().join("solver_fidelity.json");
         std::fs::write(&path, format!("{{\"rows\":[{json}]}}\n")).expect("write results");
         println!("results: {}", path.display());
+        use support::history::figure;
+        let mut figures = Vec::new();
+        for r in &rows {
+            let s = format!("{}x{}", r.solver.iterations, r.solver.internal_iterations);
+            figures.extend([
+                figure(format!("{s}_speed_error"), r.speed_error_pct, "%"),
+                figure(format!("{s}_wall_drift"), r.wall_drift_mm, "mm"),
+                figure(format!("{s}_slope_drift"), r.slope_drift_mm, "mm"),
+                figure(format!("{s}_climbing_current"), r.climbing_current_pct, "%"),
+                figure(format!("{s}_magnet_error"), r.magnet_error_deg, "deg"),
+                figure(format!("{s}_wall_pitch"), r.wall_pitch_deg, "deg"),
+                figure(format!("{s}_wall_weakest_pull"), r.wall_weakest_pull_pct, "%"),
+                figure(format!("{s}_line_sse"), r.line_sse_mm, "mm"),
+            ]);
+        }
+        support::history::record("solver_fidelity", &figures);
     }
 }

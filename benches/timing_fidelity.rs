@@ -40,6 +40,7 @@ fn main() {
     ];
     let bauds = [(57_600u32, BaudRate::B57600), (1_000_000, BaudRate::B1000000), (4_000_000, BaudRate::B4000000)];
     let mut rows = Vec::new();
+    let mut figures = Vec::new();
     println!();
     println!("request→reply over a real pty, --timing wire, Return Delay Time 500 µs{}", if full { "" } else { "  [smoke run, not a measurement]" });
     println!("| baud | packet | n | predicted µs | median µs | p99 µs | median − predicted µs | % | within 5 % or 50 µs |");
@@ -82,6 +83,8 @@ fn main() {
             let echo_median = support::median(&mut echo_us);
             println!("|   | pty echo of the request, same blocks (the host's floor) | {n} | | {echo_median:.1} | | | | |");
             rows.push(serde_json::json!({ "baud": bps, "packet": format!("{} (pty echo floor)", case.name), "n": n, "median_us": echo_median }));
+            let short = if case.name == "Ping" { "ping" } else { "read4" };
+            figures.push(support::history::figure(format!("{bps}_{short}_echo_floor"), echo_median, "us"));
             for (index, mut us) in samples.into_iter().enumerate() {
                 let median = support::median(&mut us);
                 let p99 = us[(us.len() * 99 / 100).min(us.len() - 1)];
@@ -90,6 +93,8 @@ fn main() {
                 let met = error.abs() <= 50.0 || percent.abs() <= 5.0;
                 let name = if index == 0 { case.name.to_owned() } else { format!("{} (baseline)", case.name) };
                 println!("| {bps} | {name} | {n} | {predicted:.1} | {median:.1} | {p99:.1} | {error:+.1} | {percent:+.2} | {} |", if met { "yes" } else { "NO" });
+                let which = if index == 0 { "" } else { "_baseline" };
+                figures.push(support::history::figure(format!("{bps}_{short}_error{which}"), error, "us"));
                 rows.push(serde_json::json!({
                     "baud": bps, "packet": name, "n": n, "predicted_us": predicted, "median_us": median,
                     "p99_us": p99, "error_us": error, "error_pct": percent, "target_met": met,
@@ -113,5 +118,6 @@ fn main() {
         let path = support::results_dir().join("timing_fidelity.json");
         std::fs::write(&path, serde_json::to_string_pretty(&json).expect("json") + "\n").expect("write results");
         println!("results: {}", path.display());
+        support::history::record("timing_fidelity", &figures);
     }
 }

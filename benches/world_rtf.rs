@@ -136,5 +136,13 @@ fn main() {
         let path: PathBuf = support::results_dir().join("world_rtf.json");
         std::fs::write(&path, format!("{{\"steps\":{steps},\"rows\":[{json}],\"peak_memory_1024_mb\":{peak_mb:.1}}}\n")).expect("write results");
         println!("results: {}", path.display());
+        use support::history::figure;
+        let mut figures = Vec::new();
+        for (hz, _, _, t) in rows.iter().filter(|(_, _, solver, _)| *solver == default) {
+            figures.push(figure(format!("{hz}hz_full_us_per_step"), t.full, "us"));
+            figures.push(figure(format!("{hz}hz_bare_us_per_step"), t.bare, "us"));
+        }
+        figures.push(figure("peak_memory_1024", peak_mb, "MB"));
+        support::history::record("world_rtf", &figures);
     }
 }

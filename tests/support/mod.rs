@@ -372,6 +372,7 @@ pub fn assert_each_set_refused(scenario: &Path, out: &Path, sets: &[&str]) {
 
 /// The robot of `hil/robot.toml` in a rapier world, driven through the bus in lockstep, and the
 /// measurements the physics tests and the solver-fidelity bench share.
+pub mod history;
 pub mod physics;
 
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
