@@ -206,6 +206,13 @@ pub trait LineSettings: Send + Sync {
         false
     }
 
+    /// The replies of one transaction may go out in one write when nothing has to be waited for
+    /// between them: a plain byte stream (a pty). Not where a write is a message (CAN's ISO-TP
+    /// stream sends each write as one message, one status packet each).
+    fn batches_replies(&self) -> bool {
+        false
+    }
+
     /// A transaction changed some servo's baud (`(id, bps)` of every servo): a transport with a
     /// baud of its own follows.
     fn servo_bauds_changed(&self, _servos: &[(u8, Option<u32>)]) {}
@@ -468,7 +475,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             }
             let reply = &replies[hand_over.reply];
             let bytes = &reply.bytes[hand_over.bytes.clone()];
-            if self.timing == Timing::Wire {
+            if self.timing == Timing::Wire || !self.line.batches_replies() {
                 self.stream.write_all(bytes).await?;
             } else {
                 // Nothing to wait for between them: one write for all the replies. Each write to a

@@ -293,6 +293,10 @@ impl LineSettings for PtyLine {
     fn wait_for_controller(&self, timeout: Duration) -> Option<bool> {
         Some(super::ppoll_readable(self.master, timeout))
     }
+
+    fn batches_replies(&self) -> bool {
+        true
+    }
 }
 
 impl AsyncRead for PortStream {
