@@ -89,7 +89,7 @@ fn main() {
     run(&mut floor_bus, &goals, warm_for);
     let baseline_bin = support::baseline_binary();
     let mut emu = Emulator::start(&["--timing", "off"]);
-    let mut baseline_emu = baseline_bin.map(|binary| support::Options::default().binary(binary).start(&["--timing", "off"]));
+    let mut baseline_emu = support::start_baseline(&["--timing", "off"]);
     let mut bus = Bus::open(emu.port(), 57_600).expect("open pty at 57600");
     let mut baseline_bus = baseline_emu.as_ref().map(|e| Bus::open(e.port(), 57_600).expect("open the baseline's pty at 57600"));
     velocity_mode(&mut bus);
@@ -180,9 +180,11 @@ fn main() {
     println!("| --timing wire, 4 Mbps      | cycles/s measured | cycles/s predicted | µs/cycle measured | µs/cycle predicted | extra µs/cycle | difference | ≤ 10 % | errors |");
     println!("|----------------------------|------------------:|-------------------:|------------------:|-------------------:|---------------:|-----------:|--------|-------:|");
     let mut wire_json = Vec::new();
+    let mut wire_differences = Vec::new();
     for (rdt_code, measured, predicted_cycle_s) in &wire {
         let predicted_rate = 1.0 / predicted_cycle_s;
         let diff = (measured.rate() - predicted_rate) / predicted_rate;
+        wire_differences.push((*rdt_code, diff));
         println!(
             "| RDT {:>3} ({:>3} µs per reply) | {:>17.1} | {:>18.1} | {:>17.1} | {:>18.1} | {:>14.1} | {:>+8.1} % | {:<6} | {:>6} |",
             rdt_code,
@@ -263,8 +265,8 @@ fn main() {
             figure("ratio_to_floor", off.rate() / floor.rate(), "x"),
         ];
         figures.extend(baseline_off.as_ref().map(|b| figure("ratio_to_baseline", off.rate() / b.rate(), "x")));
-        for (rdt_code, measured, predicted_cycle_s) in &wire {
-            figures.push(figure(format!("wire_rdt{rdt_code}_difference"), 100.0 * (measured.rate() * predicted_cycle_s - 1.0), "%"));
+        for (rdt_code, diff) in &wire_differences {
+            figures.push(figure(format!("wire_rdt{rdt_code}_difference"), 100.0 * diff, "%"));
         }
         support::history::record("loop_rate", &figures);
     }

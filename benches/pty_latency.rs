@@ -33,13 +33,13 @@ const REPLY_LEN: usize = 15; // 11 + 4 data bytes
 const TARGET_RATIO: f64 = 1.25;
 
 /// One timed path: a client port and how many bytes come back.
-struct Path<'a> {
+struct TimedPath<'a> {
     client: &'a File,
     expect: usize,
     is_echo: bool,
 }
 
-impl<'a> Path<'a> {
+impl<'a> TimedPath<'a> {
     fn echo(client: &'a File) -> Self {
         Self { client, expect: 14, is_echo: true }
     }
@@ -85,16 +85,16 @@ fn main() {
     let mut emulator = Emulator::start(&["--timing", "off"]);
     let sim_client = support::open_raw_port(emulator.port(), BaudRate::B57600);
     let baseline_bin = support::baseline_binary();
-    let mut baseline = baseline_bin.map(|binary| support::Options::default().binary(binary).start(&["--timing", "off"]));
+    let mut baseline = support::start_baseline(&["--timing", "off"]);
     let baseline_client = baseline.as_ref().map(|emulator| support::open_raw_port(emulator.port(), BaudRate::B57600));
 
     let mut buf = [0u8; 64];
     // Check every path answers what it should before timing anything.
     support::round_trip(&echo_client, &request, request.len(), &mut buf);
     assert_eq!(&buf[..request.len()], &request[..], "echo returned other bytes");
-    let mut paths: Vec<Path> = vec![Path::echo(&echo_client), Path::climbsim(&sim_client)];
+    let mut paths: Vec<TimedPath> = vec![TimedPath::echo(&echo_client), TimedPath::climbsim(&sim_client)];
     if let Some(client) = &baseline_client {
-        paths.push(Path::climbsim(client));
+        paths.push(TimedPath::climbsim(client));
     }
     for path in &paths {
         path.round_trip(&request, &mut buf);

@@ -45,14 +45,13 @@ fn main() {
     println!("request→reply over a real pty, --timing wire, Return Delay Time 500 µs{}", if full { "" } else { "  [smoke run, not a measurement]" });
     println!("| baud | packet | n | predicted µs | median µs | p99 µs | median − predicted µs | % | within 5 % or 50 µs |");
     println!("|---:|---|---:|---:|---:|---:|---:|---:|---|");
-    let baseline_bin = support::baseline_binary();
     for (bps, baud) in bauds {
         let bps_text = bps.to_string();
         let report = support::scratch_dir("timing-fidelity").join(format!("timing-{bps}.json"));
         let report_text = report.display().to_string();
         let mut emulator = Emulator::start(&["--baud", &bps_text, "--report", &report_text]);
         let port = support::open_raw_port(emulator.port(), baud);
-        let mut baseline = baseline_bin.map(|binary| support::Options::default().binary(binary).start(&["--baud", &bps_text]));
+        let mut baseline = support::start_baseline(&["--baud", &bps_text]);
         let baseline_port = baseline.as_ref().map(|b| support::open_raw_port(b.port(), baud));
         let echo = support::PtyEcho::start(baud);
         let mut buf = [0u8; 64];

@@ -66,13 +66,8 @@ fn an_external_controller_gets_the_weld_list_and_the_pose() {
 #[test]
 fn welds_without_a_first_line_and_bad_relocation_settings_are_refused_by_name() {
     let dir = support::scratch_dir("relocation-bad");
-    let text = std::fs::read_to_string(support::repo().join("scenarios/three-welds.toml")).expect("scenario");
-    let text = text.replace("[line]\npoints = [[0.0, 0.0], [0.6, 0.0]]\n", "").replace("[start]\nx_m = 0.05\n", "");
-    let path = dir.join("no-line.toml");
-    std::fs::write(&path, text).expect("write");
-    let output = support::climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
-    assert_eq!(output.status.code(), Some(2), "{}", support::output_text(&output));
-    assert!(support::output_text(&output).contains("welds") && support::output_text(&output).contains("[line]"), "{}", support::output_text(&output));
+    let without_line = |text: &str| text.replace("[line]\npoints = [[0.0, 0.0], [0.6, 0.0]]\n", "").replace("[start]\nx_m = 0.05\n", "");
+    support::assert_changed_scenario_refused("scenarios/three-welds.toml", &dir, without_line, &["welds", "[line]"]);
     let scenario = support::repo().join("scenarios/three-welds.toml");
     support::assert_each_set_refused(&scenario, &dir.join("out"), &["relocation.cell_m=0", "relocation.clearance_m=5", "relocation.speed_mm_min=-1", "welds[1].width_m=0"]);
 }

@@ -55,12 +55,8 @@ fn the_seeds_scheme_squares_up_turns_the_front_magnets_lets_them_go_and_follows_
 #[test]
 fn a_wall_transition_without_a_lidar_and_out_of_range_settings_are_refused_by_name() {
     let dir = support::scratch_dir("wall-transition-bad");
-    let text = std::fs::read_to_string(support::repo().join("scenarios/floor-to-wall-line.toml")).expect("scenario").replace("[lidar]\n", "");
-    let path = dir.join("no-lidar.toml");
-    std::fs::write(&path, text).expect("write");
-    let output = support::climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
-    assert_eq!(output.status.code(), Some(2), "{}", support::output_text(&output));
-    assert!(support::output_text(&output).contains("controller.wall_transition") && support::output_text(&output).contains("[lidar]"), "{}", support::output_text(&output));
+    let without_lidar = |text: &str| text.replace("[lidar]\n", "");
+    support::assert_changed_scenario_refused("scenarios/floor-to-wall-line.toml", &dir, without_lidar, &["controller.wall_transition", "[lidar]"]);
     let scenario = support::repo().join("scenarios/floor-to-wall-line.toml");
     support::assert_each_set_refused(&scenario, &dir.join("out"), &["controller.wall_transition.front_magnet_deg=200", "controller.wall_transition.detect_m=-1", "capture.adhesion_floor_n=-5"]);
 }

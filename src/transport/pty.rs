@@ -157,10 +157,6 @@ impl PortStream {
     }
 
     fn read_master(&self, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
-        // Fast path for the dedicated pty thread: wait briefly in poll(2) and read directly. A
-        // controller's next request usually follows within a millisecond, and this skips the
-        // reactor's epoll round trip and wake-up (measured: see docs/performance.md, pty latency). Only
-        // after a quiet millisecond does the task park on the reactor like any other.
         let master = self.master.get_ref().0.master_fd();
         if let Some(until) = self.busy_poll.as_ref().and_then(BusyPoll::spin_until) {
             // A controller in a tight loop: its request is due within microseconds (see
@@ -182,6 +178,10 @@ impl PortStream {
                 }
             }
         }
+        // Fast path for the dedicated pty thread: wait briefly in poll(2) and read directly. A
+        // controller's next request usually follows within a millisecond, and this skips the
+        // reactor's epoll round trip and wake-up (measured: see docs/performance.md, pty latency). Only
+        // after a quiet millisecond does the task park on the reactor like any other.
         let mut fds = [PollFd::new(master, PollFlags::POLLIN)];
         if matches!(poll(&mut fds, PollTimeout::from(QUICK_WAIT_MS)), Ok(n) if n > 0) {
             match nix::unistd::read(master, buf.initialize_unfilled()) {

@@ -370,9 +370,24 @@ pub fn assert_each_set_refused(scenario: &Path, out: &Path, sets: &[&str]) {
     }
 }
 
+/// `climbsim run` on a copy of the shipped `scenario` (a path in the repository) changed by
+/// `change` must refuse it (exit 2) and name each of `names`.
+pub fn assert_changed_scenario_refused(scenario: &str, dir: &Path, change: impl FnOnce(&str) -> String, names: &[&str]) {
+    let text = std::fs::read_to_string(repo().join(scenario)).expect("scenario");
+    let changed = change(&text);
+    assert_ne!(changed, text, "the change to {scenario} changed nothing");
+    let path = dir.join("changed.toml");
+    std::fs::write(&path, changed).expect("write the changed scenario");
+    let output = climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
+    assert_eq!(output.status.code(), Some(2), "{}", output_text(&output));
+    for name in names {
+        assert!(output_text(&output).contains(name), "{name}: {}", output_text(&output));
+    }
+}
+
+pub mod history;
 /// The robot of `hil/robot.toml` in a rapier world, driven through the bus in lockstep, and the
 /// measurements the physics tests and the solver-fidelity bench share.
-pub mod history;
 pub mod physics;
 
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
@@ -400,6 +415,11 @@ pub fn get_json(url: &str, path: &str) -> serde_json::Value {
 pub fn baseline_binary() -> Option<&'static Path> {
     // Leaked once per bench run: the emulator options keep a `'static` path.
     std::env::var_os("CLIMBSIM_BASELINE").map(|path| &*Box::leak(PathBuf::from(path).into_boxed_path()))
+}
+
+/// `climbsim serve ARGS` of the `CLIMBSIM_BASELINE` build, if one is given.
+pub fn start_baseline(args: &[&str]) -> Option<Emulator> {
+    baseline_binary().map(|binary| Options::default().binary(binary).start(args))
 }
 
 /// A raw pseudo-terminal echo, the floor any pty-based emulator sits on: a thread does a blocking
