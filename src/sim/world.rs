@@ -155,7 +155,9 @@ pub struct AdhesionSample {
 struct WheelParts {
     section: RigidBodyHandle,
     wheel: RigidBodyHandle,
-    wheel_joint: ImpulseJointHandle,
+    /// The drive servo's motor: a joint that only drives the wheel's spin, reacting on the
+    /// middle body (see `RobotWorld::new`).
+    drive_joint: ImpulseJointHandle,
     /// Joint axes in the section's frame (positive servo rotation).
     wheel_axis: Vector,
     magnet_axis: Vector,
@@ -391,20 +393,13 @@ impl RobotWorld {
             }
         }
 
-        // The front section rolls about x against the middle one (the rocker). It is a multibody
-        // joint (reduced coordinates): the front section can only roll, by construction. As an
-        // impulse joint its pitch lock had to be solved against the two front wheel joints, whose
-        // bodies carry the servos' reflected rotor inertia (7.9e-3 kg·m² each about the axle, 8×
-        // the section's 9.8e-4 pitch inertia). Gauss–Seidel never converged on that ratio: the
-        // section kept a pitch rate in rapier's solved velocities that its poses did not have,
-        // growing without bound on a straight drive (0.0001 → 0.022 rad/s in 45 s), so the front
-        // wheels' motors and rates read that much off and the front treads scrubbed (25 % slip).
+        // The front section rolls about x against the middle one (the rocker).
         let limit = body.rocker.limit_deg.to_radians();
         let rocker = RevoluteJointBuilder::new(Vector::X)
             .local_anchor1(Vector::new(half_base / 2.0, 0.0, 0.0))
             .local_anchor2(Vector::new(-half_base / 2.0, 0.0, 0.0))
             .limits([-limit, limit]);
-        physics.multibody_joints.insert(middle, front, rocker, true);
+        physics.insert_impulse_joint(middle, front, rocker);
 
         let mut wheels = Vec::with_capacity(4);
         for position in WheelPosition::ALL {
@@ -437,11 +432,30 @@ impl RobotWorld {
             // rotation swings the magnet forward from straight down (about +z).
             let wheel_axis = -Vector::Z;
             let magnet_axis = Vector::Z;
-            let revolute = |axis: Vector| {
-                RevoluteJointBuilder::new(axis).local_anchor1(anchor).local_anchor2(Vector::ZERO).motor_model(MotorModel::ForceBased)
-            };
-            let wheel_joint = physics.insert_impulse_joint(section, wheel_body, revolute(wheel_axis));
-            wheels.push(WheelParts { section, wheel: wheel_body, wheel_joint, wheel_axis, magnet_axis, collider });
+            let axle = RevoluteJointBuilder::new(wheel_axis).local_anchor1(anchor).local_anchor2(Vector::ZERO);
+            physics.insert_impulse_joint(section, wheel_body, axle);
+            // The drive servo's torque acts between the wheel and the middle body, not the
+            // section that carries the axle. For a front wheel that is the torque the rocker
+            // would pass on: the rocker frees only roll about x, perpendicular to the axle, so it
+            // hands a torque about the axle to the middle body whole, and the wheel's spin
+            // relative to either section is the same. Solved as one joint, the light front
+            // section (pitch inertia 9.8e-4 kg·m²) sat between the motors, whose wheels carry
+            // the servos' reflected rotor inertia (7.9e-3 kg·m² each about the axle), and the
+            // body that takes their reaction. rapier's Gauss–Seidel never converged on that
+            // chain with an impulse-joint rocker: the section kept a pitch rate in the solved
+            // velocities that its poses did not have (measured: 25 % front-tread scrub on a
+            // straight drive). A multibody rocker solved it exactly, at 1.8× the step's
+            // instructions.
+            // The motor row's axis is in the first body's frame: the wheel's own axle, which
+            // stays the carrying section's z. rapier drives (ω_middle − ω_wheel)·axis, so +z
+            // turns the servo's positive rotation (about −z) into the motor's.
+            let drive = GenericJointBuilder::new(JointAxesMask::empty())
+                .local_axis1(Vector::Z)
+                .local_axis2(Vector::Z)
+                .motor_model(JointAxis::AngX, MotorModel::ForceBased)
+                .contacts_enabled(false);
+            let drive_joint = physics.insert_impulse_joint(wheel_body, middle, drive);
+            wheels.push(WheelParts { section, wheel: wheel_body, drive_joint, wheel_axis, magnet_axis, collider });
         }
         let wheels: [WheelParts; 4] = [wheels[0], wheels[1], wheels[2], wheels[3]];
 
@@ -451,7 +465,7 @@ impl RobotWorld {
             let parts = wheels[spec.wheel.index()];
             links.push(match spec.role {
                 ServoRole::WheelDrive => {
-                    ServoLink::Wheel(ServoJoint { parent: parts.section, child: parts.wheel, joint: parts.wheel_joint, axis: parts.wheel_axis, angle: 0.0, last_wrapped: 0.0 })
+                    ServoLink::Wheel(ServoJoint { parent: parts.section, child: parts.wheel, joint: parts.drive_joint, axis: parts.wheel_axis, angle: 0.0, last_wrapped: 0.0 })
                 }
                 ServoRole::MagnetShaft => {
                     let zero_rad = f64::from(robot.magnet.encoder_at_down_pulses) / 4096.0 * std::f64::consts::TAU;
@@ -791,7 +805,7 @@ impl RobotWorld {
             body.add_torque(torque, true);
         }
         for parts in self.wheels {
-            if let Some(joint) = self.physics.impulse_joints.get_mut(parts.wheel_joint, true) {
+            if let Some(joint) = self.physics.impulse_joints.get_mut(parts.drive_joint, true) {
                 if let Some(motor) = joint.data.motor(JointAxis::AngX).copied() {
                     joint.data.set_motor_velocity(JointAxis::AngX, motor.target_vel, motor.damping);
                     joint.data.set_motor_max_force(JointAxis::AngX, motor.max_force);
