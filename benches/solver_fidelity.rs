@@ -35,7 +35,11 @@ fn measure(solver: SolverSettings) -> Row {
     let wall = floor_to_wall(solver);
     let pull = robot().magnet.pull_at_contact_n;
     let weakest = wall.world().adhesion().iter().map(|s| s.force_n).fold(f32::INFINITY, f32::min);
-    let sets = [format!("world.solver.iterations={}", solver.iterations), format!("world.solver.internal_iterations={}", solver.internal_iterations)];
+    let sets = [
+        format!("world.solver.iterations={}", solver.iterations),
+        format!("world.solver.internal_iterations={}", solver.internal_iterations),
+        format!("world.solver.ticks_per_step={}", solver.ticks_per_step),
+    ];
     let overrides: Vec<Override> = sets.iter().map(|s| Override::parse(s).expect("override")).collect();
     let scenario = Scenario::load_with(&support::repo().join("scenarios/flat-line.toml"), &overrides).expect("flat-line scenario");
     let outcome = run_lockstep(&scenario, &robot()).expect("flat-line run");
@@ -56,16 +60,18 @@ fn measure(solver: SolverSettings) -> Row {
 
 fn main() {
     let full_run = std::env::args().any(|a| a == "--bench");
-    // Settings named on the command line (`-- --bench 3x1 5x1`) replace the standard list.
-    let named: Vec<(usize, usize)> = std::env::args().filter_map(|a| a.split_once('x').and_then(|(i, j)| Some((i.parse().ok()?, j.parse().ok()?)))).collect();
-    let settings: &[(usize, usize)] = if !named.is_empty() {
-        &named
+    // Settings named on the command line (`-- --bench 3x1 5x1/2`: iterations x internal
+    // iterations, optionally / ticks per physics step) replace the standard list.
+    let named: Vec<SolverSettings> = std::env::args().filter_map(|a| parse_setting(&a)).collect();
+    let standard = |list: &[(usize, usize, usize)]| list.iter().map(|&(i, j, t)| SolverSettings::new(i, j).every(t)).collect::<Vec<_>>();
+    let settings = if !named.is_empty() {
+        named
     } else if full_run {
-        &[(8, 2), (4, 2), (4, 1), (3, 2), (2, 2), (2, 1), (1, 2)]
+        standard(&[(8, 2, 1), (8, 2, 2), (4, 2, 2), (3, 2, 1), (3, 2, 2), (2, 2, 2), (2, 1, 2), (1, 2, 2)])
     } else {
-        &[(3, 2)]
+        vec![SolverSettings::default()]
     };
-    let rows: Vec<Row> = settings.iter().map(|&(i, j)| measure(SolverSettings::new(i, j))).collect();
+    let rows: Vec<Row> = settings.iter().map(|&solver| measure(solver)).collect();
     println!("\nsolver fidelity (tolerances of tests/physics.rs in the header; the flat-line scenario's expect: settles, |SSE| ≤ 2 mm)");
     println!("| solver | flat speed vs v·R (±3 %) | wall drift 10 s (< 1 mm) | 30° drift 10 s (< 1 mm) | 60° climbing current vs weight (±20 %) | magnet vs contact angle (< 2°) | wall transition pitch (> 88°) | weakest pull on the wall (> 90 %) | flat-line settling (s) | flat-line SSE (mm) |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
@@ -80,8 +86,8 @@ fn main() {
             .iter()
             .map(|r| {
                 format!(
-                    "{{\"iterations\":{},\"internal_iterations\":{},\"speed_error_pct\":{:.3},\"wall_drift_mm\":{:.4},\"slope_drift_mm\":{:.4},\"climbing_current_pct\":{:.2},\"magnet_error_deg\":{:.3},\"wall_pitch_deg\":{:.2},\"wall_weakest_pull_pct\":{:.1},\"line_settling_s\":{},\"line_sse_mm\":{:.3}}}",
-                    r.solver.iterations, r.solver.internal_iterations, r.speed_error_pct, r.wall_drift_mm, r.slope_drift_mm, r.climbing_current_pct, r.magnet_error_deg, r.wall_pitch_deg, r.wall_weakest_pull_pct,
+                    "{{\"iterations\":{},\"internal_iterations\":{},\"ticks_per_step\":{},\"speed_error_pct\":{:.3},\"wall_drift_mm\":{:.4},\"slope_drift_mm\":{:.4},\"climbing_current_pct\":{:.2},\"magnet_error_deg\":{:.3},\"wall_pitch_deg\":{:.2},\"wall_weakest_pull_pct\":{:.1},\"line_settling_s\":{},\"line_sse_mm\":{:.3}}}",
+                    r.solver.iterations, r.solver.internal_iterations, r.solver.ticks_per_step, r.speed_error_pct, r.wall_drift_mm, r.slope_drift_mm, r.climbing_current_pct, r.magnet_error_deg, r.wall_pitch_deg, r.wall_weakest_pull_pct,
                     if r.line_settling_s.is_finite() { format!("{:.2}", r.line_settling_s) } else { "null".into() }, r.line_sse_mm
                 )
             })
@@ -93,7 +99,7 @@ fn main() {
         use support::history::figure;
         let mut figures = Vec::new();
         for r in &rows {
-            let s = format!("{}x{}", r.solver.iterations, r.solver.internal_iterations);
+            let s = setting_name(&r.solver);
             figures.extend([
                 figure(format!("{s}_speed_error"), r.speed_error_pct, "%"),
                 figure(format!("{s}_wall_drift"), r.wall_drift_mm, "mm"),
@@ -106,5 +112,22 @@ fn main() {
             ]);
         }
         support::history::record("solver_fidelity", &figures);
+    }
+}
+
+/// `IxJ` or `IxJ/T` (iterations, internal iterations, ticks per physics step; 1 tick if left out).
+fn parse_setting(arg: &str) -> Option<SolverSettings> {
+    let (passes, ticks) = arg.split_once('/').map_or((arg, Some("1")), |(p, t)| (p, Some(t)));
+    let (i, j) = passes.split_once('x')?;
+    Some(SolverSettings::new(i.parse().ok()?, j.parse().ok()?).every(ticks?.parse().ok()?))
+}
+
+/// The history's name for a setting: `3x2` at one tick per step (the names recorded before
+/// physics could step less often than the firmware), `3x2/2` otherwise.
+fn setting_name(solver: &SolverSettings) -> String {
+    let passes = format!("{}x{}", solver.iterations, solver.internal_iterations);
+    match solver.ticks_per_step.get() {
+        1 => passes,
+        ticks => format!("{passes}/{ticks}"),
     }
 }

@@ -77,9 +77,9 @@ pub struct WorldSection {
     /// Extra mass carried on the middle section (kg), e.g. a towed welding carriage.
     #[serde(default)]
     pub payload_kg: f32,
-    /// rapier's solver effort per step, `{ iterations = 3, internal_iterations = 2 }` by default:
-    /// raise it to check that a result does not depend on the solver, lower it (2 × 2) for
-    /// faster sweeps that do not read servo current.
+    /// rapier's solver effort, `{ iterations = 3, internal_iterations = 3, ticks_per_step = 2 }`
+    /// by default (one physics step every two 1 ms firmware ticks): raise it, or step every tick,
+    /// to check that a result does not depend on the solver.
     #[serde(default)]
     pub solver: SolverSettings,
 }

@@ -115,6 +115,8 @@ pub const PAYLOAD_KG: Range = Range::closed(0.0, 200.0, "kg");
 /// the docs), so a run still advances and an interrupt lands within one step; 1000 × 1000 took
 /// over a second a step.
 pub const SOLVER_ITERATIONS: std::ops::RangeInclusive<usize> = 1..=100;
+/// Firmware ticks per physics step: the settings the solver-fidelity table vouches for.
+pub const TICKS_PER_STEP: std::ops::RangeInclusive<usize> = 1..=2;
 /// Start position and line offsets: the terrains are at most a few hundred metres across.
 pub const POSITION_M: Range = Range::closed(-10_000.0, 10_000.0, "m");
 /// Relocation's clearance in cells of its grid, at most.
@@ -268,6 +270,7 @@ fn check_world(scenario: &Scenario) -> Result<(), Problem> {
     let solver = Checker::at(&["world", "solver"]);
     solver.count("iterations", world.solver.iterations.get(), &SOLVER_ITERATIONS, "solver iterations per step")?;
     solver.count("internal_iterations", world.solver.internal_iterations.get(), &SOLVER_ITERATIONS, "solver passes per iteration")?;
+    solver.count("ticks_per_step", world.solver.ticks_per_step.get(), &TICKS_PER_STEP, "firmware ticks per physics step")?;
     Ok(())
 }
 

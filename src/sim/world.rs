@@ -99,42 +99,61 @@ impl WorldConfig {
     }
 }
 
-/// rapier's solver effort per physics step: `iterations` substeps (rapier's
-/// `num_solver_iterations`), each with `internal_iterations` projected Gauss–Seidel passes
-/// (`num_internal_pgs_iterations`). rapier's defaults are 4 and 1.
+/// rapier's solver effort: `iterations` substeps (rapier's `num_solver_iterations`) per physics
+/// step, each with `internal_iterations` projected Gauss–Seidel passes
+/// (`num_internal_pgs_iterations`), and one physics step every `ticks_per_step` firmware ticks.
+/// rapier's defaults are 4 and 1.
 ///
 /// `cargo bench --bench solver_fidelity` measures what each setting buys against an 8 × 2
-/// reference (table in the README). The one quantity that moves is the wheel current on a 60°
-/// climb: the fewer the passes, the less of the traction the joint motors carry (rapier's
-/// position correction does the rest), and the less current the servos read: −0.5 % at 8 × 2,
-/// −2.5 % at 4 × 2, −4.8 % at 3 × 2, −12.8 % at 2 × 2, −56 % at 2 × 1. The default, 3 × 2, keeps
-/// that error under 5 %; 2 × 2 is 15 % faster and still inside every physics test's tolerance,
-/// for sweeps where current does not matter. Ground speed, holding drift, the magnets' contact
-/// angles and the wall transition agree with the reference at every setting down to 2 × 2.
+/// reference stepping every tick (table in docs/performance.md). The default, 3 × 3 every 2
+/// ticks, stays inside every physics test's tolerance and settles the flat-line scenarios as
+/// 3 × 2 every tick does; 3 × 2 every 2 ticks holds the physics tests too but settles a
+/// line-following robot a third slower (its yaw stick–slip converges less per simulated
+/// second). `ticks_per_step = 1` steps rapier at the firmware's own rate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SolverSettings {
     pub iterations: NonZeroUsize,
     pub internal_iterations: NonZeroUsize,
+    /// Servo firmware ticks per physics step: the servos' control loops, their Present
+    /// registers and the magnet shafts always run at the firmware's tick (1 ms); rapier steps
+    /// once every this many ticks (see [`RobotWorld::step`]).
+    pub ticks_per_step: NonZeroUsize,
 }
 
+/// What rapier's step costs does not depend on its length: two 1 ms ticks per physics step
+/// halve the physics' share of a simulated second.
+const DEFAULT_TICKS_PER_STEP: usize = 2;
+
 impl SolverSettings {
-    /// `iterations` × `internal_iterations` (each at least 1).
+    /// `iterations` × `internal_iterations` (each at least 1), at the default ticks per step.
     pub fn new(iterations: usize, internal_iterations: usize) -> Self {
-        let at_least_one = |n: usize| NonZeroUsize::new(n).unwrap_or(NonZeroUsize::MIN);
-        Self { iterations: at_least_one(iterations), internal_iterations: at_least_one(internal_iterations) }
+        Self { iterations: at_least_one(iterations), internal_iterations: at_least_one(internal_iterations), ticks_per_step: at_least_one(DEFAULT_TICKS_PER_STEP) }
     }
+
+    /// The same passes with one physics step every `ticks` firmware ticks (at least 1).
+    pub fn every(self, ticks: usize) -> Self {
+        Self { ticks_per_step: at_least_one(ticks), ..self }
+    }
+}
+
+fn at_least_one(n: usize) -> NonZeroUsize {
+    NonZeroUsize::new(n).unwrap_or(NonZeroUsize::MIN)
 }
 
 impl Default for SolverSettings {
     fn default() -> Self {
-        Self::new(3, 2)
+        Self::new(3, 3)
     }
 }
 
 impl std::fmt::Display for SolverSettings {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} × {}", self.iterations, self.internal_iterations)
+        write!(f, "{} × {}", self.iterations, self.internal_iterations)?;
+        if self.ticks_per_step.get() != 1 {
+            write!(f, " every {} ticks", self.ticks_per_step)?;
+        }
+        Ok(())
     }
 }
 
@@ -223,9 +242,13 @@ struct ServoJoint {
     child: RigidBodyHandle,
     joint: ImpulseJointHandle,
     axis: Vector,
-    /// Unwrapped joint angle (rad).
+    /// Unwrapped joint angle (rad) after the last physics step, and before it.
     angle: f64,
+    angle_before: f64,
     last_wrapped: f64,
+    /// rapier's solved joint rate after the last physics step, and before it (rad/s).
+    solved_rate: f64,
+    solved_rate_before: f64,
 }
 
 /// What a servo's shaft is attached to.
@@ -295,7 +318,12 @@ pub struct RobotWorld {
     magnet_pull: [f32; 4],
     slip: SlipPatches,
     adhesion: [AdhesionSample; 4],
+    /// The servos' firmware tick.
     period: Duration,
+    ticks_per_step: usize,
+    /// Ticks until the physics, which runs up to `ticks_per_step − 1` ticks ahead of the
+    /// firmware, needs its next step.
+    ticks_ahead: usize,
     time: Duration,
     steps: u64,
 }
@@ -325,8 +353,8 @@ impl RobotWorld {
             (motor.rotor_inertia_kgm2 * motor.gear_ratio * motor.gear_ratio) as f32
         });
         let mut physics = PhysicsWorld { gravity: config.gravity, ..PhysicsWorld::default() };
-        let dt = period.as_secs_f32();
-        physics.integration_parameters.dt = dt;
+        let ticks_per_step = config.solver.ticks_per_step.get();
+        physics.integration_parameters.dt = period.as_secs_f32() * ticks_per_step as f32;
         // rapier sizes its tolerances by a length unit (default 1 m): allowed penetration is
         // 0.5 % of it. At 1 m a wheel sinks ~3 mm under the magnets' pull, 6 % of its radius,
         // which would shorten the rolling radius by as much. The wheel diameter is the robot's
@@ -432,8 +460,8 @@ impl RobotWorld {
             // rotation swings the magnet forward from straight down (about +z).
             let wheel_axis = -Vector::Z;
             let magnet_axis = Vector::Z;
-            let axle = RevoluteJointBuilder::new(wheel_axis).local_anchor1(anchor).local_anchor2(Vector::ZERO);
-            physics.insert_impulse_joint(section, wheel_body, axle);
+            let axle = RevoluteJointBuilder::new(wheel_axis).local_anchor1(anchor).local_anchor2(Vector::ZERO).motor_model(MotorModel::ForceBased);
+            let axle_joint = physics.insert_impulse_joint(section, wheel_body, axle);
             // The drive servo's torque acts between the wheel and the middle body, not the
             // section that carries the axle. For a front wheel that is the torque the rocker
             // would pass on: the rocker frees only roll about x, perpendicular to the axle, so it
@@ -454,7 +482,7 @@ impl RobotWorld {
                 .local_axis2(Vector::Z)
                 .motor_model(JointAxis::AngX, MotorModel::ForceBased)
                 .contacts_enabled(false);
-            let drive_joint = physics.insert_impulse_joint(wheel_body, middle, drive);
+            let drive_joint = if section == middle { axle_joint } else { physics.insert_impulse_joint(wheel_body, middle, drive) };
             wheels.push(WheelParts { section, wheel: wheel_body, drive_joint, wheel_axis, magnet_axis, collider });
         }
         let wheels: [WheelParts; 4] = [wheels[0], wheels[1], wheels[2], wheels[3]];
@@ -465,7 +493,7 @@ impl RobotWorld {
             let parts = wheels[spec.wheel.index()];
             links.push(match spec.role {
                 ServoRole::WheelDrive => {
-                    ServoLink::Wheel(ServoJoint { parent: parts.section, child: parts.wheel, joint: parts.drive_joint, axis: parts.wheel_axis, angle: 0.0, last_wrapped: 0.0 })
+                    ServoLink::Wheel(ServoJoint { parent: parts.section, child: parts.wheel, joint: parts.drive_joint, axis: parts.wheel_axis, angle: 0.0, angle_before: 0.0, last_wrapped: 0.0, solved_rate: 0.0, solved_rate_before: 0.0 })
                 }
                 ServoRole::MagnetShaft => {
                     let zero_rad = f64::from(robot.magnet.encoder_at_down_pulses) / 4096.0 * std::f64::consts::TAU;
@@ -499,6 +527,8 @@ impl RobotWorld {
             slip: SlipPatches::default(),
             adhesion: [AdhesionSample::default(); 4],
             period,
+            ticks_per_step,
+            ticks_ahead: 0,
             time: Duration::ZERO,
             steps: 0,
         };
@@ -815,42 +845,68 @@ impl RobotWorld {
         self.step_physics_only();
     }
 
-    /// Advance one step with the servos in bus order.
+    /// Advance one firmware tick with the servos in bus order.
+    ///
+    /// Every tick runs every servo's firmware and integrates the magnet shafts. rapier steps on
+    /// the first tick of every `ticks_per_step` (its step spans them all), so the physics runs
+    /// up to `ticks_per_step − 1` ticks ahead of the firmware. The wheel motors take the drive
+    /// their servos chose on that first tick and hold it through the step; the servos' encoders
+    /// read the wheel angle interpolated across the step at each tick, and its mean rate. The
+    /// magnet shafts' reaction on the sections enters the step from its first tick.
     pub fn step(&mut self, servos: &mut [Servo]) {
-        self.reset_applied_loads();
+        let physics_due = self.ticks_ahead == 0;
+        if physics_due {
+            self.reset_applied_loads();
+        }
         for (servo, link) in servos.iter_mut().zip(&self.links) {
             let drive = servo.drive();
             match *link {
-                ServoLink::Wheel(joint) => {
+                ServoLink::Wheel(joint) if physics_due => {
                     let omega = joint_rate(&self.physics, &joint) as f64;
                     set_joint_motor(&mut self.physics, joint.joint, &drive, omega);
                 }
+                ServoLink::Wheel(_) => {}
                 ServoLink::Magnet { wheel, .. } => self.magnets[wheel].drive = drive,
             }
         }
-        self.apply_adhesion();
-        tracing::trace!(
-            target: "climbsim::adhesion",
-            t = self.time.as_secs_f64(),
-            fl = self.adhesion[0].force_n,
-            fr = self.adhesion[1].force_n,
-            rl = self.adhesion[2].force_n,
-            rr = self.adhesion[3].force_n,
-            "magnet pull (N)"
-        );
-        self.step_magnets();
-        if self.slip.areas.is_empty() {
-            self.physics.step();
-        } else {
-            self.physics.step_with_events(&self.slip, &());
+        if physics_due {
+            self.apply_adhesion();
+            tracing::trace!(
+                target: "climbsim::adhesion",
+                t = self.time.as_secs_f64(),
+                fl = self.adhesion[0].force_n,
+                fr = self.adhesion[1].force_n,
+                rl = self.adhesion[2].force_n,
+                rr = self.adhesion[3].force_n,
+                "magnet pull (N)"
+            );
         }
+        self.step_magnets(physics_due);
+        if physics_due {
+            if self.slip.areas.is_empty() {
+                self.physics.step();
+            } else {
+                self.physics.step_with_events(&self.slip, &());
+            }
+            self.ticks_ahead = self.ticks_per_step;
+            for link in &mut self.links {
+                if let ServoLink::Wheel(joint) = link {
+                    joint.angle_before = joint.angle;
+                    joint.solved_rate_before = joint.solved_rate;
+                    track_angle(&self.physics, joint);
+                    joint.solved_rate = joint_rate(&self.physics, joint) as f64;
+                }
+            }
+        }
+        self.ticks_ahead -= 1;
         self.time += self.period;
-        let dt = self.period.as_secs_f64();
         self.steps += 1;
-        for (servo, link) in servos.iter_mut().zip(self.links.iter_mut()) {
+        let step_s = self.period.as_secs_f64() * self.ticks_per_step as f64;
+        // How far through the physics step the firmware now is (1 at its end).
+        let through = (self.ticks_per_step - self.ticks_ahead) as f64 / self.ticks_per_step as f64;
+        for (servo, link) in servos.iter_mut().zip(self.links.iter()) {
             let state = match link {
                 ServoLink::Wheel(joint) => {
-                    let delta = track_angle(&self.physics, joint);
                     // The rate the encoder sees: the angle's change over the step. rapier
                     // integrates positions with the velocities of its biased (position-
                     // correcting) pass and reports those of the relaxed pass; under the magnets'
@@ -860,8 +916,9 @@ impl RobotWorld {
                     // The torque rapier applied follows its solved (relaxed) rate, and so does
                     // the current: from the encoder's rate, a climbing wheel that the position
                     // pass pushes ahead would read less current than the load it carries.
-                    let solved = joint_rate(&self.physics, joint) as f64;
-                    ShaftState { position_rad: joint.angle, velocity_rad_s: delta / dt, back_emf_velocity_rad_s: Some(solved) }
+                    let change = joint.angle - joint.angle_before;
+                    let solved = joint.solved_rate_before + through * (joint.solved_rate - joint.solved_rate_before);
+                    ShaftState { position_rad: joint.angle_before + through * change, velocity_rad_s: change / step_s, back_emf_velocity_rad_s: Some(solved) }
                 }
                 ServoLink::Magnet { wheel, zero_rad } => {
                     let shaft = self.magnets[*wheel].load.state();
@@ -872,10 +929,11 @@ impl RobotWorld {
         }
     }
 
-    /// Integrate each magnet shaft over the step: its servo's torque-speed line, gearbox friction,
-    /// swing damping, and the external torque from the surface and gravity; the section takes
-    /// the reaction of everything the servo and its bearings exert.
-    fn step_magnets(&mut self) {
+    /// Integrate each magnet shaft over one tick: its servo's torque-speed line, gearbox
+    /// friction, swing damping, and the external torque from the surface and gravity. With
+    /// `react`, the section takes the reaction of everything the servo and its bearings exert
+    /// (for the physics step about to run).
+    fn step_magnets(&mut self, react: bool) {
         let dt = self.period.as_secs_f64();
         let damping = f64::from(self.robot.magnet.damping_nm_s_per_rad);
         for index in 0..4 {
@@ -886,6 +944,9 @@ impl RobotWorld {
             let before = shaft.load.state().velocity_rad_s;
             shaft.load.external_torque_nm = shaft.external_nm;
             let after = shaft.load.step(&drive, dt).velocity_rad_s;
+            if !react {
+                continue;
+            }
             let inertia = drive.rotor_inertia_kgm2 + shaft.load.extra_inertia_kgm2;
             // J·α = internal + external: the section feels −internal about the axle.
             let internal = inertia * (after - before) / dt - shaft.external_nm;
