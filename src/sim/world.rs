@@ -174,8 +174,8 @@ pub struct AdhesionSample {
 struct WheelParts {
     section: RigidBodyHandle,
     wheel: RigidBodyHandle,
-    /// The drive servo's motor: a joint that only drives the wheel's spin, reacting on the
-    /// middle body (see `RobotWorld::new`).
+    /// The joint that carries the drive servo's motor, reacting on the middle body: the axle
+    /// joint of a rear wheel, a spin-only joint for a front one (see `RobotWorld::new`).
     drive_joint: ImpulseJointHandle,
     /// Joint axes in the section's frame (positive servo rotation).
     wheel_axis: Vector,
@@ -462,27 +462,32 @@ impl RobotWorld {
             let magnet_axis = Vector::Z;
             let axle = RevoluteJointBuilder::new(wheel_axis).local_anchor1(anchor).local_anchor2(Vector::ZERO).motor_model(MotorModel::ForceBased);
             let axle_joint = physics.insert_impulse_joint(section, wheel_body, axle);
-            // The drive servo's torque acts between the wheel and the middle body, not the
-            // section that carries the axle. For a front wheel that is the torque the rocker
-            // would pass on: the rocker frees only roll about x, perpendicular to the axle, so it
-            // hands a torque about the axle to the middle body whole, and the wheel's spin
-            // relative to either section is the same. Solved as one joint, the light front
-            // section (pitch inertia 9.8e-4 kg·m²) sat between the motors, whose wheels carry
-            // the servos' reflected rotor inertia (7.9e-3 kg·m² each about the axle), and the
-            // body that takes their reaction. rapier's Gauss–Seidel never converged on that
-            // chain with an impulse-joint rocker: the section kept a pitch rate in the solved
-            // velocities that its poses did not have (measured: 25 % front-tread scrub on a
-            // straight drive). A multibody rocker solved it exactly, at 1.8× the step's
-            // instructions.
-            // The motor row's axis is in the first body's frame: the wheel's own axle, which
-            // stays the carrying section's z. rapier drives (ω_middle − ω_wheel)·axis, so +z
-            // turns the servo's positive rotation (about −z) into the motor's.
-            let drive = GenericJointBuilder::new(JointAxesMask::empty())
-                .local_axis1(Vector::Z)
-                .local_axis2(Vector::Z)
-                .motor_model(JointAxis::AngX, MotorModel::ForceBased)
-                .contacts_enabled(false);
-            let drive_joint = if section == middle { axle_joint } else { physics.insert_impulse_joint(wheel_body, middle, drive) };
+            // The drive servo's torque acts between the wheel and the middle body: a rear wheel's
+            // axle joint carries the motor; a front wheel gets a second joint that only drives
+            // its spin against the middle body, not the front section that carries its axle.
+            // That is the torque the rocker would pass on: the rocker frees only roll about x,
+            // perpendicular to the axle, so it hands a torque about the axle to the middle body
+            // whole, and the wheel's spin relative to either section is the same. With the motor
+            // on the axle joint, the light front section (pitch inertia 9.8e-4 kg·m²) sat
+            // between the motors, whose wheels carry the servos' reflected rotor inertia
+            // (7.9e-3 kg·m² each about the axle), and the body that takes their reaction.
+            // rapier's Gauss–Seidel never converged on that chain with an impulse-joint rocker:
+            // the section kept a pitch rate in the solved velocities that its poses did not have
+            // (measured: 25 % front-tread scrub on a straight drive). A multibody rocker solved
+            // it exactly, at 1.8× the step's instructions.
+            let drive_joint = if section == middle {
+                axle_joint
+            } else {
+                // The motor row's axis is in the first body's frame: the wheel's own axle, which
+                // stays the front section's z. rapier drives (ω_middle − ω_wheel)·axis, so +z
+                // turns the servo's positive rotation (about −z) into the motor's.
+                let drive = GenericJointBuilder::new(JointAxesMask::empty())
+                    .local_axis1(Vector::Z)
+                    .local_axis2(Vector::Z)
+                    .motor_model(JointAxis::AngX, MotorModel::ForceBased)
+                    .contacts_enabled(false);
+                physics.insert_impulse_joint(wheel_body, middle, drive)
+            };
             wheels.push(WheelParts { section, wheel: wheel_body, drive_joint, wheel_axis, magnet_axis, collider });
         }
         let wheels: [WheelParts; 4] = [wheels[0], wheels[1], wheels[2], wheels[3]];
