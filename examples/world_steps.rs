@@ -1,9 +1,10 @@
-//! Step the robot on a 256×256 Perlin terrain in lockstep for N steps (default 2000), for
-//! profilers: `valgrind --tool=callgrind target/release/examples/world_steps 2000`. With `bare`
-//! (or `held`) after N, the same world steps by bare rapier (or bare rapier with the last step's
-//! inputs written back) after a 200-step warm-up: the world_rtf bench's baselines, so that the
-//! profiles can be compared function by function. Then optionally the solver's iterations and
-//! internal iterations (default: `SolverSettings::default()`).
+//! Step the robot on a 256×256 Perlin terrain in lockstep for N firmware ticks of 1 ms (default
+//! 2000), for profilers: `valgrind --tool=callgrind target/release/examples/world_steps 2000`.
+//! With `bare` (or `held`) after N, the same world steps by bare rapier (or bare rapier with the
+//! last step's inputs written back) for the same simulated time, N ms, after a 200 ms warm-up:
+//! the world_rtf bench's baselines, so that the profiles can be compared function by function.
+//! Then optionally the solver's iterations and internal iterations (default:
+//! `SolverSettings::default()`, which also sets the ticks per physics step).
 
 use std::path::Path;
 use std::time::Duration;
@@ -36,7 +37,8 @@ fn main() {
     };
     if let Some(bare_step) = bare_step {
         sim.run(Duration::from_millis(200));
-        for _ in 0..steps {
+        // One physics step spans `ticks_per_step` ticks: the same N ms of simulated time.
+        for _ in 0..steps.div_ceil(solver.ticks_per_step.get() as u32) {
             bare_step(sim.world_mut());
         }
     } else {

@@ -8,6 +8,7 @@ pub mod line;
 mod lockstep;
 pub mod obstacles;
 pub mod terrain;
+mod terrain_contacts;
 pub mod world;
 
 pub use world::{AdhesionSample, SurfaceFrame, magnet_frame, wheel_frame, PartFrame, PartShape, PartShapeKind, RobotWorld, TerrainMesh, SolverSettings, StartPose, WorldConfig, WorldError};

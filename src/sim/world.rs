@@ -352,7 +352,7 @@ impl RobotWorld {
             let motor = &s.profile().motor;
             (motor.rotor_inertia_kgm2 * motor.gear_ratio * motor.gear_ratio) as f32
         });
-        let mut physics = PhysicsWorld { gravity: config.gravity, ..PhysicsWorld::default() };
+        let mut physics = PhysicsWorld { gravity: config.gravity, narrow_phase: NarrowPhase::with_query_dispatcher(super::terrain_contacts::dispatcher()), ..PhysicsWorld::default() };
         let ticks_per_step = config.solver.ticks_per_step.get();
         physics.integration_parameters.dt = period.as_secs_f32() * ticks_per_step as f32;
         // rapier sizes its tolerances by a length unit (default 1 m): allowed penetration is
