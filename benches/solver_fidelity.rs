@@ -67,7 +67,7 @@ fn main() {
     let settings = if !named.is_empty() {
         named
     } else if full_run {
-        standard(&[(8, 2, 1), (8, 2, 2), (4, 2, 2), (3, 2, 1), (3, 2, 2), (2, 2, 2), (2, 1, 2), (1, 2, 2)])
+        standard(&[(8, 2, 1), (8, 2, 2), (4, 2, 2), (3, 3, 2), (3, 2, 1), (3, 2, 2), (2, 2, 2), (2, 1, 2), (1, 2, 2)])
     } else {
         vec![SolverSettings::default()]
     };
