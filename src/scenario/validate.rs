@@ -104,7 +104,8 @@ impl fmt::Display for Range {
 
 /// Longest run: a day of simulated time is far beyond any test, and bounds the time series.
 pub const DURATION_S: Range = Range::above(0.0, 86_400.0, "s");
-/// Gravity per axis: up to 10 g, far beyond Earth's 9.81, still stable at the 1 kHz step.
+/// Gravity per axis: up to 10 g, far beyond Earth's 9.81, still stable at the 2 ms physics step
+/// (a flat-line run at 10 g drives at its target speed).
 pub const GRAVITY_M_S2: Range = Range::closed(-100.0, 100.0, "m/s²");
 pub const FRICTION: Range = Range::closed(0.0, 10.0, "(friction coefficient)");
 /// The robot weighs ~12 kg and its magnets hold a few hundred newtons: 200 kg is no longer a
