@@ -58,5 +58,12 @@ fn the_solver_setting_is_read_from_the_world_table_and_a_zero_names_the_key() {
     std::fs::write(&path, format!("{base}solver = {{ iterations = 0, internal_iterations = 2 }}\n{terrain}")).unwrap();
     let error = Scenario::load(&path).unwrap_err().to_string();
     assert!(error.contains(&format!("{}:4:", path.display())) && error.contains("nonzero"), "{error}");
+    std::fs::write(&path, format!("{base}solver = {{ ticks_per_step = 1 }}\n{terrain}")).unwrap();
+    let solver = Scenario::load(&path).expect("parses").world_config().expect("world").solver;
+    assert_eq!((solver.ticks_per_step.get(), solver.iterations), (1, climbsim::sim::SolverSettings::default().iterations));
+    // Beyond what the solver-fidelity table vouches for: refused by key, with its range.
+    std::fs::write(&path, format!("{base}solver = {{ ticks_per_step = 3 }}\n{terrain}")).unwrap();
+    let error = Scenario::load(&path).unwrap_err().to_string();
+    assert!(error.contains("world.solver.ticks_per_step") && error.contains("[1, 2]"), "{error}");
     let _ = std::fs::remove_dir_all(&dir);
 }
