@@ -816,11 +816,20 @@ impl RobotWorld {
     pub fn step_physics_only(&mut self) {
         self.physics.step();
         // Keep the encoders counting, so that the next full step's rate is one step's change.
-        self.links.iter_mut().for_each(|link| {
+        self.read_wheel_encoders();
+    }
+
+    /// After a physics step: each wheel joint's angle and solved rate, keeping the previous ones
+    /// for the ticks that fall inside the step.
+    fn read_wheel_encoders(&mut self) {
+        for link in &mut self.links {
             if let ServoLink::Wheel(joint) = link {
+                joint.angle_before = joint.angle;
+                joint.solved_rate_before = joint.solved_rate;
                 track_angle(&self.physics, joint);
+                joint.solved_rate = joint_rate(&self.physics, joint) as f64;
             }
-        });
+        }
     }
 
     /// Step the rapier world alone, re-applying the last step's inputs unchanged: each body's
@@ -860,9 +869,6 @@ impl RobotWorld {
     /// magnet shafts' reaction on the sections enters the step from its first tick.
     pub fn step(&mut self, servos: &mut [Servo]) {
         let physics_due = self.ticks_ahead == 0;
-        if physics_due {
-            self.reset_applied_loads();
-        }
         for (servo, link) in servos.iter_mut().zip(&self.links) {
             let drive = servo.drive();
             match *link {
@@ -875,6 +881,7 @@ impl RobotWorld {
             }
         }
         if physics_due {
+            self.reset_applied_loads();
             self.apply_adhesion();
             tracing::trace!(
                 target: "climbsim::adhesion",
@@ -894,14 +901,7 @@ impl RobotWorld {
                 self.physics.step_with_events(&self.slip, &());
             }
             self.ticks_ahead = self.ticks_per_step;
-            for link in &mut self.links {
-                if let ServoLink::Wheel(joint) = link {
-                    joint.angle_before = joint.angle;
-                    joint.solved_rate_before = joint.solved_rate;
-                    track_angle(&self.physics, joint);
-                    joint.solved_rate = joint_rate(&self.physics, joint) as f64;
-                }
-            }
+            self.read_wheel_encoders();
         }
         self.ticks_ahead -= 1;
         self.time += self.period;
