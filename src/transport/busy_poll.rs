@@ -6,6 +6,10 @@
 //! docs/performance.md, pty latency). So the port's thread spins for a while after each reply, but
 //! only as long as this controller's recent turnarounds (reply written → next request read) say
 //! the request is about to come: a controller paced at a millisecond or more never makes it spin.
+//! It spins after request bytes that drew no reply too (a Sync Write, a broadcast, half a packet):
+//! a tight loop's next packet follows them within microseconds (a Sync Write then a Sync Read is
+//! the usual control cycle), and sleeping between the two cost a wake-up per cycle (measured:
+//! docs/performance.md, loop rate).
 
 use std::time::{Duration, Instant};
 
@@ -23,6 +27,8 @@ const SPIN_MARGIN: Duration = Duration::from_micros(20);
 pub struct BusyPoll {
     /// When the last reply was written, if no request has been read since.
     reply_written: Option<Instant>,
+    /// When request bytes were last read, if no reply has been written since.
+    request_read: Option<Instant>,
     /// Exponential average (weight 1/8) of the capped turnaround, in nanoseconds.
     average_ns: u64,
 }
@@ -30,7 +36,7 @@ pub struct BusyPoll {
 impl Default for BusyPoll {
     fn default() -> Self {
         // Until a controller has shown a tight loop, it is assumed slow.
-        Self { reply_written: None, average_ns: nanos(TURNAROUND_CAP) }
+        Self { reply_written: None, request_read: None, average_ns: nanos(TURNAROUND_CAP) }
     }
 }
 
@@ -38,6 +44,7 @@ impl BusyPoll {
     /// A reply went out at `at`.
     pub fn reply_written(&mut self, at: Instant) {
         self.reply_written = Some(at);
+        self.request_read = None;
     }
 
     /// Bytes from the controller were read at `at`.
@@ -46,13 +53,15 @@ impl BusyPoll {
             let turnaround = nanos(at.saturating_duration_since(written).min(TURNAROUND_CAP));
             self.average_ns = (self.average_ns * 7 + turnaround) / 8;
         }
+        self.request_read = Some(at);
     }
 
-    /// Until when to spin for the next request (None: sleep straight away).
+    /// Until when to spin for the controller's next bytes (None: sleep straight away): from the
+    /// last reply written or, if none since, from the last request bytes read.
     pub fn spin_until(&self) -> Option<Instant> {
-        let written = self.reply_written?;
+        let last_activity = self.reply_written.or(self.request_read)?;
         let average = Duration::from_nanos(self.average_ns);
-        (average <= TIGHT_LOOP).then(|| written + (2 * average + SPIN_MARGIN).min(MAX_SPIN))
+        (average <= TIGHT_LOOP).then(|| last_activity + (2 * average + SPIN_MARGIN).min(MAX_SPIN))
     }
 }
 
@@ -139,5 +148,28 @@ mod tests {
         busy.request_read(now);
         busy.request_read(now + Duration::from_micros(5));
         assert_eq!(busy.average_ns, nanos(TURNAROUND_CAP));
+        assert_eq!(busy.spin_until(), None, "no tight loop seen: bytes alone never make it spin");
+    }
+
+    #[test]
+    fn a_tight_loop_spins_after_a_request_that_drew_no_reply() {
+        let start = Instant::now();
+        let mut busy = BusyPoll::default();
+        let mut t = 0;
+        for _ in 0..64 {
+            busy.reply_written(after(start, t));
+            t += 30;
+            busy.request_read(after(start, t));
+            t += 10;
+        }
+        // The controller's Sync Write was read; no reply goes out for it. Its Sync Read is due
+        // within microseconds: spin from the read, as long as after a reply.
+        busy.request_read(after(start, t));
+        let spin = busy.spin_until().expect("a tight loop spins after a write without reply") - after(start, t);
+        assert!(spin >= Duration::from_micros(70) && spin <= Duration::from_micros(90), "spin {spin:?}");
+        // A reply written later counts from the reply.
+        t += 5;
+        busy.reply_written(after(start, t));
+        assert_eq!(busy.spin_until().map(|until| until - after(start, t)), Some(spin));
     }
 }
