@@ -429,8 +429,20 @@ pub struct PtyEcho {
     thread: std::thread::JoinHandle<()>,
 }
 
+/// How long before its due time a timed echo stops sleeping and spins: climbsim's final spin
+/// under the wire model (`FINAL_SPIN` in src/transport/mod.rs).
+const TIMED_ECHO_SPIN: Duration = Duration::from_micros(200);
+
 impl PtyEcho {
     pub fn start(baud: nix::sys::termios::BaudRate) -> Self {
+        Self::delayed(baud, Duration::ZERO)
+    }
+
+    /// An echo that writes the bytes back `delay` after it read them, sleeping until
+    /// [`TIMED_ECHO_SPIN`] before then and spinning the rest, as climbsim waits for a reply's due
+    /// time under the wire model: the floor of a timed reply on this host, with the same long
+    /// sleeps on both sides of the pty (a zero delay is the plain echo).
+    pub fn delayed(baud: nix::sys::termios::BaudRate, delay: Duration) -> Self {
         use std::os::fd::AsRawFd;
         let pty = nix::pty::openpty(None, None).expect("openpty");
         // openpty(3) descriptors are inheritable; keep them out of emulator processes.
@@ -442,7 +454,7 @@ impl PtyEcho {
         let client = std::fs::File::from(pty.slave);
         configure_raw(&client, baud);
         let master = pty.master;
-        let thread = std::thread::Builder::new().name("echo".into()).spawn(move || echo_loop(master)).expect("spawn echo thread");
+        let thread = std::thread::Builder::new().name("echo".into()).spawn(move || echo_loop(master, delay)).expect("spawn echo thread");
         Self { client, thread }
     }
 
@@ -457,13 +469,22 @@ impl PtyEcho {
     }
 }
 
-fn echo_loop(master: std::os::fd::OwnedFd) {
+fn echo_loop(master: std::os::fd::OwnedFd, delay: Duration) {
     use std::os::fd::AsFd;
     let mut buf = [0u8; 256];
     loop {
         match nix::unistd::read(master.as_fd(), &mut buf) {
             Ok(0) | Err(nix::errno::Errno::EIO) => return,
             Ok(n) => {
+                if !delay.is_zero() {
+                    let due = Instant::now() + delay;
+                    if let Some(sleep) = delay.checked_sub(TIMED_ECHO_SPIN) {
+                        std::thread::sleep(sleep);
+                    }
+                    while Instant::now() < due {
+                        std::hint::spin_loop();
+                    }
+                }
                 let mut data = &buf[..n];
                 while !data.is_empty() {
                     match nix::unistd::write(master.as_fd(), data) {
