@@ -77,6 +77,19 @@ mod tests {
         start + Duration::from_micros(us)
     }
 
+    /// 64 cycles of a controller answering each reply in 30 µs, 10 µs apart; the time (µs after
+    /// `start`) at their end.
+    fn tight_loop(busy: &mut BusyPoll, start: Instant) -> u64 {
+        let mut t = 0;
+        for _ in 0..64 {
+            busy.reply_written(after(start, t));
+            t += 30;
+            busy.request_read(after(start, t));
+            t += 10;
+        }
+        t
+    }
+
     #[test]
     fn a_new_connection_does_not_spin() {
         let mut busy = BusyPoll::default();
@@ -89,13 +102,7 @@ mod tests {
     fn a_tight_loop_spins_about_twice_its_turnaround() {
         let start = Instant::now();
         let mut busy = BusyPoll::default();
-        let mut t = 0;
-        for _ in 0..64 {
-            busy.reply_written(after(start, t));
-            t += 30;
-            busy.request_read(after(start, t));
-            t += 10;
-        }
+        let t = tight_loop(&mut busy, start);
         busy.reply_written(after(start, t));
         let until = busy.spin_until().expect("a 30 µs loop spins");
         let spin = until - after(start, t);
@@ -155,13 +162,7 @@ mod tests {
     fn a_tight_loop_spins_after_a_request_that_drew_no_reply() {
         let start = Instant::now();
         let mut busy = BusyPoll::default();
-        let mut t = 0;
-        for _ in 0..64 {
-            busy.reply_written(after(start, t));
-            t += 30;
-            busy.request_read(after(start, t));
-            t += 10;
-        }
+        let mut t = tight_loop(&mut busy, start);
         // The controller's Sync Write was read; no reply goes out for it. Its Sync Read is due
         // within microseconds: spin from the read, as long as after a reply.
         busy.request_read(after(start, t));
