@@ -403,19 +403,19 @@ enum Wait {
 /// How long the spinning responder spins after a reply (climbsim's longest spin).
 const CANNED_SPIN: Duration = Duration::from_micros(250);
 
-/// A canned responder: the slave's path and what stops it.
+/// A canned responder: the slave's path, and the slave descriptor whose close ends it.
 struct Responder {
     path: std::path::PathBuf,
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     thread: std::thread::JoinHandle<()>,
     slave: std::fs::File,
 }
 
 impl Responder {
-    /// Stop the thread (it may be spinning or waiting in read) and wait for it.
+    /// Stop the thread and wait for it: once the client's and this last slave descriptor are
+    /// closed, its next read(2) of the master (at the latest when its bounded spin ends) returns
+    /// EIO.
     fn stop(self) {
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        drop(self.slave); // the last slave closed: a read(2) on the master returns EIO
+        drop(self.slave);
         self.thread.join().expect("canned responder thread");
     }
 }
@@ -427,21 +427,18 @@ impl Responder {
 fn canned_responder(sync_read: Vec<u8>, replies: Vec<u8>, wait: Wait) -> Responder {
     use nix::fcntl::OFlag;
     use std::os::fd::{AsFd, AsRawFd};
-    use std::sync::atomic::Ordering;
     let master = nix::pty::posix_openpt(OFlag::O_RDWR | OFlag::O_NOCTTY | OFlag::O_CLOEXEC).expect("posix_openpt");
     nix::pty::grantpt(&master).expect("grantpt");
     nix::pty::unlockpt(&master).expect("unlockpt");
     let path = std::path::PathBuf::from(nix::pty::ptsname_r(&master).expect("ptsname"));
     let slave = std::fs::OpenOptions::new().read(true).write(true).open(&path).expect("open the slave");
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let stopped = std::sync::Arc::clone(&stop);
     let thread = std::thread::Builder::new()
         .name("canned".into())
         .spawn(move || {
             let mut pending: Vec<u8> = Vec::new();
             let mut buf = [0u8; 4096];
             let mut spin_until: Option<Instant> = None;
-            while !stopped.load(Ordering::Relaxed) {
+            loop {
                 if let Some(until) = spin_until {
                     let mut queued: libc::c_int = 0;
                     // SAFETY: FIONREAD writes one c_int through the pointer, valid for the call.
@@ -472,5 +469,5 @@ fn canned_responder(sync_read: Vec<u8>, replies: Vec<u8>, wait: Wait) -> Respond
             }
         })
         .expect("spawn the canned responder");
-    Responder { path, stop, thread, slave }
+    Responder { path, thread, slave }
 }

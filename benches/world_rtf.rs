@@ -1,9 +1,10 @@
 //! Real-time factor of the full robot (eight servo models, adhesion, rapier) on a 256×256 Perlin
 //! terrain in lockstep, against the same bodies and joints stepped by bare rapier for the same
-//! simulated time, for several solver settings (one physics step every one or two 1 ms ticks); and peak memory of a world on a 1024×1024 terrain (in
-//! a child process). Two bare baselines: rapier stepping untouched, and rapier with the last
-//! step's forces, torques and joint motors written back each step (what any rapier program that
-//! drives a robot pays; see `RobotWorld::step_physics_with_held_inputs`).
+//! simulated time, for several solver settings (one physics step every one or two 1 ms ticks);
+//! and peak memory of a world on a 1024×1024 terrain (in a child process). Two bare baselines:
+//! rapier stepping untouched, and rapier with the last step's forces, torques and joint motors
+//! written back each step (what any rapier program that drives a robot pays; see
+//! `RobotWorld::step_physics_with_held_inputs`).
 //! `cargo bench --bench world_rtf`; results in target/bench-results/world_rtf.json.
 
 #[path = "../tests/support/mod.rs"]
