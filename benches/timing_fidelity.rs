@@ -119,82 +119,7 @@ fn main() {
         let pinned = placement.pin();
         let tag = placement.tag();
         for (bps, baud) in bauds {
-            let bps_text = bps.to_string();
-            let report = support::scratch_dir("timing-fidelity").join(format!("timing-{bps}{}.json", tag.file));
-            let report_text = report.display().to_string();
-            let mut emulator = Emulator::start(&["--baud", &bps_text, "--report", &report_text]);
-            let port = support::open_raw_port(emulator.port(), baud);
-            let mut baseline = support::start_baseline(&["--baud", &bps_text]);
-            let baseline_port = baseline.as_ref().map(|b| support::open_raw_port(b.port(), baud));
-            let echo = support::PtyEcho::start(baud);
-            let mut buf = [0u8; 64];
-            for case in &cases {
-                // Round trips take 0.6–5.5 ms: a few seconds per case when measuring.
-                let (warmup, n) = if full { (50, if bps < 100_000 { 500 } else { 2_000 }) } else { (5, 20) };
-                let predicted = ((case.request.len() + case.reply_len) as f64 * BITS_PER_BYTE / f64::from(bps) + RETURN_DELAY_S) * 1e6;
-                // The request echoed the predicted time after it was read: the least a timed reply can
-                // cost on this host, with the same long sleeps on both sides of the pty.
-                let timed_echo = support::PtyEcho::delayed(baud, std::time::Duration::from_secs_f64(predicted / 1e6));
-                let ports: Vec<&std::fs::File> = std::iter::once(&port).chain(baseline_port.as_ref()).chain([echo.client(), timed_echo.client()]).collect();
-                // The two echoes (last) return the request itself.
-                let expect = |index: usize| if index + 2 >= ports.len() { case.request.len() } else { case.reply_len };
-                for (index, port) in ports.iter().enumerate() {
-                    for _ in 0..warmup {
-                        support::round_trip(port, &case.request, expect(index), &mut buf);
-                    }
-                }
-                let mut samples: Vec<Vec<f64>> = vec![Vec::with_capacity(n); ports.len()];
-                const BLOCK: usize = 50;
-                while samples[0].len() < n {
-                    for (index, port) in ports.iter().enumerate() {
-                        let expect = expect(index);
-                        for _ in 0..BLOCK.min(n - samples[index].len()) {
-                            samples[index].push(support::round_trip(port, &case.request, expect, &mut buf) as f64 / 1e3);
-                            assert_eq!(buf[4], 1, "reply from ID 1");
-                        }
-                    }
-                }
-                drop(ports);
-                timed_echo.stop();
-                let short = if case.name == "Ping" { "ping" } else { "read4" };
-                let mut timed_us = samples.pop().expect("timed echo samples");
-                let timed_median = support::median(&mut timed_us);
-                let timed_error = timed_median - predicted;
-                let mut echo_us = samples.pop().expect("echo samples");
-                let echo_median = support::median(&mut echo_us);
-                println!("|   | pty echo of the request, same blocks (the host's round trip){} | {n} | | {echo_median:.1} | | | | |", tag.row);
-                println!("|   | the request echoed {predicted:.1} µs after it was read, same blocks (the host's floor for a timed reply){} | {n} | {predicted:.1} | {timed_median:.1} | | {timed_error:+.1} | {:+.2} | |", tag.row, 100.0 * timed_error / predicted);
-                rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "packet": format!("{} (pty echo floor)", case.name), "n": n, "median_us": echo_median }));
-                rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "packet": format!("{} (timed echo floor)", case.name), "n": n, "predicted_us": predicted, "median_us": timed_median, "error_us": timed_error }));
-                figures.push(support::history::figure(format!("{bps}_{short}_echo_floor{}", tag.figure), echo_median, "us"));
-                figures.push(support::history::figure(format!("{bps}_{short}_timed_echo_error{}", tag.figure), timed_error, "us"));
-                for (index, mut us) in samples.into_iter().enumerate() {
-                    let median = support::median(&mut us);
-                    let p99 = us[(us.len() * 99 / 100).min(us.len() - 1)];
-                    let error = median - predicted;
-                    let percent = 100.0 * error / predicted;
-                    let met = error.abs() <= 50.0 || percent.abs() <= 5.0;
-                    let name = if index == 0 { format!("{}{}", case.name, tag.row) } else { format!("{} (baseline){}", case.name, tag.row) };
-                    println!("| {bps} | {name} | {n} | {predicted:.1} | {median:.1} | {p99:.1} | {error:+.1} | {percent:+.2} | {} |", if met { "yes" } else { "NO" });
-                    let which = if index == 0 { "" } else { "_baseline" };
-                    figures.push(support::history::figure(format!("{bps}_{short}_error{which}{}", tag.figure), error, "us"));
-                    rows.push(serde_json::json!({
-                        "baud": bps, "placement": tag.json, "packet": name, "n": n, "predicted_us": predicted, "median_us": median,
-                        "p99_us": p99, "error_us": error, "error_pct": percent, "target_met": met,
-                    }));
-                }
-            }
-            drop(port);
-            drop(baseline_port);
-            echo.stop();
-            assert!(emulator.stop(), "climbsim did not exit 0 on SIGTERM");
-            assert!(baseline.as_mut().is_none_or(|b| b.stop()), "the baseline did not exit 0 on SIGTERM");
-            // The emulator's own part of the error: how long after the wire model's due time it
-            // handed replies to the pty (the rest is the pty and the client waking up).
-            let timing: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).expect("timing report")).expect("report JSON");
-            let lateness = &timing["delivery_lateness_us"];
-            println!("|   | emulator's hand-over after the due time (all {bps} bps replies){} | {} | | p50 {:.1} | p99 {:.1} | | | |", tag.row, lateness["count"], lateness["p50_us"].as_f64().unwrap_or(f64::NAN), lateness["p99_us"].as_f64().unwrap_or(f64::NAN));
-            rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "emulator_handover_lateness_us": lateness }));
+            measure_at(bps, baud, &tag, &cases, full, &mut rows, &mut figures);
         }
         drop(pinned);
     }
@@ -205,4 +130,85 @@ fn main() {
         println!("results: {}", path.display());
         support::history::record("timing_fidelity", &figures);
     }
+}
+
+/// Every case at `bps` against a fresh emulator (and baseline), with both echoes as floors, in
+/// interleaved blocks: prints the rows and adds them to `rows` and `figures`.
+fn measure_at(bps: u32, baud: BaudRate, tag: &PlacementTag, cases: &[Case], full: bool, rows: &mut Vec<serde_json::Value>, figures: &mut Vec<support::history::Figure>) {
+    let bps_text = bps.to_string();
+    let report = support::scratch_dir("timing-fidelity").join(format!("timing-{bps}{}.json", tag.file));
+    let report_text = report.display().to_string();
+    let mut emulator = Emulator::start(&["--baud", &bps_text, "--report", &report_text]);
+    let port = support::open_raw_port(emulator.port(), baud);
+    let mut baseline = support::start_baseline(&["--baud", &bps_text]);
+    let baseline_port = baseline.as_ref().map(|b| support::open_raw_port(b.port(), baud));
+    let echo = support::PtyEcho::start(baud);
+    let mut buf = [0u8; 64];
+    for case in cases {
+        // Round trips take 0.6–5.5 ms: a few seconds per case when measuring.
+        let (warmup, n) = if full { (50, if bps < 100_000 { 500 } else { 2_000 }) } else { (5, 20) };
+        let predicted = ((case.request.len() + case.reply_len) as f64 * BITS_PER_BYTE / f64::from(bps) + RETURN_DELAY_S) * 1e6;
+        // The request echoed the predicted time after it was read: the least a timed reply
+        // can cost on this host, with the same long sleeps on both sides of the pty.
+        let timed_echo = support::PtyEcho::delayed(baud, std::time::Duration::from_secs_f64(predicted / 1e6));
+        let ports: Vec<&std::fs::File> = std::iter::once(&port).chain(baseline_port.as_ref()).chain([echo.client(), timed_echo.client()]).collect();
+        // The two echoes (last) return the request itself.
+        let expect = |index: usize| if index + 2 >= ports.len() { case.request.len() } else { case.reply_len };
+        for (index, port) in ports.iter().enumerate() {
+            for _ in 0..warmup {
+                support::round_trip(port, &case.request, expect(index), &mut buf);
+            }
+        }
+        let mut samples: Vec<Vec<f64>> = vec![Vec::with_capacity(n); ports.len()];
+        const BLOCK: usize = 50;
+        while samples[0].len() < n {
+            for (index, port) in ports.iter().enumerate() {
+                let expect = expect(index);
+                for _ in 0..BLOCK.min(n - samples[index].len()) {
+                    samples[index].push(support::round_trip(port, &case.request, expect, &mut buf) as f64 / 1e3);
+                    assert_eq!(buf[4], 1, "reply from ID 1");
+                }
+            }
+        }
+        drop(ports);
+        timed_echo.stop();
+        let short = if case.name == "Ping" { "ping" } else { "read4" };
+        let mut timed_us = samples.pop().expect("timed echo samples");
+        let timed_median = support::median(&mut timed_us);
+        let timed_error = timed_median - predicted;
+        let mut echo_us = samples.pop().expect("echo samples");
+        let echo_median = support::median(&mut echo_us);
+        println!("|   | pty echo of the request, same blocks (the host's round trip){} | {n} | | {echo_median:.1} | | | | |", tag.row);
+        println!("|   | the request echoed {predicted:.1} µs after it was read, same blocks (the host's floor for a timed reply){} | {n} | {predicted:.1} | {timed_median:.1} | | {timed_error:+.1} | {:+.2} | |", tag.row, 100.0 * timed_error / predicted);
+        rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "packet": format!("{} (pty echo floor)", case.name), "n": n, "median_us": echo_median }));
+        rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "packet": format!("{} (timed echo floor)", case.name), "n": n, "predicted_us": predicted, "median_us": timed_median, "error_us": timed_error }));
+        figures.push(support::history::figure(format!("{bps}_{short}_echo_floor{}", tag.figure), echo_median, "us"));
+        figures.push(support::history::figure(format!("{bps}_{short}_timed_echo_error{}", tag.figure), timed_error, "us"));
+        for (index, mut us) in samples.into_iter().enumerate() {
+            let median = support::median(&mut us);
+            let p99 = us[(us.len() * 99 / 100).min(us.len() - 1)];
+            let error = median - predicted;
+            let percent = 100.0 * error / predicted;
+            let met = error.abs() <= 50.0 || percent.abs() <= 5.0;
+            let name = if index == 0 { format!("{}{}", case.name, tag.row) } else { format!("{} (baseline){}", case.name, tag.row) };
+            println!("| {bps} | {name} | {n} | {predicted:.1} | {median:.1} | {p99:.1} | {error:+.1} | {percent:+.2} | {} |", if met { "yes" } else { "NO" });
+            let which = if index == 0 { "" } else { "_baseline" };
+            figures.push(support::history::figure(format!("{bps}_{short}_error{which}{}", tag.figure), error, "us"));
+            rows.push(serde_json::json!({
+                "baud": bps, "placement": tag.json, "packet": name, "n": n, "predicted_us": predicted, "median_us": median,
+                "p99_us": p99, "error_us": error, "error_pct": percent, "target_met": met,
+            }));
+        }
+    }
+    drop(port);
+    drop(baseline_port);
+    echo.stop();
+    assert!(emulator.stop(), "climbsim did not exit 0 on SIGTERM");
+    assert!(baseline.as_mut().is_none_or(|b| b.stop()), "the baseline did not exit 0 on SIGTERM");
+    // The emulator's own part of the error: how long after the wire model's due time it
+    // handed replies to the pty (the rest is the pty and the client waking up).
+    let timing: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).expect("timing report")).expect("report JSON");
+    let lateness = &timing["delivery_lateness_us"];
+    println!("|   | emulator's hand-over after the due time (all {bps} bps replies){} | {} | | p50 {:.1} | p99 {:.1} | | | |", tag.row, lateness["count"], lateness["p50_us"].as_f64().unwrap_or(f64::NAN), lateness["p99_us"].as_f64().unwrap_or(f64::NAN));
+    rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "emulator_handover_lateness_us": lateness }));
 }
