@@ -1,6 +1,5 @@
-//! The control-table items the device code uses, resolved from a profile once, by key.
-
-use super::profile::FirmwareProfile;
+//! The control-table items the device code uses, by key: the profile that owns them resolves
+//! them once ([`super::FirmwareProfile::keys`]).
 
 macro_rules! item_keys {
     ($($key:ident),* $(,)?) => {
@@ -12,9 +11,9 @@ macro_rules! item_keys {
             /// Keys every profile must define.
             pub const NAMES: &'static [&'static str] = &[$(stringify!($key)),*];
 
-            /// Resolve against a profile whose required keys were checked at load time.
-            pub fn resolve(profile: &FirmwareProfile) -> Self {
-                Self { $($key: profile.index(stringify!($key)),)* }
+            /// Every key's index, as `index` finds it.
+            pub(super) fn resolve(index: impl Fn(&str) -> usize) -> Self {
+                Self { $($key: index(stringify!($key)),)* }
             }
         }
     };

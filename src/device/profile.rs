@@ -10,6 +10,8 @@ use thiserror::Error;
 
 use crate::source_location::{DataFileError, load_toml, parse_toml};
 
+use super::keys::Keys;
+
 const WHAT: &str = "firmware profile";
 
 /// A profile file that cannot be used.
@@ -283,7 +285,7 @@ impl FirmwareProfile {
     }
 
     fn check_required_keys(&self) -> Result<(), String> {
-        let missing: Vec<_> = super::keys::Keys::NAMES.iter().filter(|k| !self.by_key.contains_key(**k)).collect();
+        let missing: Vec<_> = Keys::NAMES.iter().filter(|k| !self.by_key.contains_key(**k)).collect();
         if !missing.is_empty() {
             return Err(format!("missing control-table items: {missing:?}"));
         }
@@ -319,6 +321,11 @@ impl FirmwareProfile {
     pub fn index(&self, key: &str) -> usize {
         // ok: required keys are validated at load time; other keys are a programming error.
         self.by_key[key]
+    }
+
+    /// The items the device code uses, resolved once (their keys were checked at load time).
+    pub(crate) fn keys(&self) -> Keys {
+        Keys::resolve(|key| self.index(key))
     }
 
     pub fn find(&self, key: &str) -> Option<usize> {

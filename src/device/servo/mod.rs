@@ -209,7 +209,7 @@ struct EncoderNoise {
 impl Servo {
     /// A servo fresh from power-on with `id` and `baud_code` written to its EEPROM.
     pub fn new(profile: Arc<FirmwareProfile>, id: u8, baud_code: u8, supply_voltage_v: f64) -> Self {
-        let keys = Keys::resolve(&profile);
+        let keys = profile.keys();
         let units = Units::new(&profile, &keys);
         let motor = Motor::new(&profile.motor);
         let period = Duration::from_micros(profile.model.control_period_us.max(1));
