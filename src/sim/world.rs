@@ -333,6 +333,7 @@ impl std::fmt::Debug for RobotWorld {
 }
 
 mod build;
+mod measure;
 mod queries;
 mod step;
 

@@ -9,7 +9,7 @@ use crate::device::{BenchLoad, Servo};
 use crate::robot::{RobotDescription, SectionSpec, ServoRole, WheelPosition};
 use crate::sim::obstacles::ObstacleError;
 
-use super::queries::{surface_below, terrain_below};
+use super::measure::{surface_below, terrain_below};
 use super::{AdhesionSample, MagnetShaft, ROBOT_GROUP, RobotWorld, STATIC_CONTACT_HZ, ServoJoint, ServoLink, SlipPatches, StartPose, TERRAIN_GROUP, WheelParts, WorldConfig, WorldError, robot_groups};
 
 impl RobotWorld {

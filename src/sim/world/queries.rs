@@ -3,13 +3,12 @@
 
 use std::time::Duration;
 
-use rapier3d::parry::query::ShapeCastOptions;
 use rapier3d::prelude::*;
 
 use crate::device::ShaftLoad;
 use crate::robot::WheelPosition;
 
-use super::step::joint_rate;
+use super::measure::{joint_rate, surface_below, terrain_and_normal_below};
 use super::{AdhesionSample, PartFrame, PartShape, PartShapeKind, RobotWorld, ServoLink, SlipArea, TerrainMesh, magnet_frame, robot_groups, wheel_frame};
 
 impl RobotWorld {
@@ -285,52 +284,3 @@ impl RobotWorld {
     }
 }
 
-/// The surface a magnet faces: contact point and outward normal, looking from `centre` along
-/// `direction` up to `reach`. A ray gives the exact face normal; a ray that passes exactly
-/// through a grid vertex or edge can miss, and then the seed's sphere cast (radius `probe`)
-/// finds the surface. The sphere cast is not the first choice because parry's shape cast
-/// against a fine heightfield returned normals tilted by up to 20° on flat cells (measured).
-///
-/// The ray goes straight to the terrain collider's shape: the terrain is the only collider in
-/// the magnets' filter, and skipping the query pipeline's tree walk halves the cast's cost
-/// (it runs four times a step).
-pub(super) fn find_surface(physics: &PhysicsWorld, terrain: ColliderHandle, centre: Vector, direction: Vector, reach: f32, probe: f32, filter: QueryFilter<'_>) -> Option<(Vector, Vector)> {
-    let ray = Ray::new(centre, direction);
-    let terrain = physics.colliders.get(terrain)?;
-    if let Some(hit) = terrain.shape().cast_ray_and_get_normal(terrain.position(), &ray, reach, true) {
-        return Some((ray.point_at(hit.time_of_impact), hit.normal));
-    }
-    let options = ShapeCastOptions { max_time_of_impact: reach, target_distance: 0.0, stop_at_penetration: true, compute_impact_geometry_on_penetration: true };
-    let (_, hit) = physics.cast_shape(&Pose::from_translation(centre), direction, &Ball::new(probe), options, filter)?;
-    Some((hit.witness1, hit.normal1))
-}
-
-/// The terrain straight below (x, z): point and outward normal, from a ray cast down from high
-/// above against the terrain group only.
-pub(super) fn surface_below(physics: &PhysicsWorld, x: f32, z: f32) -> Option<(Vector, Vector)> {
-    let ray = ray_down(x, z);
-    let filter = QueryFilter::default().groups(robot_groups());
-    let (_, hit) = physics.cast_ray_and_get_normal(&ray, 2.0 * RAY_DOWN_FROM_M, true, filter)?;
-    Some((ray.point_at(hit.time_of_impact), hit.normal))
-}
-
-/// How high above the origin a ray looking straight down starts (terrains stay far below).
-const RAY_DOWN_FROM_M: f32 = 100.0;
-
-/// A ray straight down onto (x, z) from [`RAY_DOWN_FROM_M`] up.
-pub(super) fn ray_down(x: f32, z: f32) -> Ray {
-    Ray::new(Vector::new(x, RAY_DOWN_FROM_M, z), -Vector::Y)
-}
-
-/// The terrain collider's surface straight below (x, z), obstacles ignored.
-pub(super) fn terrain_below(physics: &PhysicsWorld, terrain: ColliderHandle, x: f32, z: f32) -> Option<Vector> {
-    terrain_and_normal_below(physics, terrain, x, z).map(|(point, _)| point)
-}
-
-/// [`terrain_below`] with the surface's outward normal there.
-pub(super) fn terrain_and_normal_below(physics: &PhysicsWorld, terrain: ColliderHandle, x: f32, z: f32) -> Option<(Vector, Vector)> {
-    let ray = ray_down(x, z);
-    let collider = physics.colliders.get(terrain)?;
-    let hit = collider.shape().cast_ray_and_get_normal(collider.position(), &ray, 2.0 * RAY_DOWN_FROM_M, true)?;
-    Some((ray.point_at(hit.time_of_impact), hit.normal))
-}

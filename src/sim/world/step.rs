@@ -5,7 +5,7 @@ use rapier3d::prelude::*;
 
 use crate::device::{Servo, ShaftDrive, ShaftLoad, ShaftState};
 
-use super::queries::find_surface;
+use super::measure::{find_surface, joint_angle, joint_rate};
 use super::{AdhesionSample, FRICTION_MOTOR_GAIN, RobotWorld, ServoJoint, ServoLink, robot_groups};
 
 impl RobotWorld {
@@ -241,24 +241,4 @@ pub(super) fn track_angle(physics: &PhysicsWorld, joint: &mut ServoJoint) -> f64
     joint.angle += delta;
     joint.last_wrapped = wrapped;
     delta
-}
-
-/// Joint axis in world coordinates.
-pub(super) fn world_axis(physics: &PhysicsWorld, joint: &ServoJoint) -> Vector {
-    physics.bodies[joint.parent].rotation() * joint.axis
-}
-
-pub(super) fn joint_rate(physics: &PhysicsWorld, joint: &ServoJoint) -> f32 {
-    let axis = world_axis(physics, joint);
-    (physics.bodies[joint.child].angvel() - physics.bodies[joint.parent].angvel()).dot(axis)
-}
-
-/// Angle of the child about the joint axis relative to the parent, in (−π, π].
-pub(super) fn joint_angle(physics: &PhysicsWorld, joint: &ServoJoint) -> f32 {
-    let parent = physics.bodies[joint.parent].rotation();
-    let child = physics.bodies[joint.child].rotation();
-    let relative = parent.inverse() * *child;
-    // Twist of the relative rotation about the (parent-frame) axis.
-    let v = Vector::new(relative.x, relative.y, relative.z);
-    2.0 * v.dot(joint.axis).atan2(relative.w)
 }
