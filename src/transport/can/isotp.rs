@@ -6,6 +6,9 @@
 //! with [`Endpoint::poll_event`]. CAN IDs are the caller's business (normal addressing: the whole
 //! payload is ISO-TP).
 //!
+//! One idea in one file (over 500 lines): the endpoint's receiver and sender share its deadlines
+//! and events, and each one's flow control goes out or comes in through the other.
+//!
 //! Both directions run independently (full duplex), one message at a time each way: further
 //! messages to send wait in a queue. Malformed or unexpected frames are reported as
 //! [`Event::Error`] and otherwise ignored or end the reception they broke, as §9.8.3 of the
