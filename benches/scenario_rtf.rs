@@ -14,7 +14,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use climbsim::robot::RobotDescription;
-use climbsim::scenario::run::run_lockstep;
+use climbsim::runner::lockstep::run_lockstep;
 use climbsim::scenario::{Override, Scenario};
 
 fn repo() -> PathBuf {

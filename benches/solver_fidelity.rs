@@ -7,7 +7,7 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use climbsim::scenario::run::run_lockstep;
+use climbsim::runner::lockstep::run_lockstep;
 use climbsim::scenario::{Override, Scenario};
 use climbsim::sim::SolverSettings;
 use rapier3d::prelude::Vector;

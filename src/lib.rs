@@ -20,3 +20,4 @@ pub mod transcript;
 pub mod transport;
 pub mod metrics;
 pub mod report;
+pub mod runner;

@@ -19,23 +19,10 @@ fn main() -> std::process::ExitCode {
     match cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("climbsim: {}", describe(&error));
+            eprintln!("climbsim: {}", climbsim::runner::describe(error.as_ref()));
             // Anything that is not a run's verdict (bad input, an unusable path or program) is 2,
             // like a usage error.
-            std::process::ExitCode::from(error.downcast_ref::<cli::Verdict>().map_or(2, cli::Verdict::exit_code))
+            std::process::ExitCode::from(error.downcast_ref::<climbsim::runner::RunnerError>().map_or(2, climbsim::runner::RunnerError::exit_code))
         }
     }
-}
-
-/// The error and its causes on one line, without repeating a cause its parent already quotes.
-fn describe(error: &anyhow::Error) -> String {
-    let mut text = error.to_string();
-    for cause in error.chain().skip(1) {
-        let cause = cause.to_string();
-        if !text.contains(&cause) {
-            text.push_str(": ");
-            text.push_str(&cause);
-        }
-    }
-    text
 }

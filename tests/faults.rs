@@ -476,7 +476,7 @@ fn scenario_fault_events_are_checked_and_show_in_the_time_series_and_summary() {
          [[events]]\nat_s = 0.5\nfault = { kind = \"drop_replies\", id = 8, probability = 0.5 }\n",
     );
     let scenario = Scenario::load(&path).expect("scenario with faults");
-    let outcome = climbsim::scenario::run::run_lockstep(&scenario, &robot()).expect("run");
+    let outcome = climbsim::runner::lockstep::run_lockstep(&scenario, &robot()).expect("run");
     let series = outcome.series.as_ref().expect("run_lockstep keeps the captured rows");
     let column = |name: &str| series.column(name).expect(name);
     let (t, hw2, torque2, volts) = (column("t_s"), column("hw_error_2"), column("torque_on_2"), column("input_voltage_1_v"));

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use climbsim::robot::RobotDescription;
-use climbsim::scenario::run::run_lockstep;
+use climbsim::runner::lockstep::run_lockstep;
 use climbsim::scenario::{Override, Scenario};
 
 fn repo() -> PathBuf {
@@ -15,18 +15,18 @@ fn robot() -> RobotDescription {
     RobotDescription::load(&RobotDescription::default_path()).expect("robot")
 }
 
-fn run(scenario: &str, sets: &[&str]) -> climbsim::scenario::run::RunOutcome {
+fn run(scenario: &str, sets: &[&str]) -> climbsim::runner::RunOutcome {
     let overrides: Vec<Override> = sets.iter().map(|s| Override::parse(s).expect("override")).collect();
     let scenario = Scenario::load_with(&repo().join(scenario), &overrides).unwrap_or_else(|e| panic!("{e}"));
     run_lockstep(&scenario, &robot()).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// The rows `run_lockstep` keeps in memory (it has no output folder to stream them to).
-fn series(outcome: &climbsim::scenario::run::RunOutcome) -> &climbsim::report::TimeSeries {
+fn series(outcome: &climbsim::runner::RunOutcome) -> &climbsim::report::TimeSeries {
     outcome.series.as_ref().expect("run_lockstep keeps the captured rows")
 }
 
-fn metric(outcome: &climbsim::scenario::run::RunOutcome, key: &str) -> Option<f64> {
+fn metric(outcome: &climbsim::runner::RunOutcome, key: &str) -> Option<f64> {
     outcome.summary.get(key).and_then(serde_json::Value::as_f64)
 }
 

@@ -50,7 +50,3 @@ pub fn install() -> Result<()> {
 pub fn flag() -> &'static AtomicBool {
     &REQUESTED
 }
-
-pub fn requested() -> bool {
-    REQUESTED.load(Ordering::Relaxed)
-}

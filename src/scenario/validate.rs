@@ -338,8 +338,8 @@ fn check_line_and_start(scenario: &Scenario) -> Result<(), Problem> {
         return Ok(());
     };
     check_line_section(&Checker::at(&["line"]), line)?;
-    if scenario.welds.len() + 1 > crate::scenario::relocation::MAX_WELDS {
-        return Err(Checker::at(&[]).problem(&[key("welds")], format!("{} welds with [line]; at most {}", scenario.welds.len() + 1, crate::scenario::relocation::MAX_WELDS)));
+    if scenario.welds.len() + 1 > crate::scenario::MAX_WELDS {
+        return Err(Checker::at(&[]).problem(&[key("welds")], format!("{} welds with [line]; at most {}", scenario.welds.len() + 1, crate::scenario::MAX_WELDS)));
     }
     for (i, weld) in scenario.welds.iter().enumerate() {
         check_line_section(&Checker { prefix: vec![key("welds"), KeyPart::Index(i)] }, weld)?;

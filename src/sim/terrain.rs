@@ -2,6 +2,9 @@
 //! from a 16-bit PNG (all heightfields), and a steel pipe and a floor-to-wall fillet (trimeshes,
 //! since a heightfield cannot hold a vertical or overhanging surface).
 //!
+//! One idea in one file (over 500 lines): every generator is a few lines over the shared grid,
+//! placement and unrolling code below, which is what makes the terrains agree with each other.
+//!
 //! # Frame and placement
 //! World frame (right-handed): Y up, robot forward +X, +Z to the robot's right, metres. The robot starts near the origin, so:
 //! - flat, Perlin, slope and heightmap terrains are centred on the origin in X/Z and shifted

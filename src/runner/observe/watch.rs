@@ -1,5 +1,5 @@
 //! The world watch: what makes a run physically impossible, shared by the lockstep run and the
-//! wall-clock observer ([`super::run::Observer::on_tick`]). A robot that left the terrain, or
+//! wall-clock observer ([`crate::runner::Observer::on_tick`]). A robot that left the terrain, or
 //! that no wheel has touched for more than [`NO_CONTACT_LIMIT_S`], is no longer driving: the
 //! metrics after that are about a falling body, so the run stops there and says why.
 

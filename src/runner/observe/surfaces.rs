@@ -25,9 +25,7 @@ pub const NEW_SURFACE_DEG: f32 = 45.0;
 /// bounces of a wheel over a bead, not a loss of grip.
 pub const HOLD_S: f64 = 0.1;
 
-/// The pull under which a magnet is "weak" unless a scenario states another
-/// (`[capture] adhesion_floor_n`): a quarter of the robot's 80 N at contact.
-pub const DEFAULT_ADHESION_FLOOR_N: f32 = 20.0;
+pub use crate::scenario::DEFAULT_ADHESION_FLOOR_N;
 
 /// One sample: time, each magnet's pull (N) and contact normal (None off the steel), the
 /// line's ground truth (distance and arc length along it; NaN without a line).
@@ -165,6 +163,24 @@ fn angle_deg(a: Vector, b: Vector) -> f32 {
 
 fn mean_direction(normals: &[Vector]) -> Option<Vector> {
     normals.iter().sum::<Vector>().try_normalize()
+}
+
+/// As a metric of the run's track: each wheel's pull and contact normal, and the ground truth.
+impl super::metrics::TrackMetric for SurfaceTrack {
+    fn push(&mut self, sample: &super::metrics::TrackSample<'_>) {
+        let adhesion = sample.world.adhesion();
+        SurfaceTrack::push(self, &SurfaceSample {
+            t_s: sample.t_s,
+            pull_n: adhesion.each_ref().map(|a| a.force_n),
+            normal: adhesion.each_ref().map(|a| a.contact.map(|(_, n)| n)),
+            d_true_m: sample.truth.d_err_m,
+            arc_m: sample.truth.arc_m,
+        });
+    }
+
+    fn summary(&self) -> Vec<(String, Value)> {
+        SurfaceTrack::summary(self)
+    }
 }
 
 #[cfg(test)]

@@ -58,7 +58,7 @@ pub const MCAP_FILE: &str = "run.mcap";
 const TERRAIN_VERTICES_PER_SIDE: usize = 257;
 
 /// A magnet pulling less than this (N) has its arrow drawn red.
-const WEAK_MAGNET_N: f32 = super::surfaces::DEFAULT_ADHESION_FLOOR_N;
+const WEAK_MAGNET_N: f32 = crate::scenario::DEFAULT_ADHESION_FLOOR_N;
 
 #[derive(Debug, Error)]
 pub enum ViewError {

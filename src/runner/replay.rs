@@ -18,8 +18,10 @@ use serde_json::json;
 use thiserror::Error;
 use tracing::{info_span, warn};
 
-use super::run::{RunError, RunOutcome, scenario_bus, settings_json};
-use super::{Override, Scenario, ScenarioError};
+use super::RunError;
+use super::observe::{require_line, scenario_bus};
+use super::outputs::{RunOutcome, settings_json};
+use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::bus::Timing;
 use crate::protocol::{Decoder, RawPacket};
 use crate::robot::{RobotDescription, RobotError};
@@ -124,7 +126,7 @@ pub fn replay(transcript: &Transcript, sources: &ReplaySources) -> Result<Replay
     };
 
     let (mut bus, observer) = scenario_bus(&scenario, &robot, timing, header.bus.baud_override)?;
-    super::run::require_line(&scenario)?;
+    require_line(&scenario)?;
     let mut observer = observer;
     let mut stats = ReplayStats { complete: transcript.complete, ..ReplayStats::default() };
     let mut last_t = Duration::ZERO;

@@ -4,12 +4,13 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{Context, Result};
-use climbsim::transport::latency::{self, LowLatencyGuard};
-use climbsim::transport::rs485::Rs485Delays;
-use climbsim::transport::{BusHandle, DeviceSettings, Echo, SerialDevice, SerialError, majority_baud, serve_stream};
+use crate::transport::latency::{self, LowLatencyGuard};
+use crate::transport::rs485::Rs485Delays;
+use crate::transport::{BusHandle, DeviceSettings, Echo, SerialDevice, SerialError, majority_baud, serve_stream};
 use tokio::sync::Notify;
 use tracing::{info, warn};
+
+use crate::runner::{Result, RunnerError};
 
 /// How often a device that disappeared (USB unplugged) is looked for again.
 const REOPEN_EVERY: Duration = Duration::from_millis(500);
@@ -79,7 +80,16 @@ struct Opened {
     _timer: Option<LowLatencyGuard>,
 }
 
-fn open(options: &DeviceOptions, handle: &BusHandle) -> Result<Opened> {
+/// Why the device could not be opened (or reopened).
+#[derive(Debug, thiserror::Error)]
+enum OpenError {
+    #[error(transparent)]
+    Serial(#[from] SerialError),
+    #[error(transparent)]
+    Latency(#[from] latency::LatencyError),
+}
+
+fn open(options: &DeviceOptions, handle: &BusHandle) -> Result<Opened, OpenError> {
     let baud = servo_baud(handle).unwrap_or(57_600);
     let settings = DeviceSettings { echo: options.echo, low_latency: options.low_latency, rs485: options.rs485 };
     let device = SerialDevice::open(&options.path, baud, &settings)?;
@@ -98,13 +108,13 @@ pub async fn start_device(options: DeviceOptions, handle: Arc<BusHandle>) -> Res
     let thread = std::thread::Builder::new().name("device".into()).spawn(move || {
         let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
             Ok(runtime) => runtime,
-            Err(error) => return drop(opened_tx.send(Err(anyhow::Error::from(error)))),
+            Err(error) => return drop(opened_tx.send(Err(RunnerError::during("cannot start the device thread's runtime", error)))),
         };
         runtime.block_on(async move {
             // The device registers with this thread's runtime, so it is opened here.
             let mut opened = match open(&options, &handle) {
                 Ok(opened) => opened,
-                Err(error) => return drop(opened_tx.send(Err(error))),
+                Err(error) => return drop(opened_tx.send(Err(RunnerError::during(format!("--device {}", options.path.display()), error)))),
             };
             let _ = opened_tx.send(Ok(opened.device.baud()));
             loop {
@@ -127,12 +137,12 @@ pub async fn start_device(options: DeviceOptions, handle: Arc<BusHandle>) -> Res
                 };
             }
         });
-    })?;
-    let baud = opened_rx.await.context("the device thread ended before opening the device")??;
+    }).map_err(|error| RunnerError::during("cannot start the device thread", error))?;
+    let baud = opened_rx.await.map_err(|_| RunnerError::Invalid("the device thread ended before opening the device".to_owned()))??;
     Ok(DeviceService { thread, stop, baud })
 }
 
-async fn serve_on(device: Arc<SerialDevice>, handle: Arc<BusHandle>) -> Result<(), climbsim::transport::TransportError> {
+async fn serve_on(device: Arc<SerialDevice>, handle: Arc<BusHandle>) -> Result<(), crate::transport::TransportError> {
     let line = device.line();
     serve_stream(device.stream(), handle, &line).await
 }
@@ -148,10 +158,10 @@ async fn reopen(options: &DeviceOptions, handle: &BusHandle) -> Opened {
                 return opened;
             }
             Err(error) => {
-                let text = format!("{error:#}");
+                let text = crate::runner::describe(&error);
                 // Said once per kind of failure, not every half second.
                 if said.as_deref() != Some(&text) {
-                    if error.downcast_ref::<SerialError>().is_some_and(|e| matches!(e, SerialError::NotFound(_))) {
+                    if matches!(error, OpenError::Serial(SerialError::NotFound(_))) {
                         info!(device = %options.path.display(), "waiting for the device to come back");
                     } else {
                         warn!(error = %text, "cannot reopen the device yet");

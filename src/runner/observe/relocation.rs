@@ -26,6 +26,8 @@ use crate::control::RelocationConfig;
 use crate::control::planner::{OccupancyGrid, PlanError};
 use crate::sim::{RobotWorld, WeldLine};
 
+pub use super::welds::WeldView;
+
 /// Within this of a weld (m), the robot is on it.
 pub const ON_WELD_M: f32 = 0.01;
 /// A robot coming level with a weld's start within this of it (m) has arrived there (further
@@ -70,17 +72,8 @@ pub struct RelocationSample {
     pub nearest: [Option<WeldView>; MAX_WELDS],
 }
 
-/// The robot seen from one weld.
-#[derive(Debug, Clone, Copy)]
-pub struct WeldView {
-    pub distance_m: f32,
-    pub inside: bool,
-    pub d_m: f32,
-    pub psi_rad: f32,
-}
-
-/// The most welds a scenario may list (the relocation metrics keep a fixed array per sample).
-pub const MAX_WELDS: usize = 32;
+/// The most welds a scenario may list: the relocation metrics keep a fixed array per sample.
+pub use crate::scenario::MAX_WELDS;
 
 #[derive(Debug, Clone, Default)]
 struct Move {
@@ -181,6 +174,18 @@ impl RelocationTrack {
         out.push(("relocation.max_arrival_offset_m".to_owned(), json!(max(&|d| f64::from(d.arrival_offset_m)))));
         out.push(("relocation.max_arrival_heading_deg".to_owned(), json!(max(&|d| f64::from(d.arrival_heading_rad).to_degrees()))));
         out
+    }
+}
+
+/// As a metric of the run's track: the robot's centre in plan, seen from every weld.
+impl super::metrics::TrackMetric for RelocationTrack {
+    fn push(&mut self, sample: &super::metrics::TrackSample<'_>) {
+        let position = sample.world.chassis_pose().translation;
+        RelocationTrack::push(self, &RelocationSample { t_s: sample.t_s, position: [position.x, position.z], nearest: sample.welds.views(sample.world) });
+    }
+
+    fn summary(&self) -> Vec<(String, Value)> {
+        RelocationTrack::summary(self)
     }
 }
 

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use super::{During as _, Result, RunnerError};
 use tracing::warn;
 
 /// How long a controller gets to stop after SIGTERM before it is killed.
@@ -57,14 +57,14 @@ impl Controller {
     /// clear error naming the command.
     pub fn start(launch: &Launch<'_>) -> Result<Self> {
         let description = launch.command.join(" ");
-        let (program, args) = launch.command.split_first().context("the external controller's command is empty")?;
-        let resolved = find_program(program).with_context(|| format!("cannot start the controller `{description}`"))?;
-        let log = std::fs::File::create(launch.log_path).with_context(|| format!("cannot create {}", launch.log_path.display()))?;
+        let (program, args) = launch.command.split_first().ok_or_else(|| RunnerError::Invalid("the external controller's command is empty".to_owned()))?;
+        let resolved = find_program(program).during(|| format!("cannot start the controller `{description}`"))?;
+        let log = std::fs::File::create(launch.log_path).during(|| format!("cannot create {}", launch.log_path.display()))?;
         let mut command = std::process::Command::new(&resolved);
-        command.args(args).envs(launch.env.iter().map(|(k, v)| (k, v))).stdin(Stdio::null()).stdout(log.try_clone()?).stderr(log);
+        command.args(args).envs(launch.env.iter().map(|(k, v)| (k, v))).stdin(Stdio::null()).stdout(log.try_clone().during(|| format!("cannot share {}", launch.log_path.display()))?).stderr(log);
         if launch.speed != 1.0 {
-            refuse_unpreloadable(&resolved).with_context(|| format!("--speed {} cannot scale the clocks of `{description}`", launch.speed))?;
-            command.envs(faketime_env(launch.speed).with_context(|| format!("--speed {} for `{description}`", launch.speed))?);
+            refuse_unpreloadable(&resolved).during(|| format!("--speed {} cannot scale the clocks of `{description}`", launch.speed))?;
+            command.envs(faketime_env(launch.speed).during(|| format!("--speed {} for `{description}`", launch.speed))?);
         }
         // The emulated servos are the hardware: on a machine with few cores a busy controller
         // (the SDK polls the port in a tight loop) must not delay their replies or the world's
@@ -77,7 +77,7 @@ impl Controller {
                 Ok(())
             });
         }
-        let child = command.spawn().with_context(|| format!("cannot start the controller `{description}`"))?;
+        let child = command.spawn().during(|| format!("cannot start the controller `{description}`"))?;
         Ok(Self { child, description, log_path: launch.log_path.to_owned() })
     }
 
@@ -87,26 +87,26 @@ impl Controller {
 
     /// The exit status if the program has ended.
     pub fn try_wait(&mut self) -> Result<Option<ExitStatus>> {
-        Ok(self.child.try_wait()?)
+        self.child.try_wait().during(|| format!("cannot watch the controller `{}`", self.description))
     }
 
     /// SIGTERM, a grace period, then SIGKILL; the exit status.
     pub fn stop(&mut self) -> Result<ExitStatus> {
-        if let Some(status) = self.child.try_wait()? {
+        if let Some(status) = self.try_wait()? {
             return Ok(status);
         }
-        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).context("pid out of range")?);
+        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).map_err(|_| RunnerError::Invalid("pid out of range".to_owned()))?);
         let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
         let deadline = Instant::now() + STOP_GRACE;
         while Instant::now() < deadline {
-            if let Some(status) = self.child.try_wait()? {
+            if let Some(status) = self.try_wait()? {
                 return Ok(status);
             }
             std::thread::sleep(Duration::from_millis(20));
         }
         warn!("the controller ignored SIGTERM for {STOP_GRACE:?}; killing it");
-        self.child.kill()?;
-        Ok(self.child.wait()?)
+        self.child.kill().during(|| format!("cannot kill the controller `{}`", self.description))?;
+        self.child.wait().during(|| format!("cannot reap the controller `{}`", self.description))
     }
 
     /// The last lines of the controller's output.
@@ -157,17 +157,17 @@ fn find_program(program: &str) -> Result<PathBuf> {
     let executable = |path: &Path| std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0);
     if program.contains('/') {
         let path = PathBuf::from(program);
-        let metadata = std::fs::metadata(&path).with_context(|| format!("{program}: not found"))?;
+        let metadata = std::fs::metadata(&path).during(|| format!("{program}: not found"))?;
         if !metadata.is_file() {
-            bail!("{program}: not a file");
+            return Err(RunnerError::Invalid(format!("{program}: not a file")));
         }
         if !executable(&path) {
-            bail!("{program}: not executable (chmod +x, or name its interpreter first, e.g. [\"python3\", \"{program}\"])");
+            return Err(RunnerError::Invalid(format!("{program}: not executable (chmod +x, or name its interpreter first, e.g. [\"python3\", \"{program}\"])")));
         }
         return Ok(path);
     }
     let path_var = std::env::var_os("PATH").unwrap_or_default();
-    std::env::split_paths(&path_var).map(|dir| dir.join(program)).find(|candidate| executable(candidate)).with_context(|| format!("{program}: not found on PATH"))
+    std::env::split_paths(&path_var).map(|dir| dir.join(program)).find(|candidate| executable(candidate)).ok_or_else(|| RunnerError::Invalid(format!("{program}: not found on PATH")))
 }
 
 /// The libfaketime library: `CLIMBSIM_LIBFAKETIME`, or the multi-threaded build where the
@@ -176,7 +176,7 @@ fn libfaketime() -> Result<PathBuf> {
     if let Some(path) = std::env::var_os("CLIMBSIM_LIBFAKETIME") {
         let path = PathBuf::from(path);
         if !path.is_file() {
-            bail!("CLIMBSIM_LIBFAKETIME={} is not a file", path.display());
+            return Err(RunnerError::Invalid(format!("CLIMBSIM_LIBFAKETIME={} is not a file", path.display())));
         }
         return Ok(path);
     }
@@ -185,7 +185,7 @@ fn libfaketime() -> Result<PathBuf> {
             return Ok(found);
         }
     }
-    bail!("it needs libfaketime to scale the controller's clocks and none was found (Debian/Ubuntu: apt-get install libfaketime; or set CLIMBSIM_LIBFAKETIME to libfaketimeMT.so.1)")
+    Err(RunnerError::Invalid("it needs libfaketime to scale the controller's clocks and none was found (Debian/Ubuntu: apt-get install libfaketime; or set CLIMBSIM_LIBFAKETIME to libfaketimeMT.so.1)".to_owned()))
 }
 
 /// The first file matching `pattern`, whose only wildcard is one `*` path component.
@@ -205,27 +205,27 @@ fn refuse_unpreloadable(program: &Path) -> Result<()> {
     let binary = interpreter.as_deref().unwrap_or(program);
     use std::os::unix::fs::PermissionsExt as _;
     if std::fs::metadata(binary).is_ok_and(|m| m.permissions().mode() & 0o4000 != 0) {
-        bail!("{} is set-uid, and the loader ignores LD_PRELOAD for it", binary.display());
+        return Err(RunnerError::Invalid(format!("{} is set-uid, and the loader ignores LD_PRELOAD for it", binary.display())));
     }
     match elf_is_dynamic(binary)? {
         Some(true) => Ok(()),
-        Some(false) => bail!("{} is statically linked, so libfaketime cannot be preloaded into it; run it at --speed 1, or link it dynamically", binary.display()),
-        None => bail!("{} is neither an ELF program nor a #! script, so whether libfaketime reaches it cannot be told", binary.display()),
+        Some(false) => return Err(RunnerError::Invalid(format!("{} is statically linked, so libfaketime cannot be preloaded into it; run it at --speed 1, or link it dynamically", binary.display()))),
+        None => return Err(RunnerError::Invalid(format!("{} is neither an ELF program nor a #! script, so whether libfaketime reaches it cannot be told", binary.display()))),
     }
 }
 
 /// The interpreter of a `#!` script (through `/usr/bin/env NAME`), None for a binary.
 fn script_interpreter(program: &Path) -> Result<Option<PathBuf>> {
     let mut head = [0u8; 256];
-    let mut file = std::fs::File::open(program).with_context(|| format!("cannot read {}", program.display()))?;
-    let n = file.read(&mut head)?;
+    let mut file = std::fs::File::open(program).during(|| format!("cannot read {}", program.display()))?;
+    let n = file.read(&mut head).during(|| format!("cannot read {}", program.display()))?;
     let Some(line) = head[..n].strip_prefix(b"#!") else { return Ok(None) };
     let line = String::from_utf8_lossy(line);
     let line = line.lines().next().unwrap_or_default();
     let mut words = line.split_whitespace();
-    let first = words.next().with_context(|| format!("{}: empty #! line", program.display()))?;
+    let first = words.next().ok_or_else(|| RunnerError::Invalid(format!("{}: empty #! line", program.display())))?;
     if Path::new(first).file_name().is_some_and(|name| name == "env") {
-        let name = words.find(|w| !w.starts_with('-')).with_context(|| format!("{}: #!{line} names no program", program.display()))?;
+        let name = words.find(|w| !w.starts_with('-')).ok_or_else(|| RunnerError::Invalid(format!("{}: #!{line} names no program", program.display())))?;
         return find_program(name).map(Some);
     }
     Ok(Some(PathBuf::from(first)))
@@ -234,7 +234,7 @@ fn script_interpreter(program: &Path) -> Result<Option<PathBuf>> {
 /// Some(true) for a dynamically linked ELF file (it has a PT_INTERP program header, the loader
 /// that honours LD_PRELOAD), Some(false) for a static one, None for a file that is not ELF.
 pub fn elf_is_dynamic(path: &Path) -> Result<Option<bool>> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bytes = std::fs::read(path).during(|| format!("cannot read {}", path.display()))?;
     Ok(elf_has_interpreter(&bytes))
 }
 

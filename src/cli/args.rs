@@ -1,0 +1,113 @@
+//! What several subcommands share: flags (`--foxglove`, `--speed`, `--timing`, `--fault`), their
+//! parsers, and loading the robot description.
+
+use std::path::Path;
+use std::time::Duration;
+
+use anyhow::{Result, bail};
+use clap::ValueEnum;
+
+use climbsim::bus::Timing;
+use climbsim::fault::ScheduledFault;
+use climbsim::robot::RobotDescription;
+use climbsim::runner::Pace;
+use climbsim::runner::view::LiveAddress;
+
+/// `--foxglove[=ADDR]`, shared by `run` and `serve`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct FoxgloveArgs {
+    /// Show the world live in Foxglove: serve Foxglove's WebSocket protocol at 127.0.0.1:8765,
+    /// or at `--foxglove=ADDR` (PORT, HOST or HOST:PORT; only this machine can connect unless a
+    /// host is given). In Foxglove: Open connection → Foxglove WebSocket. A built-in
+    /// controller's run then keeps to real time (or --speed N times it) for the watcher.
+    #[arg(long = "foxglove", requires = "scenario", value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
+    pub address: Option<LiveAddress>,
+}
+
+/// `--speed` and `--pace-tolerance-ms`, shared by `run`, `check`, `sweep` and `serve`.
+#[derive(Debug, Clone, Copy, clap::Args)]
+pub struct PaceArgs {
+    /// Run the world, the bus's wire timing and an external controller's clocks (libfaketime)
+    /// at N times the wall clock, so an unchanged controller runs faster than real time.
+    #[arg(long, value_name = "N", default_value = "1", value_parser = parse_speed)]
+    pub speed: f64,
+    /// Fail a wall-clock run whose world ticks or replies come later than this (simulated
+    /// milliseconds, 99th percentile): the machine could not keep the pace. The default is
+    /// under a real USB adapter's own delivery delay (an FTDI chip's 16 ms latency timer,
+    /// which the official SDK's timeouts allow for twice over).
+    #[arg(long, value_name = "MS", default_value = "10", value_parser = parse_tolerance_ms)]
+    pub pace_tolerance_ms: f64,
+}
+
+impl PaceArgs {
+    pub fn pace(&self) -> Pace {
+        Pace { speed: self.speed, tolerance: Duration::from_secs_f64(self.pace_tolerance_ms / 1e3) }
+    }
+
+    pub fn is_default(&self) -> bool {
+        self.speed == 1.0
+    }
+}
+
+/// The robot description `--robot` defaults to: the checkout's, from where climbsim is run (a
+/// path compiled into the binary would point into the build machine); `CLIMBSIM_ROBOT` sets
+/// another for every command.
+pub const ROBOT_IN_CHECKOUT: &str = "hil/robot.toml";
+
+/// Load the robot description at `path`, saying what to do when the default is not here.
+pub fn load_robot(path: &Path) -> Result<RobotDescription> {
+    if path == Path::new(ROBOT_IN_CHECKOUT) && !path.exists() {
+        bail!("robot description {ROBOT_IN_CHECKOUT} not found from {}: run climbsim from its checkout, or pass --robot FILE or set CLIMBSIM_ROBOT", std::env::current_dir().map(|d| d.display().to_string()).unwrap_or_else(|_| "here".to_owned()));
+    }
+    Ok(RobotDescription::load(path)?)
+}
+
+/// The highest `--speed`: beyond it a firmware tick is shorter on the wall clock than a sleep.
+const MAX_SPEED: f64 = 1000.0;
+
+pub fn parse_speed(text: &str) -> Result<f64, String> {
+    let speed: f64 = text.trim().parse().map_err(|_| format!("`{text}` is not a number (times real time)"))?;
+    if !(speed.is_finite() && (0.01..=MAX_SPEED).contains(&speed)) {
+        return Err(format!("{text} is outside 0.01-{MAX_SPEED} (times real time)"));
+    }
+    Ok(speed)
+}
+
+pub fn parse_tolerance_ms(text: &str) -> Result<f64, String> {
+    let ms: f64 = text.trim().parse().map_err(|_| format!("`{text}` is not a number of milliseconds"))?;
+    if !(ms.is_finite() && ms > 0.0 && ms <= 60_000.0) {
+        return Err(format!("{text} ms is outside (0, 60000] ms"));
+    }
+    Ok(ms)
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum TimingArg {
+    /// Replies arrive when a real bus would deliver them (Return Delay Time, bytes × 10 / baud).
+    Wire,
+    /// Replies as fast as possible.
+    Off,
+}
+
+impl From<TimingArg> for Timing {
+    fn from(timing: TimingArg) -> Self {
+        match timing {
+            TimingArg::Wire => Self::Wire,
+            TimingArg::Off => Self::Off,
+        }
+    }
+}
+
+/// `--fault SPEC`, parsed by the code that reads a scenario's `fault` table.
+pub fn parse_fault(spec: &str) -> Result<ScheduledFault, String> {
+    ScheduledFault::parse(spec).map_err(|e| e.to_string())
+}
+
+/// A transcript replays the scenario's text; faults given on the command line are not in it.
+pub fn refuse_recorded_cli_faults(faults: &[ScheduledFault], record: Option<&Path>) -> Result<()> {
+    if !faults.is_empty() && record.is_some() {
+        bail!("--fault and --record together: a replay rebuilds the scenario from its text, so put the faults in the scenario's [[events]] to record them");
+    }
+    Ok(())
+}
+

@@ -1,0 +1,43 @@
+//! `climbsim check PATH...`: every scenario against its `[expect]`; JUnit for CI.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+
+use climbsim::runner::check::check;
+use climbsim::runner::{preflight_dir, preflight_file};
+
+use super::args::{PaceArgs, ROBOT_IN_CHECKOUT, load_robot};
+use super::console::Terminal;
+use super::interrupt;
+
+/// Run scenarios and test their `[expect]` thresholds; exit non-zero if any fails.
+#[derive(Debug, clap::Args)]
+pub struct CheckArgs {
+    /// Scenario files, or folders (their `*.toml` files that have an `[expect]` section).
+    #[arg(required = true)]
+    pub paths: Vec<PathBuf>,
+    /// Also write JUnit XML here.
+    #[arg(long)]
+    pub junit: Option<PathBuf>,
+    /// Root of the runs' output folders.
+    #[arg(long, default_value = "results/check")]
+    pub out: PathBuf,
+    #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
+    pub robot: PathBuf,
+    /// `--speed` applies to scenarios with an external controller; built-in ones always run
+    /// in lockstep, as fast as the CPU allows.
+    #[command(flatten)]
+    pub pace: PaceArgs,
+}
+
+pub fn exec(args: CheckArgs) -> Result<()> {
+    let CheckArgs { paths, junit, out, robot, pace } = args;
+    interrupt::install()?;
+    let robot = load_robot(&robot)?;
+    preflight_dir(&out, "--out")?;
+    if let Some(path) = &junit {
+        preflight_file(path, "--junit")?;
+    }
+    Ok(check(&paths, &robot, &out, junit.as_deref(), pace.pace(), interrupt::flag(), &Terminal)?)
+}

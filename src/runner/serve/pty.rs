@@ -1,0 +1,33 @@
+//! The pty transport: the servos on a pseudo-terminal whose name the controller opens.
+
+use std::sync::Arc;
+
+use crate::bus::Timing;
+use crate::transport::{Adapter, AdapterModel, BusHandle, TransportError, VirtualPort, serve_stream_through};
+
+use crate::runner::{During as _, Result};
+
+/// Serve the pty until the process ends, the controller behind `adapter`. The port outlives
+/// every controller connection.
+pub async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) -> Result<(), TransportError> {
+    let line = port.line();
+    let spin_for_requests = handle.with_bus(|bus| bus.timing()) == Timing::Off;
+    serve_stream_through(port.stream(spin_for_requests)?, handle, &line, AdapterModel::new(adapter)).await
+}
+
+/// Serve `port` on a thread of its own: precise reply timing spins, and must not stall anything.
+pub fn start_thread(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) -> Result<std::thread::JoinHandle<Result<()>>> {
+    std::thread::Builder::new()
+        .name("pty".into())
+        .spawn(move || -> Result<()> {
+            let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().during(|| "cannot start the pty thread's runtime".to_owned())?;
+            // Spawned, not run in `block_on`: a spawned task's I/O wake-ups stay in the
+            // scheduler's local queue, while a `block_on` future is woken through the driver's
+            // eventfd, which costs two extra syscalls and an extra epoll round per packet.
+            runtime
+                .block_on(async move { tokio::spawn(serve_pty(port, handle, adapter)).await })
+                .during(|| "the pty session failed".to_owned())?
+                .during(|| "the pty session ended".to_owned())
+        })
+        .during(|| "cannot start the pty thread".to_owned())
+}

@@ -1,0 +1,325 @@
+//! `climbsim sweep`: a scenario over a grid of parameters, in parallel (or one shard of it),
+//! every point's row in `sweep.csv`/`sweep.json` whatever became of it, overlay and metric
+//! plots; and `--merge` of shards' tables.
+
+use std::collections::BTreeMap;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::Instant;
+
+use serde_json::Value;
+
+use crate::report::{self, PlotLabels, PlotSeries, TimeSeries, units};
+use crate::robot::RobotDescription;
+use crate::runner::observe::capture::MetricTrack;
+use crate::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
+use crate::scenario::Scenario;
+
+use super::clock::Pace;
+use super::outputs::failures;
+use super::{Console, During as _, Result, RunnerError, describe, run_scenario};
+
+/// One finished sweep run, as `sweep.json` stores it.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct SweepRow {
+    index: usize,
+    label: String,
+    /// Swept key → value as TOML text.
+    parameters: BTreeMap<String, String>,
+    summary: BTreeMap<String, Value>,
+    /// `completed`, `failed` (the run's own verdict or an error: see `error`), `interrupted`
+    /// (stopped part way, its outputs cover what ran) or `not_run` (an interrupted sweep never
+    /// started it). Older tables have no status: their rows were completed.
+    #[serde(default = "completed")]
+    status: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+    /// The run's metric track, for the overlay plots (a merged table's rows have none: their
+    /// runs' time series are read instead).
+    #[serde(skip)]
+    track: Option<MetricTrack>,
+}
+
+fn completed() -> String {
+    "completed".to_owned()
+}
+
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct SweepFile {
+    scenario: String,
+    axes: Vec<String>,
+    /// The whole grid (every shard's points), so that a merge can tell which are missing.
+    /// Tables written before it was recorded have none: their merge trusts the rows.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    grid: Vec<Axis>,
+    rows: Vec<SweepRow>,
+}
+
+/// `climbsim sweep --list --json`: the grid points of this shard as one JSON document (index,
+/// label, overrides, shard), without running them.
+pub fn grid_listing(axes: &[Axis], shard: Shard) -> Value {
+    let points: Vec<Value> = shard
+        .select(grid(axes))
+        .iter()
+        .map(|p| serde_json::json!({"index": p.index, "label": p.label(), "overrides": p.overrides.iter().map(|o| (o.key.clone(), Value::String(o.value.to_string()))).collect::<serde_json::Map<_, _>>()}))
+        .collect();
+    serde_json::json!({"grid_size": grid(axes).len(), "shard": {"index": shard.index, "count": shard.count}, "points": points})
+}
+
+/// Which part of a sweep's grid to run, and how.
+pub struct SweepPlan<'a> {
+    pub axes: &'a [Axis],
+    pub jobs: usize,
+    pub shard: Shard,
+    /// For an external controller: each point at this pace.
+    pub pace: Pace,
+    /// Record `run.mcap` for every point (`--mcap`).
+    pub record_mcap: bool,
+}
+
+/// `climbsim sweep SCENARIO --set KEY=V1,V2 ...`. Every grid point gets a row in `sweep.csv` and
+/// `sweep.json`, whether it completed, failed, was interrupted or never ran. `progress` is told
+/// the number of runs, then called as each finishes.
+pub fn sweep(scenario_path: &Path, plan: &SweepPlan<'_>, robot: &RobotDescription, out_dir: &Path, stop: &AtomicBool, console: &dyn Console, progress: &dyn Progress) -> Result<()> {
+    let SweepPlan { axes, jobs, shard, pace, record_mcap } = *plan;
+    let points = shard.select(grid(axes));
+    if points.is_empty() {
+        return Err(RunnerError::Invalid(format!("shard {}/{} of this grid is empty", shard.index, shard.count)));
+    }
+    // Check every grid point loads before spending minutes on the first ones.
+    let scenarios: Vec<(GridPoint, Scenario)> = points
+        .into_iter()
+        .map(|point| {
+            let mut scenario = Scenario::load_with(scenario_path, &point.overrides)?;
+            scenario.capture.mcap = record_mcap;
+            Ok((point.clone(), scenario))
+        })
+        .collect::<Result<_>>()?;
+    progress.start(scenarios.len());
+    let started = Instant::now();
+    let next = AtomicUsize::new(0);
+    let rows: Mutex<Vec<SweepRow>> = Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.max(1) {
+            scope.spawn(|| {
+                while let Some((point, scenario)) = scenarios.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
+                    let mut row = SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: None, track: None };
+                    // Interrupted: the runs under way stop and write; no new ones start.
+                    if !stop.load(Ordering::Relaxed) {
+                        let run_dir = out_dir.join("runs").join(point.label());
+                        match run_scenario(scenario, robot, &run_dir, pace, stop, console) {
+                            Ok(outcome) => {
+                                let failures = failures(&outcome.summary);
+                                row.status = if failures.is_empty() { "completed" } else { "failed" }.to_owned();
+                                row.error = (!failures.is_empty()).then(|| failures.join("; "));
+                                row.summary = outcome.summary;
+                                row.track = Some(outcome.track);
+                            }
+                            Err(error) => {
+                                row.status = if error.is_interrupted() { "interrupted" } else { "failed" }.to_owned();
+                                row.error = Some(describe(&error));
+                                // An interrupted run wrote its outputs: keep what its summary says.
+                                if let Ok(text) = std::fs::read_to_string(run_dir.join("summary.json")) {
+                                    row.summary = serde_json::from_str(&text).unwrap_or_default();
+                                }
+                            }
+                        }
+                        progress.done_one();
+                    }
+                    rows.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(row);
+                }
+            });
+        }
+    });
+    progress.finish();
+    let wall_s = started.elapsed().as_secs_f64();
+    let mut rows = rows.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
+    rows.sort_by_key(|r| r.index);
+    let file = SweepFile { scenario: scenario_path.display().to_string(), axes: axes.iter().map(|a| a.key.clone()).collect(), grid: axes.to_vec(), rows };
+    write_sweep(&file, out_dir)?;
+    let count = |status: &str| file.rows.iter().filter(|r| r.status == status).count();
+    console.say(&format!("{} of {} runs completed in {wall_s:.1} s with {} jobs; table: {}", count("completed"), file.rows.len(), jobs.max(1), out_dir.join("sweep.csv").display()));
+    if stop.load(Ordering::Relaxed) {
+        return Err(RunnerError::Interrupted(format!("interrupted: {} runs interrupted, {} not run; sweep.csv marks them", count("interrupted"), count("not_run"))));
+    }
+    let failed: Vec<String> = file.rows.iter().filter(|r| r.status == "failed").map(|r| format!("{}: {}", r.label, r.error.as_deref().unwrap_or("failed"))).collect();
+    if !failed.is_empty() {
+        return Err(RunnerError::Failed(format!("{} runs failed:\n  {}", failed.len(), failed.join("\n  "))));
+    }
+    Ok(())
+}
+
+/// `climbsim sweep --merge DIR...`: join shards' tables and plots. Grid points no shard ran,
+/// or that did not finish, fail the merge (after writing the table, with them marked) unless
+/// `allow_incomplete`.
+pub fn merge(dirs: &[PathBuf], out_dir: &Path, allow_incomplete: bool, console: &dyn Console) -> Result<()> {
+    let mut merged: Option<SweepFile> = None;
+    for dir in dirs {
+        let path = dir.join("sweep.json");
+        let text = std::fs::read_to_string(&path).during(|| format!("cannot read {}", path.display()))?;
+        let mut file: SweepFile = serde_json::from_str(&text).during(|| format!("{} is not a sweep table", path.display()))?;
+        // Runs' folders are referenced by the overlay plots: copy their time series over.
+        for row in &file.rows {
+            let from = dir.join("runs").join(&row.label);
+            let to = out_dir.join("runs").join(&row.label);
+            if from != to && from.is_dir() {
+                copy_dir(&from, &to)?;
+            }
+        }
+        match &mut merged {
+            None => merged = Some(file),
+            Some(all) => {
+                if all.axes != file.axes {
+                    return Err(RunnerError::Invalid(format!("{} sweeps {:?}, the others {:?}", path.display(), file.axes, all.axes)));
+                }
+                all.rows.append(&mut file.rows);
+            }
+        }
+    }
+    let mut merged = merged.ok_or_else(|| RunnerError::Invalid("nothing to merge".to_owned()))?;
+    merged.rows.sort_by_key(|r| r.index);
+    merged.rows.dedup_by_key(|r| r.index);
+    // The points of the whole grid that no shard brought: rows marked `not_run`.
+    let missing: Vec<GridPoint> = grid(&merged.grid).into_iter().filter(|p| merged.rows.binary_search_by_key(&p.index, |r| r.index).is_err()).collect();
+    for point in &missing {
+        let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
+        merged.rows.push(SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: Some("no merged shard has this point".to_owned()), track: None });
+    }
+    merged.rows.sort_by_key(|r| r.index);
+    write_sweep(&merged, out_dir)?;
+    console.say(&format!("merged {} runs into {}", merged.rows.len() - missing.len(), out_dir.join("sweep.csv").display()));
+    let unfinished: Vec<&str> = merged.rows.iter().filter(|r| r.status == "not_run" || r.status == "interrupted").map(|r| r.label.as_str()).collect();
+    if !unfinished.is_empty() && !allow_incomplete {
+        let shown: Vec<&str> = unfinished.iter().take(20).copied().collect();
+        let more = if unfinished.len() > shown.len() { format!("\n  ... and {} more", unfinished.len() - shown.len()) } else { String::new() };
+        return Err(RunnerError::Failed(format!(
+            "the merged sweep is incomplete: {} of {} grid points missing or unfinished (sweep.csv marks them; --allow-incomplete accepts this):\n  {}{more}",
+            unfinished.len(),
+            merged.rows.len(),
+            shown.join("\n  ")
+        )));
+    }
+    Ok(())
+}
+
+fn copy_dir(from: &Path, to: &Path) -> Result<()> {
+    std::fs::create_dir_all(to).during(|| format!("cannot create {}", to.display()))?;
+    for entry in std::fs::read_dir(from).during(|| format!("cannot list {}", from.display()))? {
+        let entry = entry.during(|| format!("cannot list {}", from.display()))?;
+        if entry.file_type().during(|| format!("cannot list {}", from.display()))?.is_file() {
+            std::fs::copy(entry.path(), to.join(entry.file_name())).during(|| format!("cannot copy {}", entry.path().display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// The metrics plotted against the first swept parameter.
+/// Metrics plotted against the first swept parameter, and their labels; each is shown in the
+/// unit its key's suffix names for plots (`report::units::shown_unit`: m/s as mm/min, m as mm).
+const SWEEP_METRICS: &[(&str, &str)] = &[
+    ("distance.overshoot_pct", "overshoot (%)"),
+    ("distance.rise_time_s", "distance rise time (s)"),
+    ("distance.settling_time_s", "distance settling time (s)"),
+    ("speed.steady_state_error_m_s", "speed steady-state error (mm/min)"),
+    ("speed.mean_abs_error_m_s", "mean |speed error| over the last 80 % (mm/min)"),
+    ("speed.rise_time_s", "speed rise time (s)"),
+    ("rms_distance_m", "RMS distance error (mm)"),
+];
+
+fn write_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(out_dir).during(|| format!("cannot create {}", out_dir.display()))?;
+    let json_bytes = serde_json::to_vec_pretty(file).during(|| "cannot encode sweep.json".to_owned())?;
+    report::write_atomically(&out_dir.join("sweep.json"), |w| w.write_all(&json_bytes))?;
+    let axes: Vec<Axis> = file.axes.iter().map(|key| Axis { key: key.clone(), values: Vec::new() }).collect();
+    let summaries: Vec<BTreeMap<String, Value>> = file.rows.iter().map(|r| r.summary.clone()).collect();
+    let columns = table_columns(&axes, &summaries);
+    let mut csv = columns[..1 + file.axes.len()].join(",");
+    csv.push_str(",status,");
+    csv.push_str(&columns[1 + file.axes.len()..].join(","));
+    csv.push('\n');
+    for row in &file.rows {
+        let mut cells = vec![row.index.to_string()];
+        cells.extend(file.axes.iter().map(|k| row.parameters.get(k).cloned().unwrap_or_default().replace(',', ";")));
+        cells.push(row.status.clone());
+        cells.extend(columns[1 + file.axes.len()..].iter().map(|k| row.summary.get(k).map_or(String::new(), |v| v.to_string().replace(',', ";"))));
+        csv.push_str(&cells.join(","));
+        csv.push('\n');
+    }
+    report::write_atomically(&out_dir.join("sweep.csv"), |w| w.write_all(csv.as_bytes()))?;
+    plot_sweep(file, out_dir)
+}
+
+/// A run's signals for the overlay plots.
+enum Overlay<'a> {
+    Track(&'a MetricTrack),
+    Series(TimeSeries),
+}
+
+impl Overlay<'_> {
+    fn column(&self, name: &str) -> Option<Vec<f64>> {
+        match self {
+            Self::Track(track) => track.column(name),
+            Self::Series(series) => series.column(name),
+        }
+    }
+}
+
+fn plot_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
+    // Overlay: every run's distance error and speed over time, from its metric track (the
+    // rows of a merged table have none: their time series, copied beside them, are read).
+    let mut loaded: Vec<(String, Overlay)> = Vec::new();
+    for row in &file.rows {
+        let overlay = match &row.track {
+            Some(track) => Some(Overlay::Track(track)),
+            None => report::read_timeseries_csv(&out_dir.join("runs").join(&row.label).join(report::TIMESERIES_CSV)).ok().map(Overlay::Series),
+        };
+        if let Some(overlay) = overlay {
+            let label = row.parameters.iter().map(|(k, v)| units::parameter_label(k, v)).collect::<Vec<_>>().join(", ");
+            loaded.push((label, overlay));
+        }
+    }
+    for (column, stem, title, y) in [("d_true_m", "overlay_distance", "Distance error", "d (mm)"), ("speed_m_s", "overlay_speed", "Speed", "speed (mm/min)")] {
+        let (factor, _) = units::shown_unit(column);
+        let data: Vec<(String, Vec<f64>, Vec<f64>)> = loaded.iter().map(|(label, s)| (label.clone(), s.column("t_s").unwrap_or_default(), s.column(column).unwrap_or_default().into_iter().map(|v| v * factor).collect())).collect();
+        let series: Vec<PlotSeries<'_>> = data.iter().map(|(label, x, y)| PlotSeries { label, x, y }).collect();
+        if !series.is_empty() {
+            report::plot_series(out_dir, stem, &PlotLabels { title, x: "t (s)", y }, &series)?;
+        }
+    }
+    // Metric against the first axis, one line per combination of the other axes.
+    let Some(first) = file.axes.first() else { return Ok(()) };
+    for (metric, y_label) in SWEEP_METRICS {
+        let ((factor, _), (x_factor, _)) = (units::shown_unit(metric), units::shown_unit(first));
+        let mut groups: BTreeMap<String, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+        for row in &file.rows {
+            let (Some(x), Some(y)) = (row.parameters.get(first).and_then(|v| v.parse::<f64>().ok()), row.summary.get(*metric).and_then(Value::as_f64)) else {
+                continue;
+            };
+            let group = file.axes[1..].iter().map(|k| units::parameter_label(k, row.parameters.get(k).map_or("", String::as_str))).collect::<Vec<_>>().join(", ");
+            let entry = groups.entry(if group.is_empty() { y_label.to_string() } else { group }).or_default();
+            entry.0.push(x * x_factor);
+            entry.1.push(y * factor);
+        }
+        if groups.is_empty() {
+            continue;
+        }
+        let series: Vec<PlotSeries<'_>> = groups.iter().map(|(label, (x, y))| PlotSeries { label, x, y }).collect();
+        let stem = format!("{}_vs_{}", metric.replace('.', "_"), first.rsplit('.').next().unwrap_or(first));
+        let x_label = units::parameter_axis(first);
+        report::plot_metric_vs_parameter(out_dir, &stem, &PlotLabels { title: y_label, x: &x_label, y: y_label }, &series)?;
+    }
+    Ok(())
+}
+
+/// Where a sweep reports how far it is (the command line draws a bar).
+pub trait Progress: Sync {
+    /// The sweep will run `runs` points.
+    fn start(&self, runs: usize);
+    /// One more point finished.
+    fn done_one(&self);
+    /// Every point has finished or been given up.
+    fn finish(&self);
+}
