@@ -8,7 +8,7 @@ use clap::Parser;
 use tracing_subscriber::EnvFilter;
 
 fn main() -> std::process::ExitCode {
-    use std::io::IsTerminal as _;
+    use std::io::{IsTerminal as _, Write as _};
     tracing_subscriber::fmt()
         .with_env_filter(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn")))
         .with_writer(std::io::stderr)
@@ -19,7 +19,7 @@ fn main() -> std::process::ExitCode {
     match cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("climbsim: {}", climbsim::runner::describe(error.as_ref()));
+            let _ = writeln!(std::io::stderr().lock(), "climbsim: {}", climbsim::runner::describe(error.as_ref()));
             // Anything that is not a run's verdict (bad input, an unusable path or program) is 2,
             // like a usage error.
             std::process::ExitCode::from(error.downcast_ref::<climbsim::runner::RunnerError>().map_or(2, climbsim::runner::RunnerError::exit_code))

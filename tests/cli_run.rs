@@ -59,6 +59,46 @@ fn check_fails_on_a_broken_threshold_and_writes_junit() {
     assert!(all.contains("PASS") && all.contains("FAIL") && all.contains("max_abs_distance_m"), "{all}");
     let xml = std::fs::read_to_string(&junit).expect("junit");
     assert!(xml.contains("tests=\"2\"") && xml.contains("failures=\"1\""), "{xml}");
+    // The failed run's summary.json says why, as the exit code and the printed lines do.
+    let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("runs/fail/summary.json")).expect("summary")).expect("json");
+    let listed = summary["failures"].as_array().unwrap_or_else(|| panic!("no failures in {summary}"));
+    assert!(listed.iter().any(|f| f.as_str().is_some_and(|f| f.contains("max_abs_distance_m"))), "{summary}");
+    let passed: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("runs/pass/summary.json")).expect("summary")).expect("json");
+    assert!(passed.get("failures").is_none(), "{passed}");
+    // And `run` alike.
+    let run_out = dir.join("run-fail");
+    let output = climbsim(&["run", &fail.display().to_string(), "--out", &run_out.display().to_string()]);
+    assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+    let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(run_out.join("summary.json")).expect("summary")).expect("json");
+    assert!(summary["failures"].to_string().contains("max_abs_distance_m"), "{summary}");
+}
+
+/// `climbsim run … | head -1`, `sweep --list | head`, `diff … | head`: a reader that goes away
+/// early is no panic; the command ends with its own verdict.
+#[test]
+fn a_closed_stdout_is_no_panic() {
+    let dir = support::scratch_dir("closed-stdout");
+    let out = dir.join("run").display().to_string();
+    let commands: [&[&str]; 3] = [
+        &["run", "scenarios/flat-line.toml", "--out", &out, "--set", "world.duration_s=1", "--set", "expect={}"],
+        &["sweep", "scenarios/flat-line.toml", "--list", "--set", "controller.zeta=0.3,0.5,0.7,0.9"],
+        &["diff", &out, &out],
+    ];
+    for args in commands {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_climbsim"))
+            .args(args)
+            .current_dir(repo())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("start climbsim");
+        // The reader closes its end before climbsim says anything.
+        drop(child.stdout.take());
+        let output = child.wait_with_output().expect("wait");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+        assert_eq!(output.status.code(), Some(0), "{args:?}: {stderr}");
+    }
 }
 
 #[test]

@@ -6,7 +6,9 @@ use std::io::Write as _;
 use climbsim::runner::Console;
 use climbsim::runner::sweep::Progress;
 
-/// stdout and stderr, each line flushed at once: a supervisor reads the port as it is said.
+/// stdout and stderr, each line flushed at once: a supervisor reads the port as it is said. A
+/// reader that went away (`climbsim run … | head -1`) is no error: the lines it would have read
+/// are dropped and the command carries on to its verdict and exit code.
 pub struct Terminal;
 
 impl Console for Terminal {
@@ -17,7 +19,7 @@ impl Console for Terminal {
     }
 
     fn note(&self, line: &str) {
-        eprintln!("{line}");
+        let _ = writeln!(std::io::stderr().lock(), "{line}");
     }
 }
 

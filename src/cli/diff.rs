@@ -5,7 +5,9 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 
 use climbsim::report::diff::{self, Tolerances};
-use climbsim::runner::RunnerError;
+use climbsim::runner::{Console as _, RunnerError};
+
+use super::console::Terminal;
 
 /// Compare two runs (output folders, or their timeseries.csv / summary.json): max |A-B| per
 /// time-series column (aligned on t_s) and per summary metric; exit non-zero if any exceeds
@@ -49,13 +51,13 @@ fn diff_command(a: &Path, b: &Path, tolerances: &[String], rel: Option<f64>) -> 
     if report.rows.is_empty() {
         anyhow::bail!("{} and {} have nothing in common to compare (a time series or a summary each)", a.display(), b.display());
     }
-    println!("A: {}\nB: {}", a.display(), b.display());
-    print!("{}", report.table());
+    Terminal.say(&format!("A: {}\nB: {}", a.display(), b.display()));
+    Terminal.say(report.table().trim_end_matches('\n'));
     let failures = report.failures();
     if failures > 0 {
         // A difference is the comparison's verdict (exit 1), not bad input (exit 2).
         return Err(RunnerError::Failed(format!("{failures} of {} keys differ by more than their tolerance", report.rows.len())).into());
     }
-    println!("no differences beyond tolerance");
+    Terminal.say("no differences beyond tolerance");
     Ok(())
 }

@@ -8,6 +8,9 @@ use climbsim::runner::replay::{ReplaySources, replay};
 use climbsim::runner::write_outputs;
 use climbsim::transcript::Transcript;
 
+use climbsim::runner::Console as _;
+
+use super::console::Terminal;
 use super::run::print_summary;
 
 /// Re-enact a `--record` transcript without its controller: the same scenario, world ticks
@@ -47,16 +50,16 @@ pub fn replay_command(transcript: &std::path::Path, out: Option<PathBuf>, source
     write_outputs(&replayed.outcome, &out_dir).with_context(|| format!("writing outputs to {}", out_dir.display()))?;
     print_summary(&replayed.outcome, &out_dir);
     let stats = &replayed.stats;
-    println!(
+    Terminal.say(&format!(
         "replayed {} ticks and {} packets ({} sensor reads recorded) to t = {:.3} s{}",
         stats.ticks,
         stats.packets,
         stats.sensor_reads,
         replayed.outcome.sim_s,
         if stats.complete { "" } else { " (the transcript has no end line: its prefix)" }
-    );
+    ));
     if let Some(line) = stats.first_reply_mismatch_line {
-        println!("{} packets were answered differently from the recording (first at line {line})", stats.reply_mismatches);
+        Terminal.say(&format!("{} packets were answered differently from the recording (first at line {line})", stats.reply_mismatches));
     }
     Ok(())
 }

@@ -7,10 +7,10 @@ use anyhow::{Result, bail};
 use climbsim::fault::ScheduledFault;
 use climbsim::runner::external::{ExternalRun, run_external};
 use climbsim::runner::lockstep::{LiveRun, run_builtin};
-use climbsim::runner::outputs::failures;
+use climbsim::runner::outputs::judge;
 use climbsim::runner::recording::RecordSpec;
 use climbsim::runner::serve::add_fault_events;
-use climbsim::runner::{RunOutcome, RunnerError, default_out_dir, preflight_dir, preflight_file};
+use climbsim::runner::{Console as _, RunOutcome, RunnerError, default_out_dir, preflight_dir, preflight_file};
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
 use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, load_robot, parse_fault, refuse_recorded_cli_faults};
@@ -66,7 +66,7 @@ pub fn exec(args: RunArgs) -> Result<()> {
     if let Some(path) = &record {
         preflight_file(path, "--record")?;
     }
-    let outcome = match &loaded.controller {
+    let mut outcome = match &loaded.controller {
         ControllerSection::Builtin(_) => {
             // Flags that only an external controller's wall-clock run uses are refused, not
             // silently ignored.
@@ -83,9 +83,8 @@ pub fn exec(args: RunArgs) -> Result<()> {
             run_external(&loaded, external, &robot, &options, &out_dir, interrupt::flag(), &Terminal)?
         }
     };
+    let failures = judge(&mut outcome, &loaded, &out_dir)?;
     print_summary(&outcome, &out_dir);
-    let mut failures = failures(&outcome.summary);
-    failures.extend(loaded.failed_expectations(&outcome.summary));
     if !failures.is_empty() {
         return Err(RunnerError::Failed(format!("the run failed ({} in {}):\n  {}", failures.len(), out_dir.display(), failures.join("\n  "))).into());
     }
@@ -99,8 +98,8 @@ pub fn parse_overrides(sets: &[String]) -> Result<Vec<Override>> {
 
 /// Print the summary's headline metrics.
 pub fn print_summary(outcome: &RunOutcome, out_dir: &std::path::Path) {
-    println!("outputs: {}", out_dir.display());
+    Terminal.say(&format!("outputs: {}", out_dir.display()));
     for (key, value) in &outcome.summary {
-        println!("  {key} = {value}");
+        Terminal.say(&format!("  {key} = {value}"));
     }
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
 
-use climbsim::runner::preflight_dir;
+use climbsim::runner::{Console as _, preflight_dir};
 use climbsim::runner::sweep::{SweepPlan, grid_listing, merge, sweep};
 use climbsim::scenario::sweep::{Axis, Shard, grid};
 
@@ -61,10 +61,10 @@ pub fn exec(args: SweepArgs) -> Result<()> {
     let shard = shard.as_deref().map(Shard::parse).transpose()?.unwrap_or(Shard::ALL);
     if list {
         if json {
-            println!("{}", serde_json::to_string_pretty(&grid_listing(&axes, shard))?);
+            Terminal.say(&serde_json::to_string_pretty(&grid_listing(&axes, shard))?);
         } else {
             for point in shard.select(grid(&axes)) {
-                println!("{}", point.label());
+                Terminal.say(&point.label());
             }
         }
         return Ok(());

@@ -10,7 +10,7 @@ use crate::robot::RobotDescription;
 use crate::scenario::{ControllerSection, Scenario};
 
 use super::clock::Pace;
-use super::outputs::failures;
+use super::outputs::judge;
 use super::process::read_tail;
 use super::{Console, During as _, Result, RunnerError, default_out_dir, describe, run_scenario};
 
@@ -71,11 +71,13 @@ pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit
                     system_out = read_tail(&out_dir.join("controller.log"), SYSTEM_OUT_BYTES);
                 }
                 match result {
-                    Ok(outcome) => {
-                        let mut found = failures(&outcome.summary);
-                        found.extend(scenario.failed_expectations(&outcome.summary));
-                        found
-                    }
+                    Ok(mut outcome) => match judge(&mut outcome, &scenario, &out_dir) {
+                        Ok(found) => found,
+                        Err(error) => {
+                            broken += 1;
+                            vec![describe(&error)]
+                        }
+                    },
                     Err(error) => {
                         match &error {
                             RunnerError::Interrupted(message) => interrupted = Some(message.clone()),

@@ -24,6 +24,21 @@ pub fn failures(summary: &Summary) -> Vec<String> {
     summary.get("failures").and_then(Value::as_array).map_or_else(Vec::new, |lines| lines.iter().map(|l| l.as_str().map_or_else(|| l.to_string(), str::to_owned)).collect())
 }
 
+/// Test a finished run against its scenario's `[expect]` thresholds (`run` and `check`; a sweep
+/// does not): every reason it failed, its own verdict's first, also written into
+/// `summary.json`'s `failures` in `out_dir`, so that the file says what the exit code says.
+pub fn judge(outcome: &mut RunOutcome, scenario: &Scenario, out_dir: &Path) -> Result<Vec<String>, RunError> {
+    let mut all = failures(&outcome.summary);
+    let broken = scenario.failed_expectations(&outcome.summary);
+    if broken.is_empty() {
+        return Ok(all);
+    }
+    all.extend(broken);
+    outcome.summary.insert("failures".to_owned(), json!(all));
+    report::write_summary_json(out_dir, &outcome.summary)?;
+    Ok(all)
+}
+
 /// Record `failure` in `summary` (`failures` and `failure_at_s`).
 pub fn record_failure(summary: &mut Summary, failure: &WorldFailure) {
     let mut lines = failures(summary);
