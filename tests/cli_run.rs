@@ -128,6 +128,14 @@ fn sweep_shards_merge_into_one_table() {
     assert!(text(&output).contains("001-controller.zeta=1.0,world.duration_s=3"), "{}", text(&output));
     let table = std::fs::read_to_string(partial.join("sweep.csv")).expect("sweep.csv");
     assert!(table.lines().nth(2).is_some_and(|row| row.starts_with("1,1.0,") && row.contains("not_run")), "{table}");
+    // Every row has a cell under every header, and the missing point says why in `error`.
+    let header: Vec<&str> = table.lines().next().expect("header").split(',').collect();
+    assert!(header.iter().all(|cell| !cell.is_empty()) && header.contains(&"error"), "{table}");
+    let error = header.iter().position(|cell| *cell == "error").expect("error column");
+    for row in table.lines() {
+        assert_eq!(row.split(',').count(), header.len(), "ragged row {row:?} in\n{table}");
+    }
+    assert!(table.lines().nth(2).is_some_and(|row| row.split(',').nth(error).is_some_and(|e| e.contains("no merged shard"))), "{table}");
     let output = climbsim(&["sweep", "--merge", &one.display().to_string(), "--allow-incomplete", "--out", &partial.display().to_string()]);
     assert!(output.status.success(), "{}", text(&output));
 }

@@ -170,6 +170,14 @@ fn a_controller_that_cannot_start_is_one_clear_line() {
         stderr.lines().filter(|l| !l.trim().is_empty()).count() <= 2,
         "one clear line:\n{stderr}"
     );
+    // Under `check` it is a case that could not run: ERROR, and a JUnit <error>, not a
+    // <failure> of the controller under test.
+    let junit = dir.join("junit.xml");
+    let output = climbsim(&["check", &path.display().to_string(), "--junit", &junit.display().to_string(), "--out", &dir.join("check").display().to_string()]);
+    assert_eq!(output.status.code(), Some(2), "{}", text(&output));
+    assert!(text(&output).contains("ERROR") && text(&output).contains("no-such-controller"), "{}", text(&output));
+    let xml = std::fs::read_to_string(&junit).expect("junit");
+    assert!(xml.contains("errors=\"1\"") && xml.contains("failures=\"0\"") && xml.contains("<error ") && !xml.contains("<failure"), "{xml}");
 }
 
 /// At `--speed 5` the controller's own clocks (time(), sleep, monotonic) run 5× fast: a shell

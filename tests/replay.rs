@@ -148,6 +148,58 @@ fn a_truncated_recording_replays_its_prefix() {
     assert!(!diff.status.success(), "{}", text(&diff));
 }
 
+/// Times no session could have written are refused by line, at once: an edited tick far past
+/// the scenario's end (it once sent the replay computing for days), ticks out of order, and a
+/// transcript with no ticks at all. An intact one replays into the same outputs as `run`,
+/// `run.mcap` included.
+#[test]
+fn impossible_times_and_empty_transcripts_are_refused_by_line() {
+    let (_, transcript) = live();
+    let dir = support::scratch_dir("replay-times");
+    let original = std::fs::read_to_string(transcript).expect("transcript");
+    let lines: Vec<&str> = original.lines().collect();
+    let ticks: Vec<usize> = lines.iter().enumerate().filter(|(_, l)| l.contains("\"k\":\"tick\"")).map(|(i, _)| i).collect();
+    assert!(ticks.len() > 10, "{} ticks", ticks.len());
+    let t_of = |line: &str| -> String {
+        let value: serde_json::Value = serde_json::from_str(line).expect("JSON line");
+        value["t"].to_string()
+    };
+    let edited = dir.join("edited.jsonl");
+    let write = |changed: Vec<String>| std::fs::write(&edited, changed.join("\n") + "\n").expect("written");
+    let with_line = |index: usize, text: String| -> Vec<String> {
+        lines.iter().enumerate().map(|(i, l)| if i == index { text.clone() } else { (*l).to_owned() }).collect()
+    };
+
+    // A tick 27 hours in.
+    let far = ticks[5];
+    write(with_line(far, lines[far].replacen(&format!("\"t\":{}", t_of(lines[far])), "\"t\":99999999999999", 1)));
+    let started = std::time::Instant::now();
+    let output = replay(&edited, &dir.join("out-far"), &[]);
+    assert_eq!(output.status.code(), Some(2), "{}", text(&output));
+    assert!(text(&output).contains(&format!("edited.jsonl:{}:", far + 1)) && text(&output).contains("after the session's end"), "{}", text(&output));
+    assert!(started.elapsed() < std::time::Duration::from_secs(10), "refused only after {:?}", started.elapsed());
+
+    // A tick before the one before it.
+    let (early, before) = (ticks[8], ticks[7]);
+    write(with_line(early, lines[early].replacen(&format!("\"t\":{}", t_of(lines[early])), &format!("\"t\":{}", t_of(lines[before])), 1)));
+    let output = replay(&edited, &dir.join("out-order"), &[]);
+    assert_eq!(output.status.code(), Some(2), "{}", text(&output));
+    assert!(text(&output).contains(&format!("edited.jsonl:{}:", early + 1)) && text(&output).contains("ticks only go forward"), "{}", text(&output));
+
+    // The header alone.
+    std::fs::write(&edited, format!("{}\n", lines[0])).expect("written");
+    let output = replay(&edited, &dir.join("out-empty"), &[]);
+    assert_eq!(output.status.code(), Some(2), "{}", text(&output));
+    assert!(text(&output).contains("no world ticks"), "{}", text(&output));
+
+    // The intact transcript: run.mcap beside the time series.
+    let out = dir.join("out-intact");
+    let output = replay(transcript, &out, &[]);
+    assert!(output.status.success(), "{}", text(&output));
+    let mcap = std::fs::read(out.join("run.mcap")).expect("replay writes run.mcap");
+    assert!(mcap.starts_with(b"\x89MCAP0\r\n") && mcap.len() > 1000, "{} bytes", mcap.len());
+}
+
 #[test]
 fn a_corrupted_line_is_an_error_naming_it() {
     let (_, transcript) = live();

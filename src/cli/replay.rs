@@ -46,7 +46,7 @@ pub fn replay_command(transcript: &std::path::Path, out: Option<PathBuf>, source
         let stem = transcript.path.file_stem().map_or_else(|| "replay".into(), |s| s.to_string_lossy().into_owned());
         PathBuf::from("results").join("replay").join(stem)
     });
-    let replayed = replay(&transcript, sources)?;
+    let replayed = replay(&transcript, sources, &out_dir)?;
     write_outputs(&replayed.outcome, &out_dir).with_context(|| format!("writing outputs to {}", out_dir.display()))?;
     print_summary(&replayed.outcome, &out_dir);
     let stats = &replayed.stats;

@@ -19,6 +19,9 @@ pub struct JunitCase {
     pub failure_messages: Vec<String>,
     /// What the case printed (an external controller's log), as `<system-out>`.
     pub system_out: Option<String>,
+    /// The scenario could not be loaded or run (a controller that cannot start, a broken
+    /// file): an `<error>`, counted in `errors`, not a `<failure>` of the thing under test.
+    pub broken: bool,
 }
 
 /// The JUnit XML document for one suite of cases:
@@ -34,18 +37,19 @@ pub struct JunitCase {
 /// </testsuites>
 /// ```
 ///
-/// A failed case has one `<failure>` (several are not valid JUnit for every consumer): its
-/// `message` joins the messages with `; `, its text lists them one per line. `failures` counts
-/// failed cases. Times are in seconds with millisecond resolution; a non-finite time is written
+/// A failed case has one `<failure>` (several are not valid JUnit for every consumer), a broken
+/// one an `<error>` instead: its `message` joins the messages with `; `, its text lists them one
+/// per line. `failures` counts failed cases, `errors` broken ones. Times are in seconds with millisecond resolution; a non-finite time is written
 /// as 0.
 pub fn junit_xml(suite_name: &str, cases: &[JunitCase]) -> String {
+    let broken = cases.iter().filter(|case| case.broken).count();
     let failed = cases
         .iter()
-        .filter(|case| !case.failure_messages.is_empty())
+        .filter(|case| !case.broken && !case.failure_messages.is_empty())
         .count();
     let total_time: f64 = cases.iter().map(|case| seconds(case.time_s)).sum();
     let suite = escape_attribute(suite_name);
-    let counts = format!(r#"tests="{}" failures="{failed}" errors="0""#, cases.len());
+    let counts = format!(r#"tests="{}" failures="{failed}" errors="{broken}""#, cases.len());
     let mut xml = String::from("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
     // Writing into a String cannot fail, hence the ignored fmt::Results.
     let _ = writeln!(
@@ -68,9 +72,10 @@ pub fn junit_xml(suite_name: &str, cases: &[JunitCase]) -> String {
         }
         let _ = writeln!(xml, "{opening}>");
         if !case.failure_messages.is_empty() {
+            let (element, kind) = if case.broken { ("error", "error") } else { ("failure", "expectation") };
             let _ = writeln!(
                 xml,
-                r#"      <failure message="{}" type="expectation">{}</failure>"#,
+                r#"      <{element} message="{}" type="{kind}">{}</{element}>"#,
                 escape_attribute(&case.failure_messages.join("; ")),
                 escape_text(&case.failure_messages.join("\n"))
             );
@@ -137,6 +142,7 @@ mod tests {
             time_s: 1.25,
             failure_messages: failures.iter().map(|&message| message.to_owned()).collect(),
             system_out: None,
+            broken: false,
         }
     }
 
@@ -245,6 +251,20 @@ mod tests {
         assert_eq!(names.iter().filter(|n| *n == "system-out").count(), 2, "{xml}");
         assert_eq!(names.iter().filter(|n| *n == "failure").count(), 1, "{xml}");
         assert!(xml.contains("Traceback &lt;stdin&gt;\nKeyError: &amp; 'x'"), "{xml}");
+    }
+
+    #[test]
+    fn a_case_that_could_not_run_is_an_error_not_a_failure() {
+        let mut broken = case("missing-controller", &["cannot start the controller `./nope`"]);
+        broken.broken = true;
+        let xml = junit_xml("climbsim check", &[broken, case("wall", &["never settled"])]);
+        let elements = parse(&xml);
+        let names: Vec<&str> = elements.iter().map(|(name, _)| name.as_str()).collect();
+        assert_eq!(names, ["testsuites", "testsuite", "testcase", "error", "testcase", "failure"]);
+        for suite in &elements[..2] {
+            assert_eq!((attribute(suite, "failures"), attribute(suite, "errors")), ("1", "1"), "{xml}");
+        }
+        assert_eq!(attribute(&elements[3], "message"), "cannot start the controller `./nope`");
     }
 
     #[test]

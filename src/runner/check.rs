@@ -56,6 +56,7 @@ pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit
         let name = file.display().to_string();
         let out_dir = out_root.join(default_out_dir(file).file_name().unwrap_or_default());
         let mut system_out = None;
+        let broken_before = broken;
         let failures = match Scenario::load(file) {
             Err(error) => {
                 broken += 1;
@@ -88,12 +89,12 @@ pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit
                 }
             }
         };
-        let verdict = if failures.is_empty() { "PASS" } else if interrupted.is_some() { "INTERRUPTED" } else { "FAIL" };
+        let verdict = if failures.is_empty() { "PASS" } else if interrupted.is_some() { "INTERRUPTED" } else if broken > broken_before { "ERROR" } else { "FAIL" };
         console.say(&format!("{verdict} {name} ({:.1} s)", started.elapsed().as_secs_f64()));
         for failure in &failures {
             console.say(&format!("    {failure}"));
         }
-        cases.push(JunitCase { name, time_s: started.elapsed().as_secs_f64(), failure_messages: failures, system_out });
+        cases.push(JunitCase { name, time_s: started.elapsed().as_secs_f64(), failure_messages: failures, system_out, broken: broken > broken_before });
         if interrupted.is_some() {
             break;
         }

@@ -21,6 +21,7 @@ use tracing::{info_span, warn};
 use super::RunError;
 use super::observe::{require_line, scenario_bus};
 use super::outputs::{RunOutcome, settings_json};
+use super::view::ViewOptions;
 use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::bus::Timing;
 use crate::protocol::{Decoder, RawPacket};
@@ -39,6 +40,8 @@ pub enum ReplayError {
     Robot(#[from] RobotError),
     #[error("cannot read {}: {source}", path.display())]
     Read { path: PathBuf, source: std::io::Error },
+    #[error("cannot create {}: {source}", path.display())]
+    CreateDir { path: PathBuf, source: std::io::Error },
     #[error(
         "{what} {} differs from the copy in the recording {}: first at line {line}: recorded `{recorded}`, now `{now}` (pass --force to replay with the current file anyway)",
         path.display(), transcript.display()
@@ -55,6 +58,11 @@ pub enum ReplayError {
     Timing { path: PathBuf, timing: String },
     #[error("{}:{line}: {message}", path.display())]
     Packet { path: PathBuf, line: usize, message: String },
+    /// A record's time cannot be a session's: before the tick before it, or after its end.
+    #[error("{}:{line}: {message}", path.display())]
+    Time { path: PathBuf, line: usize, message: String },
+    #[error("{}: the transcript has no world ticks: nothing to replay", path.display())]
+    NoTicks { path: PathBuf },
 }
 
 /// What the replay saw besides the run's outputs.
@@ -89,8 +97,50 @@ pub struct ReplaySources {
     pub force: bool,
 }
 
-/// Re-enact `transcript` (see the module documentation).
-pub fn replay(transcript: &Transcript, sources: &ReplaySources) -> Result<Replayed, ReplayError> {
+/// How far past the scenario's end a `run`'s records may go: the world stops at the end, but
+/// the controller is stopped only after it (at most its 3 s of grace after SIGTERM), and its
+/// last packets are still recorded.
+const PAST_THE_END: Duration = Duration::from_secs(5);
+
+/// Refuse records whose times no session could have written: world ticks out of order (they
+/// only ever go forward), and any record after the session's end (a `run`: the scenario's
+/// duration and [`PAST_THE_END`]; any session with an `end` line: that line's time). Without
+/// this an edited time sends the replay computing for days.
+fn check_times(transcript: &Transcript, duration: Duration) -> Result<(), ReplayError> {
+    let end_line = transcript.records.iter().find_map(|(_, record)| match record {
+        Record::End { t, .. } => Some(Duration::from_nanos(*t)),
+        _ => None,
+    });
+    let limit = match (transcript.header.mode.as_str(), end_line) {
+        ("run", Some(end)) => Some(end.min(duration + PAST_THE_END)),
+        ("run", None) => Some(duration + PAST_THE_END),
+        (_, end) => end,
+    };
+    let error = |line: usize, message: String| ReplayError::Time { path: transcript.path.clone(), line, message };
+    let mut last_tick: Option<(usize, Duration)> = None;
+    for (line, record) in &transcript.records {
+        let t = match record {
+            Record::Tick { t } | Record::Rx { t, .. } | Record::Sensor { t, .. } | Record::End { t, .. } => Duration::from_nanos(*t),
+        };
+        if let Some(limit) = limit.filter(|limit| t > *limit) {
+            return Err(error(*line, format!("t = {:.6} s is after the session's end at {:.6} s", t.as_secs_f64(), limit.as_secs_f64())));
+        }
+        if let Record::Tick { .. } = record {
+            if let Some((before, previous)) = last_tick.filter(|(_, previous)| t <= *previous) {
+                return Err(error(*line, format!("tick at t = {:.6} s is not after the tick at line {before} (t = {:.6} s): ticks only go forward", t.as_secs_f64(), previous.as_secs_f64())));
+            }
+            last_tick = Some((*line, t));
+        }
+    }
+    if last_tick.is_none() {
+        return Err(ReplayError::NoTicks { path: transcript.path.clone() });
+    }
+    Ok(())
+}
+
+/// Re-enact `transcript` (see the module documentation), writing its time series and its
+/// Foxglove recording (if the scenario records one) into `out_dir` as they come.
+pub fn replay(transcript: &Transcript, sources: &ReplaySources, out_dir: &Path) -> Result<Replayed, ReplayError> {
     let header = &transcript.header;
     let scenario_path = sources.scenario.clone().unwrap_or_else(|| header.scenario.path.clone());
     let robot_path = sources.robot.clone().unwrap_or_else(|| header.robot.path.clone());
@@ -125,9 +175,12 @@ pub fn replay(transcript: &Transcript, sources: &ReplaySources) -> Result<Replay
         other => return Err(ReplayError::Timing { path: transcript.path.clone(), timing: other.to_owned() }),
     };
 
-    let (mut bus, observer) = scenario_bus(&scenario, &robot, timing, header.bus.baud_override)?;
+    check_times(transcript, Duration::from_secs_f64(scenario.world.duration_s))?;
+    let (mut bus, mut observer) = scenario_bus(&scenario, &robot, timing, header.bus.baud_override)?;
     require_line(&scenario)?;
-    let mut observer = observer;
+    std::fs::create_dir_all(out_dir).map_err(|source| ReplayError::CreateDir { path: out_dir.to_owned(), source })?;
+    observer.stream_to(out_dir)?;
+    observer.start_view(&ViewOptions::of_run(&scenario.capture, Some(out_dir), None), &mut bus)?;
     let mut stats = ReplayStats { complete: transcript.complete, ..ReplayStats::default() };
     let mut last_t = Duration::ZERO;
     let packet_error = |line: usize, message: String| ReplayError::Packet { path: transcript.path.clone(), line, message };

@@ -236,20 +236,29 @@ fn write_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
     let axes: Vec<Axis> = file.axes.iter().map(|key| Axis { key: key.clone(), values: Vec::new() }).collect();
     let summaries: Vec<BTreeMap<String, Value>> = file.rows.iter().map(|r| r.summary.clone()).collect();
     let columns = table_columns(&axes, &summaries);
-    let mut csv = columns[..1 + file.axes.len()].join(",");
-    csv.push_str(",status,");
-    csv.push_str(&columns[1 + file.axes.len()..].join(","));
+    let (keys, metrics) = columns.split_at(1 + file.axes.len());
+    // One header cell per row cell: the run and its keys, its status and error, the metrics.
+    let mut header: Vec<&str> = keys.iter().map(String::as_str).collect();
+    header.extend(["status", "error"]);
+    header.extend(metrics.iter().map(String::as_str));
+    let mut csv = header.join(",");
     csv.push('\n');
     for row in &file.rows {
         let mut cells = vec![row.index.to_string()];
-        cells.extend(file.axes.iter().map(|k| row.parameters.get(k).cloned().unwrap_or_default().replace(',', ";")));
+        cells.extend(file.axes.iter().map(|k| csv_cell(row.parameters.get(k).map_or("", String::as_str))));
         cells.push(row.status.clone());
-        cells.extend(columns[1 + file.axes.len()..].iter().map(|k| row.summary.get(k).map_or(String::new(), |v| v.to_string().replace(',', ";"))));
+        cells.push(csv_cell(row.error.as_deref().unwrap_or("")));
+        cells.extend(metrics.iter().map(|k| row.summary.get(k).map_or(String::new(), |v| csv_cell(&v.to_string()))));
         csv.push_str(&cells.join(","));
         csv.push('\n');
     }
     report::write_atomically(&out_dir.join("sweep.csv"), |w| w.write_all(csv.as_bytes()))?;
     plot_sweep(file, out_dir)
+}
+
+/// A value as one unquoted CSV cell: its commas become semicolons, its line breaks spaces.
+fn csv_cell(text: &str) -> String {
+    text.replace(',', ";").replace(['\n', '\r'], " ")
 }
 
 /// A run's signals for the overlay plots.
