@@ -138,6 +138,20 @@ fn sweep_shards_merge_into_one_table() {
     assert!(table.lines().nth(2).is_some_and(|row| row.split(',').nth(error).is_some_and(|e| e.contains("no merged shard"))), "{table}");
     let output = climbsim(&["sweep", "--merge", &one.display().to_string(), "--allow-incomplete", "--out", &partial.display().to_string()]);
     assert!(output.status.success(), "{}", text(&output));
+
+    // A shard of another scenario, and a shard whose runs/ folder was not copied, are refused.
+    let table = std::fs::read_to_string(two.join("sweep.json")).expect("sweep.json");
+    let (other, bare) = (dir.join("other"), dir.join("bare"));
+    for (shard, json) in [(&other, table.replace("scenarios/flat-line.toml", "scenarios/flat-corners-smooth.toml")), (&bare, table.clone())] {
+        std::fs::create_dir_all(shard).expect("shard dir");
+        std::fs::write(shard.join("sweep.json"), json).expect("sweep.json");
+    }
+    let output = climbsim(&["sweep", "--merge", &one.display().to_string(), &other.display().to_string(), "--out", &dir.join("merged-other").display().to_string()]);
+    assert_eq!(output.status.code(), Some(2), "{}", text(&output));
+    assert!(text(&output).contains("flat-corners-smooth.toml") && text(&output).contains("different scenarios"), "{}", text(&output));
+    let output = climbsim(&["sweep", "--merge", &one.display().to_string(), &bare.display().to_string(), "--out", &dir.join("merged-bare").display().to_string()]);
+    assert_eq!(output.status.code(), Some(2), "{}", text(&output));
+    assert!(text(&output).contains("runs/") && text(&output).contains("is missing"), "{}", text(&output));
 }
 
 /// A job array's task index picks the shard (`--shard auto/N`), and `--list --json` shows the

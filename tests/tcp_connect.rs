@@ -82,5 +82,19 @@ fn climbsim_connects_to_a_late_server_survives_its_telnet_greeting_and_reconnect
 
     let stderr = emulator.stderr();
     assert!(stderr.contains("reconnecting"), "{stderr}");
+    // The wait for a late server was said at the default log level, once.
+    assert_eq!(stderr.matches("cannot connect yet").count(), 1, "{stderr}");
     assert!(emulator.stop(), "{}", emulator.stderr());
+}
+
+/// Port 0 (or an unspecified address) names no server to connect to: refused at once, instead of
+/// retrying forever.
+#[test]
+fn a_port_that_names_no_server_is_refused() {
+    for addr in ["127.0.0.1:0", "0.0.0.0:5555"] {
+        let output = support::climbsim(&["serve", "--tcp-connect", addr]);
+        assert_eq!(output.status.code(), Some(2), "{addr}: {}", support::output_text(&output));
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.contains("--tcp-connect") && stderr.contains("no server to connect to"), "{addr}: {stderr}");
+    }
 }

@@ -12,7 +12,7 @@ use climbsim::runner::serve::device::DeviceOptions;
 use climbsim::runner::serve::{ServeOptions, Transports, serve};
 use climbsim::runner::view::ViewOptions;
 use climbsim::transport::can::CanIds;
-use climbsim::transport::{Adapter, parse_tcp_addr};
+use climbsim::transport::{Adapter, parse_tcp_addr, parse_tcp_server_addr};
 
 use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, load_robot, parse_fault, refuse_recorded_cli_faults};
 use super::console::Terminal;
@@ -33,7 +33,7 @@ pub struct ServeArgs {
     /// Also connect to a controller that is a TCP server, HOST:PORT (firmware in QEMU with
     /// `-serial tcp::PORT,server`, Renode's server socket terminal, ser2net), and reconnect
     /// whenever it goes away.
-    #[arg(long, value_name = "HOST:PORT", value_parser = parse_tcp_addr)]
+    #[arg(long, value_name = "HOST:PORT", value_parser = parse_tcp_server_addr)]
     pub tcp_connect: Option<std::net::SocketAddr>,
     /// Also serve the bus on this SocketCAN interface (e.g. can0, vcan0): each Dynamixel
     /// packet is one ISO-TP (ISO 15765-2) message. Linux, `can` feature.

@@ -186,6 +186,13 @@ fn verdict(max_abs: f64, allowed: f64) -> Verdict {
 
 fn compare_series(a: &TimeSeries, b: &TimeSeries, tolerances: &Tolerances, rows: &mut Vec<DiffRow>) -> Option<(f64, f64, usize)> {
     let (ta, tb) = (a.column("t_s")?, b.column("t_s")?);
+    // A time series with no rows against one with rows (a header-only file): nothing in common,
+    // which is the largest difference there is, not "no differences".
+    if ta.is_empty() != tb.is_empty() {
+        let allowed = tolerances.abs.get("t_s").copied().unwrap_or(0.0);
+        rows.push(DiffRow { key: "t_s".to_owned(), kind: Kind::Span, max_abs: f64::INFINITY, at_t: None, allowed, verdict: Verdict::Fail });
+        return None;
+    }
     let (&a0, &an, &b0, &bn) = (ta.first()?, ta.last()?, tb.first()?, tb.last()?);
     let mut steps: Vec<f64> = ta.windows(2).map(|w| w[1] - w[0]).collect();
     steps.sort_by(f64::total_cmp);
@@ -282,6 +289,17 @@ mod tests {
 
     fn run(rows: &[[f64; 3]], summary: &[(&str, Value)]) -> RunData {
         RunData { source: PathBuf::from("x"), series: Some(series(rows)), summary: Some(summary.iter().map(|(k, v)| ((*k).to_owned(), v.clone())).collect()) }
+    }
+
+    #[test]
+    fn a_series_without_rows_differs_from_one_with_rows() {
+        let rows = [[0.0, 0.0, 0.0], [0.02, 0.001, 0.01]];
+        let summary = [("rms_distance_m", 0.01.into())];
+        let report = compare(&run(&rows, &summary), &run(&[], &summary), &Tolerances::default());
+        assert_eq!(report.failures(), 1, "{}", report.table());
+        assert!(report.rows.iter().any(|r| r.key == "t_s" && r.verdict == Verdict::Fail && r.max_abs.is_infinite()), "{}", report.table());
+        let empty = compare(&run(&[], &summary), &run(&[], &summary), &Tolerances::default());
+        assert_eq!(empty.failures(), 0, "{}", empty.table());
     }
 
     #[test]

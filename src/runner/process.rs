@@ -16,6 +16,8 @@ use tracing::warn;
 const STOP_GRACE: Duration = Duration::from_secs(3);
 /// The controller's niceness (see [`Controller::start`]).
 const CONTROLLER_NICE: libc::c_int = 10;
+/// How many scripts deep an interpreter chain is followed (the kernel's BINPRM_MAX_RECURSION).
+const MAX_INTERPRETER_DEPTH: usize = 4;
 /// Lines of the controller's log quoted in a failure message.
 const LOG_TAIL_LINES: usize = 15;
 
@@ -201,8 +203,16 @@ fn glob_one(pattern: &str) -> Option<PathBuf> {
 /// LD_PRELOAD only reaches dynamically linked programs: refuse a static one (Go, musl, static
 /// Rust) and a set-uid one, following a `#!` script to its interpreter.
 fn refuse_unpreloadable(program: &Path) -> Result<()> {
-    let interpreter = script_interpreter(program)?;
-    let binary = interpreter.as_deref().unwrap_or(program);
+    // A script's interpreter may be a script itself (a pyenv shim is a bash script standing for
+    // python3); the kernel follows such a chain up to 4 deep (BINPRM_MAX_RECURSION), so do we.
+    let mut binary = program.to_owned();
+    for _ in 0..=MAX_INTERPRETER_DEPTH {
+        match script_interpreter(&binary)? {
+            Some(interpreter) => binary = interpreter,
+            None => break,
+        }
+    }
+    let binary = binary.as_path();
     use std::os::unix::fs::PermissionsExt as _;
     if std::fs::metadata(binary).is_ok_and(|m| m.permissions().mode() & 0o4000 != 0) {
         return Err(RunnerError::Invalid(format!("{} is set-uid, and the loader ignores LD_PRELOAD for it", binary.display())));
@@ -293,6 +303,16 @@ mod tests {
         let interpreter = script_interpreter(&script).expect("read").expect("a script");
         assert!(interpreter.ends_with("sh"), "{}", interpreter.display());
         assert!(refuse_unpreloadable(&script).is_ok());
+        // A script whose interpreter is a script (a pyenv shim standing for python3) is followed
+        // on to the program at the end of the chain.
+        let shim = dir.path().join("python3");
+        std::fs::write(&shim, "#!/usr/bin/env sh\nexec true \"$@\"\n").expect("write");
+        std::fs::set_permissions(&shim, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
+        let controller = dir.path().join("controller.py");
+        std::fs::write(&controller, format!("#!{}\nprint(1)\n", shim.display())).expect("write");
+        if let Err(error) = refuse_unpreloadable(&controller) {
+            panic!("a nested #! is followed: {error}");
+        }
     }
 
     #[test]

@@ -161,9 +161,25 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path, allow_incomplete: bool, console: 
         let path = dir.join("sweep.json");
         let text = std::fs::read_to_string(&path).during(|| format!("cannot read {}", path.display()))?;
         let mut file: SweepFile = serde_json::from_str(&text).during(|| format!("{} is not a sweep table", path.display()))?;
-        // Runs' folders are referenced by the overlay plots: copy their time series over.
+        if let Some(all) = &merged {
+            if !same_scenario(&all.scenario, &file.scenario) {
+                return Err(RunnerError::Invalid(format!("{} is a sweep of {}, the others of {}: shards of different scenarios do not merge", path.display(), file.scenario, all.scenario)));
+            }
+            if all.axes != file.axes {
+                return Err(RunnerError::Invalid(format!("{} sweeps {:?}, the others {:?}", path.display(), file.axes, all.axes)));
+            }
+            if !all.grid.is_empty() && !file.grid.is_empty() && all.grid != file.grid {
+                return Err(RunnerError::Invalid(format!("{} is a shard of another grid than the others (same keys, other values)", path.display())));
+            }
+        }
+        // Runs' folders are referenced by the overlay plots: copy their time series over. A
+        // completed run's must be there: a shard copied without its runs/ would merge into a
+        // table whose plots silently lack it.
         for row in &file.rows {
             let from = dir.join("runs").join(&row.label);
+            if row.status == "completed" && !from.join(report::TIMESERIES_CSV).is_file() {
+                return Err(RunnerError::Invalid(format!("{}: run {} completed, but {} is missing (copy the shard's runs/ folder with its sweep.json)", path.display(), row.label, from.join(report::TIMESERIES_CSV).display())));
+            }
             let to = out_dir.join("runs").join(&row.label);
             if from != to && from.is_dir() {
                 copy_dir(&from, &to)?;
@@ -171,12 +187,7 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path, allow_incomplete: bool, console: 
         }
         match &mut merged {
             None => merged = Some(file),
-            Some(all) => {
-                if all.axes != file.axes {
-                    return Err(RunnerError::Invalid(format!("{} sweeps {:?}, the others {:?}", path.display(), file.axes, all.axes)));
-                }
-                all.rows.append(&mut file.rows);
-            }
+            Some(all) => all.rows.append(&mut file.rows),
         }
     }
     let mut merged = merged.ok_or_else(|| RunnerError::Invalid("nothing to merge".to_owned()))?;
@@ -203,6 +214,12 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path, allow_incomplete: bool, console: 
         )));
     }
     Ok(())
+}
+
+/// Whether two shards' scenario paths name the same file (the same text, or the same file once
+/// resolved: shards may run from different folders).
+fn same_scenario(a: &str, b: &str) -> bool {
+    a == b || matches!((std::fs::canonicalize(a), std::fs::canonicalize(b)), (Ok(x), Ok(y)) if x == y)
 }
 
 fn copy_dir(from: &Path, to: &Path) -> Result<()> {

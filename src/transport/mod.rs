@@ -27,7 +27,7 @@ pub use echo::{Echo, EchoFilter};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
 pub use serial::{DeviceLine, DeviceSettings, DeviceStream, SerialDevice, SerialError, majority_baud};
 pub use stats::{Answered, LineStats, LogHistogram, LoopKey, MasterTimeouts, PhysicsPace, ReportExtras, TimingReport};
-pub use tcp::{TcpServer, connect_forever, parse_tcp_addr};
+pub use tcp::{TcpServer, connect_forever, parse_tcp_addr, parse_tcp_server_addr};
 
 #[derive(Debug, Error)]
 pub enum TransportError {

@@ -12,6 +12,16 @@ use tracing::{info, warn};
 use super::{BusHandle, NoLine, TransportError, serve_stream};
 
 /// `PORT` or `HOST:PORT`; a bare port binds to 127.0.0.1.
+/// A server to connect to (`--tcp-connect`): [`parse_tcp_addr`], refusing port 0 and an
+/// unspecified address, which name no server (a connect to them would be retried forever).
+pub fn parse_tcp_server_addr(text: &str) -> Result<SocketAddr, String> {
+    let addr = parse_tcp_addr(text)?;
+    if addr.port() == 0 || addr.ip().is_unspecified() {
+        return Err(format!("{addr} names no server to connect to (give the HOST:PORT the controller listens on)"));
+    }
+    Ok(addr)
+}
+
 pub fn parse_tcp_addr(text: &str) -> Result<SocketAddr, String> {
     if let Ok(port) = text.parse::<u16>() {
         return Ok(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), port));
@@ -101,7 +111,8 @@ pub fn connect_forever(addr: SocketAddr, handle: Arc<BusHandle>) -> std::io::Res
                         // Said once per kind of failure, not every half second.
                         let text = error.to_string();
                         if said.as_deref() != Some(text.as_str()) {
-                            info!(%addr, %error, "cannot connect yet; trying every {} ms", RECONNECT_EVERY.as_millis());
+                            // At the default level: a user waiting on a wrong address sees why.
+                            warn!(%addr, %error, "cannot connect yet; trying every {} ms", RECONNECT_EVERY.as_millis());
                             said = Some(text);
                         }
                     }
