@@ -142,6 +142,37 @@ fn a_controller_that_ends_by_itself_passes_only_with_a_zero_exit() {
     );
 }
 
+/// Whether `pid` is still running (a zombie waiting to be reaped is not).
+fn running(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|stat| stat.rsplit(')').next().is_some_and(|rest| !rest.trim_start().starts_with('Z')))
+}
+
+/// What a controller starts ends with its run: a background job, a child that left the process
+/// group (`setsid`), and one that ignores SIGTERM; also when the controller itself ended first.
+#[test]
+fn a_controllers_children_do_not_outlive_the_run() {
+    let dir = support::scratch_dir("ext-orphans");
+    let pids = dir.join("pids");
+    for (name, extra, tail) in [("lingers", "", "sleep 30"), ("leaves-first", "ends_by_itself = true", "exit 0")] {
+        let path = scenario(
+            &dir,
+            name,
+            1.0,
+            &format!(
+                "sleep 300 &\necho $! > {pids}.{name}\nsetsid sleep 301 &\necho $! >> {pids}.{name}\nsh -c 'trap \"\" TERM; sleep 302' &\necho $! >> {pids}.{name}\n{tail}",
+                pids = pids.display()
+            ),
+            extra,
+        );
+        let output = climbsim(&["run", &path.display().to_string(), "--set", "expect={}", "--out", &dir.join(name).display().to_string()]);
+        assert!(output.status.success(), "{name}: {}", text(&output));
+        let started: Vec<u32> = std::fs::read_to_string(format!("{}.{name}", pids.display())).expect("pids").lines().map(|l| l.trim().parse().expect("a pid")).collect();
+        assert_eq!(started.len(), 3, "{name}: {started:?}");
+        let left: Vec<u32> = started.into_iter().filter(|&pid| running(pid)).collect();
+        assert!(left.is_empty(), "{name}: still running after the run: {left:?}");
+    }
+}
+
 #[test]
 fn a_controller_that_cannot_start_is_one_clear_line() {
     let dir = support::scratch_dir("ext-missing");

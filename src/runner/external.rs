@@ -174,10 +174,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     drop(ticks);
     let pace = ended.pace;
     let sim_s = clock.now().as_secs_f64();
-    let exit = match early_exit {
-        Some(exit) => exit,
-        None => Exit { status: controller.stop()?, at_s: sim_s, early: false },
-    };
+    // Stopped either way: a controller that ended by itself may have left children running.
+    let stopped = controller.stop()?;
+    let exit = early_exit.unwrap_or(Exit { status: stopped, at_s: sim_s, early: false });
     pty_runtime.block_on(port.drain(Duration::from_millis(200)));
     port.remove_link();
     if let Some(error) = error {

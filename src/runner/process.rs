@@ -7,6 +7,7 @@ use std::io::{Read as _, Seek as _};
 use std::os::unix::process::CommandExt as _;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use super::{During as _, Result, RunnerError};
@@ -34,11 +35,21 @@ pub struct Launch<'a> {
     pub log_path: &'a Path,
 }
 
-/// A running controller.
+/// The variable every process a controller starts inherits, with a value of its run's own: how
+/// climbsim finds them at the end, even those that left its process group (`setsid`).
+const RUN_MARKER: &str = "CLIMBSIM_CONTROLLER_RUN";
+/// Controllers started by this climbsim so far (a sweep starts many), for [`RUN_MARKER`]'s values.
+static STARTED: AtomicU64 = AtomicU64::new(0);
+
+/// A running controller: its process, leader of a process group of its own.
 pub struct Controller {
     child: Child,
     pub description: String,
     log_path: PathBuf,
+    /// `RUN_MARKER=value` as it stands in /proc/PID/environ.
+    marker: Vec<u8>,
+    /// Its process group and every marked process have been ended.
+    ended: bool,
 }
 
 /// Resolve `./` and `../` arguments against the scenario's folder, so a scenario can name a
@@ -63,6 +74,10 @@ impl Controller {
         let resolved = find_program(program).during(|| format!("cannot start the controller `{description}`"))?;
         let log = std::fs::File::create(launch.log_path).during(|| format!("cannot create {}", launch.log_path.display()))?;
         let mut command = std::process::Command::new(&resolved);
+        let marker = format!("{}-{}", std::process::id(), STARTED.fetch_add(1, Ordering::Relaxed));
+        // Its own process group, so that stopping it stops what it started (background jobs,
+        // a shell's children) and a terminal's Ctrl-C reaches climbsim alone, which then stops it.
+        command.process_group(0).env(RUN_MARKER, &marker);
         command.args(args).envs(launch.env.iter().map(|(k, v)| (k, v))).stdin(Stdio::null()).stdout(log.try_clone().during(|| format!("cannot share {}", launch.log_path.display()))?).stderr(log);
         if launch.speed != 1.0 {
             refuse_unpreloadable(&resolved).during(|| format!("--speed {} cannot scale the clocks of `{description}`", launch.speed))?;
@@ -80,7 +95,7 @@ impl Controller {
             });
         }
         let child = command.spawn().during(|| format!("cannot start the controller `{description}`"))?;
-        Ok(Self { child, description, log_path: launch.log_path.to_owned() })
+        Ok(Self { child, description, log_path: launch.log_path.to_owned(), marker: format!("{RUN_MARKER}={marker}").into_bytes(), ended: false })
     }
 
     pub fn id(&self) -> u32 {
@@ -92,28 +107,106 @@ impl Controller {
         self.child.try_wait().during(|| format!("cannot watch the controller `{}`", self.description))
     }
 
-    /// SIGTERM, a grace period, then SIGKILL; the exit status.
+    /// Stop the controller and everything it started: SIGTERM to its process group and to every
+    /// process that carries its run's marker (children that left the group with `setsid`), a
+    /// grace period, then SIGKILL for whatever is left. The controller's exit status (if it had
+    /// already ended by itself, that one: what it left running is ended all the same).
     pub fn stop(&mut self) -> Result<ExitStatus> {
-        if let Some(status) = self.try_wait()? {
-            return Ok(status);
-        }
-        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).map_err(|_| RunnerError::Invalid("pid out of range".to_owned()))?);
-        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-        let deadline = Instant::now() + STOP_GRACE;
-        while Instant::now() < deadline {
-            if let Some(status) = self.try_wait()? {
-                return Ok(status);
+        let pgid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).map_err(|_| RunnerError::Invalid("pid out of range".to_owned()))?);
+        let mut status = self.try_wait()?;
+        if !self.ended {
+            self.signal_all(pgid, nix::sys::signal::Signal::SIGTERM);
+            let deadline = Instant::now() + STOP_GRACE;
+            while Instant::now() < deadline {
+                status = status.or(self.try_wait()?);
+                if status.is_some() && !self.any_left(pgid) {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(20));
             }
-            std::thread::sleep(Duration::from_millis(20));
+            if status.is_none() || self.any_left(pgid) {
+                warn!("the controller or what it started ignored SIGTERM for {STOP_GRACE:?}; killing them");
+                self.signal_all(pgid, nix::sys::signal::Signal::SIGKILL);
+            }
+            self.ended = true;
         }
-        warn!("the controller ignored SIGTERM for {STOP_GRACE:?}; killing it");
-        self.child.kill().during(|| format!("cannot kill the controller `{}`", self.description))?;
-        self.child.wait().during(|| format!("cannot reap the controller `{}`", self.description))
+        match status {
+            Some(status) => Ok(status),
+            None => self.child.wait().during(|| format!("cannot reap the controller `{}`", self.description)),
+        }
+    }
+
+    /// Send `signal` to the controller's process group and to every process marked as its run's.
+    fn signal_all(&self, pgid: nix::unistd::Pid, signal: nix::sys::signal::Signal) {
+        let _ = nix::sys::signal::killpg(pgid, signal);
+        for pid in marked_processes(&self.marker) {
+            let _ = nix::sys::signal::kill(pid, signal);
+        }
+    }
+
+    /// Whether anything of the controller's is still running (zombies waiting for their parent
+    /// to reap them are not running).
+    fn any_left(&self, pgid: nix::unistd::Pid) -> bool {
+        group_alive(pgid) || !marked_processes(&self.marker).is_empty()
     }
 
     /// The last lines of the controller's output.
     pub fn log_tail(&self) -> String {
         log_tail(&self.log_path, LOG_TAIL_LINES)
+    }
+}
+
+impl Drop for Controller {
+    /// A run that ends by an error between start and stop still leaves nothing running.
+    fn drop(&mut self) {
+        if !self.ended
+            && let Ok(pid) = i32::try_from(self.child.id())
+        {
+            self.signal_all(nix::unistd::Pid::from_raw(pid), nix::sys::signal::Signal::SIGKILL);
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// Whether a process group has a member that is not a zombie.
+fn group_alive(pgid: nix::unistd::Pid) -> bool {
+    let pgid = pgid.as_raw().to_string();
+    processes().any(|(_, stat)| stat_field(&stat, PGRP) == Some(pgid.as_str()) && stat_field(&stat, STATE) != Some("Z"))
+}
+
+/// Every live (not zombie) process whose environment holds `marker` (`NAME=value`).
+fn marked_processes(marker: &[u8]) -> Vec<nix::unistd::Pid> {
+    processes()
+        .filter(|(_, stat)| stat_field(stat, STATE) != Some("Z"))
+        .filter(|(pid, _)| std::fs::read(format!("/proc/{pid}/environ")).is_ok_and(|environ| environ.split(|&b| b == 0).any(|entry| entry == marker)))
+        .map(|(pid, _)| nix::unistd::Pid::from_raw(pid))
+        .collect()
+}
+
+/// Every process as (pid, its /proc/PID/stat line), this one's threads' process excluded.
+fn processes() -> impl Iterator<Item = (i32, String)> {
+    let own = std::process::id() as i32;
+    std::fs::read_dir("/proc")
+        .into_iter()
+        .flatten()
+        .filter_map(|entry| entry.ok()?.file_name().to_str()?.parse::<i32>().ok())
+        .filter(move |&pid| pid != own)
+        .filter_map(|pid| Some((pid, std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?)))
+}
+
+/// /proc/PID/stat's fields we read (proc(5) numbers them from 1): the state (`Z`: a zombie) and
+/// the process group.
+const STATE: usize = 3;
+const PGRP: usize = 5;
+
+/// Field `n` (1-based, as proc(5) numbers them) of a /proc/PID/stat line; the command name (2)
+/// may hold spaces and parentheses, so fields after it are counted from its closing one.
+fn stat_field(stat: &str, n: usize) -> Option<&str> {
+    let close = stat.rfind(')')?;
+    match n {
+        1 => stat.split(' ').next(),
+        2 => stat.get(stat.find('(')? + 1..close),
+        _ => stat[close + 1..].split_whitespace().nth(n - 3),
     }
 }
 
@@ -326,6 +419,15 @@ mod tests {
         std::fs::write(&script, "print(1)\n").expect("write");
         let error = find_program(&script.display().to_string()).expect_err("not executable");
         assert!(error.to_string().contains("not executable"), "{error}");
+    }
+
+    #[test]
+    fn stat_fields_are_counted_after_the_command_name() {
+        let stat = "4242 (a (b) c) S 1 4240 4240 0 -1";
+        assert_eq!(stat_field(stat, 1), Some("4242"));
+        assert_eq!(stat_field(stat, 2), Some("a (b) c"));
+        assert_eq!(stat_field(stat, STATE), Some("S"));
+        assert_eq!(stat_field(stat, PGRP), Some("4240"));
     }
 
     #[test]
