@@ -173,6 +173,23 @@ fn a_controllers_children_do_not_outlive_the_run() {
     }
 }
 
+/// A controller that prints 100 MB leaves a log of a few megabytes: its first and last lines,
+/// and how much was cut between them.
+#[test]
+fn a_controllers_log_is_capped_keeping_head_and_tail() {
+    let dir = support::scratch_dir("ext-loud");
+    let path = scenario(&dir, "loud", 1.0, "echo first-line\nhead -c 100000000 /dev/zero | tr '\\0' x\necho\necho last-line\nsleep 30", "");
+    let out = dir.join("out");
+    let output = climbsim(&["run", &path.display().to_string(), "--set", "expect={}", "--out", &out.display().to_string()]);
+    assert!(output.status.success(), "{}", text(&output));
+    let log = std::fs::read(out.join("controller.log")).expect("controller.log");
+    assert!(log.len() < 9 << 20, "controller.log is {} bytes", log.len());
+    let (start, end) = (String::from_utf8_lossy(&log[..20]), String::from_utf8_lossy(&log[log.len() - 20..]));
+    assert!(start.starts_with("first-line\n"), "{start:?}");
+    assert!(end.ends_with("\nlast-line\n"), "{end:?}");
+    assert!(String::from_utf8_lossy(&log).contains("bytes of the controller's output were cut here"));
+}
+
 #[test]
 fn a_controller_that_cannot_start_is_one_clear_line() {
     let dir = support::scratch_dir("ext-missing");

@@ -8,6 +8,7 @@
 //! Nothing here prints: what a person should see goes through a [`Console`], which the command
 //! line implements.
 
+pub mod capped_log;
 pub mod check;
 pub mod clock;
 pub mod error;

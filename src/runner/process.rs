@@ -1,6 +1,7 @@
 //! The user's own controller as a child process: finding the program (one clear line when it
 //! cannot start), its environment (port, baud, sensors, parameters), its clocks scaled with
-//! libfaketime for `--speed N`, watching it for an early exit, and stopping it.
+//! libfaketime for `--speed N`, watching it for an early exit, and stopping it with everything it
+//! started. Its output goes to a capped log ([`super::capped_log`]).
 
 use std::collections::BTreeMap;
 use std::io::{Read as _, Seek as _};
@@ -10,6 +11,7 @@ use std::process::{Child, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use super::capped_log::CappedLog;
 use super::{During as _, Result, RunnerError};
 use tracing::warn;
 
@@ -17,6 +19,8 @@ use tracing::warn;
 const STOP_GRACE: Duration = Duration::from_secs(3);
 /// The controller's niceness (see [`Controller::start`]).
 const CONTROLLER_NICE: libc::c_int = 10;
+/// How long stopping waits for the controller's log to be complete.
+const LOG_FINISH: Duration = Duration::from_secs(2);
 /// How many scripts deep an interpreter chain is followed (the kernel's BINPRM_MAX_RECURSION).
 const MAX_INTERPRETER_DEPTH: usize = 4;
 /// Lines of the controller's log quoted in a failure message.
@@ -46,6 +50,8 @@ pub struct Controller {
     child: Child,
     pub description: String,
     log_path: PathBuf,
+    /// The copy of its output into the log (stdout and stderr; capped), until it is stopped.
+    log: Option<CappedLog>,
     /// `RUN_MARKER=value` as it stands in /proc/PID/environ.
     marker: Vec<u8>,
     /// Its process group and every marked process have been ended.
@@ -72,13 +78,13 @@ impl Controller {
         let description = launch.command.join(" ");
         let (program, args) = launch.command.split_first().ok_or_else(|| RunnerError::Invalid("the external controller's command is empty".to_owned()))?;
         let resolved = find_program(program).during(|| format!("cannot start the controller `{description}`"))?;
-        let log = std::fs::File::create(launch.log_path).during(|| format!("cannot create {}", launch.log_path.display()))?;
+        let (log, writer) = CappedLog::start(launch.log_path).during(|| format!("cannot create {}", launch.log_path.display()))?;
         let mut command = std::process::Command::new(&resolved);
         let marker = format!("{}-{}", std::process::id(), STARTED.fetch_add(1, Ordering::Relaxed));
         // Its own process group, so that stopping it stops what it started (background jobs,
         // a shell's children) and a terminal's Ctrl-C reaches climbsim alone, which then stops it.
         command.process_group(0).env(RUN_MARKER, &marker);
-        command.args(args).envs(launch.env.iter().map(|(k, v)| (k, v))).stdin(Stdio::null()).stdout(log.try_clone().during(|| format!("cannot share {}", launch.log_path.display()))?).stderr(log);
+        command.args(args).envs(launch.env.iter().map(|(k, v)| (k, v))).stdin(Stdio::null()).stdout(writer.try_clone().during(|| format!("cannot share {}", launch.log_path.display()))?).stderr(writer);
         if launch.speed != 1.0 {
             refuse_unpreloadable(&resolved).during(|| format!("--speed {} cannot scale the clocks of `{description}`", launch.speed))?;
             command.envs(faketime_env(launch.speed).during(|| format!("--speed {} for `{description}`", launch.speed))?);
@@ -95,7 +101,7 @@ impl Controller {
             });
         }
         let child = command.spawn().during(|| format!("cannot start the controller `{description}`"))?;
-        Ok(Self { child, description, log_path: launch.log_path.to_owned(), marker: format!("{RUN_MARKER}={marker}").into_bytes(), ended: false })
+        Ok(Self { child, description, log_path: launch.log_path.to_owned(), log: Some(log), marker: format!("{RUN_MARKER}={marker}").into_bytes(), ended: false })
     }
 
     pub fn id(&self) -> u32 {
@@ -130,10 +136,17 @@ impl Controller {
             }
             self.ended = true;
         }
-        match status {
-            Some(status) => Ok(status),
-            None => self.child.wait().during(|| format!("cannot reap the controller `{}`", self.description)),
+        let status = match status {
+            Some(status) => status,
+            None => self.child.wait().during(|| format!("cannot reap the controller `{}`", self.description))?,
+        };
+        // Everything that held its output is gone: the log is complete once the copy ends.
+        if let Some(log) = self.log.take()
+            && !log.finish(LOG_FINISH)
+        {
+            warn!(log = %self.log_path.display(), "the controller's output was still being written after {LOG_FINISH:?}");
         }
+        Ok(status)
     }
 
     /// Send `signal` to the controller's process group and to every process marked as its run's.
