@@ -27,7 +27,7 @@ pub use echo::{Echo, EchoFilter};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
 pub use serial::{DeviceLine, DeviceSettings, DeviceStream, SerialDevice, SerialError, majority_baud};
 pub use stats::{Answered, LineStats, LogHistogram, LoopKey, MasterTimeouts, PhysicsPace, ReportExtras, TimingReport};
-pub use tcp::{TcpServer, connect_forever, parse_tcp_addr, parse_tcp_server_addr};
+pub use tcp::{TCP_INTER_BYTE_TIMEOUT, TcpLine, TcpServer, connect_forever, parse_tcp_addr, parse_tcp_server_addr};
 
 #[derive(Debug, Error)]
 pub enum TransportError {
@@ -78,6 +78,15 @@ pub trait LineSettings: Send + Sync {
     fn batches_replies(&self) -> bool {
         false
     }
+
+    /// How long a begun packet may wait for its next bytes before it is dropped; None: the
+    /// servos' own inter-byte timeout (a wire with a baud).
+    fn inter_byte_timeout(&self) -> Option<Duration> {
+        None
+    }
+
+    /// Called after every read of the controller's bytes (a TCP line re-arms its quick ACKs).
+    fn read_done(&self) {}
 
     /// A transaction changed some servo's baud (`(id, bps)` of every servo): a transport with a
     /// baud of its own follows.

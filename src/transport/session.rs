@@ -49,7 +49,8 @@ pub async fn serve_stream_through<S>(stream: S, handle: Arc<BusHandle>, line: &d
 where
     S: AsyncRead + AsyncWrite + Unpin,
 {
-    let (gap, timing) = handle.with_bus(|bus| (bus.inter_byte_timeout(), bus.timing()));
+    let (servos_gap, timing) = handle.with_bus(|bus| (bus.inter_byte_timeout(), bus.timing()));
+    let gap = line.inter_byte_timeout().unwrap_or(servos_gap);
     let mut session = Session {
         stream,
         clock: handle.clock(),
@@ -130,14 +131,15 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             };
             let now = self.clock.now();
             match read {
+                // Counted where the decoder drops the partial packet (in `handle_decoded`).
                 None => {
-                    self.handle.with_stats(LineStats::inter_byte_gap);
                     let flushed = self.decoder.flush();
                     self.decoded.extend(flushed.into_iter().map(|r| (r, now)));
                 }
                 Some(read) => match read? {
                     0 => return Ok(()),
                     n => {
+                        self.line.read_done();
                         self.baud = self.line.baud();
                         let framed = self.decoder.push(now, &self.buf[..n]);
                         self.decoded.extend(framed.into_iter().map(|r| (r, now)));
@@ -169,6 +171,10 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 // A bad CRC gets no reply (no error 0x03): ROBOTIS's own slave code drops such
                 // packets; unverified on XM firmware (reference §7), listed in docs/serve-and-bus.md.
                 Err(error) => {
+                    // A packet cut by a quiet line is both: lost to framing, and by a gap.
+                    if let FrameError::InterByteTimeout(_) = error {
+                        self.handle.with_stats(LineStats::inter_byte_gap);
+                    }
                     self.handle.with_stats(LineStats::frame_error);
                     log_frame_error(&error);
                 }

@@ -9,7 +9,7 @@ use std::time::Duration;
 use tokio::net::{TcpListener, TcpStream};
 use tracing::{info, warn};
 
-use super::{BusHandle, NoLine, TransportError, serve_stream};
+use super::{BusHandle, LineSettings, TransportError, serve_stream};
 
 /// `PORT` or `HOST:PORT`; a bare port binds to 127.0.0.1.
 /// A server to connect to (`--tcp-connect`): [`parse_tcp_addr`], refusing port 0 and an
@@ -65,7 +65,8 @@ impl TcpServer {
                 };
                 let result = runtime.block_on(async move {
                     let stream = tokio::net::TcpStream::from_std(stream)?;
-                    serve_stream(stream, handle, &NoLine).await
+                    let line = TcpLine::of(&stream);
+                    serve_stream(stream, handle, &line).await
                 });
                 match result {
                     Ok(()) => info!(%peer, "controller disconnected"),
@@ -73,6 +74,54 @@ impl TcpServer {
                 }
             });
         }
+    }
+}
+
+/// How long a packet begun on a TCP stream may wait for its next bytes. A byte stream has no
+/// baud, so the servos' 1.5 ms inter-byte timeout means nothing on it: an emulator's UART hands
+/// each byte to its socket as it is written, and with Nagle on the rest of a packet waits for
+/// the first byte's ACK, and the reading thread's own wake-up lands on the gap too. Long
+/// enough for a delayed ACK (40-200 ms on Linux), short enough that a packet cut by a
+/// controller that died mid-write does not linger.
+pub const TCP_INTER_BYTE_TIMEOUT: Duration = Duration::from_millis(500);
+
+/// A TCP stream as a line: no baud, its own inter-byte timeout, and quick ACKs.
+pub struct TcpLine {
+    fd: std::os::fd::RawFd,
+}
+
+impl TcpLine {
+    pub fn of(stream: &TcpStream) -> Self {
+        use std::os::fd::AsRawFd as _;
+        let line = Self { fd: stream.as_raw_fd() };
+        line.quick_ack();
+        line
+    }
+
+    /// TCP_QUICKACK: acknowledge at once, so that a sender holding the rest of a packet until
+    /// its first byte is acknowledged (Nagle) is not held for a delayed ACK. Linux clears it
+    /// again after a while, so it is set after every read.
+    fn quick_ack(&self) {
+        let on: libc::c_int = 1;
+        // SAFETY: setsockopt with a valid socket descriptor (the stream outlives the session
+        // that calls this) and a c_int option value of the right size.
+        unsafe {
+            libc::setsockopt(self.fd, libc::IPPROTO_TCP, libc::TCP_QUICKACK, (&raw const on).cast(), std::mem::size_of::<libc::c_int>() as libc::socklen_t);
+        }
+    }
+}
+
+impl LineSettings for TcpLine {
+    fn baud(&self) -> Option<u32> {
+        None
+    }
+
+    fn inter_byte_timeout(&self) -> Option<Duration> {
+        Some(TCP_INTER_BYTE_TIMEOUT)
+    }
+
+    fn read_done(&self) {
+        self.quick_ack();
     }
 }
 
@@ -99,8 +148,10 @@ pub fn connect_forever(addr: SocketAddr, handle: Arc<BusHandle>) -> std::io::Res
                             warn!(%error, "TCP_NODELAY");
                         }
                         info!(%addr, "connected to the controller over TCP");
+                        let line = TcpLine::of(&stream);
                         // Spawned, not run in `block_on`: see the pty thread in `serve`.
-                        let session = tokio::spawn(serve_stream(stream, Arc::clone(&handle), &NoLine));
+                        let handle = Arc::clone(&handle);
+                        let session = tokio::spawn(async move { serve_stream(stream, handle, &line).await });
                         match session.await {
                             Ok(Ok(())) => warn!(%addr, "the controller closed the TCP connection; reconnecting"),
                             Ok(Err(error)) => warn!(%addr, %error, "the TCP connection failed; reconnecting"),
