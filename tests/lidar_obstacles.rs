@@ -110,6 +110,12 @@ fn an_obstacle_off_the_terrain_and_bad_lidar_settings_are_refused_by_name() {
     let output = support::climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
     assert_eq!(output.status.code(), Some(2), "{}", support::output_text(&output));
     assert!(support::output_text(&output).contains("obstacles[0]: no terrain below"), "{}", support::output_text(&output));
+    // A tall box where the robot starts: the robot would stand on it, 100 m up.
+    let text = std::fs::read_to_string(&path).expect("read").replace("at_m = [40.0, 0.0]", "at_m = [0.0, 0.0]").replace("size_m = [0.1, 0.3, 0.6]", "size_m = [1.0, 100.0, 1.0]");
+    std::fs::write(&path, text).expect("write");
+    let output = support::climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
+    assert_eq!(output.status.code(), Some(2), "{}", support::output_text(&output));
+    assert!(support::output_text(&output).contains("obstacles[0] stands where the robot starts"), "{}", support::output_text(&output));
 }
 
 #[test]

@@ -49,6 +49,23 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     for topic in ["/scene/terrain", "/scene/robot", "/scene/magnets"] {
         assert_eq!(schema(topic), ("foxglove.SceneUpdate".into(), "protobuf".into(), "protobuf".into()), "{topic}");
     }
+    // Only what the scenario has is advertised and drawn: flat-line has no LIDAR and no obstacles.
+    assert!(summary.channels.values().all(|channel| channel.topic != "/lidar"), "a /lidar channel without a [lidar]");
+    let terrain = SceneUpdate::decode(&by_topic["/scene/terrain"][0].data[..]).expect("SceneUpdate");
+    assert!(terrain.entities.iter().all(|e| e.id != "obstacles"), "an empty obstacles entity");
+    // Every field of a JSON message is in its channel's schema (a field the schema lacks is
+    // hidden from schema-driven tools).
+    for topic in ["/signals", "/servos"] {
+        let schema: serde_json::Value = serde_json::from_slice(&by_topic[topic][0].channel.schema.as_ref().expect("schema").data).expect("JSON schema");
+        let message: serde_json::Value = serde_json::from_slice(&by_topic[topic].last().expect("a message").data).expect("JSON message");
+        for (key, value) in message.as_object().expect("an object") {
+            let described = &schema["properties"][key];
+            assert!(described.is_object(), "{topic}: {key} is not in the schema");
+            for field in value.as_object().into_iter().flat_map(|fields| fields.keys()) {
+                assert!(described["properties"][field].is_object(), "{topic}: {key}.{field} is not in the schema");
+            }
+        }
+    }
 
     let csv = climbsim::report::read_timeseries_csv(&out.join("timeseries.csv")).expect("timeseries.csv");
     let (t, x, y, z) = (csv.column("t_s").expect("t"), csv.column("x_m").expect("x"), csv.column("y_m").expect("y"), csv.column("z_m").expect("z"));
@@ -138,7 +155,10 @@ fn shipped_layout_names_only_what_the_recording_has(by_topic: &BTreeMap<String, 
     let panels = layout["configById"].as_object().expect("configById");
     let mut topics: Vec<String> = Vec::new();
     let mut fields: Vec<String> = Vec::new();
-    for config in panels.values() {
+    for (id, config) in panels {
+        // Foxglove reads a panel's title from `foxglovePanelTitle` (only Plot still converts an
+        // old `title`): every panel is named the one way.
+        assert!(config["foxglovePanelTitle"].is_string() && config.get("title").is_none(), "{id} has no foxglovePanelTitle");
         topics.extend(config["topics"].as_object().into_iter().flat_map(|t| t.keys().cloned()));
         topics.extend([&config["imageMode"]["imageTopic"], &config["topicToRender"]].into_iter().filter_map(|v| v.as_str().map(str::to_owned)));
         fields.extend(config["paths"].as_array().into_iter().flatten().filter_map(|p| p["value"].as_str().map(str::to_owned)));
@@ -232,4 +252,7 @@ fn serve_shows_a_world_without_a_line_and_records_it_until_stopped() {
     let top = mesh.points.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
     assert!(top > 0.5, "the wall's top at {top} m");
     assert!(!messages.iter().any(|m| m.channel.topic == "/camera/image"), "no line, no camera frames");
+    // serve keeps no time series, but its view still gets the signals at the capture rate.
+    let signals = messages.iter().filter(|m| m.channel.topic == "/signals").count();
+    assert!(signals >= 30, "{signals} /signals messages in 1.5 s");
 }

@@ -60,3 +60,22 @@ fn a_wall_transition_without_a_lidar_and_out_of_range_settings_are_refused_by_na
     let scenario = support::repo().join("scenarios/floor-to-wall-line.toml");
     support::assert_each_set_refused(&scenario, &dir.join("out"), &["controller.wall_transition.front_magnet_deg=200", "controller.wall_transition.detect_m=-1", "capture.adhesion_floor_n=-5"]);
 }
+
+/// The documented range of `front_magnet_deg` ends at 180°, the same shaft angle as -180°: the
+/// magnets turn there and the run goes on (a Goal Position one past the servo's limit once ended
+/// it at 16 s with exit 2 and no outputs).
+#[test]
+fn the_front_magnets_turn_to_the_end_of_their_documented_range() {
+    let dir = support::scratch_dir("wall-transition-180");
+    let out = dir.join("out");
+    let scenario = support::repo().join("scenarios/floor-to-wall-line.toml");
+    let args = ["run", &scenario.display().to_string(), "--set", "world.duration_s=25", "--set", "controller.wall_transition.front_magnet_deg=180", "--set", "expect={}", "--set", "capture.mcap=false", "--out", &out.display().to_string()];
+    let output = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(support::repo()).output().expect("climbsim");
+    assert!(output.status.success(), "{}", support::output_text(&output));
+    let csv = climbsim::report::read_timeseries_csv(&out.join("timeseries.csv")).expect("timeseries.csv");
+    let t = csv.column("t_s").expect("t_s");
+    assert!(t.last().is_some_and(|&end| end > 24.0), "the run went to its end: {:?}", t.last());
+    let magnet = csv.column("magnet_angle_fl_rad").expect("magnet angle");
+    assert!(magnet.iter().any(|a| a.abs() > 3.0), "the front magnets turned to ±180°");
+}
+

@@ -373,6 +373,10 @@ impl ReferenceController {
         if let Some(angle) = decision.hold_front_magnets_rad {
             // Torque-on sets Goal Position to Present Position (so the shaft does not jump): the
             // goal is written after it.
+            // ±180° are one shaft angle; a position-mode goal must stay within one turn of the
+            // magnet's zero (at 2048 of 0..4095, +180° would be 4096: a Data Limit Error), so the
+            // angle is taken in [-180°, 180°).
+            let angle = (angle + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
             let goal = self.magnet_zero_pulses + (angle / self.rad_per_pulse).round() as i64;
             for id in front_magnets {
                 client.write(id, at.operating_mode, &[at.position_mode], "Operating Mode = position")?;

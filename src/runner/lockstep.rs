@@ -149,6 +149,7 @@ struct BuiltinTicks {
     observer: Observer,
     controller: ReferenceController,
     watch: WorldWatch,
+    /// Why the run failed, if it did: the world watch's verdict, or the controller's error.
     failure: Option<WorldFailure>,
     /// The servos' firmware tick and the control period.
     tick: Duration,
@@ -213,7 +214,12 @@ impl BuiltinTicks {
                 tracing::debug!(%error, t_s, "control period skipped");
                 self.last_sample
             }
-            Err(error) => return Err(error.into()),
+            // The controller under test failed: the run's verdict, not bad input. The run ends
+            // here with its outputs, as for a world the watch gave up on.
+            Err(error) => {
+                self.failure = Some(WorldFailure { at_s: t_s, message: format!("controller: {error} at t = {t_s:.2} s") });
+                return Ok(());
+            }
         };
         self.last_sample = sample;
         observer.post_update(t_s, sim.bus(), Some(&sample))?;
@@ -237,6 +243,9 @@ impl Ticked for BuiltinTicks {
         if self.control_due {
             if let Err(error) = self.control_period() {
                 self.error = Some(error);
+                return ControlFlow::Break(());
+            }
+            if self.failure.is_some() {
                 return ControlFlow::Break(());
             }
             self.control_due = false;

@@ -235,7 +235,13 @@ impl Capture {
 
     /// A row is due at `t_s` (never while rows are discarded: building one costs a servo scan).
     pub fn row_due(&self, t_s: f64) -> bool {
-        !matches!(self.rows, Rows::Discard) && t_s + 1e-9 >= self.next_s
+        !matches!(self.rows, Rows::Discard) && self.row_time(t_s)
+    }
+
+    /// The capture rate has a row at `t_s`, kept or not: what a view shows while rows are
+    /// discarded (`serve`'s `/signals`).
+    pub fn row_time(&self, t_s: f64) -> bool {
+        t_s + 1e-9 >= self.next_s
     }
 
     /// A metric-track sample is due at `t_s`.

@@ -92,9 +92,12 @@ impl Metrics {
         self.capture.discard();
     }
 
-    /// Whether a row, or a sample of the metric track, is due at `t_s`.
-    pub fn due(&self, t_s: f64) -> (bool, bool) {
-        (self.capture.row_due(t_s), self.capture.track_due(t_s))
+    /// Whether a row, or a sample of the metric track, is due at `t_s`. With a view `shown`, a
+    /// row is due at the capture rate even while rows are discarded: the view's `/signals` are
+    /// made of rows.
+    pub fn due(&self, t_s: f64, shown: bool) -> (bool, bool) {
+        let row = if shown { self.capture.row_time(t_s) } else { self.capture.row_due(t_s) };
+        (row, self.capture.track_due(t_s))
     }
 
     /// The metric track's sample at `t_s` and every track metric's.

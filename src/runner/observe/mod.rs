@@ -181,7 +181,7 @@ impl Observer {
     /// row if they are due at `t_s`. `control` is the built-in controller's view (an external
     /// controller's is unknown: its columns are NaN).
     pub fn post_update(&mut self, t_s: f64, bus: &Bus, control: Option<&ControlSample>) -> Result<(), RunError> {
-        let (row_due, track_due) = self.metrics.due(t_s);
+        let (row_due, track_due) = self.metrics.due(t_s, self.view.is_some());
         let Some(world) = bus.plant::<RobotWorld>() else { return Ok(()) };
         if let Some(view) = &mut self.view {
             view.frame(t_s, bus, world);
@@ -252,7 +252,7 @@ impl Observer {
             return Ok(None);
         }
         let Some(world) = bus.plant::<RobotWorld>() else { return Ok(None) };
-        let view = ViewFeed::start(options, world, &self.welds, self.servo_names.clone(), &self.scenario_path)?;
+        let view = ViewFeed::start(options, world, &self.welds, self.servo_names.clone(), self.sensors.has_lidar(), &self.scenario_path)?;
         bus.set_transaction_tap(view.packet_tap());
         let url = view.live_url();
         self.view = Some(view);

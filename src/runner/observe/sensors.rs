@@ -71,6 +71,11 @@ impl Sensors {
         self.latest.as_ref()
     }
 
+    /// Whether the robot has a LIDAR (the scenario's `[lidar]`).
+    pub fn has_lidar(&self) -> bool {
+        self.lidar.is_some()
+    }
+
     /// The LIDAR's latest scan, if the robot has one and it has scanned.
     pub fn lidar_scan(&self) -> Option<&LidarScan> {
         self.lidar.as_ref().and_then(Lidar::latest)

@@ -34,9 +34,9 @@ pub struct ViewFeed {
 impl ViewFeed {
     /// Start the view (a recording, a live server, or both): the terrain, the welds and the
     /// robot's shapes are sent at once.
-    pub fn start(options: &ViewOptions, world: &RobotWorld, welds: &Welds, servo_names: Vec<(u8, String)>, scenario_path: &Path) -> Result<Self, RunError> {
+    pub fn start(options: &ViewOptions, world: &RobotWorld, welds: &Welds, servo_names: Vec<(u8, String)>, has_lidar: bool, scenario_path: &Path) -> Result<Self, RunError> {
         let names: Vec<String> = servo_names.iter().map(|(_, name)| name.clone()).collect();
-        let view = View::start(options, COLUMNS, &names)?;
+        let view = View::start(options, COLUMNS, &names, has_lidar)?;
         view.terrain(Duration::ZERO, world, &welds.samples());
         view.robot(Duration::ZERO, world);
         view.log(Duration::ZERO, LogLevel::Info, format!("{}: the run starts", scenario_path.display()));

@@ -74,7 +74,7 @@ fn over_terrain(world: &RobotWorld) -> bool {
     })
 }
 
-/// The start is possible: every wheel has terrain under it. Checked once the world is built,
+/// The start is possible: every wheel has terrain under it, and no obstacle. Checked once the world is built,
 /// before the run, so that an impossible start is a load error rather than a fall.
 pub fn check_start(world: &RobotWorld) -> Result<(), String> {
     let off: Vec<String> = WheelPosition::ALL
@@ -88,8 +88,16 @@ pub fn check_start(world: &RobotWorld) -> Result<(), String> {
             format!("{w:?} wheel at (x = {:.2} m, z = {:.2} m)", c.x, c.z)
         })
         .collect();
-    if off.is_empty() {
-        return Ok(());
+    if !off.is_empty() {
+        return Err(format!("the robot starts off the terrain: no terrain under the {} (see [start] and [terrain])", off.join(", ")));
     }
-    Err(format!("the robot starts off the terrain: no terrain under the {} (see [start] and [terrain])", off.join(", ")))
+    // Placed on top of an obstacle, the robot would start wherever the obstacle's top is (a tall
+    // box lifted it 100 m, to "follow" a weld below it).
+    for wheel in WheelPosition::ALL {
+        let c = world.wheel_centre(wheel);
+        if let Some(index) = world.obstacle_at(c.x, c.z) {
+            return Err(format!("obstacles[{index}] stands where the robot starts: under its {wheel:?} wheel at (x = {:.2} m, z = {:.2} m); move the obstacle or [start]", c.x, c.z));
+        }
+    }
+    Ok(())
 }

@@ -117,7 +117,8 @@ struct Channels {
     robot: Channel<SceneUpdate>,
     magnets: Channel<SceneUpdate>,
     image: Channel<CompressedImage>,
-    lidar: Channel<LaserScan>,
+    /// Only when the robot has a LIDAR: a channel is advertised to every viewer.
+    lidar: Option<Channel<LaserScan>>,
     log: Channel<Log>,
     signals: Arc<RawChannel>,
     servos: Arc<RawChannel>,
@@ -157,9 +158,10 @@ fn signals_schema(columns: &[&str]) -> Vec<u8> {
     serde_json::json!({ "type": "object", "properties": properties }).to_string().into_bytes()
 }
 
-/// A JSON schema for `/servos`: an object per servo name, a number per register.
+/// A JSON schema for `/servos`: an object per servo name, its ID and a number per register.
 fn servos_schema(names: &[String]) -> Vec<u8> {
-    let registers: serde_json::Map<String, serde_json::Value> = SERVO_REGISTERS.iter().map(|&key| (key.to_owned(), serde_json::json!({ "type": "number" }))).collect();
+    let mut registers: serde_json::Map<String, serde_json::Value> = SERVO_REGISTERS.iter().map(|&key| (key.to_owned(), serde_json::json!({ "type": "number" }))).collect();
+    registers.insert("id".to_owned(), serde_json::json!({ "type": "integer" }));
     let servo = serde_json::json!({ "type": "object", "properties": registers });
     let properties: serde_json::Map<String, serde_json::Value> = names.iter().map(|name| (name.clone(), servo.clone())).collect();
     serde_json::json!({ "type": "object", "properties": properties }).to_string().into_bytes()
@@ -171,8 +173,9 @@ fn json_channel(context: &Arc<Context>, topic: &str, schema_name: &str, schema: 
 
 impl View {
     /// Start showing a run: `columns` name the values of each [`View::signals`] row, `servo_names`
-    /// the servos of [`View::servos`] in bus order. Nothing is sent until [`View::scene`].
-    pub fn start(options: &ViewOptions, columns: &[&'static str], servo_names: &[String]) -> Result<Self, ViewError> {
+    /// the servos of [`View::servos`] in bus order; `/lidar` exists only if `has_lidar`. Nothing
+    /// is sent until [`View::terrain`] and [`View::robot`].
+    pub fn start(options: &ViewOptions, columns: &[&'static str], servo_names: &[String], has_lidar: bool) -> Result<Self, ViewError> {
         let in_scenario_units: Vec<(usize, String, f64)> = SIGNALS_IN_SCENARIO_UNITS
             .iter()
             .filter_map(|&name| Some((columns.iter().position(|c| *c == name)?, crate::report::units::in_shown_unit(name)?)))
@@ -189,7 +192,7 @@ impl View {
             robot: ChannelBuilder::new("/scene/robot").context(&context).build(),
             magnets: ChannelBuilder::new("/scene/magnets").context(&context).build(),
             image: ChannelBuilder::new("/camera/image").context(&context).build(),
-            lidar: ChannelBuilder::new("/lidar").context(&context).build(),
+            lidar: has_lidar.then(|| ChannelBuilder::new("/lidar").context(&context).build()),
             log: ChannelBuilder::new("/log").context(&context).build(),
             signals: json_channel(&context, "/signals", "climbsim.Signals", signals_schema(&schema_names)).map_err(error)?,
             servos: json_channel(&context, "/servos", "climbsim.Servos", servos_schema(servo_names)).map_err(error)?,
@@ -256,7 +259,9 @@ impl View {
             ranges: scan.ranges_m.iter().map(|&r| f64::from(r)).collect(),
             intensities: Vec::new(),
         };
-        self.channels.lidar.log_with_time(&message, nanos(scan.t));
+        if let Some(channel) = &self.channels.lidar {
+            channel.log_with_time(&message, nanos(scan.t));
+        }
     }
 
     /// Something that happened at `t`: an event, a fault, a failure.

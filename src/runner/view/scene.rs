@@ -71,11 +71,16 @@ pub fn terrain_and_line(timestamp: Timestamp, terrain: &TerrainMesh, lines: &[&[
         points.extend([al, ar, bl, bl, ar, br]);
     }
     stripe.triangles.push(TriangleListPrimitive { pose: Some(pose(&Pose::IDENTITY)), points, color: Some(color(0.95, 0.75, 0.1, 1.0)), colors: Vec::new(), indices: Vec::new() });
-    let mut things = entity(timestamp, "world", "obstacles");
-    for shape in obstacles {
-        add_shape(&mut things, shape, color(0.55, 0.3, 0.15, 1.0), color(0.55, 0.3, 0.15, 1.0));
+    let mut entities = vec![ground, stripe];
+    // No entity for no obstacles: an empty one is a thing in the panel's list with nothing in it.
+    if !obstacles.is_empty() {
+        let mut things = entity(timestamp, "world", "obstacles");
+        for shape in obstacles {
+            add_shape(&mut things, shape, color(0.55, 0.3, 0.15, 1.0), color(0.55, 0.3, 0.15, 1.0));
+        }
+        entities.push(things);
     }
-    SceneUpdate { deletions: Vec::new(), entities: vec![ground, stripe, things] }
+    SceneUpdate { deletions: Vec::new(), entities }
 }
 
 /// A box or cylinder into `entity`, in `box_colour` or `cylinder_colour`.

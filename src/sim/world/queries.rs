@@ -8,7 +8,7 @@ use rapier3d::prelude::*;
 use crate::device::ShaftLoad;
 use crate::robot::WheelPosition;
 
-use super::measure::{joint_rate, surface_below, terrain_and_normal_below};
+use super::measure::{joint_rate, ray_down, surface_below, terrain_and_normal_below};
 use super::{AdhesionSample, PartFrame, PartShape, PartShapeKind, RobotWorld, ServoLink, SlipArea, TerrainMesh, magnet_frame, robot_groups, wheel_frame};
 
 impl RobotWorld {
@@ -196,6 +196,13 @@ impl RobotWorld {
     /// The terrain's own surface straight below (x, z) and its normal, obstacles ignored.
     pub fn terrain_surface_below(&self, x: f32, z: f32) -> Option<(Vector, Vector)> {
         terrain_and_normal_below(&self.physics, self.terrain, x, z)
+    }
+
+    /// Which obstacle (its index in the scenario's `[[obstacles]]`) stands straight below or
+    /// above (x, z), if one does.
+    pub fn obstacle_at(&self, x: f32, z: f32) -> Option<usize> {
+        let ray = ray_down(x, z);
+        self.obstacles.iter().position(|&handle| self.physics.colliders.get(handle).is_some_and(|collider| collider.shape().intersects_ray(collider.position(), &ray, f32::MAX)))
     }
 
     /// How far along `direction` (unit) from `origin` the nearest surface of the terrain or an
