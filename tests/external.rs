@@ -218,6 +218,9 @@ fn a_controller_that_cannot_start_is_one_clear_line() {
         stderr.lines().filter(|l| !l.trim().is_empty()).count() <= 2,
         "one clear line:\n{stderr}"
     );
+    // Nothing half-written is left behind (the recording had been started).
+    let left: Vec<_> = std::fs::read_dir(dir.join("out")).expect("out").filter_map(|e| e.ok()).map(|e| e.file_name()).filter(|n| n.to_string_lossy().ends_with(".tmp")).collect();
+    assert!(left.is_empty(), "{left:?}");
     // Under `check` it is a case that could not run: ERROR, and a JUnit <error>, not a
     // <failure> of the controller under test.
     let junit = dir.join("junit.xml");

@@ -117,3 +117,16 @@ fn a_late_viewer_gets_the_scene_transforms_images_and_time() {
     let robot = SceneUpdate::decode(&received["/scene/robot"][0].1[..]).expect("SceneUpdate");
     assert_eq!(robot.entities.iter().map(|e| e.cylinders.len()).sum::<usize>(), 4);
 }
+
+/// A Foxglove port that is taken is one clear error before the run, and leaves no half-written
+/// recording behind.
+#[test]
+fn a_taken_port_is_refused_and_leaves_no_litter() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let port = taken.local_addr().expect("addr").port();
+    let out = support::scratch_dir("foxglove-taken").join("run");
+    let output = support::climbsim(&["run", "scenarios/flat-line.toml", &format!("--foxglove=127.0.0.1:{port}"), "--out", &out.display().to_string()]);
+    assert_eq!(output.status.code(), Some(2), "{}", support::output_text(&output));
+    let left: Vec<_> = std::fs::read_dir(&out).map(|dir| dir.filter_map(|e| e.ok()).map(|e| e.file_name()).filter(|n| n.to_string_lossy().ends_with(".tmp")).collect()).unwrap_or_default();
+    assert!(left.is_empty(), "{left:?}");
+}

@@ -98,9 +98,32 @@ const PACKET_SCHEMA: &str = r#"{"type":"object","properties":{"t":{"type":"numbe
 const SERVO_REGISTERS: &[&str] = &["torque_enable", "goal_velocity", "present_velocity", "present_position", "present_current", "present_input_voltage", "present_temperature", "hardware_error_status"];
 
 struct Recording {
-    writer: McapWriterHandle<BufWriter<File>>,
+    /// Taken when the recording is finished (closed and renamed).
+    writer: Option<McapWriterHandle<BufWriter<File>>>,
     temporary: PathBuf,
     path: PathBuf,
+}
+
+impl Recording {
+    /// Close the file and give it its final name.
+    fn finish(mut self) -> Result<(), ViewError> {
+        let error = |message: String| ViewError::Write { path: self.path.clone(), message };
+        if let Some(writer) = self.writer.take() {
+            writer.close().map_err(|e| error(e.to_string()))?;
+        }
+        std::fs::rename(&self.temporary, &self.path).map_err(|e| error(e.to_string()))
+    }
+}
+
+impl Drop for Recording {
+    /// Unfinished: the run failed to start, or failed before its outputs were written (the
+    /// Foxglove port was taken, the controller could not start): no `run.mcap.tmp` is left.
+    fn drop(&mut self) {
+        if let Some(writer) = self.writer.take() {
+            let _ = writer.close();
+            let _ = std::fs::remove_file(&self.temporary);
+        }
+    }
 }
 
 /// The scene messages a late subscriber is sent (see [`live`]).
@@ -339,10 +362,10 @@ impl View {
         if let Some(live) = self.live.take() {
             live.stop();
         }
-        let Some(Recording { writer, temporary, path }) = self.recording.take() else { return Ok(()) };
-        let error = |message: String| ViewError::Write { path: path.clone(), message };
-        writer.close().map_err(|e| error(e.to_string()))?;
-        std::fs::rename(&temporary, &path).map_err(|e| error(e.to_string()))
+        match self.recording.take() {
+            Some(recording) => recording.finish(),
+            None => Ok(()),
+        }
     }
 }
 
@@ -354,5 +377,5 @@ fn start_recording(context: &Arc<Context>, path: &Path) -> Result<Recording, Vie
     // A leftover of a killed run would make `create_new` fail.
     let _ = std::fs::remove_file(&temporary);
     let writer = McapWriter::new().context(context).create_new_buffered_file(&temporary).map_err(|e| error(e.to_string()))?;
-    Ok(Recording { writer, temporary, path: path.to_owned() })
+    Ok(Recording { writer: Some(writer), temporary, path: path.to_owned() })
 }
