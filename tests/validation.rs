@@ -60,6 +60,32 @@ fn a_bad_number_in_the_file_names_its_line() {
     assert_refused(&output, "duration_s = -1", &[&format!("negative.toml:{line}:"), "world.duration_s", "-1 s"]);
 }
 
+/// A mistake in the second of several `[[obstacles]]` or `[[welds]]` is named by its own key and
+/// line, not blamed on the first one's header (obstacles) or on `[line]` with no line (welds).
+#[test]
+fn a_bad_entry_in_an_array_of_tables_names_its_own_line_and_key() {
+    let dir = support::scratch_dir("validation-arrays");
+    let base = std::fs::read_to_string(repo().join("scenarios/flat-line.toml")).expect("flat-line.toml");
+    let obstacles = "\n[[obstacles]]\nkind = \"box\"\nat_m = [1.0, -0.05]\nsize_m = [0.1, 0.3, 0.6]\n\n[[obstacles]]\nkind = \"box\"\nat_m = [2.0, -0.05]\nsize_m = [0.1, 0.3, 0.6]\ncolour = 3\n";
+    let path = dir.join("obstacles.toml");
+    let written = format!("{base}{obstacles}");
+    std::fs::write(&path, &written).expect("write");
+    let line = written.lines().position(|l| l.starts_with("colour")).expect("colour") + 1;
+    let output = climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
+    assert_refused(&output, "unknown key in the second obstacle", &[&format!("obstacles.toml:{line}:"), "colour"]);
+
+    let welds = "\n[[welds]]\npoints = [[0.0, 1.0], [3.0, 1.0]]\n\n[[welds]]\npoints = [[0.0, 2.0], [0.0, 2.0]]\n";
+    let path = dir.join("welds.toml");
+    let written = format!("{base}{welds}");
+    std::fs::write(&path, &written).expect("write");
+    let line = written.lines().position(|l| l.starts_with("points = [[0.0, 2.0]")).expect("second weld") + 1;
+    let output = climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
+    assert_refused(&output, "a second weld of one point", &["welds[1]", "welds.toml:"]);
+    let all = text(&output);
+    let reported: usize = all.split("welds.toml:").nth(1).and_then(|rest| rest.split(':').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("no line in {all}"));
+    assert!((line - 1..=line).contains(&reported), "the second weld is at line {line} (its header just above), reported {reported}: {all}");
+}
+
 #[test]
 fn a_fault_beyond_any_run_or_on_a_missing_servo_is_refused() {
     let out = support::scratch_dir("bad-fault").join("out").display().to_string();

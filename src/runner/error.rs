@@ -21,8 +21,9 @@ pub enum RunError {
     View(#[from] crate::runner::view::ViewError),
     #[error(transparent)]
     Sim(#[from] SimError),
-    #[error("scenario {path}: [line]: {source}")]
-    Line { path: PathBuf, source: WeldLineError },
+    /// A weld (`line`, or `welds[i]`) that cannot be drawn, at its line in the file.
+    #[error("scenario {path}{}: {weld}: {source}", .line.map_or(String::new(), |l| format!(":{l}")))]
+    Line { path: PathBuf, line: Option<usize>, weld: String, source: WeldLineError },
     #[error("scenario {path}: [camera]: {message}")]
     Camera { path: PathBuf, message: String },
     #[error("scenario {path}: {message}")]

@@ -14,8 +14,11 @@ use thiserror::Error;
 /// The largest obstacle dimension accepted (m): anything larger is a terrain, not an obstacle.
 pub const MAX_OBSTACLE_M: f32 = 100.0;
 
+/// Read and written as one flat table ([`ObstacleTable`]), not as an internally tagged enum:
+/// serde buffers a tagged enum's fields, and then a mistake in the third `[[obstacles]]` is
+/// blamed on the first one's header with no key; a plain table keeps every key's line.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(try_from = "ObstacleTable", into = "ObstacleTable")]
 pub enum ObstacleSpec {
     /// A box of `size_m` = [length along x, height, width along z] before its yaw.
     Box {
@@ -34,6 +37,74 @@ pub enum ObstacleSpec {
         #[serde(default)]
         yaw_deg: f32,
     },
+}
+
+/// The kinds of obstacle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObstacleKind {
+    Box,
+    Cylinder,
+}
+
+/// An `[[obstacles]]` table as written: every kind's keys, each kind taking its own.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleTable {
+    pub kind: ObstacleKind,
+    pub at_m: [f32; 2],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size_m: Option<[f32; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius_m: Option<f32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub length_m: Option<f32>,
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub lying: bool,
+    #[serde(default)]
+    pub yaw_deg: f32,
+}
+
+impl TryFrom<ObstacleTable> for ObstacleSpec {
+    type Error = String;
+
+    fn try_from(table: ObstacleTable) -> Result<Self, String> {
+        let ObstacleTable { kind, at_m, size_m, radius_m, length_m, lying, yaw_deg } = table;
+        let not_for = |key: &str, kind: &str| Err(format!("`{key}` is not a key of a {kind} obstacle"));
+        match kind {
+            ObstacleKind::Box => {
+                if radius_m.is_some() {
+                    return not_for("radius_m", "box");
+                }
+                if length_m.is_some() {
+                    return not_for("length_m", "box");
+                }
+                if lying {
+                    return not_for("lying", "box");
+                }
+                let size_m = size_m.ok_or("a box obstacle needs `size_m` = [length, height, width]")?;
+                Ok(Self::Box { at_m, size_m, yaw_deg })
+            }
+            ObstacleKind::Cylinder => {
+                if size_m.is_some() {
+                    return not_for("size_m", "cylinder");
+                }
+                let (Some(radius_m), Some(length_m)) = (radius_m, length_m) else {
+                    return Err("a cylinder obstacle needs `radius_m` and `length_m`".to_owned());
+                };
+                Ok(Self::Cylinder { at_m, radius_m, length_m, lying, yaw_deg })
+            }
+        }
+    }
+}
+
+impl From<ObstacleSpec> for ObstacleTable {
+    fn from(spec: ObstacleSpec) -> Self {
+        match spec {
+            ObstacleSpec::Box { at_m, size_m, yaw_deg } => Self { kind: ObstacleKind::Box, at_m, size_m: Some(size_m), radius_m: None, length_m: None, lying: false, yaw_deg },
+            ObstacleSpec::Cylinder { at_m, radius_m, length_m, lying, yaw_deg } => Self { kind: ObstacleKind::Cylinder, at_m, size_m: None, radius_m: Some(radius_m), length_m: Some(length_m), lying, yaw_deg },
+        }
+    }
 }
 
 #[derive(Debug, Error, PartialEq)]
@@ -114,6 +185,12 @@ mod tests {
         assert!(matches!(pipe, ObstacleSpec::Cylinder { lying: true, .. }));
         assert!(parse("kind = \"box\"\nat_m = [0, 0]\nsize_m = [0.1, 0.1, 0.1]\ncolour = 1").is_err());
         assert!(parse("kind = \"sphere\"\nat_m = [0, 0]").is_err());
+        let error = parse("kind = \"box\"\nat_m = [0, 0]\nradius_m = 0.1\nsize_m = [0.1, 0.1, 0.1]").expect_err("a box has no radius");
+        assert!(error.to_string().contains("`radius_m` is not a key of a box obstacle"), "{error}");
+        assert!(parse("kind = \"cylinder\"\nat_m = [0, 0]\nradius_m = 0.1").expect_err("no length").to_string().contains("needs `radius_m` and `length_m`"));
+        // Written back as it was read.
+        let text = toml::to_string(&pipe).expect("serialise");
+        assert_eq!(parse(&text).expect("again"), pipe);
     }
 
     #[test]

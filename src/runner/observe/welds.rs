@@ -7,6 +7,7 @@ use rapier3d::prelude::Vector;
 use serde_json::{Value, json};
 
 use crate::runner::RunError;
+use crate::scenario::validate::{KeyPart, Problem};
 use crate::scenario::{LineSection, MAX_WELDS, Scenario};
 use crate::sim::line::{LineError as WeldLineError, LineSample};
 use crate::sim::terrain::UnrolledProfile;
@@ -53,7 +54,11 @@ impl Welds {
     pub fn new(scenario: &Scenario, world: &RobotWorld) -> Result<Self, RunError> {
         let sheet = UnrolledProfile::of(&scenario.terrain);
         let sections: Vec<&LineSection> = scenario.line.iter().chain(&scenario.welds).collect();
-        let lines = sections.iter().map(|l| build_line(&l.points, l.smoothness, l.width_m, 0.0, surface(&sheet, world))).collect::<Result<Vec<_>, _>>().map_err(|source| RunError::Line { path: scenario.path.clone(), source })?;
+        let lines = sections
+            .iter()
+            .enumerate()
+            .map(|(index, l)| build_line(&l.points, l.smoothness, l.width_m, 0.0, surface(&sheet, world)).map_err(|source| weld_error(&scenario.path, index, source)))
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(Self { lines, points: sections.iter().map(|l| l.points.clone()).collect(), sheet })
     }
 
@@ -82,9 +87,9 @@ impl Welds {
             .lines
             .iter()
             .zip(&self.points)
-            .map(|(line, points)| build_line(points, line.smoothness(), line.width_m(), offset_m, surface(&self.sheet, world)))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|source| RunError::Line { path: scenario_path.to_owned(), source })?;
+            .enumerate()
+            .map(|(index, (line, points))| build_line(points, line.smoothness(), line.width_m(), offset_m, surface(&self.sheet, world)).map_err(|source| weld_error(scenario_path, index, source)))
+            .collect::<Result<Vec<_>, _>>()?;
         self.lines = moved;
         Ok(())
     }
@@ -138,6 +143,18 @@ impl Welds {
             .collect();
         json!({ "welds": welds })
     }
+}
+
+/// Weld `index` (0: `[line]`, then `[[welds]]` in order) could not be drawn: named as its key,
+/// at its line in the scenario file.
+fn weld_error(scenario_path: &Path, index: usize, source: WeldLineError) -> RunError {
+    let key = match index {
+        0 => vec![KeyPart::Key("line".to_owned())],
+        n => vec![KeyPart::Key("welds".to_owned()), KeyPart::Index(n - 1)],
+    };
+    let problem = Problem { key, message: source.to_string() };
+    let line = std::fs::read_to_string(scenario_path).ok().and_then(|text| problem.line_in(&text));
+    RunError::Line { path: scenario_path.to_owned(), line, weld: problem.key_text(), source }
 }
 
 fn build_line(points: &[[f32; 2]], smoothness: u32, width_m: f32, offset_m: f64, surface: &dyn Surface) -> Result<WeldLine, WeldLineError> {
