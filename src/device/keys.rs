@@ -22,7 +22,7 @@ macro_rules! item_keys {
 item_keys!(
     model_number, model_information, firmware_version, id, baud_rate, return_delay_time, drive_mode,
     operating_mode, secondary_id, protocol_type, homing_offset, moving_threshold, temperature_limit,
-    max_voltage_limit, min_voltage_limit, pwm_limit, current_limit,
+    max_voltage_limit, min_voltage_limit, pwm_limit, current_limit, velocity_limit,
     startup_configuration, shutdown, torque_enable, status_return_level,
     registered_instruction, hardware_error_status, velocity_i_gain, velocity_p_gain, position_d_gain,
     position_i_gain, position_p_gain, feedforward_2nd_gain, feedforward_1st_gain, bus_watchdog, goal_pwm,

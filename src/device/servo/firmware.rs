@@ -102,7 +102,10 @@ impl Servo {
             return self.last_drive;
         }
         let duty = self.control_duty(dt);
-        let pwm_limit = self.get(self.keys.pwm_limit) as f64 * self.units.percent_per_pwm / 100.0;
+        // Goal PWM is the output in PWM mode and a limit on it in every other mode (e-manual,
+        // Goal PWM(100)); PWM Limit bounds both.
+        let limit_units = self.get(self.keys.pwm_limit).min(self.get(self.keys.goal_pwm).abs());
+        let pwm_limit = limit_units as f64 * self.units.percent_per_pwm / 100.0;
         self.last_duty = duty.clamp(-pwm_limit, pwm_limit);
         self.last_drive = self.motor.drive(self.direction() * self.last_duty, self.supply_voltage_v);
         self.last_drive
@@ -250,8 +253,11 @@ impl Servo {
         let keys = self.keys;
         let (velocity_limit, accel) = match self.loops.planned_velocity {
             Some(plan) => plan,
+            // Velocity Limit bounds Profile Velocity (e-manual, Velocity Limit(44)). The register
+            // takes 0..32 767 (it is a time in ms with a time-based profile), so a larger value
+            // is accepted and the profile cruises at the limit.
             None => (
-                self.units.pulses_per_s(self.get(keys.profile_velocity) as f64),
+                self.units.pulses_per_s(self.get(keys.profile_velocity).min(self.get(keys.velocity_limit)) as f64),
                 self.units.pulses_per_s2(self.get(keys.profile_acceleration) as f64),
             ),
         };
@@ -263,7 +269,20 @@ impl Servo {
             loops.trajectory_velocity = 0.0;
             loops.profile_ongoing = false;
             loops.profile_type = 0;
+            loops.profile_goal = None;
             return;
+        }
+        // The profile's type is the whole move's (triangular only when the move is too short to
+        // reach the profile velocity), classified when the goal is new, not as it runs out.
+        if loops.profile_goal != Some(goal) {
+            loops.profile_goal = Some(goal);
+            loops.profile_type = if accel <= 0.0 {
+                1
+            } else if velocity_limit * velocity_limit / accel > remaining.abs() {
+                2
+            } else {
+                3
+            };
         }
         let direction = remaining.signum();
         let mut speed = loops.trajectory_velocity * direction;
@@ -278,13 +297,6 @@ impl Servo {
             loops.trajectory_position = goal;
             loops.trajectory_velocity = 0.0;
         }
-        loops.profile_type = if accel <= 0.0 {
-            1
-        } else if velocity_limit * velocity_limit / accel > remaining.abs() + step {
-            2
-        } else {
-            3
-        };
     }
 
     pub(super) fn update_thermal(&mut self, current_a: f64, dt: f64) {

@@ -160,8 +160,11 @@ struct LoopState {
     previous_position_error: f64,
     previous_trajectory_velocity: f64,
     profile_ongoing: bool,
-    /// Moving Status bits 4-5: 0 none, 1 rectangular, 2 triangular, 3 trapezoidal.
+    /// Moving Status bits 4-5: 0 none, 1 rectangular, 2 triangular, 3 trapezoidal; a property
+    /// of the whole move, classified when it is planned.
     profile_type: i64,
+    /// The goal the position profile's type was classified for.
+    profile_goal: Option<f64>,
 }
 
 /// One emulated servo.

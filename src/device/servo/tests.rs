@@ -135,3 +135,63 @@ fn reverse_drive_mode_flips_present_position() {
     assert!((read_i32(&mut s, 132) - 500).abs() <= 5);
     assert!(load.state().position_rad < 0.0, "the shaft turned the other way");
 }
+
+/// Moves in position mode, sampling a register every 10 ms until the move has ended.
+fn sample_move(s: &mut Servo, load: &mut BenchLoad, goal: i32, address: u16, length: u16, seconds: f64) -> Vec<i64> {
+    let mut now = Duration::from_secs(1);
+    write(s, now, 116, &goal.to_le_bytes()).unwrap();
+    let mut samples = Vec::new();
+    for _ in 0..(seconds / 0.01) as usize {
+        now = run(s, load, now, 0.01);
+        let bytes = s.handle(now, Request::Read { address, length }, Addressing::default()).reply.unwrap();
+        samples.push(crate::device::decode_item(&bytes, true));
+    }
+    samples
+}
+
+/// A servo in position mode with torque on, at rest at its start.
+fn positioned(extra: &[(u16, Vec<u8>)]) -> (Servo, BenchLoad) {
+    let mut s = servo();
+    let mut load = BenchLoad::new(0.0);
+    for (address, data) in extra {
+        write(&mut s, Duration::ZERO, *address, data).unwrap();
+    }
+    write(&mut s, Duration::ZERO, 64, &[1]).unwrap();
+    run(&mut s, &mut load, Duration::ZERO, 1.0);
+    (s, load)
+}
+
+/// e-manual, Goal PWM(100): outside PWM mode it limits the PWM output (it was ignored: 623-683
+/// through such a move).
+#[test]
+fn goal_pwm_limits_the_output_in_position_mode() {
+    let (mut s, mut load) = positioned(&[(112, 100i32.to_le_bytes().to_vec()), (100, 45i16.to_le_bytes().to_vec())]);
+    let pwm = sample_move(&mut s, &mut load, 1500, 124, 2, 1.0);
+    let largest = pwm.iter().map(|p| p.abs()).max().unwrap();
+    assert!(largest <= 45 && largest >= 40, "Present PWM up to {largest} with Goal PWM 45");
+}
+
+/// e-manual, Velocity Limit(44): it bounds Profile Velocity; the move cruises at the limit (it
+/// ran at Profile Velocity 100 under a limit of 60).
+#[test]
+fn profile_velocity_is_bounded_by_velocity_limit() {
+    let (mut s, mut load) = positioned(&[(44, 60i32.to_le_bytes().to_vec()), (112, 100i32.to_le_bytes().to_vec())]);
+    let trajectory = sample_move(&mut s, &mut load, 1500, 136, 4, 2.0);
+    let fastest = trajectory.iter().map(|v| v.abs()).max().unwrap();
+    assert_eq!(fastest, 60, "the profile's velocity (Velocity Trajectory) peaks at {fastest}");
+}
+
+/// Moving Status bits 4-5 name the whole move's profile: a move long enough to reach Profile
+/// Velocity is trapezoidal to its end (it turned triangular 358 pulses before the goal).
+#[test]
+fn moving_status_keeps_the_moves_profile_type() {
+    let (mut s, mut load) = positioned(&[(108, 10i32.to_le_bytes().to_vec()), (112, 60i32.to_le_bytes().to_vec())]);
+    let status = sample_move(&mut s, &mut load, 2000, 123, 1, 3.5);
+    let during: Vec<i64> = status.iter().filter(|&&st| st & 0x02 != 0).map(|&st| (st >> 4) & 0x03).collect();
+    assert!(during.len() > 100, "the profile ran {} samples", during.len());
+    assert!(during.iter().all(|&kind| kind == 3), "profile types during the move: {during:?}");
+    // A short move cannot reach it: triangular from its start.
+    let status = sample_move(&mut s, &mut load, 2200, 123, 1, 1.0);
+    let during: Vec<i64> = status.iter().filter(|&&st| st & 0x02 != 0).map(|&st| (st >> 4) & 0x03).collect();
+    assert!(!during.is_empty() && during.iter().all(|&kind| kind == 2), "profile types of a short move: {during:?}");
+}
