@@ -351,3 +351,32 @@ fn interrupted_check_and_sweep_write_what_they_have() {
     assert!(table.lines().nth(1).is_some_and(|row| row.contains("interrupted")), "{table}");
     assert!(table.lines().skip(2).all(|row| row.contains("not_run")), "{table}");
 }
+
+/// A 1 MB tmpfs, unmounted when dropped.
+struct TinyDisk(std::path::PathBuf);
+
+impl Drop for TinyDisk {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg(&self.0).status();
+    }
+}
+
+/// A disk that fills up while the outputs are written (the time series fits, the workbook does
+/// not) is a clear error, exit 2, with what was written kept: no panic in the xlsx writer.
+/// Needs root to mount a tmpfs: `scripts/test.sh` runs it where it is root.
+#[test]
+#[ignore = "needs root to mount a tmpfs; scripts/test.sh runs it as root"]
+fn a_full_disk_is_a_clear_error_keeping_what_was_written() {
+    let mount = support::scratch_dir("full-disk");
+    let mounted = Command::new("mount").args(["-t", "tmpfs", "-o", "size=1000k", "tmpfs"]).arg(&mount).status().expect("mount");
+    assert!(mounted.success(), "cannot mount a tmpfs at {}", mount.display());
+    let _disk = TinyDisk(mount.clone());
+    let out = mount.join("run");
+    let output = climbsim(&["run", "scenarios/flat-line.toml", "--set", "world.duration_s=20", "--set", "capture.mcap=false", "--set", "expect={}", "--out", &out.display().to_string()]);
+    let all = text(&output);
+    assert_eq!(output.status.code(), Some(2), "{all}");
+    assert!(!all.contains("panicked") && all.contains("No space left on device") && all.contains("report.xlsx"), "{all}");
+    for kept in ["timeseries.csv", "summary.json", "settings.json"] {
+        assert!(out.join(kept).is_file(), "{kept} was not kept: {all}");
+    }
+}

@@ -48,13 +48,43 @@ fn write_workbook_with_limit(out_dir: &Path, series: &Path, settings: &Value, su
     let rows = count_rows(series)?;
     write_atomically_at(&path, |temporary| {
         let workbook_error = |source| ReportError::Workbook { path: path.clone(), source };
-        let mut workbook = build_workbook(out_dir, series, (rows, max_rows), settings, summary).map_err(|error| match error {
-            Built::Xlsx(source) => workbook_error(source),
-            Built::Report(error) => error,
-        })?;
-        workbook.save(temporary).map_err(workbook_error)
+        without_panicking(&path, || {
+            let mut workbook = build_workbook(out_dir, series, (rows, max_rows), settings, summary).map_err(|error| match error {
+                Built::Xlsx(source) => workbook_error(source),
+                Built::Report(error) => error,
+            })?;
+            workbook.save(temporary).map_err(workbook_error)
+        })
     })?;
     Ok(path)
+}
+
+thread_local! {
+    /// Set while this thread runs the xlsx writer under [`without_panicking`].
+    static GUARDED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Run `write` and turn a panic in it into an error. rust_xlsxwriter panics when it cannot
+/// write its constant-memory sheet's temporary file (a full disk: "Couldn't write to xml
+/// file"); that is an I/O error of the run's outputs, not a crash. The panic is not printed: a
+/// hook installed once passes every other panic on to the one before it.
+fn without_panicking(path: &Path, write: impl FnOnce() -> Result<(), ReportError>) -> Result<(), ReportError> {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !GUARDED.with(std::cell::Cell::get) {
+                previous(info);
+            }
+        }));
+    });
+    GUARDED.with(|guarded| guarded.set(true));
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(write));
+    GUARDED.with(|guarded| guarded.set(false));
+    result.unwrap_or_else(|payload| {
+        let message = payload.downcast_ref::<String>().cloned().or_else(|| payload.downcast_ref::<&str>().map(|s| (*s).to_owned())).unwrap_or_else(|| "the xlsx writer failed".to_owned());
+        Err(ReportError::Io { path: path.to_owned(), source: std::io::Error::other(message) })
+    })
 }
 
 /// Rows of the CSV file at `path` (lines after the header that are not empty).
