@@ -87,8 +87,8 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
 
     // The robot's frame tree, at the view's 50 Hz: the middle section where the series puts
     // the robot, the wheels a track apart, each magnet pulling straight down on the flat floor.
-    let parents = ["map", "world", "middle", "front", "wheel_front_left", "front", "wheel_front_right", "middle", "wheel_rear_left", "middle", "wheel_rear_right"];
-    let children = ["world", "middle", "front", "wheel_front_left", "magnet_front_left", "wheel_front_right", "magnet_front_right", "wheel_rear_left", "magnet_rear_left", "wheel_rear_right", "magnet_rear_right"];
+    let parents = ["map", "world", "middle", "front", "wheel_front_left", "front", "wheel_front_right", "middle", "wheel_rear_left", "middle", "wheel_rear_right", "middle"];
+    let children = ["world", "middle", "front", "wheel_front_left", "magnet_front_left", "wheel_front_right", "magnet_front_right", "wheel_rear_left", "magnet_rear_left", "wheel_rear_right", "magnet_rear_right", "camera"];
     for (index, message) in by_topic["/tf"].iter().enumerate().step_by(25) {
         let transforms = FrameTransforms::decode(&message.data[..]).expect("FrameTransforms");
         let pairs: Vec<(&str, &str)> = transforms.transforms.iter().map(|f| (f.parent_frame_id.as_str(), f.child_frame_id.as_str())).collect();
@@ -102,7 +102,17 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
             let pull = in_world(magnet).rotation * -Vector::Y;
             assert!(pull.y < -0.99, "{magnet} pulls along {pull:?}, not down");
         }
+        // The camera's optical frame looks down, its image columns to the robot's right and its
+        // rows backward (row 0 is the forward edge).
+        let (camera, body) = (in_world("camera").rotation, in_world("middle").rotation);
+        assert!((camera * Vector::Z).y < -0.99, "the camera looks along {:?}", camera * Vector::Z);
+        assert!((camera * Vector::X).dot(body * Vector::Z) > 0.99 && (camera * Vector::Y).dot(body * -Vector::X) > 0.99);
     }
+    // Each image comes with its calibration, in the camera's frame: Foxglove can place it in 3D.
+    let calibrations = &by_topic["/camera/calibration"];
+    assert_eq!(calibrations.len(), by_topic["/camera/image"].len());
+    let calibration = foxglove::messages::CameraCalibration::decode(&calibrations[0].data[..]).expect("CameraCalibration");
+    assert!(calibration.frame_id == "camera" && calibration.k[0] > 0.0 && calibration.width > 0, "{calibration:?}");
 
     // The scene: the terrain as an indexed mesh, the line's stripe just above it, the robot's
     // boxes and wheels, and one arrow per magnet as long as its pull.
@@ -160,7 +170,7 @@ fn shipped_layout_names_only_what_the_recording_has(by_topic: &BTreeMap<String, 
         // old `title`): every panel is named the one way.
         assert!(config["foxglovePanelTitle"].is_string() && config.get("title").is_none(), "{id} has no foxglovePanelTitle");
         topics.extend(config["topics"].as_object().into_iter().flat_map(|t| t.keys().cloned()));
-        topics.extend([&config["imageMode"]["imageTopic"], &config["topicToRender"]].into_iter().filter_map(|v| v.as_str().map(str::to_owned)));
+        topics.extend([&config["imageMode"]["imageTopic"], &config["imageMode"]["calibrationTopic"], &config["topicToRender"]].into_iter().filter_map(|v| v.as_str().map(str::to_owned)));
         fields.extend(config["paths"].as_array().into_iter().flatten().filter_map(|p| p["value"].as_str().map(str::to_owned)));
     }
     assert!(topics.len() >= 5 && fields.len() >= 10, "{topics:?} {fields:?}");

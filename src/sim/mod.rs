@@ -11,7 +11,7 @@ pub mod terrain;
 mod terrain_contacts;
 pub mod world;
 
-pub use world::{AdhesionSample, SurfaceFrame, magnet_frame, wheel_frame, PartFrame, PartShape, PartShapeKind, RobotWorld, TerrainMesh, SolverSettings, StartPose, WorldConfig, WorldError};
+pub use world::{CAMERA_FRAME, AdhesionSample, SurfaceFrame, magnet_frame, wheel_frame, PartFrame, PartShape, PartShapeKind, RobotWorld, TerrainMesh, SolverSettings, StartPose, WorldConfig, WorldError};
 pub use camera::{Frame, LineCamera, LineCameraSettings};
 pub use detector::{DetectorSettings, LineDetector, LineMeasurement};
 pub use line::{LineProjection, Surface, WeldLine};

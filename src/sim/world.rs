@@ -274,6 +274,10 @@ pub fn magnet_frame(position: WheelPosition) -> String {
     format!("magnet_{}", position.name())
 }
 
+/// The camera's optical frame's name (see [`RobotWorld::camera_optical_pose`]): the frame of its
+/// images.
+pub const CAMERA_FRAME: &str = "camera";
+
 /// A named frame of the robot and its pose relative to its parent frame (see
 /// [`RobotWorld::part_frames`]).
 #[derive(Debug, Clone, PartialEq)]

@@ -45,13 +45,14 @@ impl Sensors {
         if welds.is_empty() {
             return None;
         }
+        let half_height_m = self.camera.settings().orthographic_size_m;
         if let Some(frame) = self.camera.render(world.camera_pose(), welds.lines(), t) {
             self.latest = Some(self.detector.detect(frame));
             self.frames_seen += 1;
             if let Some(view) = view {
                 // The recording's chunks are compressed again (zstd): the fastest PNG will do.
                 match frame.to_png_with(png::Compression::Fastest) {
-                    Ok(png) => view.image(frame.t, png),
+                    Ok(png) => view.image(frame.t, png, (frame.width, frame.height), half_height_m),
                     Err(error) => tracing::warn!(%error, "camera frame not recorded"),
                 }
             }

@@ -11,7 +11,7 @@ use crate::bus::Bus;
 use crate::device::Servo;
 use crate::robot::WheelPosition;
 use crate::runner::RunError;
-use crate::runner::view::{View, ViewOptions};
+use crate::runner::view::{Setup, View, ViewOptions};
 use crate::sim::{RobotWorld, magnet_frame};
 
 use super::capture::COLUMNS;
@@ -36,7 +36,10 @@ impl ViewFeed {
     /// robot's shapes are sent at once.
     pub fn start(options: &ViewOptions, world: &RobotWorld, welds: &Welds, servo_names: Vec<(u8, String)>, has_lidar: bool, scenario_path: &Path) -> Result<Self, RunError> {
         let names: Vec<String> = servo_names.iter().map(|(_, name)| name.clone()).collect();
-        let view = View::start(options, COLUMNS, &names, has_lidar)?;
+        let camera = world.camera_pose().translation;
+        let camera_distance_m = world.surface_below(camera.x, camera.z).map_or(world.robot().camera.position_m[1], |(ground, _)| camera.y - ground.y);
+        let setup = Setup { columns: COLUMNS, servo_names: &names, has_lidar, tyre_radius_m: world.robot().wheel.outer_radius_m, camera_distance_m };
+        let view = View::start(options, &setup)?;
         view.terrain(Duration::ZERO, world, &welds.samples());
         view.robot(Duration::ZERO, world);
         view.log(Duration::ZERO, LogLevel::Info, format!("{}: the run starts", scenario_path.display()));

@@ -35,7 +35,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use foxglove::messages::log::Level as LogLevel;
-use foxglove::messages::{CompressedImage, FrameTransform, FrameTransforms, LaserScan, Log, Quaternion, SceneUpdate, Timestamp, Vector3};
+use foxglove::messages::{CameraCalibration, CompressedImage, FrameTransform, FrameTransforms, LaserScan, Log, Quaternion, SceneUpdate, Timestamp, Vector3};
 use foxglove::{Channel, ChannelBuilder, Context, McapWriter, McapWriterHandle, PartialMetadata, RawChannel, Schema};
 use thiserror::Error;
 
@@ -47,7 +47,7 @@ use crate::bus::transaction_json;
 use crate::device::Servo;
 use crate::scenario::CaptureSection;
 use crate::sim::lidar::LidarScan;
-use crate::sim::{PartFrame, RobotWorld};
+use crate::sim::{CAMERA_FRAME, PartFrame, RobotWorld};
 use crate::sim::line::LineSample;
 
 /// The recording's file name in a run's output folder.
@@ -140,6 +140,7 @@ struct Channels {
     robot: Channel<SceneUpdate>,
     magnets: Channel<SceneUpdate>,
     image: Channel<CompressedImage>,
+    calibration: Channel<CameraCalibration>,
     /// Only when the robot has a LIDAR: a channel is advertised to every viewer.
     lidar: Option<Channel<LaserScan>>,
     log: Channel<Log>,
@@ -161,6 +162,24 @@ pub struct View {
     in_scenario_units: Vec<(usize, String, f64)>,
     /// JSON reused message after message.
     json: String,
+    tyre_radius_m: f32,
+    camera_distance_m: f32,
+}
+
+/// What a view needs to know of the run it shows.
+#[derive(Debug, Clone, Copy)]
+pub struct Setup<'a> {
+    /// The values of each [`View::signals`] row.
+    pub columns: &'a [&'static str],
+    /// The servos of [`View::servos`], in bus order.
+    pub servo_names: &'a [String],
+    /// `/lidar` exists only with a LIDAR.
+    pub has_lidar: bool,
+    /// The wheels' outer radius: the magnets' arrows start outside the tyre.
+    pub tyre_radius_m: f32,
+    /// How far below the camera the ground is at the start: its calibration's focal length makes
+    /// its orthographic image the right size there.
+    pub camera_distance_m: f32,
 }
 
 /// The signals `/signals` also carries in the units scenarios are written in (`d_mm`,
@@ -195,10 +214,10 @@ fn json_channel(context: &Arc<Context>, topic: &str, schema_name: &str, schema: 
 }
 
 impl View {
-    /// Start showing a run: `columns` name the values of each [`View::signals`] row, `servo_names`
-    /// the servos of [`View::servos`] in bus order; `/lidar` exists only if `has_lidar`. Nothing
-    /// is sent until [`View::terrain`] and [`View::robot`].
-    pub fn start(options: &ViewOptions, columns: &[&'static str], servo_names: &[String], has_lidar: bool) -> Result<Self, ViewError> {
+    /// Start showing a run (see [`Setup`]). Nothing is sent until [`View::terrain`] and
+    /// [`View::robot`].
+    pub fn start(options: &ViewOptions, setup: &Setup<'_>) -> Result<Self, ViewError> {
+        let Setup { columns, servo_names, has_lidar, tyre_radius_m, camera_distance_m } = *setup;
         let in_scenario_units: Vec<(usize, String, f64)> = SIGNALS_IN_SCENARIO_UNITS
             .iter()
             .filter_map(|&name| Some((columns.iter().position(|c| *c == name)?, crate::report::units::in_shown_unit(name)?)))
@@ -215,6 +234,7 @@ impl View {
             robot: ChannelBuilder::new("/scene/robot").context(&context).build(),
             magnets: ChannelBuilder::new("/scene/magnets").context(&context).build(),
             image: ChannelBuilder::new("/camera/image").context(&context).build(),
+            calibration: ChannelBuilder::new("/camera/calibration").context(&context).build(),
             lidar: has_lidar.then(|| ChannelBuilder::new("/lidar").context(&context).build()),
             log: ChannelBuilder::new("/log").context(&context).build(),
             signals: json_channel(&context, "/signals", "climbsim.Signals", signals_schema(&schema_names)).map_err(error)?,
@@ -223,7 +243,7 @@ impl View {
         });
         let latest = Arc::new(Mutex::new(LatestScene::default()));
         let live = options.live.as_ref().map(|address| LiveServer::start(&context, address, Arc::clone(&channels), Arc::clone(&latest))).transpose()?;
-        Ok(Self { _context: context, recording, live, channels, latest, columns: columns.to_vec(), in_scenario_units, json: String::new() })
+        Ok(Self { _context: context, recording, live, channels, latest, columns: columns.to_vec(), in_scenario_units, json: String::new(), tyre_radius_m, camera_distance_m })
     }
 
     /// Where a live viewer connects (`ws://…`), when the view is live.
@@ -259,16 +279,18 @@ impl View {
             rotation: Some(scene::quaternion(frame.pose.rotation)),
         }));
         self.channels.transforms.log_with_time(&FrameTransforms { transforms }, nanos(t));
-        self.channels.magnets.log_with_time(&scene::magnet_arrows(timestamp(t), magnet_pulls, WEAK_MAGNET_N), nanos(t));
+        self.channels.magnets.log_with_time(&scene::magnet_arrows(timestamp(t), magnet_pulls, WEAK_MAGNET_N, self.tyre_radius_m), nanos(t));
         if let Some(live) = &self.live {
             live.broadcast_time(nanos(t));
         }
     }
 
-    /// A camera frame taken at `t`, PNG-encoded.
-    pub fn image(&self, t: Duration, png: Vec<u8>) {
-        let message = CompressedImage { timestamp: Some(timestamp(t)), frame_id: "camera".to_owned(), data: png.into(), format: "png".to_owned() };
+    /// A camera frame taken at `t`, PNG-encoded, `width` × `height` pixels seeing `2 ×
+    /// half_height_m` forward, and its calibration.
+    pub fn image(&self, t: Duration, png: Vec<u8>, (width, height): (u32, u32), half_height_m: f32) {
+        let message = CompressedImage { timestamp: Some(timestamp(t)), frame_id: CAMERA_FRAME.to_owned(), data: png.into(), format: "png".to_owned() };
         self.channels.image.log_with_time(&message, nanos(t));
+        self.channels.calibration.log_with_time(&scene::camera_calibration(timestamp(t), (width, height), half_height_m, self.camera_distance_m), nanos(t));
     }
 
     /// A LIDAR scan, in the middle section's frame at its mount.

@@ -5,7 +5,7 @@
 //! Everything here is in rapier's frame (y up); the recording's `map` → `world` transform turns
 //! it for Foxglove's z-up 3D panel.
 
-use foxglove::messages::{ArrowPrimitive, Color, CubePrimitive, CylinderPrimitive, Point3, Pose as FoxglovePose, Quaternion, SceneEntity, SceneUpdate, Timestamp, TriangleListPrimitive, Vector3};
+use foxglove::messages::{ArrowPrimitive, CameraCalibration, Color, CubePrimitive, CylinderPrimitive, Point3, Pose as FoxglovePose, Quaternion, SceneEntity, SceneUpdate, Timestamp, TriangleListPrimitive, Vector3};
 use rapier3d::prelude::{Pose, Rotation, Vector};
 
 use crate::sim::line::LineSample;
@@ -120,22 +120,44 @@ pub fn robot(timestamp: Timestamp, shapes: &[PartShape]) -> SceneUpdate {
 }
 
 /// One arrow per magnet (`magnet/<frame>`), in the magnet's frame along its −y (where it pulls),
-/// as long as its pull ([`ARROW_M_PER_N`]); red when the pull is under `weak_n`.
-pub fn magnet_arrows(timestamp: Timestamp, magnets: &[(String, f32)], weak_n: f32) -> SceneUpdate {
+/// as long as its pull ([`ARROW_M_PER_N`]); red when the pull is under `weak_n`. The magnet sits
+/// inside its wheel and pulls toward the steel the tyre stands on, so an arrow from the magnet
+/// would never leave the tyre: it stands on the wheel's far side instead, pointing the way the
+/// magnet pulls and ending on the tyre (`tyre_radius_m` from the axle).
+pub fn magnet_arrows(timestamp: Timestamp, magnets: &[(String, f32)], weak_n: f32, tyre_radius_m: f32) -> SceneUpdate {
     // The arrow primitive points along its pose's +x: a −90° turn about z takes +x to −y.
     let half = std::f64::consts::FRAC_1_SQRT_2;
-    let along_down = FoxglovePose { position: Some(Vector3 { x: 0.0, y: 0.0, z: 0.0 }), orientation: Some(Quaternion { x: 0.0, y: 0.0, z: -half, w: half }) };
     let entities = magnets
         .iter()
         .map(|(frame, force_n)| {
             let mut arrow = entity(timestamp, frame, &format!("magnet/{frame}"));
             let length = f64::from(force_n.max(0.0)) * ARROW_M_PER_N;
+            let above = FoxglovePose { position: Some(Vector3 { x: 0.0, y: f64::from(tyre_radius_m) + length, z: 0.0 }), orientation: Some(Quaternion { x: 0.0, y: 0.0, z: -half, w: half }) };
             let shade = if *force_n < weak_n { color(0.9, 0.1, 0.1, 1.0) } else { color(0.1, 0.8, 0.2, 1.0) };
-            arrow.arrows.push(ArrowPrimitive { pose: Some(along_down), shaft_length: length * 0.75, shaft_diameter: 0.004, head_length: length * 0.25, head_diameter: 0.01, color: Some(shade) });
+            arrow.arrows.push(ArrowPrimitive { pose: Some(above), shaft_length: length * 0.75, shaft_diameter: 0.004, head_length: length * 0.25, head_diameter: 0.01, color: Some(shade) });
             arrow
         })
         .collect();
     SceneUpdate { deletions: Vec::new(), entities }
+}
+
+/// The calibration of the orthographic downward camera as a pinhole that sees the same ground
+/// at `distance_m` below it: `width` × `height` pixels over `2 × half_height_m` forward, square
+/// pixels, the principal point at the image's centre. With it Foxglove places the image in 3D.
+pub fn camera_calibration(timestamp: Timestamp, (width, height): (u32, u32), half_height_m: f32, distance_m: f32) -> CameraCalibration {
+    let focal_px = f64::from(distance_m) * f64::from(height) / (2.0 * f64::from(half_height_m));
+    let (cx, cy) = (f64::from(width) / 2.0, f64::from(height) / 2.0);
+    CameraCalibration {
+        timestamp: Some(timestamp),
+        frame_id: crate::sim::CAMERA_FRAME.to_owned(),
+        width,
+        height,
+        distortion_model: "plumb_bob".to_owned(),
+        d: vec![0.0; 5],
+        k: vec![focal_px, 0.0, cx, 0.0, focal_px, cy, 0.0, 0.0, 1.0],
+        r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: vec![focal_px, 0.0, cx, 0.0, 0.0, focal_px, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+    }
 }
 
 #[cfg(test)]
@@ -181,10 +203,24 @@ mod tests {
     }
 
     #[test]
+    fn the_calibration_makes_the_image_the_size_it_sees_on_the_ground() {
+        // 256 px over 0.2 m forward, the ground 0.15 m below: a pinhole of 192 px focal length.
+        let calibration = camera_calibration(at_zero(), (256, 256), 0.1, 0.15);
+        assert!((calibration.k[0] - 192.0).abs() < 1e-3 && calibration.k[0] == calibration.k[4], "{:?}", calibration.k);
+        assert_eq!((calibration.k[2], calibration.k[5]), (128.0, 128.0));
+        // A point 0.1 m ahead on the ground (image up = -y) projects onto the image's top row.
+        let v = calibration.k[4] * (-0.1) / 0.15 + calibration.k[5];
+        assert!(v.abs() < 1e-3, "{v}");
+    }
+
+    #[test]
     fn an_arrow_is_as_long_as_its_magnet_pulls_and_red_when_weak() {
-        let update = magnet_arrows(at_zero(), &[("magnet_front_left".to_owned(), 80.0), ("magnet_rear_left".to_owned(), 5.0)], 20.0);
+        let update = magnet_arrows(at_zero(), &[("magnet_front_left".to_owned(), 80.0), ("magnet_rear_left".to_owned(), 5.0)], 20.0, 0.05);
         let arrow = |i: usize| update.entities[i].arrows[0];
         assert!((arrow(0).shaft_length + arrow(0).head_length - 0.04).abs() < 1e-9);
+        // Outside the tyre: from 0.05 + 0.04 m on the far side down to the tyre at 0.05 m.
+        let start = arrow(0).pose.and_then(|p| p.position).unwrap_or_default();
+        assert!((start.y - 0.09).abs() < 1e-6, "{start:?}");
         assert!(arrow(1).color.unwrap_or_default().r > 0.5 && arrow(0).color.unwrap_or_default().r < 0.5);
     }
 }

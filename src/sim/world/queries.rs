@@ -9,9 +9,14 @@ use crate::device::ShaftLoad;
 use crate::robot::WheelPosition;
 
 use super::measure::{joint_rate, ray_down, surface_below, terrain_and_normal_below};
-use super::{AdhesionSample, PartFrame, PartShape, PartShapeKind, RobotWorld, ServoLink, SlipArea, TerrainMesh, magnet_frame, robot_groups, wheel_frame};
+use super::{CAMERA_FRAME, AdhesionSample, PartFrame, PartShape, PartShapeKind, RobotWorld, ServoLink, SlipArea, TerrainMesh, magnet_frame, robot_groups, wheel_frame};
 
 impl RobotWorld {
+    /// The robot description the world was built from.
+    pub fn robot(&self) -> &crate::robot::RobotDescription {
+        &self.robot
+    }
+
     pub fn time(&self) -> Duration {
         self.time
     }
@@ -137,7 +142,17 @@ impl RobotWorld {
             frames.push(PartFrame { name: wheel_frame(position), parent: section_name(parts.section).to_owned(), pose: section.inv_mul(&wheel) });
             frames.push(PartFrame { name: magnet_frame(position), parent: wheel_frame(position), pose: wheel.inv_mul(&magnet) });
         }
+        frames.push(PartFrame { name: CAMERA_FRAME.to_owned(), parent: "middle".to_owned(), pose: self.camera_optical_pose() });
         frames
+    }
+
+    /// The camera's optical frame in the middle section's, as image viewers take it: +z where
+    /// it looks (the body's down), +x the image's columns (the body's right, +z), +y its rows
+    /// (row 0 is the body's forward edge, so +y is the body's back, -x).
+    pub fn camera_optical_pose(&self) -> Pose {
+        let [x, y, z] = self.robot.camera.position_m;
+        let optical = Rotation::from_mat3(&rapier3d::math::Matrix::from_cols(Vector::Z, -Vector::X, -Vector::Y));
+        Pose::from_parts(Vector::new(x, y, z), optical)
     }
 
     /// The obstacles' shapes for viewers, in `world`: boxes, and cylinders about their pose's z.
