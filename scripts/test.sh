@@ -9,6 +9,14 @@ set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$repo"
 
+# How long each stage took, printed at the end (the 12-minute budget is spent somewhere).
+stages=()
+stage_started=$SECONDS
+stage_done() {
+    stages+=("$(printf '%4d s  %s' $((SECONDS - stage_started)) "$1")")
+    stage_started=$SECONDS
+}
+
 venv="$repo/.venv"
 stamp="$venv/.requirements.sha256"
 want="$(sha256sum tests/sdk/requirements.txt | cut -d' ' -f1)"
@@ -19,6 +27,7 @@ if [[ ! -x "$venv/bin/python" || "$(cat "$stamp" 2>/dev/null)" != "$want" ]]; th
     echo "$want" > "$stamp"
 fi
 export CLIMBSIM_PYTHON="$venv/bin/python"
+stage_done "the SDK's venv"
 
 # --speed N runs external controllers under libfaketime (LD_PRELOAD); the tests use it.
 if ! compgen -G "/usr/lib/*/faketime/libfaketimeMT.so.1" > /dev/null && [[ -z "${CLIMBSIM_LIBFAKETIME:-}" ]]; then
@@ -32,8 +41,12 @@ if ! compgen -G "/usr/lib/*/faketime/libfaketimeMT.so.1" > /dev/null && [[ -z "$
     fi
 fi
 
+stage_done "libfaketime"
 echo "==> cargo test"
+cargo test --locked --no-run "$@"
+stage_done "cargo test: build"
 cargo test --locked "$@"
+stage_done "cargo test: run"
 
 # A disk that fills while a run writes its outputs needs a small tmpfs, which only root can
 # mount (tests/cli_run.rs, #[ignore]d): run it where we are root, say so where we are not.
@@ -43,14 +56,18 @@ if [[ $(id -u) == 0 ]]; then
 else
     echo "==> not run: a_full_disk_is_a_clear_error_keeping_what_was_written (needs root to mount a tmpfs)"
 fi
+stage_done "the full-disk test"
 
 # The external scenarios run the reference Python controller (hil/controllers/line_follower.py)
 # with the venv's official SDK. At 1x, with the pace tolerance at 16 ms (the delivery delay a
 # real U2D2 adds at its default latency timer): the 57600-baud variant, whose bus is 83 % busy,
 # once had its replies p99 14.8 ms late at 2x on this 2-core machine, and a CI run must not fail
 # on the machine's noise (docs/external-controllers.md#speed-table).
+# The test build's binary (climbsim itself is optimised in the dev profile, see Cargo.toml): one
+# build profile for the tests and check, so a fresh clone compiles the dependencies once.
 echo "==> climbsim check scenarios/ --speed 1 --pace-tolerance-ms 16"
-PATH="$venv/bin:$PATH" cargo run --locked --release --quiet -- check scenarios/ --speed 1 --pace-tolerance-ms 16 --junit target/check/junit.xml --out target/check
+PATH="$venv/bin:$PATH" cargo run --locked --quiet -- check scenarios/ --speed 1 --pace-tolerance-ms 16 --junit target/check/junit.xml --out target/check
+stage_done "climbsim check scenarios/"
 
 # The SocketCAN test (tests/can_transport.rs, #[ignore]d) needs a CAN interface: run it where one
 # exists (sudo hil/vcan-setup.sh), say so where the kernel has none. The ISO-TP framing itself is
@@ -62,3 +79,7 @@ if [[ -n "${CLIMBSIM_VCAN:-}" || -e /sys/class/net/vcan0 ]]; then
 else
     echo "==> not run: SocketCAN test serve_can_on_vcan (no vcan0 interface on this machine and CLIMBSIM_VCAN unset; create one with sudo hil/vcan-setup.sh)"
 fi
+stage_done "the SocketCAN test"
+
+echo "==> time by stage ($SECONDS s in all)"
+printf '%s\n' "${stages[@]}"
