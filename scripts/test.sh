@@ -63,10 +63,12 @@ stage_done "the full-disk test"
 # real U2D2 adds at its default latency timer): the 57600-baud variant, whose bus is 83 % busy,
 # once had its replies p99 14.8 ms late at 2x on this 2-core machine, and a CI run must not fail
 # on the machine's noise (docs/external-controllers.md#speed-table).
-# The test build's binary (climbsim itself is optimised in the dev profile, see Cargo.toml): one
-# build profile for the tests and check, so a fresh clone compiles the dependencies once.
+# The binary `cargo test` built for the integration tests (climbsim itself is optimised in the
+# dev profile, see Cargo.toml): the dependencies compile once for the tests and check, and
+# `cargo run` is not used because it would build the binary again under the dev profile's name
+# (100 s on a fresh clone).
 echo "==> climbsim check scenarios/ --speed 1 --pace-tolerance-ms 16"
-PATH="$venv/bin:$PATH" cargo run --locked --quiet -- check scenarios/ --speed 1 --pace-tolerance-ms 16 --junit target/check/junit.xml --out target/check
+PATH="$venv/bin:$PATH" "${CARGO_TARGET_DIR:-$repo/target}/debug/climbsim" check scenarios/ --speed 1 --pace-tolerance-ms 16 --junit target/check/junit.xml --out target/check
 stage_done "climbsim check scenarios/"
 
 # The SocketCAN test (tests/can_transport.rs, #[ignore]d) needs a CAN interface: run it where one
