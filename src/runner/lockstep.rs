@@ -16,7 +16,7 @@ use crate::bus::BusFaults;
 use crate::control::{ControlError, ControlSample, Leg, ReferenceConfig, ReferenceController, WallSighting, Senses};
 use crate::device::Servo;
 use crate::robot::RobotDescription;
-use crate::runner::observe::watch::{WorldFailure, WorldWatch};
+use crate::runner::observe::watch::{RunFailure, WorldWatch};
 use crate::runner::view::{LiveAddress, ViewOptions};
 use crate::scenario::{ControllerSection, Scenario};
 use crate::sim::Lockstep;
@@ -150,7 +150,7 @@ struct BuiltinTicks {
     controller: ReferenceController,
     watch: WorldWatch,
     /// Why the run failed, if it did: the world watch's verdict, or the controller's error.
-    failure: Option<WorldFailure>,
+    failure: Option<RunFailure>,
     /// The servos' firmware tick and the control period.
     tick: Duration,
     period: Duration,
@@ -217,7 +217,7 @@ impl BuiltinTicks {
             // The controller under test failed: the run's verdict, not bad input. The run ends
             // here with its outputs, as for a world the watch gave up on.
             Err(error) => {
-                self.failure = Some(WorldFailure { at_s: t_s, message: format!("controller: {error} at t = {t_s:.2} s") });
+                self.failure = Some(RunFailure { at_s: t_s, message: format!("controller: {error} at t = {t_s:.2} s") });
                 return Ok(());
             }
         };

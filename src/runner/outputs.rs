@@ -7,7 +7,7 @@ use crate::bus::Bus;
 use crate::report::{self, Summary, TimeSeries};
 use crate::robot::RobotDescription;
 use crate::runner::observe::capture::MetricTrack;
-use crate::runner::observe::watch::WorldFailure;
+use crate::runner::observe::watch::RunFailure;
 use crate::scenario::{ControllerSection, Scenario};
 use crate::sim::LineCameraSettings;
 
@@ -40,7 +40,7 @@ pub fn judge(outcome: &mut RunOutcome, scenario: &Scenario, out_dir: &Path) -> R
 }
 
 /// Record `failure` in `summary` (`failures` and `failure_at_s`).
-pub fn record_failure(summary: &mut Summary, failure: &WorldFailure) {
+pub fn record_failure(summary: &mut Summary, failure: &RunFailure) {
     let mut lines = failures(summary);
     lines.push(failure.message.clone());
     summary.insert("failures".to_owned(), json!(lines));

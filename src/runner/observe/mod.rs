@@ -48,7 +48,7 @@ use relocation::RelocationTrack;
 use sensors::Sensors;
 use surfaces::SurfaceTrack;
 use view_feed::ViewFeed;
-use watch::{WorldFailure, WorldWatch};
+use watch::{RunFailure, WorldWatch};
 use welds::Welds;
 
 /// What [`Observer::on_tick`] saw.
@@ -58,7 +58,7 @@ pub struct TickObservation {
     pub new_frame: bool,
     pub error: Option<RunError>,
     /// The world watch's verdict: the run should stop (see [`watch`]).
-    pub failure: Option<WorldFailure>,
+    pub failure: Option<RunFailure>,
 }
 
 /// Refuse a world the run cannot happen in: a start off the terrain, a fault on a servo the bus
@@ -293,7 +293,7 @@ impl Observer {
     }
 
     /// Why the world watch stopped believing in this run (see [`watch`]), once it has.
-    pub fn world_failure(&self) -> Option<&WorldFailure> {
+    pub fn world_failure(&self) -> Option<&RunFailure> {
         self.watch.failure()
     }
 

@@ -19,7 +19,7 @@ const CHECK_EVERY_S: f64 = 0.01;
 
 /// Why a run stopped early: one line for `summary.json`'s `failures`, and when.
 #[derive(Debug, Clone, PartialEq)]
-pub struct WorldFailure {
+pub struct RunFailure {
     pub at_s: f64,
     pub message: String,
 }
@@ -29,7 +29,7 @@ pub struct WorldFailure {
 pub struct WorldWatch {
     last_contact_s: f64,
     next_check_s: f64,
-    failure: Option<WorldFailure>,
+    failure: Option<RunFailure>,
 }
 
 impl WorldWatch {
@@ -38,7 +38,7 @@ impl WorldWatch {
     }
 
     /// Check the world at `t_s` (at most every [`CHECK_EVERY_S`]); the failure, once there is one.
-    pub fn check(&mut self, world: &RobotWorld, t_s: f64) -> Option<&WorldFailure> {
+    pub fn check(&mut self, world: &RobotWorld, t_s: f64) -> Option<&RunFailure> {
         if self.failure.is_none() && t_s >= self.next_check_s {
             self.next_check_s = t_s + CHECK_EVERY_S;
             self.failure = judge(world, t_s, &mut self.last_contact_s);
@@ -46,21 +46,21 @@ impl WorldWatch {
         self.failure.as_ref()
     }
 
-    pub fn failure(&self) -> Option<&WorldFailure> {
+    pub fn failure(&self) -> Option<&RunFailure> {
         self.failure.as_ref()
     }
 }
 
-fn judge(world: &RobotWorld, t_s: f64, last_contact_s: &mut f64) -> Option<WorldFailure> {
+fn judge(world: &RobotWorld, t_s: f64, last_contact_s: &mut f64) -> Option<RunFailure> {
     let y = world.chassis_pose().translation.y;
     if !over_terrain(world) {
-        return Some(WorldFailure { at_s: t_s, message: format!("world: the robot left the terrain at t = {t_s:.2} s (y = {y:.2} m)") });
+        return Some(RunFailure { at_s: t_s, message: format!("world: the robot left the terrain at t = {t_s:.2} s (y = {y:.2} m)") });
     }
     if WheelPosition::ALL.iter().any(|&w| world.tread_gap_m(w).is_some_and(|gap| gap <= CONTACT_GAP_M)) {
         *last_contact_s = t_s;
         return None;
     }
-    (t_s - *last_contact_s > NO_CONTACT_LIMIT_S).then(|| WorldFailure {
+    (t_s - *last_contact_s > NO_CONTACT_LIMIT_S).then(|| RunFailure {
         at_s: t_s,
         message: format!("world: no wheel touched the terrain from t = {:.2} s to {t_s:.2} s (more than {NO_CONTACT_LIMIT_S} s; y = {y:.2} m)", *last_contact_s),
     })
