@@ -1,9 +1,10 @@
-//! SIGINT and SIGTERM for `run`, `check` and `sweep`: the first asks the run in progress to stop
+//! SIGINT and SIGTERM for every command: the first asks the run in progress (or `serve`) to stop
 //! and write what it has (complete files covering the run so far); a later one, more than
 //! [`SAME_REQUEST_NS`] after the first, ends the process at once. Signals close behind the first
 //! are the same request: `timeout` sends its SIGTERM to the command and then to the process
-//! group, and a terminal's Ctrl-C reaches a wrapper script and its child alike.
-//! `serve` handles its signals on its runtime instead.
+//! group, and a terminal's Ctrl-C reaches a wrapper script and its child alike. (A `serve` ended
+//! by a second signal leaves its `--link` and unwritten `--report`/`--record` behind, as any
+//! program killed mid-shutdown does.)
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 

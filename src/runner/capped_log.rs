@@ -8,6 +8,7 @@ use std::collections::VecDeque;
 use std::fs::File;
 use std::io::{PipeReader, PipeWriter, Read, Write};
 use std::path::Path;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -18,9 +19,63 @@ pub const HEAD_BYTES: usize = 4 << 20;
 /// How much of the end of the output is kept (written when it ends).
 pub const TAIL_BYTES: usize = 4 << 20;
 
-/// The thread copying a child's output into its log.
+/// The thread copying a child's output into its log, and what it holds back for the end.
 pub struct CappedLog {
     thread: JoinHandle<()>,
+    state: Arc<Mutex<LogState>>,
+}
+
+/// The log file and the output's last bytes, shared by the copying thread and
+/// [`CappedLog::finish`] (which writes the tail itself when the output does not end in time).
+struct LogState {
+    file: File,
+    /// Room left for the head.
+    head_left: usize,
+    tail: VecDeque<u8>,
+    tail_limit: usize,
+    head_limit: usize,
+    /// Bytes dropped between head and tail.
+    cut: u64,
+    /// The tail has been written: later output is read and dropped.
+    closed: bool,
+    /// A write failed: output is read and dropped (the child must not get SIGPIPE for it).
+    failed: bool,
+}
+
+impl LogState {
+    fn take(&mut self, bytes: &[u8]) {
+        if self.closed || self.failed {
+            return;
+        }
+        let (to_head, rest) = bytes.split_at(self.head_left.min(bytes.len()));
+        if let Err(error) = self.file.write_all(to_head) {
+            warn!(%error, "the controller's output could not be written; the rest is dropped");
+            self.failed = true;
+            return;
+        }
+        self.head_left -= to_head.len();
+        self.tail.extend(rest);
+        if self.tail.len() > self.tail_limit {
+            let excess = self.tail.len() - self.tail_limit;
+            self.tail.drain(..excess);
+            self.cut += excess as u64;
+        }
+    }
+
+    /// The line saying how much was cut (if anything was), then the tail.
+    fn close(&mut self) -> std::io::Result<()> {
+        if self.closed || self.failed {
+            return Ok(());
+        }
+        self.closed = true;
+        if self.cut > 0 {
+            writeln!(self.file, "\n[climbsim: {} bytes of the controller's output were cut here; the log keeps its first {} and its last {} bytes]", self.cut, self.head_limit, self.tail_limit)?;
+        }
+        let (a, b) = self.tail.as_slices();
+        self.file.write_all(a)?;
+        self.file.write_all(b)?;
+        self.file.flush()
+    }
 }
 
 impl CappedLog {
@@ -33,33 +88,39 @@ impl CappedLog {
     fn start_with(path: &Path, head: usize, tail: usize) -> std::io::Result<(Self, PipeWriter)> {
         let file = File::create(path)?;
         let (reader, writer) = std::io::pipe()?;
+        let state = Arc::new(Mutex::new(LogState { file, head_left: head, tail: VecDeque::new(), tail_limit: tail, head_limit: head, cut: 0, closed: false, failed: false }));
+        let copying = Arc::clone(&state);
         let shown = path.display().to_string();
         let thread = std::thread::Builder::new().name("controller-log".into()).spawn(move || {
-            if let Err(error) = copy_capped(reader, file, head, tail) {
+            if let Err(error) = copy_capped(reader, &copying) {
                 warn!(log = shown, %error, "the controller's output could not be written");
             }
         })?;
-        Ok((Self { thread }, writer))
+        Ok((Self { thread, state }, writer))
     }
 
     /// Wait up to `limit` for the output to end (every process holding the pipe has exited) and
-    /// the log to be complete; false if it did not in time (the copy goes on by itself).
+    /// the log to be complete; false if it did not end in time. The log is complete either way:
+    /// its tail is written now, and what comes later is dropped.
     pub fn finish(self, limit: Duration) -> bool {
         let deadline = Instant::now() + limit;
         while !self.thread.is_finished() && Instant::now() < deadline {
             std::thread::sleep(Duration::from_millis(10));
         }
-        self.thread.is_finished() && self.thread.join().is_ok()
+        if self.thread.is_finished() {
+            return self.thread.join().is_ok();
+        }
+        let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Err(error) = state.close() {
+            warn!(%error, "the controller's log could not be completed");
+        }
+        false
     }
 }
 
-/// Copy `reader` into `file` until it ends: the first `head` bytes at once, the last `tail`
-/// bytes at the end, a line saying how many were cut between them if any were.
-fn copy_capped(mut reader: PipeReader, mut file: File, head: usize, tail: usize) -> std::io::Result<()> {
+/// Copy `reader` into the log until it ends (see [`LogState::take`]), then close it.
+fn copy_capped(mut reader: PipeReader, state: &Mutex<LogState>) -> std::io::Result<()> {
     let mut buffer = vec![0u8; 64 * 1024];
-    let mut head_left = head;
-    let mut last: VecDeque<u8> = VecDeque::new();
-    let mut cut = 0u64;
     loop {
         let n = match reader.read(&mut buffer) {
             Ok(0) => break,
@@ -67,23 +128,9 @@ fn copy_capped(mut reader: PipeReader, mut file: File, head: usize, tail: usize)
             Err(error) if error.kind() == std::io::ErrorKind::Interrupted => continue,
             Err(error) => return Err(error),
         };
-        let (to_head, rest) = buffer[..n].split_at(head_left.min(n));
-        file.write_all(to_head)?;
-        head_left -= to_head.len();
-        last.extend(rest);
-        if last.len() > tail {
-            let excess = last.len() - tail;
-            last.drain(..excess);
-            cut += excess as u64;
-        }
+        state.lock().unwrap_or_else(PoisonError::into_inner).take(&buffer[..n]);
     }
-    if cut > 0 {
-        writeln!(file, "\n[climbsim: {cut} bytes of the controller's output were cut here; the log keeps its first {head} and its last {tail} bytes]")?;
-    }
-    let (a, b) = last.as_slices();
-    file.write_all(a)?;
-    file.write_all(b)?;
-    file.flush()
+    state.lock().unwrap_or_else(PoisonError::into_inner).close()
 }
 
 #[cfg(test)]
@@ -101,6 +148,20 @@ mod tests {
         drop(writer);
         assert!(log.finish(Duration::from_secs(5)), "the copy ends when the pipe does");
         std::fs::read(&path).expect("log")
+    }
+
+    #[test]
+    fn a_log_whose_output_does_not_end_is_completed_at_the_limit() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("controller.log");
+        let (log, mut writer) = CappedLog::start_with(&path, 8, 8).expect("start");
+        writer.write_all(b"0123456789abcdefghij-the-end").expect("write");
+        // The pipe stays open (an escaped child holds it): the tail is written all the same.
+        std::thread::sleep(Duration::from_millis(100));
+        assert!(!log.finish(Duration::from_millis(50)));
+        let text = String::from_utf8(std::fs::read(&path).expect("log")).expect("UTF-8");
+        assert!(text.starts_with("01234567") && text.ends_with("-the-end") && text.contains("cut here"), "{text}");
+        drop(writer);
     }
 
     #[test]

@@ -212,7 +212,8 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         summary.insert("controller.period_p99_ms".to_owned(), json!(loop_report.period_ms.p99));
     }
     summary.extend(handle.with_bus(|bus| fault_summary(bus)));
-    let interrupted = ended.interrupted;
+    // A signal during the controller's stop or the drain counts too: the run did not end as asked.
+    let interrupted = ended.interrupted || stop.load(std::sync::atomic::Ordering::Relaxed);
     if interrupted {
         summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
     }

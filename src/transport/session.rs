@@ -50,7 +50,9 @@ where
     S: AsyncRead + AsyncWrite + Unpin,
 {
     let (servos_gap, timing) = handle.with_bus(|bus| (bus.inter_byte_timeout(), bus.timing()));
-    let gap = line.inter_byte_timeout().unwrap_or(servos_gap);
+    // A line's own timeout (TCP's) is wall time, for wall-clock causes (delayed ACKs, an
+    // emulator's UART); the session's gaps are simulated time, N x the wall at --speed N.
+    let gap = line.inter_byte_timeout().map_or(servos_gap, |wall| wall.mul_f64(handle.clock().speed()));
     let mut session = Session {
         stream,
         clock: handle.clock(),
@@ -362,7 +364,13 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             let mut decoder = Decoder::new(self.gap, DEFAULT_MAX_LEN);
             let mut framed = decoder.push(at, &bytes);
             framed.extend(decoder.flush());
-            reframed.extend(framed.into_iter().map(|r| (r, at)));
+            // What a collision left of the packet is garbage on the wire, not a gap in it: the
+            // flush's "interrupted by an inter-byte gap" is the collision's, counted as such.
+            let framed = framed.into_iter().map(|r| match r {
+                Err(FrameError::InterByteTimeout(n)) => Err(FrameError::Garbage(n)),
+                other => other,
+            });
+            reframed.extend(framed.map(|r| (r, at)));
         }
         self.decoded = reframed;
     }
