@@ -47,14 +47,6 @@ pub trait Console: Sync {
     fn note(&self, line: &str);
 }
 
-/// A console that says nothing (library users and tests that only want the outcome).
-pub struct Quiet;
-
-impl Console for Quiet {
-    fn say(&self, _line: &str) {}
-    fn note(&self, _line: &str) {}
-}
-
 /// Fail now, not after minutes of simulation, if `dir` cannot be created or written.
 pub fn preflight_dir(dir: &Path, flag: &str) -> Result<()> {
     if dir.exists() && !dir.is_dir() {
