@@ -9,7 +9,6 @@ use climbsim::runner::external::{ExternalRun, run_external};
 use climbsim::runner::lockstep::{LiveRun, run_builtin};
 use climbsim::runner::outputs::judge;
 use climbsim::runner::recording::RecordSpec;
-use climbsim::runner::serve::add_fault_events;
 use climbsim::runner::{Console as _, RunOutcome, RunnerError, default_out_dir, preflight_dir, preflight_file};
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
@@ -59,7 +58,7 @@ pub fn exec(args: RunArgs) -> Result<()> {
     let robot = load_robot(&robot)?;
     let overrides = parse_overrides(&set)?;
     let mut loaded = Scenario::load_with(&scenario, &overrides)?;
-    add_fault_events(&mut loaded, faults);
+    loaded.add_faults(faults);
     let out_dir = out.unwrap_or_else(|| default_out_dir(&scenario));
     // Every output path is checked before minutes of simulation, not after.
     preflight_dir(&out_dir, "--out")?;

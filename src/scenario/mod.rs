@@ -420,6 +420,11 @@ impl Scenario {
         Ok(())
     }
 
+    /// Add faults given on the command line (`--fault`) as events, after the file's.
+    pub fn add_faults(&mut self, faults: Vec<ScheduledFault>) {
+        self.events.extend(faults.into_iter().map(|f| Event { at_s: f.at_s, set_speed_mm_min: None, line_offset_m: None, magnets: None, fault: Some(f.fault), until_s: f.until_s }));
+    }
+
     /// The faults the events schedule, in file order.
     pub fn faults(&self) -> Vec<ScheduledFault> {
         self.events.iter().filter_map(Event::scheduled_fault).collect()

@@ -91,7 +91,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
     let (bus, observer, recorder) = match &scenario {
         Some(path) => {
             let mut loaded = Scenario::load(path)?;
-            add_fault_events(&mut loaded, faults);
+            loaded.add_faults(faults);
             let (mut bus, mut observer) = scenario_bus(&loaded, robot, timing, baud)?;
             let spec = record.map(|path| RecordSpec { path, overrides: Vec::new() });
             let recorder = spec.map(|spec| start_recording(&spec, "serve", &loaded, robot, &bus, baud)).transpose()?;
@@ -205,16 +205,4 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
     })?;
     port.remove_link();
     Ok(())
-}
-
-/// Append `--fault` faults to a scenario as events.
-pub fn add_fault_events(scenario: &mut Scenario, faults: Vec<ScheduledFault>) {
-    scenario.events.extend(faults.into_iter().map(|f| crate::scenario::Event {
-        at_s: f.at_s,
-        set_speed_mm_min: None,
-        line_offset_m: None,
-        magnets: None,
-        fault: Some(f.fault),
-        until_s: f.until_s,
-    }));
 }
