@@ -10,8 +10,9 @@ use clap::ValueEnum;
 use climbsim::bus::Timing;
 use climbsim::fault::ScheduledFault;
 use climbsim::robot::RobotDescription;
-use climbsim::runner::Pace;
+use climbsim::runner::{Pace, TimeBase};
 use climbsim::runner::view::LiveAddress;
+use climbsim::virtual_time::VtSettings;
 
 /// `--foxglove[=ADDR]`, shared by `run` and `serve`.
 #[derive(Debug, Clone, clap::Args)]
@@ -37,11 +38,39 @@ pub struct PaceArgs {
     /// which the official SDK's timeouts allow for twice over).
     #[arg(long, value_name = "MS", default_value = "10", value_parser = parse_tolerance_ms)]
     pub pace_tolerance_ms: f64,
+    /// Whose clock an external controller runs on. `wall`: the wall clock (or N times it with
+    /// --speed N). `virtual`: the simulation's; the controller's clocks, sleeps and waits follow
+    /// simulated time, so the run goes as fast as the CPU allows and repeats exactly
+    /// (docs/virtual-time.md).
+    #[arg(long, value_enum, default_value = "wall")]
+    pub clock: ClockArg,
+    /// Virtual time: simulated nanoseconds an intercepted call that does not block costs.
+    #[arg(long, value_name = "NS", default_value = "1000", hide = true)]
+    pub vt_syscall_ns: u64,
+    /// Virtual time: the longest jump (µs) of a zero-timeout poll of a port with nothing due.
+    #[arg(long, value_name = "US", default_value = "100", hide = true)]
+    pub vt_spin_cap_us: u64,
+}
+
+/// `--clock`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ClockArg {
+    Wall,
+    Virtual,
 }
 
 impl PaceArgs {
-    pub fn pace(&self) -> Pace {
-        Pace { speed: self.speed, tolerance: Duration::from_secs_f64(self.pace_tolerance_ms / 1e3) }
+    pub fn pace(&self) -> Result<Pace> {
+        let time = match self.clock {
+            ClockArg::Wall => TimeBase::Wall,
+            ClockArg::Virtual => {
+                if self.speed != 1.0 {
+                    bail!("--speed {} applies to --clock wall: under --clock virtual a run goes as fast as the CPU allows", self.speed);
+                }
+                TimeBase::Virtual(VtSettings { syscall_ns: self.vt_syscall_ns, spin_cap_ns: self.vt_spin_cap_us.saturating_mul(1000), ..VtSettings::default() })
+            }
+        };
+        Ok(Pace { speed: self.speed, tolerance: Duration::from_secs_f64(self.pace_tolerance_ms / 1e3), time })
     }
 
     pub fn is_default(&self) -> bool {

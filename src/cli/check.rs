@@ -39,5 +39,5 @@ pub fn exec(args: CheckArgs) -> Result<()> {
     if let Some(path) = &junit {
         preflight_file(path, "--junit")?;
     }
-    Ok(check(&paths, &robot, &out, junit.as_deref(), pace.pace(), interrupt::flag(), &Terminal)?)
+    Ok(check(&paths, &robot, &out, junit.as_deref(), pace.pace()?, interrupt::flag(), &Terminal)?)
 }

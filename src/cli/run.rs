@@ -78,7 +78,7 @@ pub fn exec(args: RunArgs) -> Result<()> {
         }
         ControllerSection::External(external) => {
             let record = record.map(|path| RecordSpec { path, overrides: set.clone() });
-            let options = ExternalRun { timing: timing.unwrap_or(TimingArg::Wire).into(), link: link.as_deref(), record: record.as_ref(), pace: pace.pace(), announce: true, live: foxglove };
+            let options = ExternalRun { timing: timing.unwrap_or(TimingArg::Wire).into(), link: link.as_deref(), record: record.as_ref(), pace: pace.pace()?, announce: true, live: foxglove };
             run_external(&loaded, external, &robot, &options, &out_dir, interrupt::flag(), &Terminal)?
         }
     };

@@ -78,6 +78,6 @@ pub fn exec(args: SweepArgs) -> Result<()> {
     let robot = load_robot(&robot)?;
     let scenario = scenario.context("a scenario file is needed")?;
     let jobs = jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from));
-    let plan = SweepPlan { axes: &axes, jobs, shard, pace: pace.pace(), record_mcap: mcap };
+    let plan = SweepPlan { axes: &axes, jobs, shard, pace: pace.pace()?, record_mcap: mcap };
     Ok(sweep(&scenario, &plan, &robot, &out, interrupt::flag(), &Terminal, &Bar::new())?)
 }

@@ -8,12 +8,15 @@
 //!   its wall-clock instant, so an external controller, a person watching, or a real wire can
 //!   keep up (external controllers, `serve`, a built-in controller shown live).
 //!
-//! A virtual clock, which moves only when the external controller's every thread is blocked, is
-//! the third implementation to come (docs/architecture.md).
+//! - [`VirtualClock`]: simulated time moves only when the external controller's every thread is
+//!   blocked (`--clock virtual`, src/virtual_time/): as fast as the CPU allows, and repeatable.
 
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use crate::transport;
+use crate::virtual_time::{VirtualTime, VtError, VtSettings};
 
 /// How fast a wall-clock world runs, and how late it may fall behind before the run fails.
 #[derive(Debug, Clone, Copy)]
@@ -23,6 +26,26 @@ pub struct Pace {
     /// The 99th-percentile lateness (simulated time) of the world's ticks and of replies beyond
     /// which the run did not keep its pace (`--pace-tolerance-ms`).
     pub tolerance: Duration,
+    /// Whose clock an external controller runs on (`--clock`).
+    pub time: TimeBase,
+}
+
+/// Whose clock an external controller runs on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TimeBase {
+    /// The wall clock, or `speed` × it through libfaketime.
+    Wall,
+    /// The simulation's: the controller waits for the world and the world for the controller.
+    Virtual(VtSettings),
+}
+
+/// Why a clock could not bring time to a tick.
+#[derive(Debug)]
+pub enum ClockStop {
+    /// The run was asked to stop (the stop flag) while the clock waited.
+    Interrupted,
+    /// The clock cannot go on (under virtual time: a controller it cannot follow).
+    Failed(String),
 }
 
 /// What paces a run's ticks.
@@ -31,7 +54,7 @@ pub trait Clock: Send {
     fn now(&self) -> Duration;
     /// Wait until simulated time `due` has come; how late it came (simulated time; zero for a
     /// clock that does not wait).
-    fn wait_until(&mut self, due: Duration) -> Duration;
+    fn wait_until(&mut self, due: Duration) -> Result<Duration, ClockStop>;
     /// Simulated seconds per wall-clock second; `None` for a clock not tied to the wall.
     fn speed(&self) -> Option<f64>;
 }
@@ -54,9 +77,9 @@ impl Clock for LockstepClock {
         self.now
     }
 
-    fn wait_until(&mut self, due: Duration) -> Duration {
+    fn wait_until(&mut self, due: Duration) -> Result<Duration, ClockStop> {
         self.now = self.now.max(due);
-        Duration::ZERO
+        Ok(Duration::ZERO)
     }
 
     fn speed(&self) -> Option<f64> {
@@ -90,7 +113,7 @@ impl Clock for WallClock {
         self.clock.now()
     }
 
-    fn wait_until(&mut self, due: Duration) -> Duration {
+    fn wait_until(&mut self, due: Duration) -> Result<Duration, ClockStop> {
         // Deadlines are simulated time; the sleep is on the wall clock (a tenth of a millisecond
         // per tick at 10x).
         let wake = self.clock.instant(due);
@@ -98,11 +121,42 @@ impl Clock for WallClock {
         if wake > now {
             std::thread::sleep(wake - now);
         }
-        self.now().saturating_sub(due)
+        Ok(self.now().saturating_sub(due))
     }
 
     fn speed(&self) -> Option<f64> {
         Some(self.clock.speed())
+    }
+}
+
+/// Simulated time as the virtual-time scheduler moves it: each tick waits until the external
+/// controller has done everything it had due before it (src/virtual_time/). Never late.
+pub struct VirtualClock<'a> {
+    virtual_time: Arc<VirtualTime>,
+    stop: &'a AtomicBool,
+}
+
+impl<'a> VirtualClock<'a> {
+    pub fn new(virtual_time: Arc<VirtualTime>, stop: &'a AtomicBool) -> Self {
+        Self { virtual_time, stop }
+    }
+}
+
+impl Clock for VirtualClock<'_> {
+    fn now(&self) -> Duration {
+        self.virtual_time.now()
+    }
+
+    fn wait_until(&mut self, due: Duration) -> Result<Duration, ClockStop> {
+        match self.virtual_time.advance_to(due, self.stop) {
+            Ok(()) => Ok(Duration::ZERO),
+            Err(VtError::Interrupted) => Err(ClockStop::Interrupted),
+            Err(error) => Err(ClockStop::Failed(error.to_string())),
+        }
+    }
+
+    fn speed(&self) -> Option<f64> {
+        None
     }
 }
 
@@ -123,9 +177,9 @@ mod tests {
     #[test]
     fn a_lockstep_clock_never_waits_and_never_goes_back() {
         let mut clock = LockstepClock::at(Duration::from_millis(1));
-        assert_eq!(clock.wait_until(Duration::from_millis(5)), Duration::ZERO);
+        assert_eq!(clock.wait_until(Duration::from_millis(5)).ok(), Some(Duration::ZERO));
         assert_eq!(clock.now(), Duration::from_millis(5));
-        clock.wait_until(Duration::from_millis(3));
+        let _ = clock.wait_until(Duration::from_millis(3));
         assert_eq!(clock.now(), Duration::from_millis(5));
         assert_eq!(clock.speed(), None);
     }
@@ -135,7 +189,7 @@ mod tests {
         let mut clock = WallClock::scaled(10.0);
         let started = Instant::now();
         // 50 ms simulated at 10x: 5 ms of wall time.
-        clock.wait_until(Duration::from_millis(50));
+        let _ = clock.wait_until(Duration::from_millis(50));
         assert!(started.elapsed() >= Duration::from_millis(5), "{:?}", started.elapsed());
         assert!(clock.now() >= Duration::from_millis(50));
         assert_eq!(clock.speed(), Some(10.0));

@@ -16,10 +16,11 @@ use crate::bus::Timing;
 use crate::robot::RobotDescription;
 use crate::runner::view::{LiveAddress, ViewOptions};
 use crate::scenario::{ExternalController, Scenario};
-use crate::sensor_server::SensorFeed;
+use crate::sensor_server::{SensorFeed, VirtualSensorServer};
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, VirtualPort};
+use crate::virtual_time::VirtualTime;
 
-use super::clock::{Pace, WallClock};
+use super::clock::{Pace, TimeBase, VirtualClock, WallClock};
 use super::observe::{require_line, scenario_bus};
 use super::outputs::{RunOutcome, failures, fault_summary, finish_timing_report, record_failure, settings_json, write_outputs};
 use super::process::{Controller, Launch, param_env, resolve_command};
@@ -71,7 +72,14 @@ impl Ticked for WatchedTicks<'_> {
         if self.world.tick(at).is_break() {
             return ControlFlow::Break(());
         }
-        match self.controller.try_wait() {
+        // Under virtual time the exit is seen when the shim saw it (at one simulated instant on
+        // every run), not whenever the kernel's reaping comes round on the wall clock.
+        let status = match self.clock.virtual_time() {
+            Some(vt) if vt.first_process_ended() => self.controller.wait_briefly(),
+            Some(_) => Ok(None),
+            None => self.controller.try_wait(),
+        };
+        match status {
             Ok(None) => ControlFlow::Continue(()),
             Ok(Some(status)) => {
                 self.exit = Some(Exit { status, at_s: self.clock.now().as_secs_f64(), early: true });
@@ -102,8 +110,12 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let foxglove_url = observer.start_view(&view, &mut bus)?;
     let observer = Arc::new(Mutex::new(observer));
     let recorder = options.record.map(|spec| start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;
-    let clock = BusClock::scaled(options.pace.speed);
-    let handle = BusHandle::with_clock(bus, None, recorder, clock);
+    let virtual_time = match options.pace.time {
+        TimeBase::Virtual(settings) => Some(VirtualTime::create(settings).map_err(|error| RunnerError::Invalid(error.to_string()))?),
+        TimeBase::Wall => None,
+    };
+    let clock = virtual_time.as_ref().map_or_else(|| BusClock::scaled(options.pace.speed), |vt| BusClock::on_virtual_time(Arc::clone(vt)));
+    let handle = BusHandle::with_clock(bus, None, recorder, clock.clone());
     let feed = Arc::new(SensorFeed::default());
     record_sensor_reads(&handle, &feed);
 
@@ -112,16 +124,29 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     // wait for that nor delay a reply (sharing one thread cost replies milliseconds of lateness).
     let runtime = |name: &str| tokio::runtime::Builder::new_multi_thread().worker_threads(1).thread_name(name).enable_all().build().during(|| format!("cannot start the {name} thread"));
     let sensor_runtime = runtime("sensors")?;
-    let sensors_url = sensor_runtime.block_on(start_sensor_server(Arc::clone(&feed)))?;
+    let sensors_url = match &virtual_time {
+        // Under virtual time the scheduler answers each request at its simulated instant.
+        Some(vt) => {
+            let (server, url) = VirtualSensorServer::bind(Arc::clone(&feed), Arc::clone(vt)).during(|| "cannot start the sensor server".to_owned())?;
+            vt.drive(server);
+            url
+        }
+        None => sensor_runtime.block_on(start_sensor_server(Arc::clone(&feed)))?,
+    };
     let pty_runtime = runtime("pty")?;
     let port = pty_runtime.block_on(async {
         let port = Arc::new(VirtualPort::open(options.link).during(|| "cannot open the pty".to_owned())?);
-        let session = tokio::spawn(serve_pty(Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal));
-        tokio::spawn(async move {
-            if let Ok(Err(error)) = session.await {
+        let session = serve_pty(Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal);
+        let session = async move {
+            if let Err(error) = session.await {
                 warn!(%error, "pty session ended");
             }
-        });
+        };
+        // Under virtual time the session runs inside the scheduler, at exact simulated instants.
+        match &virtual_time {
+            Some(vt) => vt.drive(session),
+            None => drop(tokio::spawn(session)),
+        }
         Ok::<_, RunnerError>(port)
     })?;
 
@@ -138,7 +163,12 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         ("CLIMBSIM_OUT".to_owned(), out_dir.display().to_string()),
     ];
     env.extend(param_env(&external.param_text()));
-    let launch = Launch { command: &command, env, speed: options.pace.speed, log_path: &log_path };
+    if let Some(vt) = &virtual_time {
+        env.extend(vt.controller_env().map_err(|error| RunnerError::Invalid(error.to_string()))?);
+        vt.reserve_process();
+    }
+    let speed = if virtual_time.is_some() { 1.0 } else { options.pace.speed };
+    let launch = Launch { command: &command, env, speed, virtual_time: virtual_time.is_some(), log_path: &log_path };
     // The world starts with the controller: a controller that cannot start leaves no half run.
     let capture_errors = Arc::new(Mutex::new(None::<String>));
     let mut controller = match Controller::start(&launch) {
@@ -148,6 +178,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
             return Err(error);
         }
     };
+    if let Some(vt) = &virtual_time {
+        vt.process_started(controller.id());
+    }
     let started = Instant::now();
     info!(pid = controller.id(), port = %port.path().display(), sensors = %sensors_url, speed = options.pace.speed, "controller started");
     if options.announce {
@@ -165,15 +198,22 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let mut ticks = WatchedTicks {
         world: HandleTicks::new(Arc::clone(&handle), hook, Some(duration)),
         controller: &mut controller,
-        clock,
+        clock: clock.clone(),
         exit: None,
         error: None,
     };
-    let ended = run_ticks(&mut WallClock::on(clock), &mut ticks, stop);
+    let ended = match &virtual_time {
+        Some(vt) => run_ticks(&mut VirtualClock::new(Arc::clone(vt), stop), &mut ticks, stop),
+        None => run_ticks(&mut WallClock::on(clock.clone()), &mut ticks, stop),
+    };
     let (early_exit, error) = (ticks.exit.take(), ticks.error.take());
     drop(ticks);
     let pace = ended.pace;
     let sim_s = clock.now().as_secs_f64();
+    // The controller's clean-up runs on the wall clock: it can neither hang nor move the world.
+    if let Some(vt) = &virtual_time {
+        vt.end();
+    }
     // Stopped either way: a controller that ended by itself may have left children running.
     let stopped = controller.stop()?;
     let exit = early_exit.unwrap_or(Exit { status: stopped, at_s: sim_s, early: false });
@@ -199,7 +239,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     summary.insert("controller_exit".to_owned(), json!(exit.status.to_string()));
     summary.insert("controller_exit_code".to_owned(), json!(exit.status.code()));
     summary.insert("controller_exited_at_s".to_owned(), json!(exit.at_s));
-    let pace_problems = report.pace_problems(options.pace.tolerance);
+    summary.insert("clock".to_owned(), json!(if virtual_time.is_some() { "virtual" } else { "wall" }));
+    // Under virtual time nothing is late by construction: there is no pace to keep.
+    let pace_problems = if virtual_time.is_some() { Vec::new() } else { report.pace_problems(options.pace.tolerance) };
     summary.insert("pace.speed".to_owned(), json!(options.pace.speed));
     summary.insert("pace.tolerance_ms".to_owned(), json!(options.pace.tolerance.as_secs_f64() * 1e3));
     summary.insert("pace.tick_late_p99_ms".to_owned(), json!(report.physics_lateness_us.map(|q| q.p99_us / 1e3)));
@@ -218,6 +260,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
     }
     let mut run_failures = controller_failures(&exit, external, scenario.world.duration_s, &controller.log_tail(), &log_path);
+    if let Some(why) = &ended.clock_failure {
+        run_failures.insert(0, why.clone());
+    }
     if !interrupted {
         run_failures.extend(pace_problems);
     }

@@ -32,7 +32,7 @@ use crate::bus::Timing;
 use crate::robot::RobotDescription;
 use crate::scenario::{ControllerSection, Scenario};
 
-pub use clock::{Clock, LockstepClock, Pace, WallClock};
+pub use clock::{Clock, ClockStop, LockstepClock, Pace, TimeBase, VirtualClock, WallClock};
 pub use error::{During, Result, RunError, RunnerError};
 pub use observe::Observer;
 pub use outputs::{RunOutcome, write_outputs};

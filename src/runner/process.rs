@@ -36,8 +36,19 @@ pub struct Launch<'a> {
     pub env: Vec<(String, String)>,
     /// Simulated seconds per wall-clock second: above 1 the program runs under libfaketime.
     pub speed: f64,
+    /// The program runs on virtual time (the shim's preload is in `env`).
+    pub virtual_time: bool,
     pub log_path: &'a Path,
 }
+
+/// What a controller must be able to preload, for the refusal's words.
+struct Preload {
+    name: &'static str,
+    remedy: &'static str,
+}
+
+const FAKETIME: Preload = Preload { name: "libfaketime", remedy: "run it at --speed 1" };
+const SHIM: Preload = Preload { name: "climbsim's virtual-time shim", remedy: "run it with --clock wall" };
 
 /// The variable every process a controller starts inherits, with a value of its run's own: how
 /// climbsim finds them at the end, even those that left its process group (`setsid`).
@@ -85,8 +96,11 @@ impl Controller {
         // a shell's children) and a terminal's Ctrl-C reaches climbsim alone, which then stops it.
         command.process_group(0).env(RUN_MARKER, &marker);
         command.args(args).envs(launch.env.iter().map(|(k, v)| (k, v))).stdin(Stdio::null()).stdout(writer.try_clone().during(|| format!("cannot share {}", launch.log_path.display()))?).stderr(writer);
+        if launch.virtual_time {
+            refuse_unpreloadable(&resolved, &SHIM).during(|| format!("--clock virtual cannot follow `{description}`"))?;
+        }
         if launch.speed != 1.0 {
-            refuse_unpreloadable(&resolved).during(|| format!("--speed {} cannot scale the clocks of `{description}`", launch.speed))?;
+            refuse_unpreloadable(&resolved, &FAKETIME).during(|| format!("--speed {} cannot scale the clocks of `{description}`", launch.speed))?;
             command.envs(faketime_env(launch.speed).during(|| format!("--speed {} for `{description}`", launch.speed))?);
         }
         // The emulated servos are the hardware: on a machine with few cores a busy controller
@@ -111,6 +125,19 @@ impl Controller {
     /// The exit status if the program has ended.
     pub fn try_wait(&mut self) -> Result<Option<ExitStatus>> {
         self.child.try_wait().during(|| format!("cannot watch the controller `{}`", self.description))
+    }
+
+    /// The exit of a controller known to be ending (its last handlers have run): waits for the
+    /// kernel to finish it, a few seconds at most; `None` if it is still there then.
+    pub fn wait_briefly(&mut self) -> Result<Option<ExitStatus>> {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+        loop {
+            let status = self.try_wait()?;
+            if status.is_some() || std::time::Instant::now() > deadline {
+                return Ok(status);
+            }
+            std::thread::sleep(std::time::Duration::from_micros(200));
+        }
     }
 
     /// Stop the controller and everything it started: SIGTERM to its process group and to every
@@ -308,7 +335,7 @@ fn glob_one(pattern: &str) -> Option<PathBuf> {
 
 /// LD_PRELOAD only reaches dynamically linked programs: refuse a static one (Go, musl, static
 /// Rust) and a set-uid one, following a `#!` script to its interpreter.
-fn refuse_unpreloadable(program: &Path) -> Result<()> {
+fn refuse_unpreloadable(program: &Path, preload: &Preload) -> Result<()> {
     // A script's interpreter may be a script itself (a pyenv shim is a bash script standing for
     // python3); the kernel follows such a chain up to 4 deep (BINPRM_MAX_RECURSION), so do we.
     let mut binary = program.to_owned();
@@ -325,8 +352,8 @@ fn refuse_unpreloadable(program: &Path) -> Result<()> {
     }
     match elf_is_dynamic(binary)? {
         Some(true) => Ok(()),
-        Some(false) => return Err(RunnerError::Invalid(format!("{} is statically linked, so libfaketime cannot be preloaded into it; run it at --speed 1, or link it dynamically", binary.display()))),
-        None => return Err(RunnerError::Invalid(format!("{} is neither an ELF program nor a #! script, so whether libfaketime reaches it cannot be told", binary.display()))),
+        Some(false) => Err(RunnerError::Invalid(format!("{} is statically linked, so {} cannot be preloaded into it; {}, or link it dynamically", binary.display(), preload.name, preload.remedy))),
+        None => Err(RunnerError::Invalid(format!("{} is neither an ELF program nor a #! script, so whether {} reaches it cannot be told", binary.display(), preload.name))),
     }
 }
 
@@ -408,7 +435,7 @@ mod tests {
         std::fs::write(&script, "#!/usr/bin/env sh\necho hi\n").expect("write");
         let interpreter = script_interpreter(&script).expect("read").expect("a script");
         assert!(interpreter.ends_with("sh"), "{}", interpreter.display());
-        assert!(refuse_unpreloadable(&script).is_ok());
+        assert!(refuse_unpreloadable(&script, &FAKETIME).is_ok());
         // A script whose interpreter is a script (a pyenv shim standing for python3) is followed
         // on to the program at the end of the chain.
         let shim = dir.path().join("python3");
@@ -416,7 +443,7 @@ mod tests {
         std::fs::set_permissions(&shim, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
         let controller = dir.path().join("controller.py");
         std::fs::write(&controller, format!("#!{}\nprint(1)\n", shim.display())).expect("write");
-        if let Err(error) = refuse_unpreloadable(&controller) {
+        if let Err(error) = refuse_unpreloadable(&controller, &FAKETIME) {
             panic!("a nested #! is followed: {error}");
         }
     }

@@ -11,7 +11,7 @@ use std::time::Duration;
 use crate::bus::Bus;
 use crate::transport::{BusHandle, PhysicsPace};
 
-use super::clock::{Clock, WallClock};
+use super::clock::{Clock, ClockStop, WallClock};
 
 /// What the loop drives: a world and what runs with it.
 pub trait Ticked {
@@ -31,11 +31,13 @@ pub struct LoopEnd {
     pub pace: PhysicsPace,
     /// `stop` was set before the run's end.
     pub interrupted: bool,
+    /// The clock could not go on (a controller virtual time cannot follow): why.
+    pub clock_failure: Option<String>,
 }
 
 /// Run `ticked` on `clock` until it has nothing more due, breaks, or `stop` is set.
 pub fn run_ticks(clock: &mut dyn Clock, ticked: &mut dyn Ticked, stop: &AtomicBool) -> LoopEnd {
-    let mut end = LoopEnd { pace: PhysicsPace { speed: clock.speed().unwrap_or(1.0), ..PhysicsPace::default() }, interrupted: false };
+    let mut end = LoopEnd { pace: PhysicsPace { speed: clock.speed().unwrap_or(1.0), ..PhysicsPace::default() }, interrupted: false, clock_failure: None };
     let mut last = clock.now();
     loop {
         if stop.load(Ordering::Relaxed) {
@@ -43,7 +45,17 @@ pub fn run_ticks(clock: &mut dyn Clock, ticked: &mut dyn Ticked, stop: &AtomicBo
             break;
         }
         let Some(due) = ticked.next_due(clock.now()) else { break };
-        end.pace.lateness.record(clock.wait_until(due));
+        match clock.wait_until(due) {
+            Ok(late) => end.pace.lateness.record(late),
+            Err(ClockStop::Interrupted) => {
+                end.interrupted = true;
+                break;
+            }
+            Err(ClockStop::Failed(why)) => {
+                end.clock_failure = Some(why);
+                break;
+            }
+        }
         let flow = ticked.tick(due);
         end.pace.ticks += 1;
         // Late by more than a tick: the world cannot keep up here.

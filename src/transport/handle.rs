@@ -9,21 +9,24 @@ use tracing::warn;
 use crate::bus::{Bus, TraceWriter, Transaction};
 use crate::protocol::RawPacket;
 use crate::transcript::Recorder;
+use crate::virtual_time::VirtualTime;
 
 use super::stats::{LineStats, LoopKey, PhysicsPace, ReportExtras, TimingReport};
 
 /// The emulator's monotonic time base: every timestamp is a `Duration` of simulated time since
 /// `origin`. Simulated time runs `speed` times as fast as the wall clock (`--speed N`, with the
-/// controller's own clocks scaled alike); at the default 1 the two are the same.
-#[derive(Debug, Clone, Copy)]
+/// controller's own clocks scaled alike); at the default 1 the two are the same. Under virtual
+/// time it is the scheduler's clock instead, and the wall-clock methods do not apply.
+#[derive(Debug, Clone)]
 pub struct Clock {
     origin: Instant,
     speed: f64,
+    virtual_time: Option<Arc<VirtualTime>>,
 }
 
 impl Default for Clock {
     fn default() -> Self {
-        Self { origin: Instant::now(), speed: 1.0 }
+        Self::scaled(1.0)
     }
 }
 
@@ -31,7 +34,17 @@ impl Clock {
     /// A clock starting now whose time runs `speed` (> 0, finite) times the wall clock's rate.
     pub fn scaled(speed: f64) -> Self {
         let speed = if speed.is_finite() && speed > 0.0 { speed } else { 1.0 };
-        Self { origin: Instant::now(), speed }
+        Self { origin: Instant::now(), speed, virtual_time: None }
+    }
+
+    /// Simulated time as `virtual_time`'s scheduler moves it (`--clock virtual`).
+    pub fn on_virtual_time(virtual_time: Arc<VirtualTime>) -> Self {
+        Self { origin: Instant::now(), speed: 1.0, virtual_time: Some(virtual_time) }
+    }
+
+    /// The scheduler, if time is virtual: reply timing waits on its timers, not the wall's.
+    pub fn virtual_time(&self) -> Option<&Arc<VirtualTime>> {
+        self.virtual_time.as_ref()
     }
 
     pub fn speed(&self) -> f64 {
@@ -39,7 +52,10 @@ impl Clock {
     }
 
     pub fn now(&self) -> Duration {
-        self.origin.elapsed().mul_f64(self.speed)
+        match &self.virtual_time {
+            Some(virtual_time) => virtual_time.now(),
+            None => self.origin.elapsed().mul_f64(self.speed),
+        }
     }
 
     /// The wall-clock instant at which simulated time reaches `at`.
@@ -97,7 +113,7 @@ impl BusHandle {
     }
 
     pub fn clock(&self) -> Clock {
-        self.clock
+        self.clock.clone()
     }
 
     /// Run `f` with the bus locked. A panic elsewhere never leaves the bus unusable: the state is

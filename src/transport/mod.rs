@@ -24,7 +24,7 @@ pub use adapter::{Adapter, AdapterModel};
 pub use handle::{BusHandle, Clock};
 pub use session::{serve_stream, serve_stream_through, sleep_until_precise};
 pub use echo::{Echo, EchoFilter};
-pub use pty::{PortStream, PtyError, PtyLine, VirtualPort};
+pub use pty::{PortStream, PtyError, PtyLine, VirtualPort, VirtualTimeStream};
 pub use serial::{DeviceLine, DeviceSettings, DeviceStream, SerialDevice, SerialError, majority_baud};
 pub use stats::{Answered, LineStats, LogHistogram, LoopKey, MasterTimeouts, PhysicsPace, ReportExtras, TimingReport};
 pub use tcp::{TCP_INTER_BYTE_TIMEOUT, TcpLine, TcpServer, connect_forever, parse_tcp_addr, parse_tcp_server_addr};

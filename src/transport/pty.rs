@@ -24,6 +24,7 @@ use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
 use tracing::{info, warn};
 
 use super::busy_poll::BusyPoll;
+use crate::virtual_time::VirtualTime;
 use super::{LineSettings, queued_bytes};
 
 /// How long a read waits in poll(2) before parking on the reactor.
@@ -131,8 +132,78 @@ impl VirtualPort {
         Ok(PortStream { master: registered, busy_poll: spin_for_requests.then(BusyPoll::default) })
     }
 
+    /// A byte stream over the master for a session inside the virtual-time scheduler
+    /// ([`VirtualTime::drive`]): reads and writes never wait on a reactor, and the scheduler
+    /// polls the session whenever the controller is parked.
+    pub fn virtual_stream(self: &Arc<Self>, virtual_time: Arc<VirtualTime>) -> VirtualTimeStream {
+        virtual_time.attach_port(self.master.as_raw_fd(), self.slave.as_raw_fd());
+        VirtualTimeStream { port: Arc::clone(self), virtual_time }
+    }
+
     fn master_fd(&self) -> BorrowedFd<'_> {
         self.master.as_fd()
+    }
+}
+
+/// The master side under virtual time. A read that finds nothing is `Pending` without a waker
+/// (the scheduler polls again once the controller has written); every byte read is counted, so
+/// that the scheduler knows when it has all the controller wrote. A write returns once the
+/// controller can see the bytes: the kernel's pty worker hands them over a little later, and
+/// the controller, parked now, must find them as soon as it is let go.
+pub struct VirtualTimeStream {
+    port: Arc<VirtualPort>,
+    virtual_time: Arc<VirtualTime>,
+}
+
+/// How long a written reply may take to reach the controller's side before climbsim goes on
+/// without it (a controller that never reads fills the terminal's buffer).
+const VISIBLE_WITHIN: Duration = Duration::from_millis(100);
+
+impl AsyncRead for VirtualTimeStream {
+    fn poll_read(self: Pin<&mut Self>, _cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+        match nix::unistd::read(self.port.master_fd(), buf.initialize_unfilled()) {
+            Ok(n) => {
+                buf.advance(n);
+                self.virtual_time.port_read(n);
+                Poll::Ready(Ok(()))
+            }
+            Err(nix::errno::Errno::EAGAIN | nix::errno::Errno::EIO) => Poll::Pending,
+            Err(e) => Poll::Ready(Err(e.into())),
+        }
+    }
+}
+
+impl AsyncWrite for VirtualTimeStream {
+    fn poll_write(self: Pin<&mut Self>, _cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+        let slave = self.port.slave.as_raw_fd();
+        let before = queued_bytes(slave).unwrap_or(0);
+        let mut fds = [PollFd::new(self.port.master_fd(), PollFlags::POLLOUT)];
+        let written = loop {
+            match nix::unistd::write(self.port.master_fd(), data) {
+                Ok(n) => break n,
+                Err(nix::errno::Errno::EAGAIN) => {
+                    let _ = poll(&mut fds, PollTimeout::from(10u8));
+                }
+                Err(e) => return Poll::Ready(Err(e.into())),
+            }
+        };
+        let deadline = Instant::now() + VISIBLE_WITHIN;
+        while queued_bytes(slave).unwrap_or(0) < before + written {
+            if Instant::now() > deadline {
+                warn!(bytes = written, "reply bytes not visible to the controller after 100 ms (is it reading the port?)");
+                break;
+            }
+            std::thread::yield_now();
+        }
+        Poll::Ready(Ok(written))
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Poll::Ready(Ok(()))
     }
 }
 

@@ -11,6 +11,7 @@ use tracing::{debug, info_span, trace, Instrument};
 
 use crate::bus::{Bus, Reply, Timing, Transaction, wire};
 use crate::protocol::{DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};
+use crate::virtual_time::VirtualTime;
 
 use super::stats::{Answered, LineStats};
 use super::{AdapterModel, BusHandle, Clock, LineSettings, TransportError};
@@ -127,7 +128,17 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             // A partial packet waits for at most the inter-byte gap: if the line stays quiet that
             // long, drop it (and find any packet that was hidden behind a false header).
             let read = if self.decoder.pending() > 0 {
-                tokio::time::timeout(self.clock.wall(self.gap), self.stream.read(&mut self.buf)).await.ok()
+                match self.clock.virtual_time() {
+                    Some(virtual_time) => {
+                        let quiet = virtual_time.timer(self.clock.now() + self.gap);
+                        tokio::select! {
+                            biased;
+                            read = self.stream.read(&mut self.buf) => Some(read),
+                            () = quiet => None,
+                        }
+                    }
+                    None => tokio::time::timeout(self.clock.wall(self.gap), self.stream.read(&mut self.buf)).await.ok(),
+                }
             } else {
                 Some(self.stream.read(&mut self.buf).await)
             };
@@ -304,6 +315,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     /// Wait until `due`, reading whatever the controller sends meanwhile: bytes that overlap
     /// `undelivered` replies on the wire collide with them. True if the controller closed.
     async fn wait_watching(&mut self, undelivered: &mut [Reply], due: Duration) -> Result<bool, TransportError> {
+        if let Some(virtual_time) = self.clock.virtual_time().cloned() {
+            return self.wait_watching_virtual(&virtual_time, undelivered, due).await;
+        }
         loop {
             let now = self.clock.now();
             if now >= due {
@@ -344,6 +358,26 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 Some(n) => self.early_bytes(n, undelivered),
             }
         }
+    }
+
+    /// [`Session::wait_watching`] under virtual time: the scheduler fires the timer at `due`
+    /// exactly, with the controller parked; whatever it sends before then is read at its
+    /// simulated instant (no spin, no wake-up margin).
+    async fn wait_watching_virtual(&mut self, virtual_time: &Arc<VirtualTime>, undelivered: &mut [Reply], due: Duration) -> Result<bool, TransportError> {
+        while self.clock.now() < due {
+            let reached = virtual_time.timer(due);
+            let read = tokio::select! {
+                biased;
+                read = self.stream.read(&mut self.buf) => Some(read?),
+                () = reached => None,
+            };
+            match read {
+                None => {}
+                Some(0) => return Ok(true),
+                Some(n) => self.early_bytes(n, undelivered),
+            }
+        }
+        Ok(false)
     }
 
     /// Packets that arrived in the same read as the one just handled were written before its

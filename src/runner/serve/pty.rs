@@ -11,6 +11,9 @@ use crate::runner::{During as _, Result};
 /// every controller connection.
 pub async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) -> Result<(), TransportError> {
     let line = port.line();
+    if let Some(virtual_time) = handle.clock().virtual_time() {
+        return serve_stream_through(port.virtual_stream(Arc::clone(virtual_time)), handle, &line, AdapterModel::new(adapter)).await;
+    }
     let spin_for_requests = handle.with_bus(|bus| bus.timing()) == Timing::Off;
     serve_stream_through(port.stream(spin_for_requests)?, handle, &line, AdapterModel::new(adapter)).await
 }

@@ -207,26 +207,51 @@ impl SensorServer {
 async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Result<()> {
     let mut head = Vec::with_capacity(512);
     let mut chunk = [0u8; 1024];
-    while !head.windows(4).any(|w| w == b"\r\n\r\n") {
+    while !head_complete(&head) {
         let n = stream.read(&mut chunk).await?;
         if n == 0 {
             return Ok(());
         }
         head.extend_from_slice(&chunk[..n]);
-        if head.len() > MAX_REQUEST_BYTES {
-            return respond(&mut stream, "431 Request Header Fields Too Large", "text/plain", b"request too large\n").await;
-        }
+    }
+    match answer(&head, feed, true) {
+        Answer::Mjpeg => stream_mjpeg(stream, feed).await,
+        Answer::Reply { status, content_type, body } => respond(&mut stream, status, content_type, &body).await,
+    }
+}
+
+/// The request head is whole (or too long to wait for more).
+fn head_complete(head: &[u8]) -> bool {
+    head.windows(4).any(|w| w == b"\r\n\r\n") || head.len() > MAX_REQUEST_BYTES
+}
+
+/// What the server sends back for a request head.
+enum Answer {
+    /// The camera's MJPEG stream, frame after frame.
+    Mjpeg,
+    Reply { status: &'static str, content_type: &'static str, body: Vec<u8> },
+}
+
+/// Answer a whole request head from the feed's latest snapshot (`streams`: the MJPEG stream
+/// can be served).
+fn answer(head: &[u8], feed: &SensorFeed, streams: bool) -> Answer {
+    let text = |status, body: &[u8]| Answer::Reply { status, content_type: "text/plain", body: body.to_vec() };
+    if head.len() > MAX_REQUEST_BYTES {
+        return text("431 Request Header Fields Too Large", b"request too large\n");
     }
     let request_line = String::from_utf8_lossy(head.split(|&b| b == b'\r').next().unwrap_or_default()).into_owned();
     let mut parts = request_line.split_whitespace();
     let (method, target) = (parts.next().unwrap_or_default(), parts.next().unwrap_or_default());
     if method != "GET" {
-        return respond(&mut stream, "405 Method Not Allowed", "text/plain", b"only GET\n").await;
+        return text("405 Method Not Allowed", b"only GET\n");
     }
     // Query strings (e.g. cache busters) are ignored.
     let path = target.split('?').next().unwrap_or_default();
     if path == "/camera.mjpg" {
-        return stream_mjpeg(stream, feed).await;
+        if streams {
+            return Answer::Mjpeg;
+        }
+        return text("501 Not Implemented", b"/camera.mjpg is not served under --clock virtual: poll /camera.png\n");
     }
     let snapshot = feed.snapshot();
     let not_yet = |what: &str| format!("no {what} yet\n").into_bytes();
@@ -234,7 +259,7 @@ async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Resu
         Some(value) => (200, "application/json", value.to_string().into_bytes()),
         None => (503, "text/plain", not_yet(what)),
     };
-    let (status, content_type, body): (u16, &str, Vec<u8>) = match path {
+    let (status, content_type, body): (u16, &'static str, Vec<u8>) = match path {
         "/camera.png" => match snapshot.frame.as_deref().map(Frame::png) {
             Some(Ok(png)) => (200, "image/png", png.to_vec()),
             Some(Err(error)) => (500, "text/plain", format!("{error}\n").into_bytes()),
@@ -250,21 +275,27 @@ async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Resu
     if let Some(hook) = feed.on_read.get() {
         hook(path, status, content_type, &body);
     }
-    let reason = match status {
+    let status = match status {
         200 => "200 OK",
         500 => "500 Internal Server Error",
         503 => "503 Service Unavailable",
         _ => "404 Not Found",
     };
-    respond(&mut stream, reason, content_type, &body).await
+    Answer::Reply { status, content_type, body }
+}
+
+fn response_head(status: &str, content_type: &str, length: usize) -> String {
+    format!("HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {length}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n")
 }
 
 async fn respond(stream: &mut TcpStream, status: &str, content_type: &str, body: &[u8]) -> std::io::Result<()> {
-    let head = format!("HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n", body.len());
-    stream.write_all(head.as_bytes()).await?;
+    stream.write_all(response_head(status, content_type, body.len()).as_bytes()).await?;
     stream.write_all(body).await?;
     stream.shutdown().await
 }
+
+mod virtual_time;
+pub use virtual_time::VirtualSensorServer;
 
 /// Send the current frame, then each new one, until the client goes away.
 async fn stream_mjpeg(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Result<()> {

@@ -1,0 +1,186 @@
+//! The shared-memory block between climbsim and the shim in each controller process. Compiled
+//! into both (climbsim includes this file by path), so the two always agree on the layout; the
+//! ABI number guards against a shim file left over from another climbsim.
+//!
+//! Every field is an atomic: the block is a file mapped `MAP_SHARED` by processes that do not
+//! trust one another's timing. A zero-filled file is a valid, empty block. Who writes what:
+//! C = climbsim, S = the shim.
+
+use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
+
+/// "CLMBVT" and the layout's version.
+pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
+/// Bumped with every change of this file.
+pub const ABI: u32 = 1;
+/// Controller threads that can be followed at once (all processes together).
+pub const SLOTS: usize = 128;
+/// Sensor-server connections followed at once.
+pub const CONNS: usize = 64;
+/// "No deadline" / "nothing due".
+pub const NEVER: u64 = u64::MAX;
+
+/// `Header::mode`.
+pub mod mode {
+    /// The clock is climbsim's: every intercepted call follows virtual time.
+    pub const VIRTUAL: u32 = 1;
+    /// The run is over: calls go to the real kernel again, clocks go on from where virtual time
+    /// stopped at the wall clock's rate, so a controller's clean-up cannot hang.
+    pub const ENDING: u32 = 2;
+}
+
+/// `Slot::state`.
+pub mod state {
+    pub const FREE: u32 = 0;
+    /// Claimed by climbsim for a process about to start (counts as running).
+    pub const RESERVED: u32 = 1;
+    pub const RUNNING: u32 = 2;
+    /// In an intercepted wait: released by climbsim at its deadline or when its data is there.
+    pub const BLOCKED: u32 = 3;
+    /// Gave time up to a due instant (a charge past the horizon, a spin on an empty port).
+    pub const YIELDED: u32 = 4;
+    pub const EXITED: u32 = 5;
+}
+
+/// `Slot::waits`: what a blocked or yielded thread waits on.
+pub mod waits {
+    /// Readable bytes on the servo port.
+    pub const PORT: u32 = 1;
+    /// A response on a sensor-server connection (`Slot::conn_mask` says which).
+    pub const CONN: u32 = 2;
+    /// Descriptors climbsim does not model: polled for real, on the wall clock.
+    pub const OTHER: u32 = 4;
+    /// A zero-timeout poll of the port that found nothing: resume at the next byte due on it
+    /// (or the spin cap, whichever is first).
+    pub const SPIN: u32 = 8;
+    /// A child process's end (waitpid and kin), which the kernel itself wakes; `Slot::conn_mask`
+    /// holds the pid waited for (as i64; -1: any child).
+    pub const CHILD: u32 = 16;
+}
+
+/// `Slot::release`: why climbsim let a thread go.
+pub mod release {
+    pub const DEADLINE: u32 = 1;
+    pub const DATA: u32 = 2;
+    pub const ENDING: u32 = 3;
+}
+
+/// `Slot::last_call`: the intercepted call a thread made last (for the watchdog's report).
+pub mod call {
+    pub const NONE: u32 = 0;
+    pub const CLOCK: u32 = 1;
+    pub const SLEEP: u32 = 2;
+    pub const POLL: u32 = 3;
+    pub const SELECT: u32 = 4;
+    pub const WRITE: u32 = 5;
+    pub const READ: u32 = 6;
+    pub const NET: u32 = 7;
+    pub const WAIT_CHILD: u32 = 8;
+
+    pub fn name(call: u32) -> &'static str {
+        match call {
+            CLOCK => "a clock read",
+            SLEEP => "a sleep",
+            POLL => "poll",
+            SELECT => "select",
+            WRITE => "write",
+            READ => "read",
+            NET => "a socket call",
+            WAIT_CHILD => "waitpid",
+            _ => "nothing yet",
+        }
+    }
+}
+
+#[repr(C)]
+pub struct Header {
+    pub magic: AtomicU64,
+    pub abi: AtomicU32,
+    /// C: see [`mode`].
+    pub mode: AtomicU32,
+    /// S bumps it (and wakes climbsim's scheduler) whenever a thread blocks, yields or exits.
+    pub sched_word: AtomicU32,
+    pub _pad0: AtomicU32,
+    /// C (and S within the horizon): simulated time, ns since the run's start.
+    pub now_ns: AtomicU64,
+    /// C: a thread may move `now_ns` itself (charging its calls) up to here, not beyond.
+    pub horizon_ns: AtomicU64,
+    /// C: CLOCK_REALTIME at simulated time 0.
+    pub realtime_epoch_ns: AtomicU64,
+    /// C: CLOCK_MONOTONIC at simulated time 0.
+    pub monotonic_base_ns: AtomicU64,
+    /// C: the wall clock's CLOCK_MONOTONIC when the run ended (for [`mode::ENDING`]).
+    pub ending_wall_ns: AtomicU64,
+    /// C: what a clock read costs a thread in simulated time.
+    pub clock_read_ns: AtomicU64,
+    /// C: what any other intercepted call that did not block costs.
+    pub syscall_ns: AtomicU64,
+    /// C: charges are applied once they reach this much.
+    pub batch_ns: AtomicU64,
+    /// C: the longest jump of a spin on an empty port with nothing due on it.
+    pub spin_cap_ns: AtomicU64,
+    /// C: the servo port's device number (the pty slave's st_rdev); 0 before there is one.
+    pub port_rdev: AtomicU64,
+    /// S: bytes the controller has written to the port.
+    pub port_tx_total: AtomicU64,
+    /// C: of those, the bytes climbsim has read (and so time-stamped).
+    pub port_tx_read: AtomicU64,
+    /// C: the sensor server's TCP port and IPv4 address (network order), 0 before there is one.
+    pub sensor_port: AtomicU32,
+    pub sensor_ip: AtomicU32,
+    /// S: every intercepted call, all threads: the watchdog's sign of life.
+    pub calls: AtomicU64,
+}
+
+#[repr(C)]
+pub struct Slot {
+    /// See [`state`].
+    pub state: AtomicU32,
+    /// C bumps it (and wakes the futex) to release a blocked or yielded thread.
+    pub wake_word: AtomicU32,
+    pub pid: AtomicI32,
+    pub tid: AtomicI32,
+    /// S: a blocked thread's wake-up, a yielded thread's resume (simulated ns; [`NEVER`]).
+    pub deadline_ns: AtomicU64,
+    /// S: see [`waits`].
+    pub waits: AtomicU32,
+    /// C: see [`release`].
+    pub release: AtomicU32,
+    /// S: the sensor connections a blocked thread waits on (bit i: `Shared::conns[i]`).
+    pub conn_mask: AtomicU64,
+    /// S: see [`call`].
+    pub last_call: AtomicU32,
+    pub _pad0: AtomicU32,
+    /// S: this thread's intercepted calls.
+    pub calls: AtomicU64,
+    /// S: simulated time of the last call.
+    pub last_call_ns: AtomicU64,
+}
+
+/// One connection from the controller to the sensor server, seen from both ends.
+#[repr(C)]
+pub struct Conn {
+    /// S: the controller's end's local TCP port; 0 = free.
+    pub client_port: AtomicU32,
+    /// S: the process and descriptor of the controller's end.
+    pub pid: AtomicI32,
+    pub fd: AtomicI32,
+    pub _pad0: AtomicU32,
+    /// S: request bytes sent.
+    pub sent: AtomicU64,
+    /// C: request bytes the server has read (and answered, once a request is whole).
+    pub read: AtomicU64,
+    /// C: response bytes written, plus 1 once the server has closed its end.
+    pub resp_written: AtomicU64,
+    /// S: response bytes the controller has received, plus 1 at the end of the stream.
+    pub resp_taken: AtomicU64,
+}
+
+#[repr(C)]
+pub struct Shared {
+    pub header: Header,
+    pub slots: [Slot; SLOTS],
+    pub conns: [Conn; CONNS],
+}
+
+/// The block's size in bytes, for the file climbsim creates.
+pub const SHARED_BYTES: usize = core::mem::size_of::<Shared>();

@@ -1,0 +1,84 @@
+//! Waiting for a child process. The kernel wakes the parent; meanwhile it counts as blocked, so
+//! that the child (a followed process itself) can run on. A child that ends marks its waiting
+//! parent running before it goes, so that time does not move between the child's end and the
+//! parent's return.
+
+use core::ffi::{c_int, c_void};
+use core::sync::atomic::Ordering;
+
+use crate::abi::{NEVER, Shared, call, state, waits};
+use crate::sys::real;
+use crate::{active, charge, my_slot, note_call, notify_scheduler};
+
+const WNOHANG: c_int = 1;
+
+/// Run the real wait `wait` for `child` (-1: any) as a blocked thread.
+fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> c_int {
+    let Some(shared) = active() else { return wait() };
+    note_call(shared, call::WAIT_CHILD);
+    let slot = my_slot();
+    if options & WNOHANG != 0 || slot.is_none() {
+        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        return wait();
+    }
+    let slot = slot.expect("checked above");
+    slot.deadline_ns.store(NEVER, Ordering::Relaxed);
+    slot.waits.store(waits::CHILD, Ordering::Relaxed);
+    slot.conn_mask.store(child as u64, Ordering::Relaxed);
+    slot.state.store(state::BLOCKED, Ordering::Release);
+    notify_scheduler(shared);
+    let result = wait();
+    slot.waits.store(0, Ordering::Relaxed);
+    slot.state.store(state::RUNNING, Ordering::Release);
+    result
+}
+
+/// This process is ending: a parent waiting for it runs again from now.
+pub(crate) fn wake_waiting_parent(shared: &Shared, pid: i32, parent: i32) {
+    for slot in &shared.slots {
+        if slot.pid.load(Ordering::Relaxed) != parent || slot.state.load(Ordering::Acquire) != state::BLOCKED || slot.waits.load(Ordering::Relaxed) != waits::CHILD {
+            continue;
+        }
+        let awaited = slot.conn_mask.load(Ordering::Relaxed) as i64;
+        if awaited <= 0 || awaited == i64::from(pid) {
+            slot.state.store(state::RUNNING, Ordering::Release);
+        }
+    }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn waitpid(pid: c_int, status: *mut c_int, options: c_int) -> c_int {
+    let next = real!(waitpid: fn(c_int, *mut c_int, c_int) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    blocked_in_wait(options, i64::from(pid), || unsafe { next(pid, status, options) })
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn wait4(pid: c_int, status: *mut c_int, options: c_int, usage: *mut c_void) -> c_int {
+    let next = real!(wait4: fn(c_int, *mut c_int, c_int, *mut c_void) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    blocked_in_wait(options, i64::from(pid), || unsafe { next(pid, status, options, usage) })
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn wait(status: *mut c_int) -> c_int {
+    let next = real!(wait: fn(*mut c_int) -> c_int);
+    // SAFETY: passing the caller's argument through.
+    blocked_in_wait(0, -1, || unsafe { next(status) })
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn waitid(kind: c_int, id: u32, info: *mut c_void, options: c_int) -> c_int {
+    let next = real!(waitid: fn(c_int, u32, *mut c_void, c_int) -> c_int);
+    const P_PID: c_int = 1;
+    let child = if kind == P_PID { i64::from(id) } else { -1 };
+    // SAFETY: passing the caller's arguments through.
+    blocked_in_wait(options, child, || unsafe { next(kind, id, info, options) })
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn wait3(status: *mut c_int, options: c_int, usage: *mut c_void) -> c_int {
+    let next = real!(wait3: fn(*mut c_int, c_int, *mut c_void) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    blocked_in_wait(options, -1, || unsafe { next(status, options, usage) })
+}

@@ -1,0 +1,281 @@
+//! climbsim's preload for `--clock virtual`: it puts an unchanged controller process (every
+//! thread, every child that keeps `LD_PRELOAD`) on the simulation's clock.
+//!
+//! - Clock reads answer from the shared block (`abi.rs`), no system call.
+//! - Sleeps and waits publish "blocked until T, waiting on the port / a sensor connection" and
+//!   sleep on a futex until climbsim releases them: at T, or when their data is there.
+//! - Every other intercepted call costs a small charge of simulated time, so that a loop that
+//!   only spins still moves time (Shadow's `model_unblocked_syscall_latency`); a zero-timeout
+//!   poll of an empty port jumps to the next reply byte due.
+//!
+//! Dormant (every call goes straight to libc) unless `CLIMBSIM_VT` names a block. The model and
+//! what is intercepted: docs/virtual-time.md.
+//!
+//! Rules for this code: never call anything that is itself intercepted (std's time, sleep, I/O)
+//! except through `real!`; no allocation; thread-locals are `const`-initialised plain cells.
+
+#![allow(clippy::missing_safety_doc)]
+
+#[path = "abi.rs"]
+pub mod abi;
+mod children;
+mod io;
+mod net;
+mod spawn;
+mod sys;
+mod time;
+mod wait;
+
+use core::cell::Cell;
+use core::ffi::{c_char, c_int, c_void};
+use core::sync::atomic::{AtomicPtr, AtomicU32, Ordering};
+
+use abi::{Shared, Slot, mode, release, state};
+use sys::real;
+
+/// The block, once mapped.
+static SHARED: AtomicPtr<Shared> = AtomicPtr::new(core::ptr::null_mut());
+/// This process's id (kept up to date across fork), to find its descriptors' entries.
+static PID: core::sync::atomic::AtomicI32 = core::sync::atomic::AtomicI32::new(0);
+/// The pthread key whose destructor marks a thread's slot exited.
+static EXIT_KEY: AtomicU32 = AtomicU32::new(u32::MAX);
+
+const NO_SLOT: u32 = u32::MAX;
+
+thread_local! {
+    /// This thread's slot in the block (NO_SLOT until its first intercepted call).
+    static SLOT: Cell<u32> = const { Cell::new(NO_SLOT) };
+    /// Simulated time charged to this thread and not yet applied (ns).
+    static UNAPPLIED: Cell<u64> = const { Cell::new(0) };
+}
+
+/// The block if virtual time is on (the run has not ended).
+fn active() -> Option<&'static Shared> {
+    let shared = shared()?;
+    (shared.header.mode.load(Ordering::Acquire) == mode::VIRTUAL).then_some(shared)
+}
+
+/// The block, whatever its mode.
+fn shared() -> Option<&'static Shared> {
+    let pointer = SHARED.load(Ordering::Acquire);
+    // SAFETY: set once to a mapping of the whole block that is never unmapped.
+    (!pointer.is_null()).then(|| unsafe { &*pointer })
+}
+
+/// Map the block named by `CLIMBSIM_VT`. Runs before `main` in every process that preloads the
+/// shim.
+extern "C" fn init() {
+    // SAFETY: getenv with a NUL-terminated name; the result is a C string or null.
+    let path = unsafe { sys::getenv(c"CLIMBSIM_VT".as_ptr()) };
+    if path.is_null() {
+        return;
+    }
+    PID.store(sys::getpid(), Ordering::Relaxed);
+    if let Err(why) = map(path) {
+        sys::say(b"climbsim shim: ");
+        sys::say(why);
+        sys::say(b"; the controller runs on the wall clock, which climbsim will report\n");
+        return;
+    }
+    // SAFETY: registering plain C callbacks.
+    unsafe {
+        let mut key = 0u32;
+        if sys::pthread_key_create(&mut key, Some(thread_exited)) == 0 {
+            EXIT_KEY.store(key, Ordering::Relaxed);
+        }
+        sys::__register_atfork(None, None, Some(forked_child), core::ptr::null_mut());
+        sys::__cxa_atexit(process_exiting, core::ptr::null_mut(), core::ptr::null_mut());
+    }
+    // The main thread is followed from the start: before its first call it is already running.
+    my_slot();
+}
+
+#[used]
+#[unsafe(link_section = ".init_array")]
+static INIT: extern "C" fn() = init;
+
+fn map(path: *const c_char) -> Result<(), &'static [u8]> {
+    const O_RDWR: c_int = 2;
+    const O_CLOEXEC: c_int = 0o2000000;
+    const PROT_READ_WRITE: c_int = 3;
+    const MAP_SHARED: c_int = 1;
+    // SAFETY: a NUL-terminated path from the environment.
+    let fd = unsafe { sys::open(path, O_RDWR | O_CLOEXEC) };
+    if fd < 0 {
+        return Err(b"cannot open the block CLIMBSIM_VT names");
+    }
+    // SAFETY: mapping the file's first SHARED_BYTES, which climbsim sized so.
+    let mapped = unsafe { sys::mmap(core::ptr::null_mut(), abi::SHARED_BYTES, PROT_READ_WRITE, MAP_SHARED, fd, 0) };
+    let close = real!(close: fn(c_int) -> c_int);
+    // SAFETY: closing our own descriptor; the mapping stays.
+    unsafe { close(fd) };
+    if mapped as isize == -1 {
+        return Err(b"cannot map the block CLIMBSIM_VT names");
+    }
+    let block = mapped.cast::<Shared>();
+    // SAFETY: the mapping holds a whole block.
+    let header = unsafe { &(*block).header };
+    if header.magic.load(Ordering::Acquire) != abi::MAGIC || header.abi.load(Ordering::Acquire) != abi::ABI {
+        return Err(b"CLIMBSIM_VT names a block of another climbsim version");
+    }
+    SHARED.store(block, Ordering::Release);
+    Ok(())
+}
+
+/// This thread's slot, claimed at its first intercepted call: the slot of a program this
+/// thread was before an exec, the one climbsim reserved for the process it starts, or a free
+/// one. None if all are taken (the thread then runs unfollowed).
+fn my_slot() -> Option<&'static Slot> {
+    let shared = shared()?;
+    let index = SLOT.with(Cell::get);
+    if index != NO_SLOT {
+        return shared.slots.get(index as usize);
+    }
+    let (tid, pid) = (sys::gettid(), sys::getpid());
+    let claim = |index: usize, slot: &'static Slot| {
+        slot.pid.store(pid, Ordering::Relaxed);
+        slot.tid.store(tid, Ordering::Relaxed);
+        slot.state.store(state::RUNNING, Ordering::Release);
+        SLOT.with(|s| s.set(index as u32));
+        let key = EXIT_KEY.load(Ordering::Relaxed);
+        if key != u32::MAX && tid != pid {
+            // SAFETY: a key from pthread_key_create; the value only has to be non-null.
+            unsafe { sys::pthread_setspecific(key, 1 as *const c_void) };
+        }
+        Some(slot)
+    };
+    // After an exec the thread is the same task: its old slot (or the one it reserved before
+    // the exec) is still running. A child of posix_spawn finds the one its parent reserved.
+    let parent = sys::getppid();
+    for (index, slot) in shared.slots.iter().enumerate() {
+        let held = slot.state.load(Ordering::Acquire);
+        let slot_tid = slot.tid.load(Ordering::Relaxed);
+        let mine = matches!(held, state::RUNNING | state::RESERVED) && slot_tid == tid;
+        let spawned_for_me = held == state::RESERVED && slot_tid == 0 && slot.pid.load(Ordering::Relaxed) == parent;
+        if (mine || spawned_for_me) && (held == state::RUNNING || slot.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
+            return claim(index, slot);
+        }
+    }
+    let first = &shared.slots[0];
+    if tid == pid && first.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+        return claim(0, first);
+    }
+    for (index, slot) in shared.slots.iter().enumerate().skip(1) {
+        if slot.state.compare_exchange(state::FREE, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+            return claim(index, slot);
+        }
+    }
+    None
+}
+
+unsafe extern "C" fn thread_exited(_: *mut c_void) {
+    if let Some(slot) = my_slot() {
+        exit_slot(slot);
+    }
+}
+
+/// The process is ending (exit or return from main): every thread of it stops with it.
+unsafe extern "C" fn process_exiting(_: *mut c_void) {
+    let Some(shared) = shared() else { return };
+    let pid = sys::getpid();
+    children::wake_waiting_parent(shared, pid, sys::getppid());
+    for slot in &shared.slots {
+        if slot.pid.load(Ordering::Relaxed) == pid && slot.state.load(Ordering::Acquire) != state::FREE {
+            exit_slot(slot);
+        }
+    }
+}
+
+fn exit_slot(slot: &Slot) {
+    slot.state.store(state::EXITED, Ordering::Release);
+    if let Some(shared) = shared() {
+        notify_scheduler(shared);
+    }
+}
+
+/// A forked child is a new process: its threads claim slots of their own.
+unsafe extern "C" fn forked_child() {
+    PID.store(sys::getpid(), Ordering::Relaxed);
+    SLOT.with(|s| s.set(NO_SLOT));
+    UNAPPLIED.with(|u| u.set(0));
+    my_slot();
+}
+
+fn pid() -> i32 {
+    PID.load(Ordering::Relaxed)
+}
+
+fn notify_scheduler(shared: &Shared) {
+    shared.header.sched_word.fetch_add(1, Ordering::AcqRel);
+    sys::futex_wake(&shared.header.sched_word);
+}
+
+/// Count an intercepted call (the watchdog's sign of life) and remember what it was.
+fn note_call(shared: &Shared, call: u32) {
+    shared.header.calls.fetch_add(1, Ordering::Relaxed);
+    if let Some(slot) = my_slot() {
+        slot.calls.fetch_add(1, Ordering::Relaxed);
+        slot.last_call.store(call, Ordering::Relaxed);
+        slot.last_call_ns.store(shared.header.now_ns.load(Ordering::Relaxed), Ordering::Relaxed);
+    }
+}
+
+/// Bytes the controller sent that climbsim has not time-stamped yet: simulated time must not
+/// move until it has, or their arrival would be stamped late.
+fn held(shared: &Shared) -> bool {
+    let header = &shared.header;
+    header.port_tx_total.load(Ordering::Acquire) != header.port_tx_read.load(Ordering::Acquire)
+        || shared.conns.iter().any(|c| c.client_port.load(Ordering::Relaxed) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire))
+}
+
+/// Charge `ns` of simulated time to this thread; once the charges reach a batch they move the
+/// clock: by the thread itself up to climbsim's horizon, else by yielding to climbsim.
+fn charge(shared: &Shared, ns: u64) {
+    let total = UNAPPLIED.with(|u| {
+        let total = u.get().saturating_add(ns);
+        u.set(total);
+        total
+    });
+    if total < shared.header.batch_ns.load(Ordering::Relaxed) {
+        return;
+    }
+    UNAPPLIED.with(|u| u.set(0));
+    let header = &shared.header;
+    loop {
+        let now = header.now_ns.load(Ordering::Acquire);
+        let target = now.saturating_add(total);
+        if target > header.horizon_ns.load(Ordering::Acquire) || held(shared) {
+            park(shared, state::YIELDED, target, 0, 0);
+            return;
+        }
+        if header.now_ns.compare_exchange(now, target, Ordering::AcqRel, Ordering::Acquire).is_ok() {
+            return;
+        }
+    }
+}
+
+/// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on
+/// `waits`, and sleep until climbsim releases it; why it did (`abi::release`). A thread without
+/// a slot cannot be followed: it returns at once, as if its deadline had come.
+fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
+    let Some(slot) = my_slot() else { return release::DEADLINE };
+    UNAPPLIED.with(|u| u.set(0));
+    slot.deadline_ns.store(deadline, Ordering::Relaxed);
+    slot.waits.store(waits, Ordering::Relaxed);
+    slot.conn_mask.store(conn_mask, Ordering::Relaxed);
+    slot.release.store(0, Ordering::Relaxed);
+    slot.state.store(parked, Ordering::Release);
+    notify_scheduler(shared);
+    loop {
+        let seen = slot.wake_word.load(Ordering::Acquire);
+        if slot.state.load(Ordering::Acquire) == state::RUNNING {
+            return slot.release.load(Ordering::Acquire);
+        }
+        if shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL {
+            slot.state.store(state::RUNNING, Ordering::Release);
+            return release::ENDING;
+        }
+        // A timeout only to notice a run that ended without waking us.
+        sys::futex_wait(&slot.wake_word, seen, 100_000_000);
+    }
+}

@@ -1,0 +1,195 @@
+//! Connections to the sensor server, counted from the controller's end: request bytes sent
+//! (climbsim holds time until it has read them all), response bytes received (a thread blocked
+//! on a connection is let go when climbsim has written more than it took).
+
+use core::ffi::{c_int, c_void};
+use core::sync::atomic::Ordering;
+
+use crate::abi::{Conn, Shared, call};
+use crate::sys::{self, real};
+use crate::{active, note_call};
+
+const AF_INET: u16 = 2;
+
+/// The sensor connection `fd` of this process is, if it is one.
+pub(crate) fn conn_of(shared: &'static Shared, fd: c_int) -> Option<(usize, &'static Conn)> {
+    if shared.header.sensor_port.load(Ordering::Relaxed) == 0 {
+        return None;
+    }
+    let pid = crate::pid();
+    shared.conns.iter().enumerate().find(|(_, c)| c.client_port.load(Ordering::Acquire) != 0 && c.fd.load(Ordering::Relaxed) == fd && c.pid.load(Ordering::Relaxed) == pid)
+}
+
+#[repr(C)]
+struct SockaddrIn {
+    family: u16,
+    port_be: u16,
+    addr_be: u32,
+    zero: [u8; 8],
+}
+
+unsafe extern "C" {
+    fn getsockname(fd: c_int, addr: *mut SockaddrIn, len: *mut u32) -> c_int;
+}
+
+/// A connection to the sensor server starts: give it an entry.
+fn follow_connection(shared: &'static Shared, fd: c_int, to: *const SockaddrIn) {
+    // SAFETY: the caller's address, at least a sockaddr_in long (checked by the caller).
+    let to = unsafe { &*to };
+    let header = &shared.header;
+    if to.family != AF_INET || u32::from(u16::from_be(to.port_be)) != header.sensor_port.load(Ordering::Relaxed) || to.addr_be != header.sensor_ip.load(Ordering::Relaxed) {
+        return;
+    }
+    let mut local = SockaddrIn { family: 0, port_be: 0, addr_be: 0, zero: [0; 8] };
+    let mut len = core::mem::size_of::<SockaddrIn>() as u32;
+    let saved = sys::errno();
+    // SAFETY: a valid buffer and length for the socket's own address.
+    let rc = unsafe { getsockname(fd, &mut local, &mut len) };
+    sys::set_errno(saved);
+    if rc != 0 {
+        return;
+    }
+    let port = u32::from(u16::from_be(local.port_be));
+    forget(shared, fd);
+    for conn in &shared.conns {
+        if conn.client_port.compare_exchange(0, u32::MAX, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+            conn.sent.store(0, Ordering::Relaxed);
+            conn.read.store(0, Ordering::Relaxed);
+            conn.resp_written.store(0, Ordering::Relaxed);
+            conn.resp_taken.store(0, Ordering::Relaxed);
+            conn.pid.store(crate::pid(), Ordering::Relaxed);
+            conn.fd.store(fd, Ordering::Relaxed);
+            conn.client_port.store(port, Ordering::Release);
+            return;
+        }
+    }
+}
+
+/// The descriptor is closed (or reused): its connection is no longer followed.
+fn forget(shared: &'static Shared, fd: c_int) {
+    if let Some((_, conn)) = conn_of(shared, fd) {
+        conn.client_port.store(0, Ordering::Release);
+    }
+}
+
+/// `sent` request bytes went out on `fd`.
+pub(crate) fn count_sent(fd: c_int, sent: isize) {
+    if sent <= 0 {
+        return;
+    }
+    if let Some(shared) = active()
+        && let Some((_, conn)) = conn_of(shared, fd)
+    {
+        note_call(shared, call::NET);
+        conn.sent.fetch_add(sent as u64, Ordering::AcqRel);
+    }
+}
+
+/// A receive on `fd` returned `received` (0: the end of the stream).
+pub(crate) fn count_received(fd: c_int, received: isize) {
+    if received < 0 {
+        return;
+    }
+    if let Some(shared) = active()
+        && let Some((_, conn)) = conn_of(shared, fd)
+    {
+        note_call(shared, call::NET);
+        conn.resp_taken.fetch_add(if received == 0 { 1 } else { received as u64 }, Ordering::AcqRel);
+    }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn connect(fd: c_int, addr: *const c_void, len: u32) -> c_int {
+    let next = real!(connect: fn(c_int, *const c_void, u32) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    let result = unsafe { next(fd, addr, len) };
+    const EINPROGRESS: c_int = 115;
+    if let Some(shared) = active()
+        && (result == 0 || sys::errno() == EINPROGRESS)
+        && !addr.is_null()
+        && len as usize >= core::mem::size_of::<SockaddrIn>()
+    {
+        follow_connection(shared, fd, addr.cast());
+    }
+    result
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn close(fd: c_int) -> c_int {
+    if let Some(shared) = crate::shared() {
+        forget(shared, fd);
+    }
+    let next = real!(close: fn(c_int) -> c_int);
+    // SAFETY: passing the caller's argument through.
+    unsafe { next(fd) }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn send(fd: c_int, buf: *const c_void, len: usize, flags: c_int) -> isize {
+    let next = real!(send: fn(c_int, *const c_void, usize, c_int) -> isize);
+    // SAFETY: passing the caller's arguments through.
+    let sent = unsafe { next(fd, buf, len, flags) };
+    count_sent(fd, sent);
+    sent
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sendto(fd: c_int, buf: *const c_void, len: usize, flags: c_int, addr: *const c_void, addr_len: u32) -> isize {
+    let next = real!(sendto: fn(c_int, *const c_void, usize, c_int, *const c_void, u32) -> isize);
+    // SAFETY: passing the caller's arguments through.
+    let sent = unsafe { next(fd, buf, len, flags, addr, addr_len) };
+    count_sent(fd, sent);
+    sent
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sendmsg(fd: c_int, message: *const c_void, flags: c_int) -> isize {
+    let next = real!(sendmsg: fn(c_int, *const c_void, c_int) -> isize);
+    // SAFETY: passing the caller's arguments through.
+    let sent = unsafe { next(fd, message, flags) };
+    count_sent(fd, sent);
+    sent
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_int) -> isize {
+    let next = real!(recv: fn(c_int, *mut c_void, usize, c_int) -> isize);
+    // SAFETY: passing the caller's arguments through.
+    let received = unsafe { next(fd, buf, len, flags) };
+    if flags & 2 == 0 {
+        // Not MSG_PEEK: the bytes are taken.
+        count_received(fd, received);
+    }
+    received
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags: c_int, addr: *mut c_void, addr_len: *mut u32) -> isize {
+    let next = real!(recvfrom: fn(c_int, *mut c_void, usize, c_int, *mut c_void, *mut u32) -> isize);
+    // SAFETY: passing the caller's arguments through.
+    let received = unsafe { next(fd, buf, len, flags, addr, addr_len) };
+    if flags & 2 == 0 {
+        count_received(fd, received);
+    }
+    received
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn recvmsg(fd: c_int, message: *mut c_void, flags: c_int) -> isize {
+    let next = real!(recvmsg: fn(c_int, *mut c_void, c_int) -> isize);
+    // SAFETY: passing the caller's arguments through.
+    let received = unsafe { next(fd, message, flags) };
+    if flags & 2 == 0 {
+        count_received(fd, received);
+    }
+    received
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize {
+    let next = real!(read: fn(c_int, *mut c_void, usize) -> isize);
+    // SAFETY: passing the caller's arguments through.
+    let received = unsafe { next(fd, buf, len) };
+    count_received(fd, received);
+    received
+}

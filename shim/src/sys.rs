@@ -1,0 +1,205 @@
+//! The few C types, libc functions and raw system calls the shim needs, declared here because the
+//! shim has no dependencies (climbsim's build.rs compiles it with rustc alone).
+
+#![allow(non_camel_case_types)]
+
+use core::ffi::{c_char, c_int, c_long, c_void};
+use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
+
+pub type time_t = i64;
+pub type clockid_t = c_int;
+pub type nfds_t = u64;
+
+#[repr(C)]
+#[derive(Clone, Copy)]
+pub struct timespec {
+    pub tv_sec: time_t,
+    pub tv_nsec: c_long,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy)]
+pub struct timeval {
+    pub tv_sec: time_t,
+    pub tv_usec: c_long,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy)]
+pub struct pollfd {
+    pub fd: c_int,
+    pub events: i16,
+    pub revents: i16,
+}
+
+/// glibc's fd_set: 1024 bits.
+#[repr(C)]
+#[derive(Clone, Copy)]
+pub struct fd_set {
+    pub bits: [u64; 16],
+}
+
+#[repr(C)]
+pub struct iovec {
+    pub iov_base: *mut c_void,
+    pub iov_len: usize,
+}
+
+pub const POLLIN: i16 = 0x1;
+pub const POLLPRI: i16 = 0x2;
+pub const POLLOUT: i16 = 0x4;
+
+pub const CLOCK_REALTIME: clockid_t = 0;
+pub const CLOCK_MONOTONIC: clockid_t = 1;
+pub const CLOCK_MONOTONIC_RAW: clockid_t = 4;
+pub const CLOCK_REALTIME_COARSE: clockid_t = 5;
+pub const CLOCK_MONOTONIC_COARSE: clockid_t = 6;
+pub const CLOCK_BOOTTIME: clockid_t = 7;
+pub const CLOCK_REALTIME_ALARM: clockid_t = 8;
+pub const CLOCK_BOOTTIME_ALARM: clockid_t = 9;
+pub const CLOCK_TAI: clockid_t = 11;
+pub const TIMER_ABSTIME: c_int = 1;
+
+pub const EINVAL: c_int = 22;
+
+const RTLD_NEXT: *mut c_void = -1isize as *mut c_void;
+
+#[cfg(target_arch = "x86_64")]
+mod nr {
+    pub const FUTEX: i64 = 202;
+    pub const GETTID: i64 = 186;
+    pub const GETPID: i64 = 39;
+    pub const GETPPID: i64 = 110;
+    pub const FSTAT: i64 = 5;
+    pub const WRITE: i64 = 1;
+    /// struct stat: st_mode's and st_rdev's offsets.
+    pub const ST_MODE: usize = 24;
+    pub const ST_RDEV: usize = 40;
+}
+
+#[cfg(target_arch = "aarch64")]
+mod nr {
+    pub const FUTEX: i64 = 98;
+    pub const GETTID: i64 = 178;
+    pub const GETPID: i64 = 172;
+    pub const GETPPID: i64 = 173;
+    pub const FSTAT: i64 = 80;
+    pub const WRITE: i64 = 64;
+    pub const ST_MODE: usize = 16;
+    pub const ST_RDEV: usize = 32;
+}
+
+unsafe extern "C" {
+    pub fn dlsym(handle: *mut c_void, symbol: *const c_char) -> *mut c_void;
+    pub fn getenv(name: *const c_char) -> *mut c_char;
+    pub fn syscall(number: i64, ...) -> i64;
+    pub fn __errno_location() -> *mut c_int;
+    pub fn open(path: *const c_char, flags: c_int, ...) -> c_int;
+    pub fn mmap(addr: *mut c_void, len: usize, prot: c_int, flags: c_int, fd: c_int, offset: i64) -> *mut c_void;
+    pub fn __cxa_atexit(func: unsafe extern "C" fn(*mut c_void), arg: *mut c_void, dso: *mut c_void) -> c_int;
+    pub fn pthread_key_create(key: *mut u32, destructor: Option<unsafe extern "C" fn(*mut c_void)>) -> c_int;
+    pub fn pthread_setspecific(key: u32, value: *const c_void) -> c_int;
+    pub fn __register_atfork(prepare: Option<unsafe extern "C" fn()>, parent: Option<unsafe extern "C" fn()>, child: Option<unsafe extern "C" fn()>, dso: *mut c_void) -> c_int;
+}
+
+/// The next definition of `name` (NUL-terminated) after the shim's: libc's own. A missing one is
+/// fatal, so that a shim that cannot call through never fakes a result.
+pub fn next_symbol(cache: &AtomicUsize, name: &'static [u8]) -> usize {
+    let cached = cache.load(Ordering::Relaxed);
+    if cached != 0 {
+        return cached;
+    }
+    // SAFETY: `name` is a NUL-terminated symbol name; dlsym has no other precondition.
+    let found = unsafe { dlsym(RTLD_NEXT, name.as_ptr().cast()) } as usize;
+    if found == 0 {
+        say(b"climbsim shim: libc has no ");
+        say(&name[..name.len() - 1]);
+        say(b"; cannot go on\n");
+        std::process::abort();
+    }
+    cache.store(found, Ordering::Relaxed);
+    found
+}
+
+/// libc's definition of a function the shim replaces, as a typed function pointer.
+macro_rules! real {
+    ($name:ident : fn($($arg:ty),*) -> $ret:ty) => {{
+        static CACHE: core::sync::atomic::AtomicUsize = core::sync::atomic::AtomicUsize::new(0);
+        let address = $crate::sys::next_symbol(&CACHE, concat!(stringify!($name), "\0").as_bytes());
+        // SAFETY: `address` is libc's definition of the symbol, whose C signature this is.
+        unsafe { core::mem::transmute::<usize, unsafe extern "C" fn($($arg),*) -> $ret>(address) }
+    }};
+}
+pub(crate) use real;
+
+/// A line on standard error, without going through anything the shim intercepts.
+pub fn say(text: &[u8]) {
+    // SAFETY: a write(2) of a valid buffer.
+    unsafe { syscall(nr::WRITE, 2i64, text.as_ptr(), text.len()) };
+}
+
+pub fn errno() -> c_int {
+    // SAFETY: glibc's errno location is valid for the calling thread.
+    unsafe { *__errno_location() }
+}
+
+pub fn set_errno(value: c_int) {
+    // SAFETY: as above.
+    unsafe { *__errno_location() = value };
+}
+
+pub fn gettid() -> i32 {
+    // SAFETY: gettid has no arguments and cannot fail.
+    unsafe { syscall(nr::GETTID) as i32 }
+}
+
+pub fn getppid() -> i32 {
+    // SAFETY: getppid has no arguments and cannot fail.
+    unsafe { syscall(nr::GETPPID) as i32 }
+}
+
+pub fn getpid() -> i32 {
+    // SAFETY: getpid has no arguments and cannot fail.
+    unsafe { syscall(nr::GETPID) as i32 }
+}
+
+const FUTEX_WAIT: i64 = 0;
+const FUTEX_WAKE: i64 = 1;
+
+/// Sleep while `word` still holds `expected`, at most `timeout_ns` (shared futex: the word lives
+/// in memory mapped by climbsim too).
+pub fn futex_wait(word: &AtomicU32, expected: u32, timeout_ns: u64) {
+    let timeout = timespec { tv_sec: (timeout_ns / 1_000_000_000) as time_t, tv_nsec: (timeout_ns % 1_000_000_000) as c_long };
+    let saved = errno();
+    // SAFETY: a futex wait on a valid, aligned u32 with a valid timeout.
+    unsafe { syscall(nr::FUTEX, word.as_ptr(), FUTEX_WAIT, expected as i64, &timeout as *const timespec, 0i64, 0i64) };
+    set_errno(saved);
+}
+
+pub fn futex_wake(word: &AtomicU32) {
+    let saved = errno();
+    // SAFETY: a futex wake on a valid, aligned u32.
+    unsafe { syscall(nr::FUTEX, word.as_ptr(), FUTEX_WAKE, i32::MAX as i64) };
+    set_errno(saved);
+}
+
+/// The character device number of `fd`, if it is one.
+pub fn char_device(fd: c_int) -> Option<u64> {
+    let mut stat = [0u8; 256];
+    let saved = errno();
+    // SAFETY: fstat writes at most sizeof(struct stat) (144 or 128 bytes) into the buffer.
+    let rc = unsafe { syscall(nr::FSTAT, fd as i64, stat.as_mut_ptr()) };
+    set_errno(saved);
+    if rc != 0 {
+        return None;
+    }
+    let mode = u32::from_ne_bytes([stat[nr::ST_MODE], stat[nr::ST_MODE + 1], stat[nr::ST_MODE + 2], stat[nr::ST_MODE + 3]]);
+    const S_IFMT: u32 = 0o170000;
+    const S_IFCHR: u32 = 0o020000;
+    if mode & S_IFMT != S_IFCHR {
+        return None;
+    }
+    let mut rdev = [0u8; 8];
+    rdev.copy_from_slice(&stat[nr::ST_RDEV..nr::ST_RDEV + 8]);
+    Some(u64::from_ne_bytes(rdev))
+}

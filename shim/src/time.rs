@@ -1,0 +1,188 @@
+//! Clocks and sleeps on simulated time.
+//!
+//! Every clock id that tells the time of day or time since boot reads the block's `now_ns` plus
+//! an offset (REALTIME and TAI from the run's epoch, the monotonic family from a fixed base);
+//! the CPU-time clocks and dynamic (negative) ids stay the kernel's.
+
+use core::ffi::{c_int, c_uint, c_void};
+use core::sync::atomic::Ordering;
+
+use crate::abi::{Shared, call, mode, release, state};
+use crate::sys::{self, clockid_t, real, time_t, timespec, timeval};
+use crate::{active, charge, note_call, park, shared};
+
+/// TAI runs 37 s ahead of UTC (since 2017).
+const TAI_OFFSET_NS: u64 = 37_000_000_000;
+
+/// Simulated time now (ns since the run's start). After the run's end it goes on at the wall
+/// clock's rate from where it stopped.
+pub(crate) fn sim_now(shared: &Shared) -> u64 {
+    let header = &shared.header;
+    let now = header.now_ns.load(Ordering::Acquire);
+    if header.mode.load(Ordering::Acquire) == mode::VIRTUAL {
+        return now;
+    }
+    now.saturating_add(real_monotonic_ns().saturating_sub(header.ending_wall_ns.load(Ordering::Acquire)))
+}
+
+fn real_monotonic_ns() -> u64 {
+    let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
+    let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
+    // SAFETY: a valid timespec for the call.
+    unsafe { clock_gettime(sys::CLOCK_MONOTONIC, &mut ts) };
+    to_ns(&ts)
+}
+
+/// What `clock` reads at simulated time `now`, if it is one the shim answers.
+fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
+    let header = &shared.header;
+    let epoch = header.realtime_epoch_ns.load(Ordering::Relaxed);
+    let base = header.monotonic_base_ns.load(Ordering::Relaxed);
+    match clock {
+        sys::CLOCK_REALTIME | sys::CLOCK_REALTIME_COARSE | sys::CLOCK_REALTIME_ALARM => Some(epoch + now),
+        sys::CLOCK_TAI => Some(epoch + TAI_OFFSET_NS + now),
+        sys::CLOCK_MONOTONIC | sys::CLOCK_MONOTONIC_RAW | sys::CLOCK_MONOTONIC_COARSE | sys::CLOCK_BOOTTIME | sys::CLOCK_BOOTTIME_ALARM => Some(base + now),
+        _ => None,
+    }
+}
+
+/// Simulated time (ns since the run's start) at which `clock` reads `reading`.
+fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Option<u64> {
+    let zero = clock_at(shared, clock, 0)?;
+    Some(reading.saturating_sub(zero))
+}
+
+/// A clock read: charged, then answered from the block (when the shim answers this clock).
+fn read_clock(clock: clockid_t) -> Option<u64> {
+    if let Some(shared) = active() {
+        note_call(shared, call::CLOCK);
+        charge(shared, shared.header.clock_read_ns.load(Ordering::Relaxed));
+    }
+    let shared = shared()?;
+    clock_at(shared, clock, sim_now(shared))
+}
+
+pub(crate) fn to_ns(ts: &timespec) -> u64 {
+    (ts.tv_sec.max(0) as u64).saturating_mul(1_000_000_000).saturating_add(ts.tv_nsec.max(0) as u64)
+}
+
+fn from_ns(ns: u64) -> timespec {
+    timespec { tv_sec: (ns / 1_000_000_000) as time_t, tv_nsec: (ns % 1_000_000_000) as i64 }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn clock_gettime(clock: clockid_t, ts: *mut timespec) -> c_int {
+    if !ts.is_null()
+        && let Some(ns) = read_clock(clock)
+    {
+        // SAFETY: the caller's timespec.
+        unsafe { *ts = from_ns(ns) };
+        return 0;
+    }
+    let next = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    unsafe { next(clock, ts) }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn gettimeofday(tv: *mut timeval, tz: *mut c_void) -> c_int {
+    if !tv.is_null()
+        && let Some(ns) = read_clock(sys::CLOCK_REALTIME)
+    {
+        // SAFETY: the caller's timeval.
+        unsafe { *tv = timeval { tv_sec: (ns / 1_000_000_000) as time_t, tv_usec: ((ns % 1_000_000_000) / 1000) as i64 } };
+        return 0;
+    }
+    let next = real!(gettimeofday: fn(*mut timeval, *mut c_void) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    unsafe { next(tv, tz) }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn time(out: *mut time_t) -> time_t {
+    if let Some(ns) = read_clock(sys::CLOCK_REALTIME) {
+        let seconds = (ns / 1_000_000_000) as time_t;
+        if !out.is_null() {
+            // SAFETY: the caller's time_t.
+            unsafe { *out = seconds };
+        }
+        return seconds;
+    }
+    let next = real!(time: fn(*mut time_t) -> time_t);
+    // SAFETY: passing the caller's argument through.
+    unsafe { next(out) }
+}
+
+/// Sleep until simulated time `deadline`: blocked until climbsim's clock gets there. After the
+/// run's end, the rest is slept on the wall clock.
+pub(crate) fn sleep_until(shared: &Shared, deadline: u64) {
+    note_call(shared, call::SLEEP);
+    if deadline <= sim_now(shared) {
+        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        return;
+    }
+    if park(shared, state::BLOCKED, deadline, 0, 0) == release::ENDING {
+        let left = deadline.saturating_sub(sim_now(shared));
+        let nanosleep = real!(nanosleep: fn(*const timespec, *mut timespec) -> c_int);
+        // SAFETY: a valid timespec; the remainder is not wanted.
+        unsafe { nanosleep(&from_ns(left), core::ptr::null_mut()) };
+    }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn clock_nanosleep(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec) -> c_int {
+    if let Some(shared) = active()
+        && !request.is_null()
+        && clock_at(shared, clock, 0).is_some()
+    {
+        // SAFETY: the caller's timespec.
+        let asked = to_ns(unsafe { &*request });
+        let deadline = if flags & sys::TIMER_ABSTIME != 0 { sim_time_of(shared, clock, asked).unwrap_or(0) } else { sim_now(shared).saturating_add(asked) };
+        sleep_until(shared, deadline);
+        return 0;
+    }
+    let next = real!(clock_nanosleep: fn(clockid_t, c_int, *const timespec, *mut timespec) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    unsafe { next(clock, flags, request, remain) }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn nanosleep(request: *const timespec, remain: *mut timespec) -> c_int {
+    if let Some(shared) = active()
+        && !request.is_null()
+    {
+        // SAFETY: the caller's timespec.
+        let request = unsafe { &*request };
+        if request.tv_nsec < 0 || request.tv_nsec >= 1_000_000_000 || request.tv_sec < 0 {
+            sys::set_errno(sys::EINVAL);
+            return -1;
+        }
+        sleep_until(shared, sim_now(shared).saturating_add(to_ns(request)));
+        return 0;
+    }
+    let next = real!(nanosleep: fn(*const timespec, *mut timespec) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    unsafe { next(request, remain) }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn usleep(micros: c_uint) -> c_int {
+    if let Some(shared) = active() {
+        sleep_until(shared, sim_now(shared).saturating_add(u64::from(micros) * 1000));
+        return 0;
+    }
+    let next = real!(usleep: fn(c_uint) -> c_int);
+    // SAFETY: passing the caller's argument through.
+    unsafe { next(micros) }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sleep(seconds: c_uint) -> c_uint {
+    if let Some(shared) = active() {
+        sleep_until(shared, sim_now(shared).saturating_add(u64::from(seconds) * 1_000_000_000));
+        return 0;
+    }
+    let next = real!(sleep: fn(c_uint) -> c_uint);
+    // SAFETY: passing the caller's argument through.
+    unsafe { next(seconds) }
+}

@@ -1,0 +1,256 @@
+//! poll, ppoll, select and pselect on simulated time.
+//!
+//! Each first asks the kernel with a zero timeout; what is ready is returned at once. Otherwise:
+//! - a zero timeout over the port is a spin: the thread yields until the next reply byte is due
+//!   (or the spin cap), then asks again;
+//! - a wait on the port or with no descriptors at all blocks until climbsim releases it: at its
+//!   deadline, or when bytes are there for it;
+//! - a wait that includes descriptors climbsim does not model (pipes, other sockets, anything
+//!   written) is polled for real in 1 ms slices of wall time while the thread counts as
+//!   blocked: it follows the real world's wake-ups, and its deadline is simulated time.
+
+use core::ffi::c_int;
+use core::sync::atomic::Ordering;
+
+use crate::abi::{Shared, call, release, state, waits};
+use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
+use crate::time::{sim_now, to_ns};
+use crate::{active, charge, my_slot, note_call, park};
+
+/// What a wait waits on.
+#[derive(Default, Clone, Copy)]
+pub(crate) struct Interest {
+    port: bool,
+    /// Sensor connections (bit i: `Shared::conns[i]`).
+    conns: u64,
+    other: bool,
+}
+
+impl Interest {
+    fn add(&mut self, shared: &'static Shared, fd: c_int, read: bool, write_or_error: bool) {
+        if write_or_error || !read {
+            self.other = true;
+            return;
+        }
+        if is_port(shared, fd) {
+            self.port = true;
+        } else if let Some((index, _)) = crate::net::conn_of(shared, fd) {
+            self.conns |= 1 << index;
+        } else {
+            self.other = true;
+        }
+    }
+
+    fn waits(&self) -> u32 {
+        (if self.port { waits::PORT } else { 0 }) | (if self.conns != 0 { waits::CONN } else { 0 })
+    }
+}
+
+/// The descriptor is the servo port (the pty slave climbsim serves).
+pub(crate) fn is_port(shared: &Shared, fd: c_int) -> bool {
+    let port = shared.header.port_rdev.load(Ordering::Relaxed);
+    port != 0 && sys::char_device(fd) == Some(port)
+}
+
+/// The real call with a wall-clock timeout (`None`: no timeout); its result and errno.
+type RealWait<'a> = &'a mut dyn FnMut(Option<u64>) -> c_int;
+
+/// One wait of the poll family on simulated time (`timeout_ns`: `None` waits forever).
+fn wait(shared: &'static Shared, what: u32, interest: Interest, timeout_ns: Option<u64>, real_wait: RealWait<'_>) -> c_int {
+    note_call(shared, what);
+    let ready = real_wait(Some(0));
+    if ready != 0 {
+        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        return ready;
+    }
+    let now = sim_now(shared);
+    let deadline = timeout_ns.map_or(crate::abi::NEVER, |t| now.saturating_add(t));
+    if deadline <= now {
+        if interest.port {
+            // A spin on an empty port (pyserial's select also watches its own abort pipe): on to
+            // the next byte due on it.
+            let cap = shared.header.spin_cap_ns.load(Ordering::Relaxed);
+            park(shared, state::YIELDED, now.saturating_add(cap), waits::SPIN | waits::PORT, 0);
+            return real_wait(Some(0));
+        }
+        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        return 0;
+    }
+    if interest.other {
+        return wait_on_real_world(shared, deadline, interest, real_wait);
+    }
+    match park(shared, state::BLOCKED, deadline, interest.waits(), interest.conns) {
+        // Climbsim made the bytes visible before it released us; the guard only covers a kernel
+        // that is slow to show them.
+        release::DATA => real_wait(Some(1_000_000_000)),
+        release::ENDING => real_wait(Some(deadline.saturating_sub(sim_now(shared)))),
+        _ => real_wait(Some(0)),
+    }
+}
+
+/// A wait that includes descriptors climbsim does not model: poll them for real in short
+/// slices, blocked (in simulated time) until one is ready or climbsim releases the thread.
+fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
+    const SLICE_NS: u64 = 1_000_000;
+    let Some(slot) = my_slot() else { return real_wait(Some(deadline.saturating_sub(sim_now(shared)))) };
+    slot.deadline_ns.store(deadline, Ordering::Relaxed);
+    slot.waits.store(waits::OTHER | interest.waits(), Ordering::Relaxed);
+    slot.conn_mask.store(interest.conns, Ordering::Relaxed);
+    slot.release.store(0, Ordering::Relaxed);
+    slot.state.store(state::BLOCKED, Ordering::Release);
+    crate::notify_scheduler(shared);
+    loop {
+        if slot.state.load(Ordering::Acquire) == state::RUNNING {
+            return real_wait(Some(if slot.release.load(Ordering::Acquire) == release::DATA { 1_000_000_000 } else { 0 }));
+        }
+        if crate::active().is_none() {
+            slot.state.store(state::RUNNING, Ordering::Release);
+            return real_wait(Some(deadline.saturating_sub(sim_now(shared))));
+        }
+        let ready = real_wait(Some(SLICE_NS));
+        if ready != 0 {
+            // Woken by the real world; unless climbsim released us meanwhile, we run again now.
+            let _ = slot.state.compare_exchange(state::BLOCKED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed);
+            return ready;
+        }
+    }
+}
+
+fn ms_timeout(timeout_ms: c_int) -> Option<u64> {
+    (timeout_ms >= 0).then(|| timeout_ms as u64 * 1_000_000)
+}
+
+fn wall_ms(wall_ns: Option<u64>) -> c_int {
+    wall_ns.map_or(-1, |ns| ns.div_ceil(1_000_000).min(i32::MAX as u64) as c_int)
+}
+
+fn poll_interest(shared: &'static Shared, fds: *mut pollfd, count: nfds_t) -> Interest {
+    let mut interest = Interest::default();
+    for index in 0..count as usize {
+        // SAFETY: the caller's array of `count` pollfds.
+        let entry = unsafe { *fds.add(index) };
+        if entry.fd < 0 {
+            continue;
+        }
+        let read = entry.events & (sys::POLLIN | sys::POLLPRI) != 0;
+        interest.add(shared, entry.fd, read, entry.events & sys::POLLOUT != 0);
+    }
+    interest
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn poll(fds: *mut pollfd, count: nfds_t, timeout_ms: c_int) -> c_int {
+    let next = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
+    let Some(shared) = active() else {
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(fds, count, timeout_ms) };
+    };
+    let interest = poll_interest(shared, fds, count);
+    // SAFETY: the caller's arguments, with our timeout.
+    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| unsafe { next(fds, count, wall_ms(wall)) })
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const timespec, sigmask: *const sys::fd_set) -> c_int {
+    let next = real!(ppoll: fn(*mut pollfd, nfds_t, *const timespec, *const sys::fd_set) -> c_int);
+    let Some(shared) = active() else {
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(fds, count, timeout, sigmask) };
+    };
+    let interest = poll_interest(shared, fds, count);
+    // SAFETY: the caller's timespec, if any.
+    let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
+    wait(shared, call::POLL, interest, asked, &mut |wall| {
+        let limit = wall.map(|ns| timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 });
+        let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
+        // SAFETY: the caller's arguments, with our timeout.
+        unsafe { next(fds, count, limit_ptr, sigmask) }
+    })
+}
+
+fn is_set(set: *const fd_set, fd: usize) -> bool {
+    // SAFETY: the caller's fd_set, 1024 bits; fd < nfds <= 1024 is checked by the caller.
+    !set.is_null() && unsafe { (*set).bits[fd / 64] } & (1 << (fd % 64)) != 0
+}
+
+/// The sets of a select, saved so that each real call starts from the caller's own.
+struct SelectSets {
+    read: *mut fd_set,
+    write: *mut fd_set,
+    error: *mut fd_set,
+    saved: [Option<fd_set>; 3],
+}
+
+impl SelectSets {
+    fn new(read: *mut fd_set, write: *mut fd_set, error: *mut fd_set) -> Self {
+        // SAFETY: the caller's sets, where not null.
+        let copy = |set: *mut fd_set| (!set.is_null()).then(|| unsafe { *set });
+        Self { read, write, error, saved: [copy(read), copy(write), copy(error)] }
+    }
+
+    fn restore(&self) {
+        for (set, saved) in [self.read, self.write, self.error].into_iter().zip(self.saved) {
+            if let Some(saved) = saved {
+                // SAFETY: the caller's set, not null since we saved it.
+                unsafe { *set = saved };
+            }
+        }
+    }
+
+    fn interest(&self, shared: &'static Shared, count: c_int) -> Interest {
+        let mut interest = Interest::default();
+        for fd in 0..count.clamp(0, 1024) as usize {
+            let (read, write, error) = (is_set(self.read, fd), is_set(self.write, fd), is_set(self.error, fd));
+            if read || write || error {
+                interest.add(shared, fd as c_int, read, write || error);
+            }
+        }
+        interest
+    }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn select(count: c_int, read: *mut fd_set, write: *mut fd_set, error: *mut fd_set, timeout: *mut timeval) -> c_int {
+    let next = real!(select: fn(c_int, *mut fd_set, *mut fd_set, *mut fd_set, *mut timeval) -> c_int);
+    let Some(shared) = active() else {
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(count, read, write, error, timeout) };
+    };
+    let sets = SelectSets::new(read, write, error);
+    let interest = sets.interest(shared, count);
+    // SAFETY: the caller's timeval, if any.
+    let asked = (!timeout.is_null()).then(|| unsafe { ((*timeout).tv_sec.max(0) as u64) * 1_000_000_000 + ((*timeout).tv_usec.max(0) as u64) * 1000 });
+    let result = wait(shared, call::SELECT, interest, asked, &mut |wall| {
+        sets.restore();
+        let mut limit = wall.map(|ns| timeval { tv_sec: (ns / 1_000_000_000) as i64, tv_usec: (ns % 1_000_000_000).div_ceil(1000) as i64 });
+        let limit_ptr = limit.as_mut().map_or(core::ptr::null_mut(), |t| t as *mut timeval);
+        // SAFETY: the caller's sets, with our timeout.
+        unsafe { next(count, read, write, error, limit_ptr) }
+    });
+    if !timeout.is_null() && result == 0 {
+        // Linux reports the time left; a select that timed out has none.
+        // SAFETY: the caller's timeval.
+        unsafe { *timeout = timeval { tv_sec: 0, tv_usec: 0 } };
+    }
+    result
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pselect(count: c_int, read: *mut fd_set, write: *mut fd_set, error: *mut fd_set, timeout: *const timespec, sigmask: *const fd_set) -> c_int {
+    let next = real!(pselect: fn(c_int, *mut fd_set, *mut fd_set, *mut fd_set, *const timespec, *const fd_set) -> c_int);
+    let Some(shared) = active() else {
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(count, read, write, error, timeout, sigmask) };
+    };
+    let sets = SelectSets::new(read, write, error);
+    let interest = sets.interest(shared, count);
+    // SAFETY: the caller's timespec, if any.
+    let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
+    wait(shared, call::SELECT, interest, asked, &mut |wall| {
+        sets.restore();
+        let limit = wall.map(|ns| timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 });
+        let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
+        // SAFETY: the caller's sets, with our timeout.
+        unsafe { next(count, read, write, error, limit_ptr, sigmask) }
+    })
+}

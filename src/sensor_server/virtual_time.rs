@@ -1,0 +1,102 @@
+//! The sensor server under virtual time: no thread and no reactor of its own; the scheduler
+//! polls it (it is a future that never ends) whenever the controller is parked, so that every
+//! request is answered at the simulated instant it was sent, from that instant's snapshot. Each
+//! connection's bytes are reported to the scheduler: read (time may move once the server has
+//! them all) and answered (a thread waiting for the answer may run).
+
+use std::future::Future;
+use std::io::{Read as _, Write as _};
+use std::net::{Ipv4Addr, SocketAddrV4, TcpListener, TcpStream};
+use std::pin::Pin;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+
+use tracing::debug;
+
+use super::{Answer, SensorFeed, SensorServerError, answer, head_complete, response_head};
+use crate::virtual_time::VirtualTime;
+
+pub struct VirtualSensorServer {
+    listener: TcpListener,
+    clients: Vec<Client>,
+    feed: Arc<SensorFeed>,
+    virtual_time: Arc<VirtualTime>,
+}
+
+struct Client {
+    stream: TcpStream,
+    port: u16,
+    head: Vec<u8>,
+}
+
+impl VirtualSensorServer {
+    /// Listen on an ephemeral localhost port; the URL controllers get.
+    pub fn bind(feed: Arc<SensorFeed>, virtual_time: Arc<VirtualTime>) -> Result<(Self, String), SensorServerError> {
+        let addr = SocketAddrV4::new(Ipv4Addr::LOCALHOST, 0);
+        let listener = TcpListener::bind(addr).map_err(|source| SensorServerError::Bind { addr: addr.into(), source })?;
+        listener.set_nonblocking(true)?;
+        let std::net::SocketAddr::V4(local) = listener.local_addr()? else {
+            return Err(SensorServerError::Io(std::io::Error::other("an IPv4 listener has an IPv4 address")));
+        };
+        virtual_time.attach_sensor_server(local);
+        Ok((Self { listener, clients: Vec::new(), feed, virtual_time }, format!("http://{local}")))
+    }
+
+    /// Accept, read and answer whatever is there, without waiting.
+    fn step(&mut self) {
+        while let Ok((stream, peer)) = self.listener.accept() {
+            if stream.set_nonblocking(true).is_ok() {
+                self.clients.push(Client { stream, port: peer.port(), head: Vec::new() });
+            }
+        }
+        let (feed, virtual_time) = (&self.feed, &self.virtual_time);
+        self.clients.retain_mut(|client| serve(client, feed, virtual_time));
+    }
+}
+
+/// Read what the client sent and answer a whole request; whether to keep the connection.
+fn serve(client: &mut Client, feed: &SensorFeed, virtual_time: &VirtualTime) -> bool {
+    let mut chunk = [0u8; 2048];
+    let mut read = 0;
+    let keep = loop {
+        match client.stream.read(&mut chunk) {
+            Ok(0) => break false,
+            Ok(n) => {
+                read += n;
+                client.head.extend_from_slice(&chunk[..n]);
+            }
+            Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => break true,
+            Err(error) => {
+                debug!(%error, "sensor client gone");
+                break false;
+            }
+        }
+    };
+    if keep && head_complete(&client.head) {
+        let (status, content_type, body) = match answer(&client.head, feed, false) {
+            Answer::Reply { status, content_type, body } => (status, content_type, body),
+            Answer::Mjpeg => ("501 Not Implemented", "text/plain", b"not under --clock virtual\n".to_vec()),
+        };
+        let mut response = response_head(status, content_type, body.len()).into_bytes();
+        response.extend_from_slice(&body);
+        // The answer is small; written whole, then the end, before anything else happens.
+        let written = client.stream.set_nonblocking(false).and_then(|()| client.stream.write_all(&response)).and_then(|()| client.stream.shutdown(std::net::Shutdown::Write));
+        if let Err(error) = written {
+            debug!(%error, "sensor client gone before its answer");
+        }
+        virtual_time.sensor_response_written(client.port, response.len(), true);
+        virtual_time.sensor_request_read(client.port, read);
+        return false;
+    }
+    virtual_time.sensor_request_read(client.port, read);
+    keep
+}
+
+impl Future for VirtualSensorServer {
+    type Output = ();
+
+    fn poll(mut self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<()> {
+        self.step();
+        Poll::Pending
+    }
+}

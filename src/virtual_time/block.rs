@@ -1,0 +1,59 @@
+//! The shared-memory block itself (layout: `shim/src/abi.rs`): a 0600 file in `/dev/shm` (or the
+//! temporary folder where there is none), mapped `MAP_SHARED`, removed when dropped.
+
+use std::os::fd::AsRawFd as _;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use super::VtError;
+use super::abi::{self, Shared};
+
+/// Names of blocks made by this process: one per run (a sweep runs several at once).
+static NEXT_BLOCK: AtomicU64 = AtomicU64::new(0);
+
+pub struct Block {
+    shared: *mut Shared,
+    path: PathBuf,
+}
+
+// SAFETY: every field of the block is an atomic; the pointer stays valid until drop.
+unsafe impl Send for Block {}
+// SAFETY: as above.
+unsafe impl Sync for Block {}
+
+impl Block {
+    pub fn create() -> Result<Self, VtError> {
+        use std::os::unix::fs::OpenOptionsExt as _;
+        let dir = if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
+        let name = format!("climbsim-vt-{}-{}", std::process::id(), NEXT_BLOCK.fetch_add(1, Ordering::Relaxed));
+        let path = dir.join(name);
+        let io = |what: &str, source: std::io::Error| VtError::Block { path: path.clone(), what: what.to_owned(), source };
+        let file = std::fs::OpenOptions::new().read(true).write(true).create_new(true).mode(0o600).open(&path).map_err(|e| io("cannot create", e))?;
+        file.set_len(abi::SHARED_BYTES as u64).map_err(|e| io("cannot size", e))?;
+        // SAFETY: mapping the whole file, which is SHARED_BYTES long; the mapping outlives the fd.
+        let mapped = unsafe { libc::mmap(std::ptr::null_mut(), abi::SHARED_BYTES, libc::PROT_READ | libc::PROT_WRITE, libc::MAP_SHARED, file.as_raw_fd(), 0) };
+        if mapped == libc::MAP_FAILED {
+            let error = std::io::Error::last_os_error();
+            let _ = std::fs::remove_file(&path);
+            return Err(io("cannot map", error));
+        }
+        Ok(Self { shared: mapped.cast(), path })
+    }
+
+    pub fn shared(&self) -> &Shared {
+        // SAFETY: a live mapping of a whole, zero-initialised block (all atomics).
+        unsafe { &*self.shared }
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Drop for Block {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+        // SAFETY: unmapping our own mapping; nothing refers to it after drop.
+        unsafe { libc::munmap(self.shared.cast(), abi::SHARED_BYTES) };
+    }
+}

@@ -1,0 +1,443 @@
+//! Virtual time (`--clock virtual`): an unchanged external controller on the simulation's clock.
+//!
+//! climbsim preloads a shim (`shim/`, embedded: [`shim_path`]) into the controller's processes.
+//! The shim answers their clock reads from a shared block ([`abi`]) and turns their sleeps and
+//! waits into "blocked until T, or until bytes come". [`VirtualTime`] is climbsim's side: its
+//! [`VirtualTime::advance_to`] is the scheduler. Time moves only when every controller thread is
+//! blocked or has yielded and climbsim has read every byte the controller wrote; it then jumps to
+//! the earliest of the next world tick, the next reply due on the port (a [`Timer`]) and the next
+//! deadline a thread asked for. The pty session runs inside the scheduler (see
+//! [`VirtualTime::drive`]), so a reply is written exactly at its wire-model time, with every
+//! controller thread parked. The model in full: docs/virtual-time.md.
+//!
+//! A layer of its own below `transport`: it knows nothing of the bus or the world.
+
+#[path = "../../shim/src/abi.rs"]
+pub mod abi;
+mod block;
+mod shim_file;
+mod watchdog;
+
+use std::collections::{BTreeMap, HashSet};
+use std::future::Future;
+use std::os::fd::RawFd;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::task::{Context, Poll, Waker};
+use std::time::Duration;
+
+use thiserror::Error;
+use tracing::debug;
+
+use abi::{NEVER, Slot, mode, release, state, waits};
+use block::Block;
+pub use shim_file::{shim_bytes, shim_path};
+
+#[derive(Debug, Error)]
+pub enum VtError {
+    #[error("virtual time: the shim {path}: {what}: {source}")]
+    Shim { path: std::path::PathBuf, what: String, source: std::io::Error },
+    #[error("virtual time: the shared block {path}: {what}: {source}")]
+    Block { path: std::path::PathBuf, what: String, source: std::io::Error },
+    /// A controller that virtual time cannot follow (the watchdog's finding).
+    #[error("{0}")]
+    Stuck(String),
+    #[error("interrupted")]
+    Interrupted,
+}
+
+/// The model's knobs (docs/virtual-time.md, "What a busy loop costs").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VtSettings {
+    /// Simulated time a clock read costs (about one vDSO read).
+    pub clock_read_ns: u64,
+    /// Simulated time any other intercepted call that did not block costs.
+    pub syscall_ns: u64,
+    /// The longest jump of a zero-timeout poll of the port when nothing is due on it.
+    pub spin_cap_ns: u64,
+    /// Wall time without an intercepted call after which a running controller is stuck.
+    pub stuck_after: Duration,
+    /// CLOCK_REALTIME at simulated time 0 (Unix seconds): fixed, so that runs repeat exactly.
+    pub epoch_unix_s: u64,
+}
+
+impl Default for VtSettings {
+    fn default() -> Self {
+        Self { clock_read_ns: 25, syscall_ns: 1_000, spin_cap_ns: 100_000, stuck_after: Duration::from_secs(2), epoch_unix_s: 1_704_067_200 }
+    }
+}
+
+/// CLOCK_MONOTONIC at simulated time 0: not zero, which some programs take for "unset".
+const MONOTONIC_BASE_NS: u64 = 1_000_000_000_000;
+/// Charges are applied in batches of this much (a thread moves the clock at most this often).
+const BATCH_NS: u64 = 1_000;
+
+/// A future climbsim runs inside the scheduler (the pty session).
+type Driven = Pin<Box<dyn Future<Output = ()> + Send>>;
+
+#[derive(Default)]
+struct Timers {
+    /// (due ns, sequence): registered and not fired.
+    pending: BTreeMap<(u64, u64), ()>,
+    fired: HashSet<u64>,
+    next_seq: u64,
+}
+
+/// The servo port's two ends, as climbsim holds them (owned by the port, which the driven
+/// session keeps alive).
+#[derive(Debug, Clone, Copy)]
+struct PortFds {
+    master: RawFd,
+    slave: RawFd,
+}
+
+/// climbsim's side of virtual time for one run.
+pub struct VirtualTime {
+    block: Block,
+    settings: VtSettings,
+    timers: Mutex<Timers>,
+    driven: Mutex<Vec<Driven>>,
+    port: Mutex<Option<PortFds>>,
+}
+
+impl std::fmt::Debug for VirtualTime {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualTime").field("block", &self.block.path()).field("now", &self.now()).finish()
+    }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+impl VirtualTime {
+    pub fn create(settings: VtSettings) -> Result<Arc<Self>, VtError> {
+        let block = Block::create()?;
+        let header = &block.shared().header;
+        header.abi.store(abi::ABI, Ordering::Relaxed);
+        header.realtime_epoch_ns.store(settings.epoch_unix_s.saturating_mul(1_000_000_000), Ordering::Relaxed);
+        header.monotonic_base_ns.store(MONOTONIC_BASE_NS, Ordering::Relaxed);
+        header.clock_read_ns.store(settings.clock_read_ns, Ordering::Relaxed);
+        header.syscall_ns.store(settings.syscall_ns, Ordering::Relaxed);
+        header.batch_ns.store(BATCH_NS, Ordering::Relaxed);
+        header.spin_cap_ns.store(settings.spin_cap_ns, Ordering::Relaxed);
+        header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
+        header.magic.store(abi::MAGIC, Ordering::Release);
+        Ok(Arc::new(Self { block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
+    }
+
+    pub fn settings(&self) -> VtSettings {
+        self.settings
+    }
+
+    fn shared(&self) -> &abi::Shared {
+        self.block.shared()
+    }
+
+    /// Simulated time now.
+    pub fn now(&self) -> Duration {
+        Duration::from_nanos(self.shared().header.now_ns.load(Ordering::Acquire))
+    }
+
+    fn now_ns(&self) -> u64 {
+        self.shared().header.now_ns.load(Ordering::Acquire)
+    }
+
+    /// What a controller needs in its environment to run on this clock: the preload and the
+    /// block's name.
+    pub fn controller_env(&self) -> Result<Vec<(String, String)>, VtError> {
+        let shim = shim_path()?;
+        Ok(vec![("LD_PRELOAD".to_owned(), shim.display().to_string()), ("CLIMBSIM_VT".to_owned(), self.block.path().display().to_string())])
+    }
+
+    /// Hold time until the process about to be started has loaded the shim (it takes this slot).
+    pub fn reserve_process(&self) {
+        self.shared().slots[0].state.store(state::RESERVED, Ordering::Release);
+    }
+
+    /// The reserved process's pid, once started (for the watchdog).
+    pub fn process_started(&self, pid: u32) {
+        let slot = &self.shared().slots[0];
+        slot.pid.store(pid as i32, Ordering::Relaxed);
+        slot.tid.store(pid as i32, Ordering::Relaxed);
+    }
+
+    /// The process climbsim started (slot 0's) has ended, as far as the shim saw it: its exit
+    /// happened at the current simulated time.
+    pub fn first_process_ended(&self) -> bool {
+        self.shared().slots[0].state.load(Ordering::Acquire) == state::EXITED
+    }
+
+    /// The servo port the controller opens: its writes are counted, its reads waited for.
+    pub fn attach_port(&self, master: RawFd, slave: RawFd) {
+        let mut stat: libc::stat = unsafe { std::mem::zeroed() };
+        // SAFETY: fstat of climbsim's own descriptor into a valid struct.
+        if unsafe { libc::fstat(slave, &mut stat) } == 0 {
+            self.shared().header.port_rdev.store(stat.st_rdev, Ordering::Release);
+        }
+        *lock(&self.port) = Some(PortFds { master, slave });
+    }
+
+    /// climbsim has read `bytes` more from the port (and so time-stamped them).
+    pub fn port_read(&self, bytes: usize) {
+        self.shared().header.port_tx_read.fetch_add(bytes as u64, Ordering::AcqRel);
+    }
+
+    /// The sensor server controllers connect to: connections to it are followed.
+    pub fn attach_sensor_server(&self, address: std::net::SocketAddrV4) {
+        let header = &self.shared().header;
+        header.sensor_ip.store(u32::from_ne_bytes(address.ip().octets()), Ordering::Relaxed);
+        header.sensor_port.store(u32::from(address.port()), Ordering::Release);
+    }
+
+    /// The followed connection whose controller end is `client_port`, if any.
+    fn conn(&self, client_port: u16) -> Option<&abi::Conn> {
+        self.shared().conns.iter().find(|c| c.client_port.load(Ordering::Acquire) == u32::from(client_port))
+    }
+
+    /// The sensor server has read (and, a request being whole, answered) `bytes` more from
+    /// the connection from `client_port`.
+    pub fn sensor_request_read(&self, client_port: u16, bytes: usize) {
+        if let Some(conn) = self.conn(client_port) {
+            conn.read.fetch_add(bytes as u64, Ordering::AcqRel);
+        }
+    }
+
+    /// The sensor server wrote `bytes` of response to `client_port` (`closed`: and then closed
+    /// its end, which the controller reads as one more "byte", the end of the stream).
+    pub fn sensor_response_written(&self, client_port: u16, bytes: usize, closed: bool) {
+        if let Some(conn) = self.conn(client_port) {
+            conn.resp_written.fetch_add(bytes as u64 + u64::from(closed), Ordering::AcqRel);
+        }
+    }
+
+    /// Bytes the controller sent that climbsim has not read yet (on the port or to the sensor
+    /// server): simulated time cannot move until it has.
+    fn held(&self) -> bool {
+        let shared = self.shared();
+        let header = &shared.header;
+        header.port_tx_read.load(Ordering::Acquire) != header.port_tx_total.load(Ordering::Acquire)
+            || shared.conns.iter().any(|c| c.client_port.load(Ordering::Acquire) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire))
+    }
+
+    /// A response waits on one of the connections in `mask`.
+    fn response_waiting(&self, mask: u64) -> bool {
+        self.shared().conns.iter().enumerate().any(|(i, c)| mask & (1 << i) != 0 && c.resp_written.load(Ordering::Acquire) > c.resp_taken.load(Ordering::Acquire))
+    }
+
+    /// Run `future` inside the scheduler: polled whenever the controller is parked, never on a
+    /// thread of its own (so it acts at exact simulated instants).
+    pub fn drive(&self, future: impl Future<Output = ()> + Send + 'static) {
+        lock(&self.driven).push(Box::pin(future));
+    }
+
+    /// A future that completes when simulated time reaches `due`.
+    pub fn timer(self: &Arc<Self>, due: Duration) -> Timer {
+        let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
+        let mut timers = lock(&self.timers);
+        let seq = timers.next_seq;
+        timers.next_seq += 1;
+        timers.pending.insert((due, seq), ());
+        Timer { vt: Arc::clone(self), due, seq, done: false }
+    }
+
+    /// The run is over: the shim goes back to the kernel for everything, and every parked
+    /// thread is let go, so that the controller's clean-up runs (on the wall clock).
+    pub fn end(&self) {
+        let header = &self.shared().header;
+        let mut wall = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+        // SAFETY: a valid timespec for the call.
+        unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut wall) };
+        header.ending_wall_ns.store(wall.tv_sec as u64 * 1_000_000_000 + wall.tv_nsec as u64, Ordering::Release);
+        header.mode.store(mode::ENDING, Ordering::Release);
+        for slot in &self.shared().slots {
+            if matches!(slot.state.load(Ordering::Acquire), state::BLOCKED | state::YIELDED) {
+                release_slot(slot, release::ENDING);
+            }
+        }
+    }
+
+    /// The scheduler: bring simulated time to `due` (a world tick), letting the controller run
+    /// everything it has due before then, in order. Returns with every controller thread parked.
+    pub fn advance_to(&self, due: Duration, stop: &AtomicBool) -> Result<(), VtError> {
+        let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
+        let header = &self.shared().header;
+        let mut watchdog = watchdog::Watchdog::new(self.settings.stuck_after);
+        loop {
+            self.settle(&mut watchdog, stop)?;
+            let now = self.now_ns();
+            if now >= due {
+                return Ok(());
+            }
+            // Who can run at this instant, and when the next parked thread is due.
+            let unread = self.port_unread();
+            let next_reply = self.next_timer();
+            let mut due_now = Vec::new();
+            let mut next_thread = NEVER;
+            for slot in &self.shared().slots {
+                let parked = slot.state.load(Ordering::Acquire);
+                if parked != state::BLOCKED && parked != state::YIELDED {
+                    continue;
+                }
+                let waits_on = slot.waits.load(Ordering::Relaxed);
+                let response = waits_on & waits::CONN != 0 && self.response_waiting(slot.conn_mask.load(Ordering::Relaxed));
+                if (waits_on & waits::PORT != 0 && unread > 0) || response {
+                    due_now.push((slot, release::DATA));
+                    continue;
+                }
+                let mut at = slot.deadline_ns.load(Ordering::Relaxed);
+                if waits_on & waits::SPIN != 0 {
+                    at = at.min(next_reply);
+                }
+                if at <= now {
+                    due_now.push((slot, release::DEADLINE));
+                } else {
+                    next_thread = next_thread.min(at);
+                }
+            }
+            let next = next_thread.min(next_reply);
+            header.horizon_ns.store(due.min(next), Ordering::Release);
+            if !due_now.is_empty() {
+                for (slot, why) in due_now {
+                    release_slot(slot, why);
+                }
+                continue;
+            }
+            if due <= next {
+                header.now_ns.store(due, Ordering::Release);
+                return Ok(());
+            }
+            header.now_ns.store(next.max(now), Ordering::Release);
+            self.fire_timers(next.max(now));
+        }
+    }
+
+    /// Wait until no controller thread runs and every byte it wrote has been read, running the
+    /// driven futures meanwhile.
+    fn settle(&self, watchdog: &mut watchdog::Watchdog, stop: &AtomicBool) -> Result<(), VtError> {
+        let header = &self.shared().header;
+        loop {
+            let seen = header.sched_word.load(Ordering::Acquire);
+            if !self.any_running() {
+                self.poll_driven();
+                if !self.held() {
+                    return Ok(());
+                }
+                // Sent, not yet handed over by the kernel (the pty's worker, loopback TCP).
+                self.wait_port_readable();
+                continue;
+            }
+            if stop.load(Ordering::Relaxed) {
+                return Err(VtError::Interrupted);
+            }
+            futex_wait(&header.sched_word, seen, Duration::from_millis(10));
+            watchdog.check(self.shared())?;
+        }
+    }
+
+    fn any_running(&self) -> bool {
+        self.shared().slots.iter().any(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED))
+    }
+
+    fn poll_driven(&self) {
+        let mut list = std::mem::take(&mut *lock(&self.driven));
+        let mut cx = Context::from_waker(Waker::noop());
+        list.retain_mut(|future| future.as_mut().poll(&mut cx).is_pending());
+        let mut driven = lock(&self.driven);
+        list.append(&mut driven);
+        *driven = list;
+    }
+
+    fn next_timer(&self) -> u64 {
+        lock(&self.timers).pending.keys().next().map_or(NEVER, |&(due, _)| due)
+    }
+
+    /// Fire every timer due by `now`, then let the driven futures act on them.
+    fn fire_timers(&self, now: u64) {
+        {
+            let mut timers = lock(&self.timers);
+            while let Some(&(due, seq)) = timers.pending.keys().next() {
+                if due > now {
+                    break;
+                }
+                timers.pending.remove(&(due, seq));
+                timers.fired.insert(seq);
+            }
+        }
+        self.poll_driven();
+    }
+
+    /// Bytes climbsim wrote to the port that the controller has not read.
+    fn port_unread(&self) -> usize {
+        let Some(port) = *lock(&self.port) else { return 0 };
+        let mut pending: libc::c_int = 0;
+        // SAFETY: FIONREAD writes one c_int.
+        let rc = unsafe { libc::ioctl(port.slave, libc::FIONREAD, &mut pending) };
+        if rc == 0 { pending.max(0) as usize } else { 0 }
+    }
+
+    fn wait_port_readable(&self) {
+        let header = &self.shared().header;
+        let port = *lock(&self.port);
+        match port {
+            Some(port) if header.port_tx_read.load(Ordering::Acquire) != header.port_tx_total.load(Ordering::Acquire) => {
+                let mut fds = [libc::pollfd { fd: port.master, events: libc::POLLIN, revents: 0 }];
+                // SAFETY: one valid pollfd.
+                unsafe { libc::poll(fds.as_mut_ptr(), 1, 1) };
+            }
+            _ => std::thread::sleep(Duration::from_micros(20)),
+        }
+    }
+}
+
+/// Let a parked thread go, saying why.
+fn release_slot(slot: &Slot, why: u32) {
+    slot.release.store(why, Ordering::Relaxed);
+    slot.state.store(state::RUNNING, Ordering::Release);
+    slot.wake_word.fetch_add(1, Ordering::AcqRel);
+    futex_wake(&slot.wake_word);
+}
+
+fn futex_wait(word: &AtomicU32, expected: u32, timeout: Duration) {
+    let timeout = libc::timespec { tv_sec: timeout.as_secs() as libc::time_t, tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32) };
+    // SAFETY: a shared futex wait on a valid, aligned word in our mapping, with a valid timeout.
+    unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAIT, expected, &timeout as *const libc::timespec, 0usize, 0u32) };
+}
+
+fn futex_wake(word: &AtomicU32) {
+    // SAFETY: a shared futex wake on a valid, aligned word in our mapping.
+    unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAKE, i32::MAX) };
+}
+
+/// Completes when simulated time reaches its due time (see [`VirtualTime::timer`]).
+pub struct Timer {
+    vt: Arc<VirtualTime>,
+    due: u64,
+    seq: u64,
+    done: bool,
+}
+
+impl Future for Timer {
+    type Output = ();
+
+    fn poll(mut self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<()> {
+        let fired = lock(&self.vt.timers).fired.remove(&self.seq);
+        if fired {
+            self.done = true;
+            debug!(due_ns = self.due, "virtual timer fired");
+            return Poll::Ready(());
+        }
+        Poll::Pending
+    }
+}
+
+impl Drop for Timer {
+    fn drop(&mut self) {
+        if !self.done {
+            let mut timers = lock(&self.vt.timers);
+            timers.pending.remove(&(self.due, self.seq));
+            timers.fired.remove(&self.seq);
+        }
+    }
+}

@@ -1,0 +1,144 @@
+//! What virtual time cannot follow is a clear error, never a hang: a controller thread that
+//! makes no intercepted call for a while (wall time) is looked up in /proc. Stopped (SIGSTOP, a
+//! debugger): the world waits. Computing, or blocked in a call the shim does not see: the run
+//! fails naming the thread and the last call seen. Gone: its slot is freed.
+
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use super::VtError;
+use super::abi::{Shared, Slot, call, state};
+
+/// How often running slots are checked for threads that died without saying so (killed).
+const LIVENESS_EVERY: Duration = Duration::from_millis(50);
+
+pub struct Watchdog {
+    stuck_after: Duration,
+    calls: u64,
+    progress: Instant,
+    liveness: Instant,
+}
+
+impl Watchdog {
+    pub fn new(stuck_after: Duration) -> Self {
+        let now = Instant::now();
+        Self { stuck_after, calls: u64::MAX, progress: now, liveness: now }
+    }
+
+    /// Called while climbsim waits for running controller threads.
+    pub fn check(&mut self, shared: &Shared) -> Result<(), VtError> {
+        let calls = shared.header.calls.load(Ordering::Relaxed);
+        if calls != self.calls {
+            self.calls = calls;
+            self.progress = Instant::now();
+        }
+        if self.liveness.elapsed() >= LIVENESS_EVERY {
+            self.liveness = Instant::now();
+            for slot in running(shared) {
+                if matches!(task_state(slot), TaskState::Gone) {
+                    slot.state.store(state::EXITED, Ordering::Release);
+                }
+            }
+        }
+        if self.progress.elapsed() < self.stuck_after {
+            return Ok(());
+        }
+        let stuck: Vec<&Slot> = running(shared).collect();
+        if stuck.iter().any(|slot| matches!(task_state(slot), TaskState::Stopped)) {
+            // A debugger or SIGSTOP: the world waits for it, however long.
+            self.progress = Instant::now();
+            return Ok(());
+        }
+        let Some(slot) = stuck.first() else { return Ok(()) };
+        Err(VtError::Stuck(describe(slot, self.stuck_after)))
+    }
+}
+
+fn running(shared: &Shared) -> impl Iterator<Item = &Slot> {
+    shared.slots.iter().filter(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED))
+}
+
+enum TaskState {
+    Gone,
+    Stopped,
+    /// The state letter of /proc/…/stat (R, S, D, …).
+    Other(char),
+    Unknown,
+}
+
+fn stat_path(slot: &Slot) -> Option<String> {
+    let (pid, tid) = (slot.pid.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
+    (pid > 0 && tid > 0).then(|| format!("/proc/{pid}/task/{tid}"))
+}
+
+fn task_state(slot: &Slot) -> TaskState {
+    let Some(task) = stat_path(slot) else { return TaskState::Unknown };
+    let Ok(stat) = std::fs::read_to_string(format!("{task}/stat")) else { return TaskState::Gone };
+    // The state is the field after the command's closing parenthesis (the command may hold any byte).
+    let Some(letter) = stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()) else { return TaskState::Unknown };
+    match letter {
+        'Z' | 'X' => TaskState::Gone,
+        'T' | 't' => TaskState::Stopped,
+        other => TaskState::Other(other),
+    }
+}
+
+fn describe(slot: &Slot, after: Duration) -> String {
+    let (pid, tid) = (slot.pid.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
+    let task = stat_path(slot).unwrap_or_default();
+    let comm = std::fs::read_to_string(format!("{task}/comm")).map(|c| c.trim().to_owned()).unwrap_or_else(|_| "?".to_owned());
+    let secs = after.as_secs_f64();
+    if slot.state.load(Ordering::Acquire) == state::RESERVED {
+        return format!(
+            "virtual time: the controller process `{comm}` (pid {pid}) did not load climbsim's shim within {secs} s of wall time: \
+             a statically linked program, or one that drops LD_PRELOAD, cannot run on virtual time (run it with --clock wall)"
+        );
+    }
+    let last = call::name(slot.last_call.load(Ordering::Relaxed));
+    let at = slot.last_call_ns.load(Ordering::Relaxed) as f64 / 1e9;
+    let thread = format!("controller thread `{comm}` (pid {pid}, tid {tid})");
+    match task_state(slot) {
+        TaskState::Other('R') => format!(
+            "virtual time: {thread} has computed for {secs} s of wall time without a call climbsim follows (last: {last} at t = {at:.6} s): \
+             a loop that neither reads a clock nor waits cannot run on virtual time"
+        ),
+        _ => {
+            let syscall = std::fs::read_to_string(format!("{task}/syscall")).ok().and_then(|s| s.split_whitespace().next().and_then(|n| n.parse::<i64>().ok()));
+            let inside = syscall.map_or_else(|| "a system call".to_owned(), |n| format!("system call {n}{}", syscall_name(n).map(|s| format!(" ({s})")).unwrap_or_default()));
+            format!(
+                "virtual time: {thread} has been blocked for {secs} s of wall time in {inside}, which climbsim does not follow \
+                 (last followed call: {last} at t = {at:.6} s); nothing can wake it on virtual time"
+            )
+        }
+    }
+}
+
+/// Names of the blocking calls one meets (x86-64 numbers).
+fn syscall_name(number: i64) -> Option<&'static str> {
+    #[cfg(target_arch = "x86_64")]
+    return Some(match number {
+        0 => "read",
+        7 => "poll",
+        23 => "select",
+        34 => "pause",
+        35 => "nanosleep",
+        43 => "accept",
+        45 => "recvfrom",
+        47 => "recvmsg",
+        61 => "wait4",
+        128 => "rt_sigtimedwait",
+        202 => "futex",
+        230 => "clock_nanosleep",
+        232 => "epoll_wait",
+        270 => "pselect6",
+        271 => "ppoll",
+        281 => "epoll_pwait",
+        288 => "accept4",
+        _ => return None,
+    });
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = number;
+        None
+    }
+}

@@ -1,0 +1,142 @@
+//! `--clock virtual`: an unchanged external controller on the simulation's clock. Real
+//! processes (Python, /bin/sh and its children), the embedded shim preloaded, real ptys.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+mod support;
+
+use support::{climbsim_with_sdk_python, output_text, repo, sdk_python};
+
+/// A flat world `duration_s` long driven by `command` (paths relative to the repository).
+fn scenario(dir: &Path, name: &str, duration_s: f64, command: &[&str], ends_by_itself: bool) -> PathBuf {
+    let command: Vec<String> = command.iter().map(|part| format!("\"{}\"", repo().join(part).display())).collect();
+    let text = format!(
+        "[world]\nseed = 1\nduration_s = {duration_s}\n\n[terrain]\nkind = \"flat\"\nsize_m = 4.0\n\n[line]\npoints = [[-0.5, 0.0], [1.5, 0.0]]\n\n[start]\nx_m = 0.5\n\n\
+         [controller]\nkind = \"external\"\ncommand = [{}]\nends_by_itself = {ends_by_itself}\n",
+        command.join(", ")
+    );
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, text).expect("write scenario");
+    path
+}
+
+fn run_virtual(scenario: &Path, out: &Path) -> (std::process::Output, Duration) {
+    let started = Instant::now();
+    let output = climbsim_with_sdk_python(&["run", &scenario.display().to_string(), "--clock", "virtual", "--out", &out.display().to_string()]);
+    (output, started.elapsed())
+}
+
+fn summary(out: &Path) -> serde_json::Map<String, serde_json::Value> {
+    let text = std::fs::read_to_string(out.join("summary.json")).unwrap_or_else(|e| panic!("{}: {e}", out.display()));
+    serde_json::from_str(&text).expect("summary.json")
+}
+
+/// The summary without what measures the host (wall time): what must repeat exactly.
+fn repeatable(out: &Path) -> serde_json::Map<String, serde_json::Value> {
+    let mut summary = summary(out);
+    summary.remove("realtime_factor");
+    summary
+}
+
+#[test]
+fn a_dormant_shim_leaves_a_program_on_the_wall_clock() {
+    let shim = climbsim::virtual_time::shim_path().expect("the embedded shim is written out");
+    let output = Command::new(sdk_python())
+        .args(["-c", "import time; print(time.time()); time.sleep(0.01)"])
+        .env("LD_PRELOAD", &shim)
+        .env_remove("CLIMBSIM_VT")
+        .output()
+        .expect("run python");
+    assert!(output.status.success(), "{}", output_text(&output));
+    let printed: f64 = String::from_utf8_lossy(&output.stdout).trim().parse().expect("a time");
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("after 1970").as_secs_f64();
+    assert!((now - printed).abs() < 5.0, "dormant shim changed the clock: printed {printed}, now {now}");
+}
+
+#[test]
+fn a_sleeping_controller_sees_exact_simulated_time_and_repeats_exactly() {
+    let dir = support::scratch_dir("vt-sleeper");
+    let path = scenario(&dir, "sleeper", 8.0, &["tests/vt/sleeper.py"], true);
+    let mut logs = Vec::new();
+    for run in ["a", "b"] {
+        let out = dir.join(run);
+        let (output, wall) = run_virtual(&path, &out);
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
+        // The epoch is fixed (2024-01-01), monotonic starts at 1000 s, every sleep is 0.5 s exactly.
+        assert!(log.starts_with("start monotonic=1000.0"), "{log}");
+        assert!(log.contains("time=1704067200.0"), "{log}");
+        for step in 0..10 {
+            let want = 0.5 * f64::from(step + 1);
+            assert!(log.contains(&format!("step {step} monotonic+{want:?} time+{want:?}")), "step {step}: {log}");
+        }
+        let summary = summary(&out);
+        assert_eq!(summary["clock"], "virtual");
+        // The exit is seen at the first tick after the last sleep, on every run.
+        assert_eq!(summary["controller_exited_at_s"], serde_json::json!(5.001), "{summary:?}");
+        // 5 s of sleeps is not 5 s of waiting (a loose bound: this is not a benchmark).
+        assert!(wall < Duration::from_secs(4), "{wall:?}");
+        logs.push((log, std::fs::read(out.join("timeseries.csv")).expect("timeseries"), repeatable(&out)));
+    }
+    assert_eq!(logs[0].0, logs[1].0, "the controller's output differs between runs");
+    assert!(logs[0].1 == logs[1].1, "timeseries.csv differs between runs");
+    assert_eq!(logs[0].2, logs[1].2, "summary.json differs between runs");
+}
+
+#[test]
+fn a_shell_and_its_children_sleep_ten_simulated_seconds_in_well_under_ten() {
+    let dir = support::scratch_dir("vt-children");
+    let path = scenario(&dir, "children", 12.0, &["tests/vt/children.sh"], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
+    let lines: Vec<&str> = log.lines().collect();
+    assert_eq!(lines.len(), 3, "{log}");
+    let (before, after): (f64, f64) = (lines[0].parse().expect("date"), lines[1].parse().expect("date"));
+    // date(1), sleep(1) and python each loaded the shim: the 10 s passed in simulated time only.
+    assert!((after - before - 10.0).abs() < 0.001, "{log}");
+    let monotonic: f64 = lines[2].parse().expect("monotonic");
+    assert!((monotonic - 1010.0).abs() < 0.001, "{log}");
+    assert!(wall < Duration::from_secs(5), "{wall:?}");
+}
+
+#[test]
+fn a_busy_loop_fails_the_run_naming_the_thread_within_seconds() {
+    let dir = support::scratch_dir("vt-busy");
+    let path = scenario(&dir, "busy", 10.0, &["tests/vt/busy.py"], false);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("has computed for 2 s of wall time without a call climbsim follows"), "{failures}");
+    assert!(failures.contains("busy.py") || failures.contains("python"), "{failures}");
+    assert!(wall < Duration::from_secs(20), "{wall:?}");
+}
+
+#[test]
+fn a_stopped_controller_stops_the_world_and_is_no_failure() {
+    let dir = support::scratch_dir("vt-stopped");
+    let path = scenario(&dir, "stopped", 5.0, &["tests/vt/stopped.py"], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
+    let stopped: f64 = log.split("stopped for ").nth(1).and_then(|rest| rest.split(' ').next()).and_then(|s| s.parse().ok()).unwrap_or_else(|| panic!("{log}"));
+    // About 3 s of wall time stopped; the world's clock did not move meanwhile.
+    assert!(stopped < 0.01, "{log}");
+    assert!(wall >= Duration::from_secs(3), "the helper did not keep it stopped: {wall:?}");
+}
+
+#[test]
+fn a_statically_linked_controller_is_refused() {
+    let Some(ldconfig) = ["/sbin/ldconfig", "/usr/sbin/ldconfig"].into_iter().find(|p| Path::new(p).exists()) else {
+        panic!("this test needs Debian's static /sbin/ldconfig");
+    };
+    let dir = support::scratch_dir("vt-static");
+    let path = dir.join("static.toml");
+    let text = std::fs::read_to_string(scenario(&dir, "x", 2.0, &["tests/vt/sleeper.py"], true)).expect("scenario");
+    std::fs::write(&path, text.replace(&format!("\"{}\"", repo().join("tests/vt/sleeper.py").display()), &format!("\"{ldconfig}\", \"-p\""))).expect("write");
+    let (output, _) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(2), "{}", output_text(&output));
+    assert!(output_text(&output).contains("statically linked"), "{}", output_text(&output));
+}
