@@ -140,3 +140,55 @@ fn a_statically_linked_controller_is_refused() {
     assert_eq!(output.status.code(), Some(2), "{}", output_text(&output));
     assert!(output_text(&output).contains("statically linked"), "{}", output_text(&output));
 }
+
+/// The SDK's printed latencies, one line each (see tests/vt/sdk_ping.py).
+fn latencies(log: &str, what: &str) -> Vec<f64> {
+    log.lines().filter(|l| l.starts_with(what)).filter_map(|l| l.split(": ").nth(1)?.split(' ').next()?.parse().ok()).collect()
+}
+
+#[test]
+fn the_official_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_servos_timeout() {
+    let dir = support::scratch_dir("vt-sdk");
+    let path = scenario(&dir, "ping", 2.0, &["tests/vt/sdk_ping.py"], true);
+    std::fs::write(&path, std::fs::read_to_string(&path).expect("scenario") + "\n[bus]\nbaud_bps = 1000000\n").expect("write");
+    let mut logs = Vec::new();
+    for run in ["a", "b"] {
+        let (output, _) = run_virtual(&path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
+    }
+    assert_eq!(logs[0], logs[1], "the SDK's own timings differ between runs");
+    let log = &logs[0];
+    // At 1 Mbps: a 10-byte ping (100 µs), the default 500 µs Return Delay Time, a 14-byte status
+    // (140 µs); the SDK's own calls add about a microsecond of charges.
+    for ping in latencies(log, "ping 1 ") {
+        assert!((740.0..742.0).contains(&ping), "{log}");
+    }
+    // The SDK waits 16 × 2 + 2 ms plus 14 bytes' time for an absent servo: in simulated time, at
+    // most the 100 µs spin cap late.
+    let absent = latencies(log, "ping 42 ");
+    assert_eq!(absent.len(), 2, "{log}");
+    for timeout in absent {
+        assert!((34_140.0..34_300.0).contains(&timeout), "{log}");
+    }
+}
+
+#[test]
+fn the_reference_line_follower_repeats_exactly_under_virtual_time() {
+    let dir = support::scratch_dir("vt-line");
+    let mut runs = Vec::new();
+    for run in ["a", "b"] {
+        let out = dir.join(run);
+        let output = climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--clock", "virtual", "--set", "world.duration_s=4", "--set", "expect={}", "--out", &out.display().to_string()]);
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        let summary = repeatable(&out);
+        assert_eq!(summary["clock"], "virtual");
+        // The controller polled the sensor server every period and got a line each time.
+        let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
+        assert!(log.contains(", 0 without a line measurement"), "{log}");
+        runs.push((std::fs::read(out.join("timeseries.csv")).expect("timeseries"), std::fs::read(out.join("timing.json")).expect("timing"), summary));
+    }
+    assert!(runs[0].0 == runs[1].0, "timeseries.csv differs between runs");
+    assert!(runs[0].1 == runs[1].1, "timing.json differs between runs");
+    assert_eq!(runs[0].2, runs[1].2, "summary.json differs between runs");
+}

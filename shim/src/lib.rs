@@ -244,14 +244,21 @@ fn charge(shared: &Shared, ns: u64) {
     loop {
         let now = header.now_ns.load(Ordering::Acquire);
         let target = now.saturating_add(total);
-        if target > header.horizon_ns.load(Ordering::Acquire) || held(shared) {
+        if advance_within_horizon(shared, now, target) {
+            return;
+        }
+        if header.now_ns.load(Ordering::Acquire) == now {
             park(shared, state::YIELDED, target, 0, 0);
             return;
         }
-        if header.now_ns.compare_exchange(now, target, Ordering::AcqRel, Ordering::Acquire).is_ok() {
-            return;
-        }
     }
+}
+
+/// Move the clock from `now` to `target` without climbsim, if that passes nothing climbsim
+/// has due (the horizon) and climbsim has every byte the controller sent; whether it did.
+fn advance_within_horizon(shared: &Shared, now: u64, target: u64) -> bool {
+    let header = &shared.header;
+    target <= header.horizon_ns.load(Ordering::Acquire) && !held(shared) && header.now_ns.compare_exchange(now, target, Ordering::AcqRel, Ordering::Acquire).is_ok()
 }
 
 /// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on

@@ -121,6 +121,22 @@ pub unsafe extern "C" fn fexecve(fd: c_int, argv: *const *const c_char, envp: *c
     exec_with(envp, || unsafe { next(fd, argv, envp) })
 }
 
+/// fork: the child gets a slot reserved by its parent before it exists, so that a parent
+/// that goes straight into waitpid cannot let time move before the child runs.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn fork() -> c_int {
+    let next = real!(fork: fn() -> c_int);
+    let reserved = reserve(0, crate::pid());
+    // SAFETY: libc's fork; in the child the atfork handler claims the reserved slot.
+    let child = unsafe { next() };
+    match reserved {
+        Some(slot) if child > 0 => slot.tid.store(child, Ordering::Release),
+        Some(_) if child == 0 => {}
+        other => unreserve(other),
+    }
+    child
+}
+
 type SpawnFn = unsafe extern "C" fn(*mut c_int, *const c_char, *const c_void, *const c_void, *const *const c_char, *const *const c_char) -> c_int;
 
 fn spawn_with(pid: *mut c_int, run: impl FnOnce() -> c_int) -> c_int {

@@ -68,9 +68,12 @@ fn wait(shared: &'static Shared, what: u32, interest: Interest, timeout_ns: Opti
     if deadline <= now {
         if interest.port {
             // A spin on an empty port (pyserial's select also watches its own abort pipe): on to
-            // the next byte due on it.
-            let cap = shared.header.spin_cap_ns.load(Ordering::Relaxed);
-            park(shared, state::YIELDED, now.saturating_add(cap), waits::SPIN | waits::PORT, 0);
+            // the next byte due on it, at most the cap. Within the horizon (which is never past
+            // the next reply due) the thread moves the clock itself; beyond, climbsim does.
+            let target = now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed));
+            if !crate::advance_within_horizon(shared, now, target) {
+                park(shared, state::YIELDED, target, waits::SPIN | waits::PORT, 0);
+            }
             return real_wait(Some(0));
         }
         charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
