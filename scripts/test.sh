@@ -2,7 +2,7 @@
 # Runs every climbsim test on a fresh machine: makes .venv with the pinned official DynamixelSDK
 # (tests/sdk/requirements.txt), then `cargo test` (unit, golden-vector, property, dynamixel2 and
 # official-SDK tests), then `climbsim check scenarios/` (every shipped scenario against its
-# [expect], the external controller at --speed), then the SocketCAN test if a vcan interface
+# [expect], on virtual time, and the 1 Mbps external one on the wall clock), then the SocketCAN test if a vcan interface
 # exists. Installs Debian's libfaketime (for --speed) when missing and it can (root + apt-get).
 # Extra arguments go to the first `cargo test`.
 set -euo pipefail
@@ -67,8 +67,14 @@ stage_done "the full-disk test"
 # dev profile, see Cargo.toml): the dependencies compile once for the tests and check, and
 # `cargo run` is not used because it would build the binary again under the dev profile's name
 # (100 s on a fresh clone).
-echo "==> climbsim check scenarios/ --speed 1 --pace-tolerance-ms 16"
-PATH="$venv/bin:$PATH" "${CARGO_TARGET_DIR:-$repo/target}/debug/climbsim" check scenarios/ --speed 1 --pace-tolerance-ms 16 --junit target/check/junit.xml --out target/check
+# Every scenario on virtual time (deterministic: no pace tolerance, whatever the machine's
+# load), then the 1 Mbps external scenario once more on the wall clock, so that the real-time
+# path (libfaketime aside) stays tested.
+climbsim="${CARGO_TARGET_DIR:-$repo/target}/debug/climbsim"
+echo "==> climbsim check scenarios/ --clock virtual"
+PATH="$venv/bin:$PATH" "$climbsim" check scenarios/ --clock virtual --junit target/check/junit.xml --out target/check
+echo "==> climbsim check scenarios/external-line-follower.toml --clock wall --speed 1 --pace-tolerance-ms 16"
+PATH="$venv/bin:$PATH" "$climbsim" check scenarios/external-line-follower.toml --clock wall --speed 1 --pace-tolerance-ms 16 --junit target/check/junit-wall.xml --out target/check-wall
 stage_done "climbsim check scenarios/"
 
 # The SocketCAN test (tests/can_transport.rs, #[ignore]d) needs a CAN interface: run it where one

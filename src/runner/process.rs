@@ -107,12 +107,16 @@ impl Controller {
         // (the SDK polls the port in a tight loop) must not delay their replies or the world's
         // ticks by a scheduler time slice. A lower priority lets climbsim's threads preempt it
         // when they wake; the controller still gets every cycle they leave.
-        // SAFETY: setpriority is async-signal-safe and touches only the child being started.
-        unsafe {
-            command.pre_exec(|| {
-                libc::setpriority(libc::PRIO_PROCESS, 0, CONTROLLER_NICE);
-                Ok(())
-            });
+        // Under virtual time nothing is late, and the controller and climbsim take turns: a
+        // lower priority would only let the machine's other load starve the run.
+        if !launch.virtual_time {
+            // SAFETY: setpriority is async-signal-safe and touches only the child being started.
+            unsafe {
+                command.pre_exec(|| {
+                    libc::setpriority(libc::PRIO_PROCESS, 0, CONTROLLER_NICE);
+                    Ok(())
+                });
+            }
         }
         let child = command.spawn().during(|| format!("cannot start the controller `{description}`"))?;
         Ok(Self { child, description, log_path: launch.log_path.to_owned(), log: Some(log), marker: format!("{RUN_MARKER}={marker}").into_bytes(), ended: false })
