@@ -50,7 +50,7 @@ pub mod waits {
     /// Descriptors climbsim does not model: polled for real, on the wall clock.
     pub const OTHER: u32 = 4;
     /// A zero-timeout poll of the port that found nothing: resume at the next byte due on it
-    /// (or the spin cap, whichever is first).
+    /// (or after the spin cap if none is).
     pub const SPIN: u32 = 8;
     /// A child process's end (waitpid and kin), which the kernel itself wakes; `Slot::conn_mask`
     /// holds the pid waited for (as i64; -1: any child).
@@ -129,6 +129,11 @@ pub struct Header {
     pub sensor_ip: AtomicU32,
     /// S: every intercepted call, all threads: the watchdog's sign of life.
     pub calls: AtomicU64,
+    /// C: when the next reply byte is due on the port ([`NEVER`]: none is).
+    pub port_next_due_ns: AtomicU64,
+    /// C: climbsim's process: a shim whose climbsim is gone leaves virtual time.
+    pub climbsim_pid: AtomicI32,
+    pub _pad1: AtomicU32,
 }
 
 #[repr(C)]

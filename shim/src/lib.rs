@@ -41,6 +41,10 @@ static PID: core::sync::atomic::AtomicI32 = core::sync::atomic::AtomicI32::new(0
 static EXIT_KEY: AtomicU32 = AtomicU32::new(u32::MAX);
 
 const NO_SLOT: u32 = u32::MAX;
+/// How long (wall time) a parked thread spins before it sleeps on its futex.
+const PARK_SPIN_NS: u64 = 100_000;
+/// Charges a thread may run up while climbsim has not read its bytes yet, before it yields.
+const HELD_CHARGE_LIMIT_NS: u64 = 50_000;
 
 thread_local! {
     /// This thread's slot in the block (NO_SLOT until its first intercepted call).
@@ -49,10 +53,26 @@ thread_local! {
     static UNAPPLIED: Cell<u64> = const { Cell::new(0) };
 }
 
-/// The block if virtual time is on (the run has not ended).
+/// Set once climbsim is found gone: the process goes on as after the run's end.
+static ORPHANED: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
+
+/// The block if virtual time is on (the run has not ended, climbsim is there).
 fn active() -> Option<&'static Shared> {
     let shared = shared()?;
-    (shared.header.mode.load(Ordering::Acquire) == mode::VIRTUAL).then_some(shared)
+    (shared.header.mode.load(Ordering::Acquire) == mode::VIRTUAL && !ORPHANED.load(Ordering::Relaxed)).then_some(shared)
+}
+
+/// climbsim's process has gone without ending the run (killed): nobody will let parked
+/// threads go, so they stop waiting for it.
+fn climbsim_gone(shared: &Shared) -> bool {
+    let pid = shared.header.climbsim_pid.load(Ordering::Relaxed);
+    const ESRCH: c_int = 3;
+    // SAFETY: kill with signal 0 only checks that the process exists.
+    let gone = pid > 0 && unsafe { sys::kill(pid, 0) } != 0 && sys::errno() == ESRCH;
+    if gone {
+        ORPHANED.store(true, Ordering::Relaxed);
+    }
+    gone
 }
 
 /// The block, whatever its mode.
@@ -239,6 +259,11 @@ fn charge(shared: &Shared, ns: u64) {
     if total < shared.header.batch_ns.load(Ordering::Relaxed) {
         return;
     }
+    // Bytes in flight: the clock cannot move until climbsim has them, but yielding for a
+    // microsecond's charge would cost a round trip per write; the thread's next wait yields anyway.
+    if total < HELD_CHARGE_LIMIT_NS && held(shared) {
+        return;
+    }
     UNAPPLIED.with(|u| u.set(0));
     let header = &shared.header;
     loop {
@@ -273,16 +298,25 @@ fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64)
     slot.release.store(0, Ordering::Relaxed);
     slot.state.store(parked, Ordering::Release);
     notify_scheduler(shared);
+    // climbsim usually lets a thread go within tens of microseconds: a short spin saves the
+    // futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs more than that.
+    let spin_until = time::real_monotonic_ns().saturating_add(PARK_SPIN_NS);
+    while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until {
+        core::hint::spin_loop();
+    }
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
             return slot.release.load(Ordering::Acquire);
         }
-        if shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL {
+        if shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed) {
             slot.state.store(state::RUNNING, Ordering::Release);
             return release::ENDING;
         }
-        // A timeout only to notice a run that ended without waking us.
+        // A timeout only to notice a climbsim that went away without waking us.
         sys::futex_wait(&slot.wake_word, seen, 100_000_000);
+        if slot.wake_word.load(Ordering::Acquire) == seen {
+            climbsim_gone(shared);
+        }
     }
 }

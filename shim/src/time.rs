@@ -25,7 +25,7 @@ pub(crate) fn sim_now(shared: &Shared) -> u64 {
     now.saturating_add(real_monotonic_ns().saturating_sub(header.ending_wall_ns.load(Ordering::Acquire)))
 }
 
-fn real_monotonic_ns() -> u64 {
+pub(crate) fn real_monotonic_ns() -> u64 {
     let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
     let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
     // SAFETY: a valid timespec for the call.

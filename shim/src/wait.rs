@@ -68,11 +68,14 @@ fn wait(shared: &'static Shared, what: u32, interest: Interest, timeout_ns: Opti
     if deadline <= now {
         if interest.port {
             // A spin on an empty port (pyserial's select also watches its own abort pipe): on to
-            // the next byte due on it, at most the cap. Within the horizon (which is never past
-            // the next reply due) the thread moves the clock itself; beyond, climbsim does.
-            let target = now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed));
-            if !crate::advance_within_horizon(shared, now, target) {
-                park(shared, state::YIELDED, target, waits::SPIN | waits::PORT, 0);
+            // the next byte due on it, in steps of at most the cap, so that a timeout the
+            // program checks between its polls is overshot by at most the cap (an absent servo).
+            // Within the horizon the thread moves the clock itself; a reply due now, or anything
+            // beyond, is climbsim's to deliver.
+            let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire);
+            let target = next_due.min(now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)));
+            if target <= now || !crate::advance_within_horizon(shared, now, target) {
+                park(shared, state::YIELDED, target.max(now), waits::SPIN | waits::PORT, 0);
             }
             return real_wait(Some(0));
         }
@@ -102,7 +105,12 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
     slot.release.store(0, Ordering::Relaxed);
     slot.state.store(state::BLOCKED, Ordering::Release);
     crate::notify_scheduler(shared);
+    let mut slices = 0u32;
     loop {
+        slices = slices.wrapping_add(1);
+        if slices % 100 == 0 {
+            crate::climbsim_gone(shared);
+        }
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
             return real_wait(Some(if slot.release.load(Ordering::Acquire) == release::DATA { 1_000_000_000 } else { 0 }));
         }

@@ -75,7 +75,9 @@ impl Ticked for WatchedTicks<'_> {
         // Under virtual time the exit is seen when the shim saw it (at one simulated instant on
         // every run), not whenever the kernel's reaping comes round on the wall clock.
         let status = match self.clock.virtual_time() {
-            Some(vt) if vt.first_process_ended() => self.controller.wait_briefly(),
+            // Seen at the first tick at or after the exit's own simulated time (the world may
+            // be catching up with a controller that ran ahead).
+            Some(vt) if vt.first_process_ended() && vt.now() <= at => self.controller.wait_briefly(),
             Some(_) => Ok(None),
             None => self.controller.try_wait(),
         };
@@ -240,6 +242,13 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     summary.insert("controller_exit_code".to_owned(), json!(exit.status.code()));
     summary.insert("controller_exited_at_s".to_owned(), json!(exit.at_s));
     summary.insert("clock".to_owned(), json!(if virtual_time.is_some() { "virtual" } else { "wall" }));
+    if let Some(vt) = &virtual_time {
+        let stats = vt.stats();
+        summary.insert("virtual_time.released_at_deadline".to_owned(), json!(stats.released_at_deadline));
+        summary.insert("virtual_time.released_for_data".to_owned(), json!(stats.released_for_data));
+        summary.insert("virtual_time.timers_fired".to_owned(), json!(stats.timers_fired));
+        summary.insert("virtual_time.jumps".to_owned(), json!(stats.jumps));
+    }
     // Under virtual time nothing is late by construction: there is no pace to keep.
     let pace_problems = if virtual_time.is_some() { Vec::new() } else { report.pace_problems(options.pace.tolerance) };
     summary.insert("pace.speed".to_owned(), json!(options.pace.speed));

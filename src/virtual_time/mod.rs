@@ -73,6 +73,10 @@ const MONOTONIC_BASE_NS: u64 = 1_000_000_000_000;
 /// Charges are applied in batches of this much (a thread moves the clock at most this often).
 const BATCH_NS: u64 = 1_000;
 
+/// How long (wall time) the scheduler spins for a running controller thread to park before it
+/// sleeps on the futex.
+const SETTLE_SPIN: Duration = Duration::from_micros(100);
+
 /// A future climbsim runs inside the scheduler (the pty session).
 type Driven = Pin<Box<dyn Future<Output = ()> + Send>>;
 
@@ -92,8 +96,23 @@ struct PortFds {
     slave: RawFd,
 }
 
+/// What the scheduler did in a run (summary.json's `virtual_time.*`): the wall-time cost of
+/// virtual time is mostly one hand-over per release.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct VtStats {
+    /// Parked threads let go because their deadline (or spin target) came.
+    pub released_at_deadline: u64,
+    /// Parked threads let go because bytes came for them.
+    pub released_for_data: u64,
+    /// Reply (and other) timers fired.
+    pub timers_fired: u64,
+    /// Times simulated time jumped to a thread's deadline or a timer (not a world tick).
+    pub jumps: u64,
+}
+
 /// climbsim's side of virtual time for one run.
 pub struct VirtualTime {
+    stats: Mutex<VtStats>,
     block: Block,
     settings: VtSettings,
     timers: Mutex<Timers>,
@@ -122,13 +141,19 @@ impl VirtualTime {
         header.syscall_ns.store(settings.syscall_ns, Ordering::Relaxed);
         header.batch_ns.store(BATCH_NS, Ordering::Relaxed);
         header.spin_cap_ns.store(settings.spin_cap_ns, Ordering::Relaxed);
+        header.port_next_due_ns.store(NEVER, Ordering::Relaxed);
+        header.climbsim_pid.store(std::process::id() as i32, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
+        Ok(Arc::new(Self { stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
     }
 
     pub fn settings(&self) -> VtSettings {
         self.settings
+    }
+
+    pub fn stats(&self) -> VtStats {
+        *lock(&self.stats)
     }
 
     fn shared(&self) -> &abi::Shared {
@@ -251,6 +276,9 @@ impl VirtualTime {
         unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut wall) };
         header.ending_wall_ns.store(wall.tv_sec as u64 * 1_000_000_000 + wall.tv_nsec as u64, Ordering::Release);
         header.mode.store(mode::ENDING, Ordering::Release);
+        // The driven futures hold this scheduler (through their clocks): dropping them ends
+        // the cycle, so that the block is removed when the run lets go of it.
+        drop(std::mem::take(&mut *lock(&self.driven)));
         for slot in &self.shared().slots {
             if matches!(slot.state.load(Ordering::Acquire), state::BLOCKED | state::YIELDED) {
                 release_slot(slot, release::ENDING);
@@ -265,14 +293,26 @@ impl VirtualTime {
         let header = &self.shared().header;
         let mut watchdog = watchdog::Watchdog::new(self.settings.stuck_after);
         loop {
+            // The world catches up with the controller before climbsim looks at anything the
+            // controller sent: ticks may run while it runs, since it can see the world only
+            // through replies and answers, which climbsim makes only here, with it parked.
+            if self.now_ns() >= due {
+                return Ok(());
+            }
             self.settle(&mut watchdog, stop)?;
             let now = self.now_ns();
             if now >= due {
                 return Ok(());
             }
+            // A thread may have moved the clock onto a reply's time (the horizon includes it):
+            // that reply goes first.
+            let next_reply = self.next_timer();
+            if next_reply <= now {
+                self.fire_timers(now);
+                continue;
+            }
             // Who can run at this instant, and when the next parked thread is due.
             let unread = self.port_unread();
-            let next_reply = self.next_timer();
             let mut due_now = Vec::new();
             let mut next_thread = NEVER;
             for slot in &self.shared().slots {
@@ -288,6 +328,7 @@ impl VirtualTime {
                 }
                 let mut at = slot.deadline_ns.load(Ordering::Relaxed);
                 if waits_on & waits::SPIN != 0 {
+                    // A spin on the port goes on to the next byte due on it, at most the cap on.
                     at = at.min(next_reply);
                 }
                 if at <= now {
@@ -296,10 +337,17 @@ impl VirtualTime {
                     next_thread = next_thread.min(at);
                 }
             }
+            // Not the world's next tick: a thread may run past it (the world catches up).
             let next = next_thread.min(next_reply);
-            header.horizon_ns.store(due.min(next), Ordering::Release);
+            header.horizon_ns.store(next, Ordering::Release);
+            header.port_next_due_ns.store(next_reply, Ordering::Release);
             if !due_now.is_empty() {
+                let mut stats = lock(&self.stats);
                 for (slot, why) in due_now {
+                    match why {
+                        release::DATA => stats.released_for_data += 1,
+                        _ => stats.released_at_deadline += 1,
+                    }
                     release_slot(slot, why);
                 }
                 continue;
@@ -308,6 +356,7 @@ impl VirtualTime {
                 header.now_ns.store(due, Ordering::Release);
                 return Ok(());
             }
+            lock(&self.stats).jumps += 1;
             header.now_ns.store(next.max(now), Ordering::Release);
             self.fire_timers(next.max(now));
         }
@@ -330,6 +379,15 @@ impl VirtualTime {
             }
             if stop.load(Ordering::Relaxed) {
                 return Err(VtError::Interrupted);
+            }
+            // A controller thread usually parks again within tens of microseconds: spin that
+            // long before sleeping on the futex (its wake-up costs more on a VM).
+            let spin_until = std::time::Instant::now() + SETTLE_SPIN;
+            while header.sched_word.load(Ordering::Acquire) == seen && std::time::Instant::now() < spin_until {
+                std::hint::spin_loop();
+            }
+            if header.sched_word.load(Ordering::Acquire) != seen {
+                continue;
             }
             futex_wait(&header.sched_word, seen, Duration::from_millis(10));
             watchdog.check(self.shared())?;
@@ -363,6 +421,7 @@ impl VirtualTime {
                 }
                 timers.pending.remove(&(due, seq));
                 timers.fired.insert(seq);
+                lock(&self.stats).timers_fired += 1;
             }
         }
         self.poll_driven();
@@ -441,3 +500,4 @@ impl Drop for Timer {
         }
     }
 }
+
