@@ -173,11 +173,34 @@ fn the_official_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_servos_
     }
 }
 
+/// Two processes that keep both cores busy while they live.
+struct Load(Vec<std::process::Child>);
+
+impl Load {
+    fn both_cores() -> Self {
+        Self((0..2).map(|_| Command::new("sh").args(["-c", "while :; do :; done"]).spawn().expect("start a busy loop")).collect())
+    }
+}
+
+impl Drop for Load {
+    fn drop(&mut self) {
+        for child in &mut self.0 {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
 #[test]
-fn the_reference_line_follower_repeats_exactly_under_virtual_time() {
+fn the_reference_line_follower_repeats_exactly_under_virtual_time_even_on_a_loaded_machine() {
     let dir = support::scratch_dir("vt-line");
     let mut runs = Vec::new();
+    // The second run shares the machine with two busy loops: nothing it computes may change.
+    let mut load = None;
     for run in ["a", "b"] {
+        if run == "b" {
+            load = Some(Load::both_cores());
+        }
         let out = dir.join(run);
         let output = climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--clock", "virtual", "--set", "world.duration_s=4", "--set", "expect={}", "--out", &out.display().to_string()]);
         assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
@@ -188,7 +211,58 @@ fn the_reference_line_follower_repeats_exactly_under_virtual_time() {
         assert!(log.contains(", 0 without a line measurement"), "{log}");
         runs.push((std::fs::read(out.join("timeseries.csv")).expect("timeseries"), std::fs::read(out.join("timing.json")).expect("timing"), summary));
     }
+    drop(load);
     assert!(runs[0].0 == runs[1].0, "timeseries.csv differs between runs");
     assert!(runs[0].1 == runs[1].1, "timing.json differs between runs");
     assert_eq!(runs[0].2, runs[1].2, "summary.json differs between runs");
+}
+
+/// A test program `cargo test` built (examples are built with the tests).
+fn example(name: &str) -> PathBuf {
+    let deps = std::env::current_exe().expect("the test's path");
+    let path = deps.parent().and_then(Path::parent).expect("target/<profile>").join("examples").join(name);
+    assert!(path.is_file(), "{} is missing: `cargo test` builds the examples", path.display());
+    path
+}
+
+#[test]
+fn a_dynamixel2_controller_sees_exact_latencies_and_its_own_timeout() {
+    let dir = support::scratch_dir("vt-dynamixel2");
+    let controller = example("vt_dynamixel2_controller");
+    let path = scenario(&dir, "d2", 2.0, &["tests/vt/sleeper.py"], true);
+    let text = std::fs::read_to_string(&path).expect("scenario").replace(&repo().join("tests/vt/sleeper.py").display().to_string(), &controller.display().to_string());
+    std::fs::write(&path, text + "\n[bus]\nbaud_bps = 1000000\n").expect("write");
+    let mut logs = Vec::new();
+    for run in ["a", "b"] {
+        let (output, _) = run_virtual(&path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
+    }
+    assert_eq!(logs[0], logs[1], "dynamixel2's own timings differ between runs");
+    let log = &logs[0];
+    // serial2 waits in poll(2) with a timeout: blocked, let go when the reply is there.
+    for ping in latencies(log, "ping 1 ") {
+        assert!((740.0..742.0).contains(&ping), "{log}");
+    }
+    assert!(log.contains("sync read 8 (8 answered)"), "{log}");
+    let absent = latencies(log, "ping 42 (no reply)");
+    assert_eq!(absent.len(), 1, "{log}");
+    assert!((30_000.0..60_000.0).contains(&absent[0]), "{log}");
+}
+
+#[test]
+fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
+    let dir = support::scratch_dir("vt-pause");
+    let script = dir.join("pause.py");
+    std::fs::write(&script, "#!/usr/bin/env python3\nimport signal, time\ntime.sleep(0.1)\nsignal.pause()\n").expect("write");
+    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
+    let path = scenario(&dir, "pause", 10.0, &["tests/vt/sleeper.py"], false);
+    let text = std::fs::read_to_string(&path).expect("scenario").replace(&repo().join("tests/vt/sleeper.py").display().to_string(), &script.display().to_string());
+    std::fs::write(&path, text).expect("write");
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("blocked for 2 s of wall time in system call 34 (pause)"), "{failures}");
+    assert!(failures.contains("last followed call: "), "{failures}");
+    assert!(wall < Duration::from_secs(20), "{wall:?}");
 }
