@@ -266,3 +266,23 @@ fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
     assert!(failures.contains("last followed call: "), "{failures}");
     assert!(wall < Duration::from_secs(20), "{wall:?}");
 }
+
+#[test]
+fn controller_cpu_shows_the_overruns_of_a_controller_too_slow_for_its_period() {
+    let dir = support::scratch_dir("vt-cpu");
+    let path = scenario(&dir, "hog", 3.0, &["tests/vt/cpu_hog.py"], true);
+    let overruns = |extra: &[&str], out: &str| {
+        let out = dir.join(out);
+        let mut args = vec!["run", path.to_str().expect("utf-8 path"), "--clock", "virtual", "--out", out.to_str().expect("utf-8 path")];
+        args.extend_from_slice(extra);
+        let output = climbsim_with_sdk_python(&args);
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
+        let count: u32 = log.split("overruns ").nth(1).and_then(|rest| rest.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{log}"));
+        count
+    };
+    // Computation is free by default: the 30 ms of work take no simulated time.
+    assert_eq!(overruns(&[], "free"), 0);
+    // At this machine's speed it takes 30 ms of the 20 ms period: every period overruns.
+    assert!(overruns(&["--controller-cpu", "1"], "charged") >= 18);
+}

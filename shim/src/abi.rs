@@ -134,6 +134,8 @@ pub struct Header {
     /// C: climbsim's process: a shim whose climbsim is gone leaves virtual time.
     pub climbsim_pid: AtomicI32,
     pub _pad1: AtomicU32,
+    /// C: each thread's CPU time is also charged, × this / 1e6 (`--controller-cpu`; 0: free).
+    pub cpu_factor_ppm: AtomicU64,
 }
 
 #[repr(C)]

@@ -51,6 +51,31 @@ thread_local! {
     static SLOT: Cell<u32> = const { Cell::new(NO_SLOT) };
     /// Simulated time charged to this thread and not yet applied (ns).
     static UNAPPLIED: Cell<u64> = const { Cell::new(0) };
+    /// This thread's CPU time (real, ns) when its computation was last charged
+    /// (`--controller-cpu`); 0: not yet read.
+    static CPU_SEEN: Cell<u64> = const { Cell::new(0) };
+}
+
+/// With `--controller-cpu F`: the CPU time this thread used since it was last charged, × F.
+/// Time spent parked (spinning for climbsim) is not the controller's and is skipped.
+fn charge_computation(shared: &Shared) {
+    let factor = shared.header.cpu_factor_ppm.load(Ordering::Relaxed);
+    if factor == 0 {
+        return;
+    }
+    let now = time::thread_cpu_ns();
+    let seen = CPU_SEEN.with(|c| c.replace(now));
+    if seen != 0 && now > seen {
+        let ns = u128::from(now - seen) * u128::from(factor) / 1_000_000;
+        charge(shared, u64::try_from(ns).unwrap_or(u64::MAX));
+    }
+}
+
+/// Forget the CPU time used until now (after a park: the spin was not the controller's work).
+fn reset_computation(shared: &Shared) {
+    if shared.header.cpu_factor_ppm.load(Ordering::Relaxed) != 0 {
+        CPU_SEEN.with(|c| c.set(time::thread_cpu_ns()));
+    }
 }
 
 /// Set once climbsim is found gone: the process goes on as after the run's end.
@@ -233,6 +258,7 @@ fn notify_scheduler(shared: &Shared) {
 /// Count an intercepted call (the watchdog's sign of life) and remember what it was.
 fn note_call(shared: &Shared, call: u32) {
     shared.header.calls.fetch_add(1, Ordering::Relaxed);
+    charge_computation(shared);
     if let Some(slot) = my_slot() {
         slot.calls.fetch_add(1, Ordering::Relaxed);
         slot.last_call.store(call, Ordering::Relaxed);
@@ -307,6 +333,7 @@ fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64)
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
+            reset_computation(shared);
             return slot.release.load(Ordering::Acquire);
         }
         if shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed) {

@@ -33,6 +33,16 @@ pub(crate) fn real_monotonic_ns() -> u64 {
     to_ns(&ts)
 }
 
+/// This thread's CPU time (the kernel's, ns).
+pub(crate) fn thread_cpu_ns() -> u64 {
+    const CLOCK_THREAD_CPUTIME_ID: clockid_t = 3;
+    let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
+    let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
+    // SAFETY: a valid timespec for the call.
+    unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    to_ns(&ts)
+}
+
 /// What `clock` reads at simulated time `now`, if it is one the shim answers.
 fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
     let header = &shared.header;

@@ -44,6 +44,11 @@ pub struct PaceArgs {
     /// (docs/virtual-time.md).
     #[arg(long, value_enum, default_value = "wall")]
     pub clock: ClockArg,
+    /// Under --clock virtual, also advance the clock by each controller thread's CPU time × F
+    /// (1: this machine; 4: a target computer four times slower), so that a controller too slow
+    /// for its period shows its overruns. The run is then no longer exactly repeatable.
+    #[arg(long, value_name = "F", value_parser = parse_controller_cpu)]
+    pub controller_cpu: Option<f64>,
     /// Virtual time: simulated nanoseconds an intercepted call that does not block costs.
     #[arg(long, value_name = "NS", default_value = "1000", hide = true)]
     pub vt_syscall_ns: u64,
@@ -61,13 +66,16 @@ pub enum ClockArg {
 
 impl PaceArgs {
     pub fn pace(&self) -> Result<Pace> {
+        if self.controller_cpu.is_some() && self.clock != ClockArg::Virtual {
+            bail!("--controller-cpu applies to --clock virtual (on the wall clock the controller's computation takes its own time)");
+        }
         let time = match self.clock {
             ClockArg::Wall => TimeBase::Wall,
             ClockArg::Virtual => {
                 if self.speed != 1.0 {
                     bail!("--speed {} applies to --clock wall: under --clock virtual a run goes as fast as the CPU allows", self.speed);
                 }
-                TimeBase::Virtual(VtSettings { syscall_ns: self.vt_syscall_ns, spin_cap_ns: self.vt_spin_cap_us.saturating_mul(1000), ..VtSettings::default() })
+                TimeBase::Virtual(VtSettings { syscall_ns: self.vt_syscall_ns, spin_cap_ns: self.vt_spin_cap_us.saturating_mul(1000), controller_cpu: self.controller_cpu.unwrap_or(0.0), ..VtSettings::default() })
             }
         };
         Ok(Pace { speed: self.speed, tolerance: Duration::from_secs_f64(self.pace_tolerance_ms / 1e3), time })
@@ -100,6 +108,14 @@ pub fn parse_speed(text: &str) -> Result<f64, String> {
         return Err(format!("{text} is outside 0.01-{MAX_SPEED} (times real time)"));
     }
     Ok(speed)
+}
+
+pub fn parse_controller_cpu(text: &str) -> Result<f64, String> {
+    let factor: f64 = text.trim().parse().map_err(|_| format!("`{text}` is not a number (times this machine's CPU time)"))?;
+    if !(factor.is_finite() && factor > 0.0 && factor <= 1000.0) {
+        return Err(format!("{text} is outside (0, 1000] (times this machine's CPU time)"));
+    }
+    Ok(factor)
 }
 
 pub fn parse_tolerance_ms(text: &str) -> Result<f64, String> {

@@ -60,11 +60,14 @@ pub struct VtSettings {
     pub stuck_after: Duration,
     /// CLOCK_REALTIME at simulated time 0 (Unix seconds): fixed, so that runs repeat exactly.
     pub epoch_unix_s: u64,
+    /// Each controller thread's CPU time is charged × this (`--controller-cpu F`); 0: the
+    /// controller's computation is free (and the run deterministic).
+    pub controller_cpu: f64,
 }
 
 impl Default for VtSettings {
     fn default() -> Self {
-        Self { clock_read_ns: 25, syscall_ns: 1_000, spin_cap_ns: 100_000, stuck_after: Duration::from_secs(2), epoch_unix_s: 1_704_067_200 }
+        Self { clock_read_ns: 25, syscall_ns: 1_000, spin_cap_ns: 100_000, stuck_after: Duration::from_secs(2), epoch_unix_s: 1_704_067_200, controller_cpu: 0.0 }
     }
 }
 
@@ -143,6 +146,7 @@ impl VirtualTime {
         header.spin_cap_ns.store(settings.spin_cap_ns, Ordering::Relaxed);
         header.port_next_due_ns.store(NEVER, Ordering::Relaxed);
         header.climbsim_pid.store(std::process::id() as i32, Ordering::Relaxed);
+        header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
         Ok(Arc::new(Self { stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
