@@ -286,3 +286,62 @@ fn controller_cpu_shows_the_overruns_of_a_controller_too_slow_for_its_period() {
     // At this machine's speed it takes 30 ms of the 20 ms period: every period overruns.
     assert!(overruns(&["--controller-cpu", "1"], "charged") >= 18);
 }
+
+/// The simulated time of the world's last published state (`/state`'s `t`), None before any.
+fn world_time(sensors: &str) -> Option<f64> {
+    use std::io::{Read as _, Write as _};
+    let address = sensors.strip_prefix("http://").expect("http URL");
+    let mut stream = std::net::TcpStream::connect(address).expect("connect");
+    write!(stream, "GET /state HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n").expect("request");
+    let mut response = String::new();
+    stream.read_to_string(&mut response).expect("response");
+    let (_, body) = response.split_once("\r\n\r\n").expect("headers and body");
+    serde_json::from_str::<serde_json::Value>(body).ok().and_then(|state| state["t"].as_f64())
+}
+
+#[test]
+fn serve_with_virtual_time_waits_for_a_controller_started_by_hand() {
+    use std::io::BufRead as _;
+    let dir = support::scratch_dir("vt-serve");
+    let path = scenario(&dir, "world", 600.0, &["tests/vt/sleeper.py"], true);
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["serve", path.to_str().expect("utf-8 path"), "--clock", "virtual"])
+        .current_dir(repo())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("start serve");
+    let mut lines = std::io::BufReader::new(serve.stdout.take().expect("stdout")).lines();
+    let mut env = Vec::new();
+    let mut sensors = String::new();
+    for line in lines.by_ref() {
+        let line = line.expect("serve's output");
+        if let Some(url) = line.strip_prefix("sensors: ") {
+            sensors = url.to_owned();
+        }
+        if let Some(rest) = line.split("start it with: ").nth(1) {
+            for assignment in rest.trim_end_matches(" <command>").split(' ') {
+                let (name, value) = assignment.split_once('=').expect("NAME='value'");
+                env.push((name.to_owned(), value.trim_matches('\'').to_owned()));
+            }
+            break;
+        }
+    }
+    assert!(env.iter().any(|(name, _)| name == "LD_PRELOAD") && env.iter().any(|(name, _)| name == "CLIMBSIM_VT"), "{env:?}");
+    // No controller yet: the world has not moved, and does not while we wait.
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(world_time(&sensors), None);
+    // A controller started by hand with the printed environment: five sleeps of 0.5 s.
+    let output = Command::new(sdk_python()).arg(repo().join("tests/vt/sleeper.py")).envs(env.iter().cloned()).output().expect("run the sleeper");
+    assert!(output.status.success(), "{}", output_text(&output));
+    assert!(String::from_utf8_lossy(&output.stdout).contains("step 9 monotonic+5.0 time+5.0"), "{}", output_text(&output));
+    let after = world_time(&sensors).expect("a state after the controller ran");
+    assert!((4.9..=5.1).contains(&after), "world at {after} s after 5 s of the controller's sleeps");
+    // It has gone: the world waits again.
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(world_time(&sensors), Some(after));
+    // SAFETY: signalling the child we started.
+    unsafe { libc::kill(serve.id() as i32, libc::SIGINT) };
+    let status = serve.wait().expect("serve's exit");
+    assert!(status.success(), "{status:?}");
+}

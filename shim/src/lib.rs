@@ -205,12 +205,20 @@ fn my_slot() -> Option<&'static Slot> {
     if tid == pid && first.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
         return claim(0, first);
     }
+    // A free slot, or one whose thread has ended (a shell's children come and go).
     for (index, slot) in shared.slots.iter().enumerate().skip(1) {
-        if slot.state.compare_exchange(state::FREE, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
-            return claim(index, slot);
+        if take_unused(slot, state::RUNNING) {
+            let claimed = claim(index, slot);
+            notify_scheduler(shared);
+            return claimed;
         }
     }
     None
+}
+
+/// Take `slot` if nobody uses it (free, or its thread ended), putting it in state `to`.
+fn take_unused(slot: &Slot, to: u32) -> bool {
+    [state::FREE, state::EXITED].into_iter().any(|from| slot.state.compare_exchange(from, to, Ordering::AcqRel, Ordering::Relaxed).is_ok())
 }
 
 unsafe extern "C" fn thread_exited(_: *mut c_void) {

@@ -23,7 +23,7 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
         return None;
     }
     for slot in shared.slots.iter().skip(1) {
-        if slot.state.compare_exchange(state::FREE, state::RESERVED, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+        if crate::take_unused(slot, state::RESERVED) {
             slot.pid.store(if tid == 0 { parent } else { tid }, Ordering::Relaxed);
             slot.tid.store(tid, Ordering::Release);
             return Some(slot);

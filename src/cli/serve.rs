@@ -134,9 +134,6 @@ pub fn exec(args: ServeArgs) -> Result<()> {
         can: can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 }),
         device: device.map(|path| DeviceOptions { path, echo: echo.into(), low_latency, rs485: rs485.then(|| rs485_delay_ms.unwrap_or_default()) }),
     };
-    if pace.clock == super::args::ClockArg::Virtual {
-        anyhow::bail!("serve --clock virtual is not available yet: use run, check or sweep --clock virtual, which start the controller themselves");
-    }
     let view = ViewOptions { mcap, live: foxglove.address, packets: false };
     let options = ServeOptions { scenario, transports, timing: timing.into(), trace_bus, baud, report, faults, record, view, pace: pace.pace()? };
     let robot = load_robot(&robot)?;

@@ -11,7 +11,7 @@ use std::time::Duration;
 use crate::bus::Bus;
 use crate::transport::{BusHandle, PhysicsPace};
 
-use super::clock::{Clock, ClockStop, WallClock};
+use super::clock::{Clock, ClockStop, VirtualClock, WallClock};
 
 /// What the loop drives: a world and what runs with it.
 pub trait Ticked {
@@ -125,9 +125,12 @@ impl Pacer {
         let stop = Arc::new(AtomicBool::new(false));
         let stopping = Arc::clone(&stop);
         let thread = std::thread::spawn(move || {
-            let mut clock = WallClock::on(handle.clock());
-            let mut ticks = HandleTicks::new(handle, hook, None);
-            run_ticks(&mut clock, &mut ticks, &stopping).pace
+            let mut ticks = HandleTicks::new(Arc::clone(&handle), hook, None);
+            match handle.clock().virtual_time() {
+                // Under virtual time the world follows whichever controller is attached.
+                Some(virtual_time) => run_ticks(&mut VirtualClock::new(Arc::clone(virtual_time), &stopping), &mut ticks, &stopping).pace,
+                None => run_ticks(&mut WallClock::on(handle.clock()), &mut ticks, &stopping).pace,
+            }
         });
         Self { stop, thread }
     }

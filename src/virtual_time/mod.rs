@@ -115,6 +115,8 @@ pub struct VtStats {
 
 /// climbsim's side of virtual time for one run.
 pub struct VirtualTime {
+    /// `serve`: the world waits while no controller is attached.
+    waits_for_controller: AtomicBool,
     stats: Mutex<VtStats>,
     block: Block,
     settings: VtSettings,
@@ -149,7 +151,7 @@ impl VirtualTime {
         header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
+        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
     }
 
     pub fn settings(&self) -> VtSettings {
@@ -178,6 +180,16 @@ impl VirtualTime {
     pub fn controller_env(&self) -> Result<Vec<(String, String)>, VtError> {
         let shim = shim_path()?;
         Ok(vec![("LD_PRELOAD".to_owned(), shim.display().to_string()), ("CLIMBSIM_VT".to_owned(), self.block.path().display().to_string())])
+    }
+
+    /// Hold the world while no controller process is attached (`serve`, whose controller is
+    /// started by hand, may come and go): it goes on where it stopped when the next one starts.
+    pub fn wait_for_controllers(&self) {
+        self.waits_for_controller.store(true, Ordering::Relaxed);
+    }
+
+    fn controller_attached(&self) -> bool {
+        self.shared().slots.iter().any(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED))
     }
 
     /// Hold time until the process about to be started has loaded the shim (it takes this slot).
@@ -296,6 +308,17 @@ impl VirtualTime {
         let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
         let header = &self.shared().header;
         let mut watchdog = watchdog::Watchdog::new(self.settings.stuck_after);
+        while self.waits_for_controller.load(Ordering::Relaxed) && !self.controller_attached() {
+            if stop.load(Ordering::Relaxed) {
+                return Err(VtError::Interrupted);
+            }
+            // Clients that are not followed (a person's curl) are still answered meanwhile.
+            self.poll_driven();
+            let seen = header.sched_word.load(Ordering::Acquire);
+            if !self.controller_attached() {
+                futex_wait(&header.sched_word, seen, Duration::from_millis(20));
+            }
+        }
         loop {
             // The world catches up with the controller before climbsim looks at anything the
             // controller sent: ticks may run while it runs, since it can see the world only
@@ -381,7 +404,7 @@ impl VirtualTime {
                 self.wait_port_readable();
                 continue;
             }
-            if stop.load(Ordering::Relaxed) {
+            if stop.load(Ordering::Relaxed) || header.mode.load(Ordering::Acquire) != mode::VIRTUAL {
                 return Err(VtError::Interrupted);
             }
             // A controller thread usually parks again within tens of microseconds: spin that

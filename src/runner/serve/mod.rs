@@ -21,10 +21,11 @@ use crate::fault::ScheduledFault;
 use crate::robot::RobotDescription;
 use crate::scenario::Scenario;
 use crate::runner::view::ViewOptions;
-use crate::sensor_server::SensorFeed;
+use crate::sensor_server::{SensorFeed, VirtualSensorServer};
+use crate::virtual_time::VirtualTime;
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, PhysicsPace, VirtualPort};
 
-use super::clock::Pace;
+use super::clock::{Pace, TimeBase};
 use super::observe::scenario_bus;
 use super::outputs::finish_timing_report;
 use super::process::faketime_env;
@@ -81,6 +82,20 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
     if speed_scaled && transports.device.is_some() {
         return Err(RunnerError::Invalid("--speed with --device: the controller on a serial device keeps real time; serve it at --speed 1".to_owned()));
     }
+    let virtual_time = match pace.time {
+        TimeBase::Virtual(settings) => {
+            if scenario.is_none() {
+                return Err(RunnerError::Invalid("serve --clock virtual needs a scenario: on the bench there is no world whose time could wait for the controller".to_owned()));
+            }
+            if transports.tcp.is_some() || transports.tcp_connect.is_some() || transports.can.is_some() || transports.device.is_some() {
+                return Err(RunnerError::Invalid("serve --clock virtual serves the pty only: a controller on TCP, CAN or a serial device keeps real time".to_owned()));
+            }
+            let vt = VirtualTime::create(settings).map_err(|error| RunnerError::Invalid(error.to_string()))?;
+            vt.wait_for_controllers();
+            Some(vt)
+        }
+        TimeBase::Wall => None,
+    };
     // Said before anything starts: a controller must be started with these to keep the pace.
     let faketime = if speed_scaled { Some(faketime_env(pace.speed).during(|| format!("--speed {}", pace.speed))?) } else { None };
     if let Some(bps) = baud {
@@ -117,7 +132,8 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
         }
         None => None,
     };
-    let handle = BusHandle::with_clock(bus, trace, recorder, BusClock::scaled(pace.speed));
+    let clock = virtual_time.as_ref().map_or_else(|| BusClock::scaled(pace.speed), |vt| BusClock::on_virtual_time(Arc::clone(vt)));
+    let handle = BusHandle::with_clock(bus, trace, recorder, clock);
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().during(|| "cannot start the runtime".to_owned())?;
     let port = runtime.block_on(async {
         let port = Arc::new(VirtualPort::open(transports.link.as_deref()).during(|| "cannot open the pty".to_owned())?);
@@ -152,7 +168,19 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
             let assignments: Vec<String> = env.iter().map(|(k, v)| format!("{k}='{v}'")).collect();
             console.say(&format!("speed: {}x; start your controller with its clocks scaled alike: {} <command>", pace.speed, assignments.join(" ")));
         }
-        let pty_thread = pty::start_thread(Arc::clone(&port), Arc::clone(&handle), transports.adapter)?;
+        // Under virtual time the session runs inside the scheduler, at exact simulated instants.
+        let pty_thread = match &virtual_time {
+            Some(vt) => {
+                let session = pty::serve_pty(Arc::clone(&port), Arc::clone(&handle), transports.adapter);
+                vt.drive(async move {
+                    if let Err(error) = session.await {
+                        warn!(%error, "pty session ended");
+                    }
+                });
+                None
+            }
+            None => Some(pty::start_thread(Arc::clone(&port), Arc::clone(&handle), transports.adapter)?),
+        };
         // A world runs on the wall clock: the pacer advances it every firmware tick against
         // absolute deadlines, so it moves between packets too (packets advance it as well). The
         // bench needs none: its servos are brought up to date exactly when a packet arrives.
@@ -160,8 +188,25 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
             Some(observer) => {
                 let feed = Arc::new(SensorFeed::default());
                 record_sensor_reads(&handle, &feed);
-                let url = start_sensor_server(Arc::clone(&feed)).await?;
+                let url = match &virtual_time {
+                    Some(vt) => {
+                        let (server, url) = VirtualSensorServer::bind(Arc::clone(&feed), Arc::clone(vt)).during(|| "cannot start the sensor server".to_owned())?;
+                        vt.drive(server);
+                        url
+                    }
+                    None => start_sensor_server(Arc::clone(&feed)).await?,
+                };
                 console.say(&format!("sensors: {url}"));
+                if let Some(vt) = &virtual_time {
+                    let mut env = vt.controller_env().map_err(|error| RunnerError::Invalid(error.to_string()))?;
+                    env.push(("DXL_PORT".to_owned(), port.path().display().to_string()));
+                    env.push(("CLIMBSIM_SENSORS".to_owned(), url.clone()));
+                    let assignments: Vec<String> = env.iter().map(|(k, v)| format!("{k}='{v}'")).collect();
+                    console.say(&format!(
+                        "virtual time: the world waits for your controller; start it with: {} <command>\n  (under gdb: `set environment` for each, so that gdb itself is not preloaded; the world waits while it is stopped)",
+                        assignments.join(" ")
+                    ));
+                }
                 let errors = Arc::new(Mutex::new(None));
                 Some(Pacer::start(Arc::clone(&handle), observer_hook(observer, feed, errors, WorldFailed::GoesOn)))
             }
@@ -171,8 +216,12 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
             tokio::time::sleep(STOP_POLL).await;
         }
         info!("stop requested: shutting down");
-        if pty_thread.is_finished() {
+        if pty_thread.as_ref().is_some_and(std::thread::JoinHandle::is_finished) {
             warn!("the pty session had stopped before shutdown");
+        }
+        // The controller's clean-up runs on the wall clock from here.
+        if let Some(vt) = &virtual_time {
+            vt.end();
         }
         if can_thread.as_ref().is_some_and(std::thread::JoinHandle::is_finished) {
             warn!("the CAN session had stopped before shutdown");
