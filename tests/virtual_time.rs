@@ -345,3 +345,23 @@ fn serve_with_virtual_time_waits_for_a_controller_started_by_hand() {
     let status = serve.wait().expect("serve's exit");
     assert!(status.success(), "{status:?}");
 }
+
+#[test]
+fn threads_wait_on_each_other_in_simulated_time() {
+    let dir = support::scratch_dir("vt-threads");
+    let path = scenario(&dir, "threads", 3.0, &["tests/vt/threads.py"], true);
+    let mut logs = Vec::new();
+    for run in ["a", "b"] {
+        let (output, wall) = run_virtual(&path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        assert!(wall < Duration::from_secs(10), "{wall:?}");
+        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
+    }
+    let log = &logs[0];
+    // A worker's 0.3 s sleep ends the main thread's event wait; an unset event times out.
+    assert!(log.contains("event after 0.300 s: True"), "{log}");
+    assert!(log.contains("timeout after 0.550 s: False"), "{log}");
+    // A 30 Hz camera thread beside a 20 ms control loop: both keep their periods.
+    assert!(log.contains("control: 50 periods, longest 20.000 ms; camera: 30 frames"), "{log}");
+    assert_eq!(logs[0], logs[1]);
+}

@@ -55,6 +55,9 @@ pub mod waits {
     /// A child process's end (waitpid and kin), which the kernel itself wakes; `Slot::conn_mask`
     /// holds the pid waited for (as i64; -1: any child).
     pub const CHILD: u32 = 16;
+    /// Another thread (a condition variable, a semaphore, a join): `Slot::conn_mask` holds the
+    /// address waited on; the waking thread marks it running.
+    pub const PEER: u32 = 32;
 }
 
 /// `Slot::release`: why climbsim let a thread go.
@@ -75,6 +78,7 @@ pub mod call {
     pub const READ: u32 = 6;
     pub const NET: u32 = 7;
     pub const WAIT_CHILD: u32 = 8;
+    pub const PEER: u32 = 9;
 
     pub fn name(call: u32) -> &'static str {
         match call {
@@ -86,6 +90,7 @@ pub mod call {
             READ => "read",
             NET => "a socket call",
             WAIT_CHILD => "waitpid",
+            PEER => "a wait for another thread",
             _ => "nothing yet",
         }
     }
@@ -136,6 +141,9 @@ pub struct Header {
     pub _pad1: AtomicU32,
     /// C: each thread's CPU time is also charged, × this / 1e6 (`--controller-cpu`; 0: free).
     pub cpu_factor_ppm: AtomicU64,
+    /// S: threads in a wait for another thread (wakers look for them only when there are some).
+    pub peer_waiters: AtomicU32,
+    pub _pad2: AtomicU32,
 }
 
 #[repr(C)]

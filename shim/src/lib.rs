@@ -22,6 +22,7 @@ mod children;
 mod io;
 mod net;
 mod spawn;
+mod sync;
 mod sys;
 mod time;
 mod wait;
@@ -222,8 +223,42 @@ fn take_unused(slot: &Slot, to: u32) -> bool {
 }
 
 unsafe extern "C" fn thread_exited(_: *mut c_void) {
+    sync::thread_ending();
     if let Some(slot) = my_slot() {
         exit_slot(slot);
+    }
+}
+
+/// Reserve a slot for a thread about to be created (the creator runs on meanwhile).
+fn reserve_thread_slot() -> Option<usize> {
+    let shared = shared()?;
+    let index = shared.slots.iter().skip(1).position(|slot| take_unused(slot, state::RESERVED))? + 1;
+    let slot = &shared.slots[index];
+    slot.pid.store(pid(), Ordering::Relaxed);
+    // Not 0, which marks a process's reservation (see `my_slot`).
+    slot.tid.store(-1, Ordering::Relaxed);
+    Some(index)
+}
+
+fn unreserve_slot(index: usize) {
+    if let Some(slot) = shared().and_then(|s| s.slots.get(index)) {
+        let _ = slot.state.compare_exchange(state::RESERVED, state::FREE, Ordering::AcqRel, Ordering::Relaxed);
+    }
+}
+
+/// A new thread's first act: the slot its creator reserved is its own.
+fn claim_reserved(index: usize) {
+    let Some(slot) = shared().and_then(|s| s.slots.get(index)) else { return };
+    let tid = sys::gettid();
+    slot.pid.store(pid(), Ordering::Relaxed);
+    slot.tid.store(tid, Ordering::Relaxed);
+    slot.state.store(state::RUNNING, Ordering::Release);
+    SLOT.with(|s| s.set(index as u32));
+    UNAPPLIED.with(|u| u.set(0));
+    let key = EXIT_KEY.load(Ordering::Relaxed);
+    if key != u32::MAX {
+        // SAFETY: a key from pthread_key_create; the value only has to be non-null.
+        unsafe { sys::pthread_setspecific(key, 1 as *const c_void) };
     }
 }
 

@@ -57,7 +57,7 @@ fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
 }
 
 /// Simulated time (ns since the run's start) at which `clock` reads `reading`.
-fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Option<u64> {
+pub(crate) fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Option<u64> {
     let zero = clock_at(shared, clock, 0)?;
     Some(reading.saturating_sub(zero))
 }

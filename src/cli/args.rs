@@ -41,9 +41,10 @@ pub struct PaceArgs {
     /// Whose clock an external controller runs on. `wall`: the wall clock (or N times it with
     /// --speed N). `virtual`: the simulation's; the controller's clocks, sleeps and waits follow
     /// simulated time, so the run goes as fast as the CPU allows and repeats exactly
-    /// (docs/virtual-time.md).
-    #[arg(long, value_enum, default_value = "wall")]
-    pub clock: ClockArg,
+    /// (docs/virtual-time.md). The default: `virtual` for `check`, `wall` for the others (and
+    /// for `check --speed N`).
+    #[arg(long, value_enum)]
+    pub clock: Option<ClockArg>,
     /// Under --clock virtual, also advance the clock by each controller thread's CPU time × F
     /// (1: this machine; 4: a target computer four times slower), so that a controller too slow
     /// for its period shows its overruns. The run is then no longer exactly repeatable.
@@ -65,11 +66,18 @@ pub enum ClockArg {
 }
 
 impl PaceArgs {
+    /// The pace asked for, on the wall clock unless `--clock virtual`.
     pub fn pace(&self) -> Result<Pace> {
-        if self.controller_cpu.is_some() && self.clock != ClockArg::Virtual {
+        self.pace_defaulting_to(ClockArg::Wall)
+    }
+
+    /// The pace asked for; without `--clock`, on `default` (the wall clock if `--speed` is given).
+    pub fn pace_defaulting_to(&self, default: ClockArg) -> Result<Pace> {
+        let clock = self.clock.unwrap_or(if self.speed != 1.0 { ClockArg::Wall } else { default });
+        if self.controller_cpu.is_some() && clock != ClockArg::Virtual {
             bail!("--controller-cpu applies to --clock virtual (on the wall clock the controller's computation takes its own time)");
         }
-        let time = match self.clock {
+        let time = match clock {
             ClockArg::Wall => TimeBase::Wall,
             ClockArg::Virtual => {
                 if self.speed != 1.0 {

@@ -7,7 +7,7 @@ use anyhow::Result;
 use climbsim::runner::check::check;
 use climbsim::runner::{preflight_dir, preflight_file};
 
-use super::args::{PaceArgs, ROBOT_IN_CHECKOUT, load_robot};
+use super::args::{ClockArg, PaceArgs, ROBOT_IN_CHECKOUT, load_robot};
 use super::console::Terminal;
 use super::interrupt;
 
@@ -25,8 +25,8 @@ pub struct CheckArgs {
     pub out: PathBuf,
     #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
     pub robot: PathBuf,
-    /// `--speed` applies to scenarios with an external controller; built-in ones always run
-    /// in lockstep, as fast as the CPU allows.
+    /// An external controller runs on virtual time unless `--clock wall` (or `--speed N`) is
+    /// given; built-in ones always run in lockstep, as fast as the CPU allows.
     #[command(flatten)]
     pub pace: PaceArgs,
 }
@@ -39,5 +39,5 @@ pub fn exec(args: CheckArgs) -> Result<()> {
     if let Some(path) = &junit {
         preflight_file(path, "--junit")?;
     }
-    Ok(check(&paths, &robot, &out, junit.as_deref(), pace.pace()?, interrupt::flag(), &Terminal)?)
+    Ok(check(&paths, &robot, &out, junit.as_deref(), pace.pace_defaulting_to(ClockArg::Virtual)?, interrupt::flag(), &Terminal)?)
 }
