@@ -164,7 +164,9 @@ pub struct Slot {
     pub conn_mask: AtomicU64,
     /// S: see [`call`].
     pub last_call: AtomicU32,
-    pub _pad0: AtomicU32,
+    /// S: the parent process of the slot's process (a waitpid is a real wait only while a
+    /// followed child lives).
+    pub parent: AtomicI32,
     /// S: this thread's intercepted calls.
     pub calls: AtomicU64,
     /// S: simulated time of the last call.

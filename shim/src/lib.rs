@@ -181,6 +181,7 @@ fn my_slot() -> Option<&'static Slot> {
     let claim = |index: usize, slot: &'static Slot| {
         slot.pid.store(pid, Ordering::Relaxed);
         slot.tid.store(tid, Ordering::Relaxed);
+        slot.parent.store(sys::getppid(), Ordering::Relaxed);
         slot.state.store(state::RUNNING, Ordering::Release);
         SLOT.with(|s| s.set(index as u32));
         let key = EXIT_KEY.load(Ordering::Relaxed);
@@ -252,6 +253,7 @@ fn claim_reserved(index: usize) {
     let tid = sys::gettid();
     slot.pid.store(pid(), Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
+    slot.parent.store(sys::getppid(), Ordering::Relaxed);
     slot.state.store(state::RUNNING, Ordering::Release);
     SLOT.with(|s| s.set(index as u32));
     UNAPPLIED.with(|u| u.set(0));

@@ -25,6 +25,9 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
     for slot in shared.slots.iter().skip(1) {
         if crate::take_unused(slot, state::RESERVED) {
             slot.pid.store(if tid == 0 { parent } else { tid }, Ordering::Relaxed);
+            // The program to come is a child of `parent` (fork, posix_spawn), or of this
+            // process's parent (an exec: the same process).
+            slot.parent.store(if tid == 0 { parent } else { sys::getppid() }, Ordering::Relaxed);
             slot.tid.store(tid, Ordering::Release);
             return Some(slot);
         }

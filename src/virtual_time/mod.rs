@@ -422,7 +422,14 @@ impl VirtualTime {
     }
 
     fn any_running(&self) -> bool {
-        self.shared().slots.iter().any(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED))
+        let slots = &self.shared().slots;
+        slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
+            state::RUNNING | state::RESERVED => true,
+            // In waitpid: blocked only while a followed child it waits for lives; else the
+            // kernel is about to return it (its child has just ended).
+            state::BLOCKED if s.waits.load(Ordering::Relaxed) == waits::CHILD => !waits_on_live_child(slots, s) && !watchdog::has_unfollowed_child(s),
+            _ => false,
+        })
     }
 
     fn poll_driven(&self) {
@@ -475,6 +482,16 @@ impl VirtualTime {
             _ => std::thread::sleep(Duration::from_micros(20)),
         }
     }
+}
+
+/// `parent`, in waitpid, has a followed child that can end (and so wake it).
+fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
+    let pid = parent.pid.load(Ordering::Relaxed);
+    let awaited = parent.conn_mask.load(Ordering::Relaxed) as i64;
+    slots.iter().any(|child| {
+        let live = matches!(child.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED);
+        live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
+    })
 }
 
 /// Let a parked thread go, saying why.

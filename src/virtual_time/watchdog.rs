@@ -113,6 +113,17 @@ fn describe(slot: &Slot, after: Duration) -> String {
     }
 }
 
+/// The slot's process has a child that is not followed (it dropped the shim) and has not
+/// ended: its waitpid waits on the real world, like a wait on a descriptor climbsim does not
+/// model, and time may move meanwhile.
+pub fn has_unfollowed_child(slot: &Slot) -> bool {
+    let pid = slot.pid.load(Ordering::Relaxed);
+    let Ok(children) = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")) else { return false };
+    children.split_whitespace().any(|child| {
+        std::fs::read_to_string(format!("/proc/{child}/stat")).is_ok_and(|stat| stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| state != 'Z' && state != 'X'))
+    })
+}
+
 /// Names of the blocking calls one meets (x86-64 numbers).
 fn syscall_name(number: i64) -> Option<&'static str> {
     #[cfg(target_arch = "x86_64")]
