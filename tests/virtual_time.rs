@@ -365,3 +365,15 @@ fn threads_wait_on_each_other_in_simulated_time() {
     assert!(log.contains("control: 50 periods, longest 20.000 ms; camera: 30 frames"), "{log}");
     assert_eq!(logs[0], logs[1]);
 }
+
+#[test]
+fn asyncio_sleeps_and_timeouts_follow_simulated_time() {
+    let dir = support::scratch_dir("vt-asyncio");
+    let path = scenario(&dir, "asyncio", 3.0, &["tests/vt/asyncio_sleeps.py"], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
+    // asyncio waits in epoll_wait: 0.5 s, two concurrent sleeps (0.3 s), a 0.25 s timeout.
+    assert!(log.contains("asyncio: 0.500 then 0.800 then 1.050"), "{log}");
+    assert!(wall < Duration::from_secs(5), "{wall:?}");
+}

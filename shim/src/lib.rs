@@ -19,6 +19,7 @@
 #[path = "abi.rs"]
 pub mod abi;
 mod children;
+mod epoll;
 mod io;
 mod net;
 mod spawn;

@@ -118,6 +118,7 @@ pub unsafe extern "C" fn connect(fd: c_int, addr: *const c_void, len: u32) -> c_
 pub unsafe extern "C" fn close(fd: c_int) -> c_int {
     if let Some(shared) = crate::shared() {
         forget(shared, fd);
+        crate::epoll::forget(fd);
     }
     let next = real!(close: fn(c_int) -> c_int);
     // SAFETY: passing the caller's argument through.

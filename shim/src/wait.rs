@@ -27,7 +27,7 @@ pub(crate) struct Interest {
 }
 
 impl Interest {
-    fn add(&mut self, shared: &'static Shared, fd: c_int, read: bool, write_or_error: bool) {
+    pub(crate) fn add(&mut self, shared: &'static Shared, fd: c_int, read: bool, write_or_error: bool) {
         if write_or_error || !read {
             self.other = true;
             return;
@@ -39,6 +39,11 @@ impl Interest {
         } else {
             self.other = true;
         }
+    }
+
+    /// Something climbsim does not model.
+    pub(crate) fn add_other(&mut self) {
+        self.other = true;
     }
 
     fn waits(&self) -> u32 {
@@ -56,7 +61,7 @@ pub(crate) fn is_port(shared: &Shared, fd: c_int) -> bool {
 type RealWait<'a> = &'a mut dyn FnMut(Option<u64>) -> c_int;
 
 /// One wait of the poll family on simulated time (`timeout_ns`: `None` waits forever).
-fn wait(shared: &'static Shared, what: u32, interest: Interest, timeout_ns: Option<u64>, real_wait: RealWait<'_>) -> c_int {
+pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeout_ns: Option<u64>, real_wait: RealWait<'_>) -> c_int {
     note_call(shared, what);
     let ready = real_wait(Some(0));
     if ready != 0 {
