@@ -17,6 +17,9 @@ use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
 use crate::time::{sim_now, to_ns};
 use crate::{active, charge, my_slot, note_call, park};
 
+/// The longest jump of a spin on the port while a reply is due on it.
+const REPLY_JUMP_NS: u64 = 1_000_000;
+
 /// What a wait waits on.
 #[derive(Default, Clone, Copy)]
 pub(crate) struct Interest {
@@ -73,12 +76,12 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     if deadline <= now {
         if interest.port {
             // A spin on an empty port (pyserial's select also watches its own abort pipe): on to
-            // the next byte due on it, in steps of at most the cap, so that a timeout the
-            // program checks between its polls is overshot by at most the cap (an absent servo).
-            // Within the horizon the thread moves the clock itself; a reply due now, or anything
-            // beyond, is climbsim's to deliver.
+            // the next byte due on it, at most 1 ms at a time; with none due (an absent servo),
+            // by the cap. A timeout the program checks between its polls is so overshot by at
+            // most the cap, or 1 ms while a reply is on its way. Within the horizon the thread
+            // moves the clock itself; a reply due now, or anything beyond, is climbsim's.
             let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire);
-            let target = next_due.min(now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)));
+            let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
             if target <= now || !crate::advance_within_horizon(shared, now, target) {
                 park(shared, state::YIELDED, target.max(now), waits::SPIN | waits::PORT, 0);
             }

@@ -355,7 +355,8 @@ impl VirtualTime {
                 }
                 let mut at = slot.deadline_ns.load(Ordering::Relaxed);
                 if waits_on & waits::SPIN != 0 {
-                    // A spin on the port goes on to the next byte due on it, at most the cap on.
+                    // A spin on the port goes on to the next byte due on it (its own deadline
+                    // bounds the jump).
                     at = at.min(next_reply);
                 }
                 if at <= now {
