@@ -377,3 +377,31 @@ fn asyncio_sleeps_and_timeouts_follow_simulated_time() {
     assert!(log.contains("asyncio: 0.500 then 0.800 then 1.050"), "{log}");
     assert!(wall < Duration::from_secs(5), "{wall:?}");
 }
+
+#[test]
+fn a_c_controller_on_a_blocking_port_waits_as_its_terminal_says_in_simulated_time() {
+    let dir = support::scratch_dir("vt-raw");
+    let program = dir.join("raw_ping");
+    // The system's C compiler (Rust links with it, so it is there wherever this test builds).
+    let compiled = Command::new("cc").arg(repo().join("tests/vt/raw_ping.c")).arg("-o").arg(&program).output().expect("run cc");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    let path = scenario(&dir, "raw", 2.0, &["tests/vt/sleeper.py"], true);
+    let text = std::fs::read_to_string(&path).expect("scenario").replace(&repo().join("tests/vt/sleeper.py").display().to_string(), &program.display().to_string());
+    std::fs::write(&path, text + "\n[bus]\nbaud_bps = 1000000\n").expect("write");
+    let mut logs = Vec::new();
+    for run in ["a", "b"] {
+        let (output, _) = run_virtual(&path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
+    }
+    assert_eq!(logs[0], logs[1]);
+    let log = &logs[0];
+    // VMIN 0, VTIME 2: the reply's bytes as they come (740 µs at 1 Mbps), else 0 after 200 ms.
+    let vtime_ping = latencies(log, "vtime ping 1");
+    assert!(vtime_ping.len() == 1 && (740.0..742.0).contains(&vtime_ping[0]) && log.contains("vtime ping 1: 74"), "{log}");
+    let absent = latencies(log, "vtime ping 42");
+    assert!(absent.len() == 1 && (200_000.0..200_100.0).contains(&absent[0]) && log.contains(", 0 bytes"), "{log}");
+    // VMIN 1: blocked until the bytes come.
+    let vmin_ping = latencies(log, "vmin ping 1");
+    assert!(vmin_ping.len() == 1 && (740.0..742.0).contains(&vmin_ping[0]) && log.contains("vmin ping 1: 74"), "{log}");
+}

@@ -1,13 +1,16 @@
-//! Writes to the servo port, counted: climbsim holds simulated time until it has read (and so
-//! time-stamped) every byte the controller wrote, since the kernel hands them over a little later.
+//! The servo port's reads and writes. Writes are counted: climbsim holds simulated time until it
+//! has read (and so time-stamped) every byte the controller wrote, since the kernel hands them
+//! over a little later. A read that finds nothing waits on simulated time: a blocking one as the
+//! terminal's VMIN and VTIME say, a non-blocking one (the C++ SDK's loop) as a spin.
 
-use core::ffi::c_int;
+use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::abi::call;
+use crate::abi::{call, release, state, waits};
 use crate::sys::{iovec, real};
 use crate::wait::is_port;
-use crate::{active, charge, note_call};
+use crate::time::sim_now;
+use crate::{active, charge, note_call, park};
 
 fn count_written(fd: c_int, written: isize) {
     if written <= 0 {
@@ -38,4 +41,95 @@ pub unsafe extern "C" fn writev(fd: c_int, iov: *const iovec, count: c_int) -> i
     let written = unsafe { next(fd, iov, count) };
     count_written(fd, written);
     written
+}
+
+const F_GETFL: c_int = 3;
+const O_NONBLOCK: c_int = 0o4000;
+const FIONREAD: u64 = 0x541B;
+const TCGETS: u64 = 0x5401;
+/// struct termios: c_cc starts after four flags and c_line; VTIME and VMIN are its 5th and 6th.
+const C_CC: usize = 17;
+const VTIME: usize = 5;
+const VMIN: usize = 6;
+
+unsafe extern "C" {
+    fn fcntl(fd: c_int, command: c_int, ...) -> c_int;
+    fn ioctl(fd: c_int, request: u64, ...) -> c_int;
+}
+
+fn readable(fd: c_int) -> usize {
+    let mut available: c_int = 0;
+    // SAFETY: FIONREAD writes one int.
+    if unsafe { ioctl(fd, FIONREAD, &mut available) } == 0 { available.max(0) as usize } else { 0 }
+}
+
+/// What a read of the port does when nothing is there yet.
+enum PortRead {
+    /// Read for real now, at most this many bytes (all there are: the kernel does not block).
+    Now(usize),
+    /// Return this without asking the kernel (0: nothing came before VTIME ran out).
+    Return(isize),
+}
+
+/// Wait on simulated time until a read of the port can go to the kernel without blocking.
+fn wait_for_port_bytes(shared: &'static crate::abi::Shared, fd: c_int, len: usize) -> PortRead {
+    let mut termios = [0u8; 64];
+    // SAFETY: TCGETS fills a struct termios (60 bytes on Linux).
+    if unsafe { ioctl(fd, TCGETS, termios.as_mut_ptr()) } != 0 {
+        return PortRead::Now(len);
+    }
+    let (vmin, vtime) = (termios[C_CC + VMIN], termios[C_CC + VTIME]);
+    let deadline = if vmin == 0 && vtime > 0 { sim_now(shared).saturating_add(u64::from(vtime) * 100_000_000) } else { crate::abi::NEVER };
+    loop {
+        let available = readable(fd);
+        if available > 0 {
+            return PortRead::Now(len.min(available));
+        }
+        if vmin == 0 && vtime == 0 {
+            // A read that never waits: a spin, as a non-blocking one.
+            spun_on_empty_port(shared);
+            let available = readable(fd);
+            return if available > 0 { PortRead::Now(len.min(available)) } else { PortRead::Return(0) };
+        }
+        match park(shared, state::BLOCKED, deadline, waits::PORT, 0) {
+            release::DATA => {}
+            release::ENDING => return PortRead::Now(len),
+            _ => return PortRead::Return(0),
+        }
+    }
+}
+
+/// A non-blocking read of the port found nothing: a spin, as a zero-timeout poll of it.
+fn spun_on_empty_port(shared: &'static crate::abi::Shared) {
+    crate::wait::spin_on_port(shared, sim_now(shared));
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize {
+    let next = real!(read: fn(c_int, *mut c_void, usize) -> isize);
+    let port = active().filter(|shared| len > 0 && crate::wait::is_port(shared, fd));
+    let Some(shared) = port else {
+        // SAFETY: passing the caller's arguments through.
+        let received = unsafe { next(fd, buf, len) };
+        crate::net::count_received(fd, received);
+        return received;
+    };
+    note_call(shared, call::READ);
+    // SAFETY: fcntl F_GETFL on the caller's descriptor.
+    let blocking = unsafe { fcntl(fd, F_GETFL) } & O_NONBLOCK == 0;
+    if !blocking {
+        // SAFETY: passing the caller's arguments through.
+        let received = unsafe { next(fd, buf, len) };
+        if received <= 0 {
+            let errno = crate::sys::errno();
+            spun_on_empty_port(shared);
+            crate::sys::set_errno(errno);
+        }
+        return received;
+    }
+    match wait_for_port_bytes(shared, fd, len) {
+        // SAFETY: the caller's buffer, at most its length.
+        PortRead::Now(bytes) => unsafe { next(fd, buf, bytes) },
+        PortRead::Return(value) => value,
+    }
 }

@@ -186,11 +186,3 @@ pub unsafe extern "C" fn recvmsg(fd: c_int, message: *mut c_void, flags: c_int) 
     received
 }
 
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize {
-    let next = real!(read: fn(c_int, *mut c_void, usize) -> isize);
-    // SAFETY: passing the caller's arguments through.
-    let received = unsafe { next(fd, buf, len) };
-    count_received(fd, received);
-    received
-}

@@ -75,16 +75,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     let deadline = timeout_ns.map_or(crate::abi::NEVER, |t| now.saturating_add(t));
     if deadline <= now {
         if interest.port {
-            // A spin on an empty port (pyserial's select also watches its own abort pipe): on to
-            // the next byte due on it, at most 1 ms at a time; with none due (an absent servo),
-            // by the cap. A timeout the program checks between its polls is so overshot by at
-            // most the cap, or 1 ms while a reply is on its way. Within the horizon the thread
-            // moves the clock itself; a reply due now, or anything beyond, is climbsim's.
-            let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire);
-            let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
-            if target <= now || !crate::advance_within_horizon(shared, now, target) {
-                park(shared, state::YIELDED, target.max(now), waits::SPIN | waits::PORT, 0);
-            }
+            spin_on_port(shared, now);
             return real_wait(Some(0));
         }
         charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
@@ -99,6 +90,21 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
         release::DATA => real_wait(Some(1_000_000_000)),
         release::ENDING => real_wait(Some(deadline.saturating_sub(sim_now(shared)))),
         _ => real_wait(Some(0)),
+    }
+}
+
+/// A look at the port that found nothing, at simulated time `now`: time goes on to the next
+/// byte due on it.
+pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
+    // Pyserial's select also watches its own abort pipe; the C++ SDK reads the port without
+    // blocking. On to the next byte due on the port, at most 1 ms at a time; with none due (an
+    // absent servo), by the cap. A timeout the program checks between its looks is so overshot
+    // by at most the cap, or 1 ms while a reply is on its way. Within the horizon the thread
+    // moves the clock itself; a reply due now, or anything beyond, is climbsim's.
+    let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire);
+    let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
+    if target <= now || !crate::advance_within_horizon(shared, now, target) {
+        park(shared, state::YIELDED, target.max(now), waits::SPIN | waits::PORT, 0);
     }
 }
 

@@ -270,7 +270,12 @@ impl VirtualTime {
     /// Run `future` inside the scheduler: polled whenever the controller is parked, never on a
     /// thread of its own (so it acts at exact simulated instants).
     pub fn drive(&self, future: impl Future<Output = ()> + Send + 'static) {
-        lock(&self.driven).push(Box::pin(future));
+        let mut future: Driven = Box::pin(future);
+        // Polled once at once: up to its first wait, it sets itself up (the port says which
+        // device it is) before any controller can use it.
+        if future.as_mut().poll(&mut Context::from_waker(Waker::noop())).is_pending() {
+            lock(&self.driven).push(future);
+        }
     }
 
     /// A future that completes when simulated time reaches `due`.

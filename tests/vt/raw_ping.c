@@ -1,0 +1,78 @@
+/* A controller in plain C on a blocking port (termios VMIN/VTIME, read(2)), for the
+ * virtual-time tests: pings servo 1 and an absent ID with the terminal's own timeouts and
+ * prints what its monotonic clock saw. Built by tests/virtual_time.rs with the system's cc. */
+#include <fcntl.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+/* Protocol 2.0's CRC-16 (polynomial 0x8005, no reflection, initial 0). */
+static uint16_t crc16(const uint8_t *data, size_t len) {
+    uint16_t crc = 0;
+    for (size_t i = 0; i < len; i++) {
+        crc ^= (uint16_t)data[i] << 8;
+        for (int bit = 0; bit < 8; bit++) crc = (crc & 0x8000) ? (uint16_t)((crc << 1) ^ 0x8005) : (uint16_t)(crc << 1);
+    }
+    return crc;
+}
+
+static double now_us(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec * 1e6 + ts.tv_nsec / 1e3;
+}
+
+/* Ping `id`, then read up to 14 bytes with blocking reads until one returns 0 (VTIME ran out)
+ * or the status is whole. */
+static void ping(int fd, uint8_t id, const char *what) {
+    uint8_t packet[10] = {0xFF, 0xFF, 0xFD, 0x00, id, 0x03, 0x00, 0x01, 0, 0};
+    uint16_t crc = crc16(packet, 8);
+    packet[8] = crc & 0xFF;
+    packet[9] = crc >> 8;
+    double started = now_us();
+    if (write(fd, packet, sizeof packet) != (ssize_t)sizeof packet) { perror("write"); exit(1); }
+    uint8_t reply[64];
+    size_t got = 0;
+    while (got < 14) {
+        ssize_t n = read(fd, reply + got, sizeof reply - got);
+        if (n < 0) { perror("read"); exit(1); }
+        if (n == 0) break;
+        got += (size_t)n;
+    }
+    printf("%s: %.1f us, %zu bytes\n", what, now_us() - started, got);
+    fflush(stdout);
+}
+
+int main(void) {
+    const char *path = getenv("DXL_PORT");
+    if (!path) return 2;
+    int fd = open(path, O_RDWR | O_NOCTTY);
+    if (fd < 0) { perror("open"); return 1; }
+    struct termios tio;
+    tcgetattr(fd, &tio);
+    cfmakeraw(&tio);
+    cfsetspeed(&tio, B1000000);
+    tio.c_cc[VMIN] = 0;
+    tio.c_cc[VTIME] = 2; /* 200 ms */
+    tcsetattr(fd, TCSANOW, &tio);
+    ping(fd, 1, "vtime ping 1");
+    ping(fd, 42, "vtime ping 42");
+    tio.c_cc[VMIN] = 1;
+    tio.c_cc[VTIME] = 0;
+    tcsetattr(fd, TCSANOW, &tio);
+    double started = now_us();
+    uint8_t packet[10] = {0xFF, 0xFF, 0xFD, 0x00, 1, 0x03, 0x00, 0x01, 0x19, 0x4E};
+    if (write(fd, packet, sizeof packet) != (ssize_t)sizeof packet) return 1;
+    uint8_t reply[14];
+    size_t got = 0;
+    while (got < sizeof reply) {
+        ssize_t n = read(fd, reply + got, sizeof reply - got);
+        if (n <= 0) return 1;
+        got += (size_t)n;
+    }
+    printf("vmin ping 1: %.1f us, %zu bytes\n", now_us() - started, got);
+    return 0;
+}
