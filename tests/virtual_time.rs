@@ -9,12 +9,23 @@ mod support;
 
 use support::{climbsim_with_sdk_python, output_text, repo, sdk_python};
 
-/// A flat world `duration_s` long driven by `command` (paths relative to the repository).
+/// A flat world `duration_s` long driven by `command` (paths relative to the repository, or
+/// absolute), with `extra` TOML after it.
 fn scenario(dir: &Path, name: &str, duration_s: f64, command: &[&str], ends_by_itself: bool) -> PathBuf {
-    let command: Vec<String> = command.iter().map(|part| format!("\"{}\"", repo().join(part).display())).collect();
+    scenario_with(dir, name, duration_s, command, ends_by_itself, "")
+}
+
+/// [`scenario`] on a 1 Mbps bus.
+fn scenario_1mbps(dir: &Path, name: &str, duration_s: f64, command: &[&str]) -> PathBuf {
+    scenario_with(dir, name, duration_s, command, true, "\n[bus]\nbaud_bps = 1000000\n")
+}
+
+fn scenario_with(dir: &Path, name: &str, duration_s: f64, command: &[&str], ends_by_itself: bool, extra: &str) -> PathBuf {
+    // The program relative to the repository (or absolute); its arguments as they are.
+    let command: Vec<String> = command.iter().enumerate().map(|(i, part)| if i == 0 { format!("\"{}\"", repo().join(part).display()) } else { format!("\"{part}\"") }).collect();
     let text = format!(
         "[world]\nseed = 1\nduration_s = {duration_s}\n\n[terrain]\nkind = \"flat\"\nsize_m = 4.0\n\n[line]\npoints = [[-0.5, 0.0], [1.5, 0.0]]\n\n[start]\nx_m = 0.5\n\n\
-         [controller]\nkind = \"external\"\ncommand = [{}]\nends_by_itself = {ends_by_itself}\n",
+         [controller]\nkind = \"external\"\ncommand = [{}]\nends_by_itself = {ends_by_itself}\n{extra}",
         command.join(", ")
     );
     let path = dir.join(format!("{name}.toml"));
@@ -133,12 +144,23 @@ fn a_statically_linked_controller_is_refused() {
         panic!("this test needs Debian's static /sbin/ldconfig");
     };
     let dir = support::scratch_dir("vt-static");
-    let path = dir.join("static.toml");
-    let text = std::fs::read_to_string(scenario(&dir, "x", 2.0, &["tests/vt/sleeper.py"], true)).expect("scenario");
-    std::fs::write(&path, text.replace(&format!("\"{}\"", repo().join("tests/vt/sleeper.py").display()), &format!("\"{ldconfig}\", \"-p\""))).expect("write");
+    let path = scenario(&dir, "static", 2.0, &[ldconfig, "-p"], true);
     let (output, _) = run_virtual(&path, &dir.join("out"));
     assert_eq!(output.status.code(), Some(2), "{}", output_text(&output));
     assert!(output_text(&output).contains("statically linked"), "{}", output_text(&output));
+}
+
+/// Run `path` on virtual time twice: both succeed and the controller prints the same; what it
+/// printed.
+fn controller_log_repeated(path: &Path, dir: &Path) -> String {
+    let mut logs = Vec::new();
+    for run in ["a", "b"] {
+        let (output, _) = run_virtual(path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
+    }
+    assert_eq!(logs[0], logs[1], "the controller's own timings differ between runs");
+    logs.swap_remove(0)
 }
 
 /// The SDK's printed latencies, one line each (see tests/vt/sdk_ping.py).
@@ -149,16 +171,8 @@ fn latencies(log: &str, what: &str) -> Vec<f64> {
 #[test]
 fn the_official_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_servos_timeout() {
     let dir = support::scratch_dir("vt-sdk");
-    let path = scenario(&dir, "ping", 2.0, &["tests/vt/sdk_ping.py"], true);
-    std::fs::write(&path, std::fs::read_to_string(&path).expect("scenario") + "\n[bus]\nbaud_bps = 1000000\n").expect("write");
-    let mut logs = Vec::new();
-    for run in ["a", "b"] {
-        let (output, _) = run_virtual(&path, &dir.join(run));
-        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
-        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
-    }
-    assert_eq!(logs[0], logs[1], "the SDK's own timings differ between runs");
-    let log = &logs[0];
+    let path = scenario_1mbps(&dir, "ping", 2.0, &["tests/vt/sdk_ping.py"]);
+    let log = &controller_log_repeated(&path, &dir);
     // At 1 Mbps: a 10-byte ping (100 µs), the default 500 µs Return Delay Time, a 14-byte status
     // (140 µs); the SDK's own calls add about a microsecond of charges.
     for ping in latencies(log, "ping 1 ") {
@@ -229,17 +243,8 @@ fn example(name: &str) -> PathBuf {
 fn a_dynamixel2_controller_sees_exact_latencies_and_its_own_timeout() {
     let dir = support::scratch_dir("vt-dynamixel2");
     let controller = example("vt_dynamixel2_controller");
-    let path = scenario(&dir, "d2", 2.0, &["tests/vt/sleeper.py"], true);
-    let text = std::fs::read_to_string(&path).expect("scenario").replace(&repo().join("tests/vt/sleeper.py").display().to_string(), &controller.display().to_string());
-    std::fs::write(&path, text + "\n[bus]\nbaud_bps = 1000000\n").expect("write");
-    let mut logs = Vec::new();
-    for run in ["a", "b"] {
-        let (output, _) = run_virtual(&path, &dir.join(run));
-        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
-        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
-    }
-    assert_eq!(logs[0], logs[1], "dynamixel2's own timings differ between runs");
-    let log = &logs[0];
+    let path = scenario_1mbps(&dir, "d2", 2.0, &[controller.to_str().expect("utf-8 path")]);
+    let log = &controller_log_repeated(&path, &dir);
     // serial2 waits in poll(2) with a timeout: blocked, let go when the reply is there.
     for ping in latencies(log, "ping 1 ") {
         assert!((740.0..742.0).contains(&ping), "{log}");
@@ -256,9 +261,7 @@ fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
     let script = dir.join("pause.py");
     std::fs::write(&script, "#!/usr/bin/env python3\nimport signal, time\ntime.sleep(0.1)\nsignal.pause()\n").expect("write");
     std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
-    let path = scenario(&dir, "pause", 10.0, &["tests/vt/sleeper.py"], false);
-    let text = std::fs::read_to_string(&path).expect("scenario").replace(&repo().join("tests/vt/sleeper.py").display().to_string(), &script.display().to_string());
-    std::fs::write(&path, text).expect("write");
+    let path = scenario(&dir, "pause", 10.0, &[script.to_str().expect("utf-8 path")], false);
     let (output, wall) = run_virtual(&path, &dir.join("out"));
     assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
     let failures = summary(&dir.join("out"))["failures"].to_string();
@@ -289,14 +292,7 @@ fn controller_cpu_shows_the_overruns_of_a_controller_too_slow_for_its_period() {
 
 /// The simulated time of the world's last published state (`/state`'s `t`), None before any.
 fn world_time(sensors: &str) -> Option<f64> {
-    use std::io::{Read as _, Write as _};
-    let address = sensors.strip_prefix("http://").expect("http URL");
-    let mut stream = std::net::TcpStream::connect(address).expect("connect");
-    write!(stream, "GET /state HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n").expect("request");
-    let mut response = String::new();
-    stream.read_to_string(&mut response).expect("response");
-    let (_, body) = response.split_once("\r\n\r\n").expect("headers and body");
-    serde_json::from_str::<serde_json::Value>(body).ok().and_then(|state| state["t"].as_f64())
+    serde_json::from_str::<serde_json::Value>(&support::get_body(sensors, "/state")).ok().and_then(|state| state["t"].as_f64())
 }
 
 #[test]
@@ -350,20 +346,12 @@ fn serve_with_virtual_time_waits_for_a_controller_started_by_hand() {
 fn threads_wait_on_each_other_in_simulated_time() {
     let dir = support::scratch_dir("vt-threads");
     let path = scenario(&dir, "threads", 3.0, &["tests/vt/threads.py"], true);
-    let mut logs = Vec::new();
-    for run in ["a", "b"] {
-        let (output, wall) = run_virtual(&path, &dir.join(run));
-        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
-        assert!(wall < Duration::from_secs(10), "{wall:?}");
-        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
-    }
-    let log = &logs[0];
+    let log = &controller_log_repeated(&path, &dir);
     // A worker's 0.3 s sleep ends the main thread's event wait; an unset event times out.
     assert!(log.contains("event after 0.300 s: True"), "{log}");
     assert!(log.contains("timeout after 0.550 s: False"), "{log}");
     // A 30 Hz camera thread beside a 20 ms control loop: both keep their periods.
     assert!(log.contains("control: 50 periods, longest 20.000 ms; camera: 30 frames"), "{log}");
-    assert_eq!(logs[0], logs[1]);
 }
 
 #[test]
@@ -385,17 +373,8 @@ fn a_c_controller_on_a_blocking_port_waits_as_its_terminal_says_in_simulated_tim
     // The system's C compiler (Rust links with it, so it is there wherever this test builds).
     let compiled = Command::new("cc").arg(repo().join("tests/vt/raw_ping.c")).arg("-o").arg(&program).output().expect("run cc");
     assert!(compiled.status.success(), "{}", output_text(&compiled));
-    let path = scenario(&dir, "raw", 2.0, &["tests/vt/sleeper.py"], true);
-    let text = std::fs::read_to_string(&path).expect("scenario").replace(&repo().join("tests/vt/sleeper.py").display().to_string(), &program.display().to_string());
-    std::fs::write(&path, text + "\n[bus]\nbaud_bps = 1000000\n").expect("write");
-    let mut logs = Vec::new();
-    for run in ["a", "b"] {
-        let (output, _) = run_virtual(&path, &dir.join(run));
-        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
-        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
-    }
-    assert_eq!(logs[0], logs[1]);
-    let log = &logs[0];
+    let path = scenario_1mbps(&dir, "raw", 2.0, &[program.to_str().expect("utf-8 path")]);
+    let log = &controller_log_repeated(&path, &dir);
     // VMIN 0, VTIME 2: the reply's bytes as they come (740 µs at 1 Mbps), else 0 after 200 ms.
     let vtime_ping = latencies(log, "vtime ping 1");
     assert!(vtime_ping.len() == 1 && (740.0..742.0).contains(&vtime_ping[0]) && log.contains("vtime ping 1: 74"), "{log}");

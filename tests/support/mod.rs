@@ -401,6 +401,12 @@ pub fn climbsim_with_sdk_python(args: &[&str]) -> std::process::Output {
 
 /// GET `path` from the sensor server at `url` (`http://HOST:PORT`), the body as JSON.
 pub fn get_json(url: &str, path: &str) -> serde_json::Value {
+    let body = get_body(url, path);
+    serde_json::from_str(&body).unwrap_or_else(|e| panic!("{e}: {body}"))
+}
+
+/// GET `path` from the sensor server at `url`, the body whatever the status.
+pub fn get_body(url: &str, path: &str) -> String {
     use std::io::{Read, Write};
     let address = url.strip_prefix("http://").expect("http URL");
     let mut stream = std::net::TcpStream::connect(address).expect("connect");
@@ -408,7 +414,7 @@ pub fn get_json(url: &str, path: &str) -> serde_json::Value {
     let mut response = String::new();
     stream.read_to_string(&mut response).expect("response");
     let (_, body) = response.split_once("\r\n\r\n").expect("headers and body");
-    serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {response}"))
+    body.to_owned()
 }
 
 /// `CLIMBSIM_BASELINE`: another climbsim binary a bench times beside this build (an A/B).
