@@ -133,3 +133,15 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
         PortRead::Return(value) => value,
     }
 }
+
+/// A closed descriptor is no longer a sensor connection nor in any epoll instance.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn close(fd: c_int) -> c_int {
+    if let Some(shared) = crate::shared() {
+        crate::net::forget(shared, fd);
+        crate::epoll::forget(fd);
+    }
+    let next = real!(close: fn(c_int) -> c_int);
+    // SAFETY: passing the caller's argument through.
+    unsafe { next(fd) }
+}

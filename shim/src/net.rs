@@ -66,7 +66,7 @@ fn follow_connection(shared: &'static Shared, fd: c_int, to: *const SockaddrIn) 
 }
 
 /// The descriptor is closed (or reused): its connection is no longer followed.
-fn forget(shared: &'static Shared, fd: c_int) {
+pub(crate) fn forget(shared: &'static Shared, fd: c_int) {
     if let Some((_, conn)) = conn_of(shared, fd) {
         conn.client_port.store(0, Ordering::Release);
     }
@@ -114,16 +114,6 @@ pub unsafe extern "C" fn connect(fd: c_int, addr: *const c_void, len: u32) -> c_
     result
 }
 
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn close(fd: c_int) -> c_int {
-    if let Some(shared) = crate::shared() {
-        forget(shared, fd);
-        crate::epoll::forget(fd);
-    }
-    let next = real!(close: fn(c_int) -> c_int);
-    // SAFETY: passing the caller's argument through.
-    unsafe { next(fd) }
-}
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn send(fd: c_int, buf: *const c_void, len: usize, flags: c_int) -> isize {
