@@ -366,13 +366,30 @@ fn asyncio_sleeps_and_timeouts_follow_simulated_time() {
     assert!(wall < Duration::from_secs(5), "{wall:?}");
 }
 
+/// `tests/vt/NAME.c` compiled into `dir` with the system's C compiler (Rust links with it, so
+/// it is there wherever these tests build).
+fn compiled_c(dir: &Path, name: &str) -> PathBuf {
+    let program = dir.join(name);
+    let compiled = Command::new("cc").arg(repo().join(format!("tests/vt/{name}.c"))).arg("-o").arg(&program).output().expect("run cc");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    program
+}
+
+#[test]
+fn a_c_control_loop_on_a_timerfd_follows_simulated_time() {
+    let dir = support::scratch_dir("vt-timerfd");
+    let program = compiled_c(&dir, "timer_loop");
+    let path = scenario(&dir, "timer", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    // Ten blocking reads of a 20 ms periodic timer; a 50 ms one-shot timer seen by poll(2).
+    assert!(log.contains("periodic: 10 expirations in 200.000 ms"), "{log}");
+    assert!(log.contains("one-shot: poll 1 after 50.000 ms, 1 expiration"), "{log}");
+}
+
 #[test]
 fn a_c_controller_on_a_blocking_port_waits_as_its_terminal_says_in_simulated_time() {
     let dir = support::scratch_dir("vt-raw");
-    let program = dir.join("raw_ping");
-    // The system's C compiler (Rust links with it, so it is there wherever this test builds).
-    let compiled = Command::new("cc").arg(repo().join("tests/vt/raw_ping.c")).arg("-o").arg(&program).output().expect("run cc");
-    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    let program = compiled_c(&dir, "raw_ping");
     let path = scenario_1mbps(&dir, "raw", 2.0, &[program.to_str().expect("utf-8 path")]);
     let log = &controller_log_repeated(&path, &dir);
     // VMIN 0, VTIME 2: the reply's bytes as they come (740 µs at 1 Mbps), else 0 after 200 ms.

@@ -107,6 +107,9 @@ fn spun_on_empty_port(shared: &'static crate::abi::Shared) {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize {
     let next = real!(read: fn(c_int, *mut c_void, usize) -> isize);
+    if let Some(result) = crate::timerfd::read(fd, buf, len) {
+        return result;
+    }
     let port = active().filter(|shared| len > 0 && crate::wait::is_port(shared, fd));
     let Some(shared) = port else {
         // SAFETY: passing the caller's arguments through.
@@ -134,12 +137,13 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
     }
 }
 
-/// A closed descriptor is no longer a sensor connection nor in any epoll instance.
+/// A closed descriptor is no longer a sensor connection, a timer, nor in any epoll instance.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn close(fd: c_int) -> c_int {
     if let Some(shared) = crate::shared() {
         crate::net::forget(shared, fd);
         crate::epoll::forget(fd);
+        crate::timerfd::forget(fd);
     }
     let next = real!(close: fn(c_int) -> c_int);
     // SAFETY: passing the caller's argument through.

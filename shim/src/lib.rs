@@ -24,6 +24,7 @@ mod io;
 mod net;
 mod spawn;
 mod sync;
+mod timerfd;
 mod sys;
 mod time;
 mod wait;

@@ -44,7 +44,7 @@ pub(crate) fn thread_cpu_ns() -> u64 {
 }
 
 /// What `clock` reads at simulated time `now`, if it is one the shim answers.
-fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
+pub(crate) fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
     let header = &shared.header;
     let epoch = header.realtime_epoch_ns.load(Ordering::Relaxed);
     let base = header.monotonic_base_ns.load(Ordering::Relaxed);

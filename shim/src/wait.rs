@@ -17,6 +17,9 @@ use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
 use crate::time::{sim_now, to_ns};
 use crate::{active, charge, my_slot, note_call, park};
 
+/// How long a timer set to fire at once may take to show on its descriptor (wall time).
+const TIMER_SHOWN_WITHIN_NS: u64 = 10_000_000;
+
 /// The longest jump of a spin on the port while a reply is due on it.
 const REPLY_JUMP_NS: u64 = 1_000_000;
 
@@ -26,11 +29,21 @@ pub(crate) struct Interest {
     port: bool,
     /// Sensor connections (bit i: `Shared::conns[i]`).
     conns: u64,
+    /// Timers on simulated time (bit i: timerfd.rs's entry i).
+    timers: u64,
     other: bool,
 }
 
 impl Interest {
     pub(crate) fn add(&mut self, shared: &'static Shared, fd: c_int, read: bool, write_or_error: bool) {
+        if let Some(index) = crate::timerfd::timer_of(fd) {
+            if read {
+                self.timers |= 1 << index;
+            }
+            if !write_or_error {
+                return;
+            }
+        }
         if write_or_error || !read {
             self.other = true;
             return;
@@ -47,6 +60,20 @@ impl Interest {
     /// Something climbsim does not model.
     pub(crate) fn add_other(&mut self) {
         self.other = true;
+    }
+
+    /// The earliest expiry among the timers waited on (simulated ns; NEVER: none).
+    fn timer_deadline(&self) -> u64 {
+        (0..crate::timerfd::TIMERS).filter(|i| self.timers & (1 << i) != 0).map(crate::timerfd::expiry).min().unwrap_or(crate::abi::NEVER)
+    }
+
+    /// Make the timers that have expired readable for real; whether any had to be.
+    fn show_expired_timers(&self, shared: &Shared) -> bool {
+        let mut shown = false;
+        for index in (0..crate::timerfd::TIMERS).filter(|i| self.timers & (1 << i) != 0) {
+            shown |= crate::timerfd::show_if_expired(shared, index);
+        }
+        shown
     }
 
     fn waits(&self) -> u32 {
@@ -66,13 +93,30 @@ type RealWait<'a> = &'a mut dyn FnMut(Option<u64>) -> c_int;
 /// One wait of the poll family on simulated time (`timeout_ns`: `None` waits forever).
 pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeout_ns: Option<u64>, real_wait: RealWait<'_>) -> c_int {
     note_call(shared, what);
-    let ready = real_wait(Some(0));
+    // A timer that expired in simulated time fires for real now: the kernel shows it within
+    // microseconds (the guard only covers a slow one).
+    let look = |shown: bool| if shown { Some(TIMER_SHOWN_WITHIN_NS) } else { Some(0) };
+    let ready = real_wait(look(interest.show_expired_timers(shared)));
     if ready != 0 {
         charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
         return ready;
     }
     let now = sim_now(shared);
-    let deadline = timeout_ns.map_or(crate::abi::NEVER, |t| now.saturating_add(t));
+    let asked = timeout_ns.map_or(crate::abi::NEVER, |t| now.saturating_add(t));
+    let deadline = asked.min(interest.timer_deadline());
+    if interest.timers != 0 && deadline < asked {
+        // Woken by a timer's expiry (or sooner): its descriptor is then ready.
+        let parked_on = interest.waits();
+        if interest.other {
+            let rc = wait_on_real_world(shared, deadline, interest, real_wait);
+            if rc != 0 {
+                return rc;
+            }
+        } else if park(shared, state::BLOCKED, deadline, parked_on, interest.conns) != release::DEADLINE {
+            return real_wait(Some(1_000_000_000));
+        }
+        return real_wait(look(interest.show_expired_timers(shared)));
+    }
     if deadline <= now {
         if interest.port {
             spin_on_port(shared, now);

@@ -1,0 +1,204 @@
+//! timerfd on simulated time. The program gets a real timerfd (so that it can poll it, put it
+//! in epoll and close it), but its expiry is kept here, in simulated time, and the real timer is
+//! never armed until that time has come: then it is set to fire at once, so that the kernel
+//! shows the descriptor readable, and a read returns the simulated expirations.
+
+use core::ffi::{c_int, c_void};
+use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
+
+use crate::abi::{NEVER, Shared, release, state};
+use crate::sys::{real, timespec};
+use crate::time::{clock_at, sim_now, sim_time_of, to_ns};
+use crate::{active, charge, note_call, park};
+
+/// Timers followed at once in a process.
+pub(crate) const TIMERS: usize = 64;
+
+struct Timer {
+    /// The descriptor; -1: free.
+    fd: AtomicI32,
+    clock: AtomicI32,
+    /// Simulated time of the next expiry ([`NEVER`]: disarmed).
+    expiry: AtomicU64,
+    interval: AtomicU64,
+    /// The real timer has been set to fire for an expiry that has come.
+    shown: AtomicBool,
+}
+
+#[allow(clippy::declare_interior_mutable_const)]
+const FREE: Timer = Timer { fd: AtomicI32::new(-1), clock: AtomicI32::new(0), expiry: AtomicU64::new(NEVER), interval: AtomicU64::new(0), shown: AtomicBool::new(false) };
+static TABLE: [Timer; TIMERS] = [FREE; TIMERS];
+
+#[repr(C)]
+pub(crate) struct Itimerspec {
+    interval: timespec,
+    value: timespec,
+}
+
+const TFD_TIMER_ABSTIME: c_int = 1;
+const EAGAIN: c_int = 11;
+const F_GETFL: c_int = 3;
+const O_NONBLOCK: c_int = 0o4000;
+
+unsafe extern "C" {
+    fn fcntl(fd: c_int, command: c_int, ...) -> c_int;
+}
+
+/// The followed timer on `fd`, and its index.
+pub(crate) fn timer_of(fd: c_int) -> Option<usize> {
+    if fd < 0 {
+        return None;
+    }
+    TABLE.iter().position(|t| t.fd.load(Ordering::Acquire) == fd)
+}
+
+/// The descriptor is closed: its timer is no longer followed.
+pub(crate) fn forget(fd: c_int) {
+    if let Some(index) = timer_of(fd) {
+        TABLE[index].fd.store(-1, Ordering::Release);
+    }
+}
+
+/// When timer `index` expires next (simulated ns; [`NEVER`]: disarmed).
+pub(crate) fn expiry(index: usize) -> u64 {
+    TABLE[index].expiry.load(Ordering::Acquire)
+}
+
+/// Timer `index` has expired by now: make its descriptor readable for real (the kernel's timer
+/// fires at once), so that a poll of it sees what simulated time says. Whether it had to.
+pub(crate) fn show_if_expired(shared: &Shared, index: usize) -> bool {
+    let timer = &TABLE[index];
+    if timer.expiry.load(Ordering::Acquire) > sim_now(shared) || timer.shown.swap(true, Ordering::AcqRel) {
+        return false;
+    }
+    let settime = real!(timerfd_settime: fn(c_int, c_int, *const Itimerspec, *mut Itimerspec) -> c_int);
+    let now = Itimerspec { interval: timespec { tv_sec: 0, tv_nsec: 0 }, value: timespec { tv_sec: 0, tv_nsec: 1 } };
+    // SAFETY: the program's own timerfd, a valid itimerspec, no old value wanted.
+    unsafe { settime(timer.fd.load(Ordering::Relaxed), 0, &now, core::ptr::null_mut()) };
+    true
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn timerfd_create(clock: c_int, flags: c_int) -> c_int {
+    let next = real!(timerfd_create: fn(c_int, c_int) -> c_int);
+    // SAFETY: passing the caller's arguments through.
+    let fd = unsafe { next(clock, flags) };
+    if fd >= 0
+        && let Some(shared) = active()
+        && clock_at(shared, clock, 0).is_some()
+    {
+        forget(fd);
+        if let Some(timer) = TABLE.iter().find(|t| t.fd.compare_exchange(-1, -2, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
+            timer.clock.store(clock, Ordering::Relaxed);
+            timer.expiry.store(NEVER, Ordering::Relaxed);
+            timer.interval.store(0, Ordering::Relaxed);
+            timer.shown.store(false, Ordering::Relaxed);
+            timer.fd.store(fd, Ordering::Release);
+        }
+    }
+    fd
+}
+
+fn remaining(shared: &Shared, index: usize) -> Itimerspec {
+    let timer = &TABLE[index];
+    let (expiry, interval) = (timer.expiry.load(Ordering::Acquire), timer.interval.load(Ordering::Relaxed));
+    let left = if expiry == NEVER { 0 } else { expiry.saturating_sub(sim_now(shared)).max(1) };
+    let spec = |ns: u64| timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 };
+    Itimerspec { interval: spec(interval), value: spec(left) }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn timerfd_settime(fd: c_int, flags: c_int, new: *const Itimerspec, old: *mut Itimerspec) -> c_int {
+    let next = real!(timerfd_settime: fn(c_int, c_int, *const Itimerspec, *mut Itimerspec) -> c_int);
+    let (Some(shared), Some(index)) = (active(), timer_of(fd)) else {
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(fd, flags, new, old) };
+    };
+    if new.is_null() {
+        // SAFETY: the kernel reports the bad address.
+        return unsafe { next(fd, flags, new, old) };
+    }
+    note_call(shared, crate::abi::call::SLEEP);
+    if !old.is_null() {
+        // SAFETY: the caller's itimerspec.
+        unsafe { old.write(remaining(shared, index)) };
+    }
+    // The real timer stays disarmed (and any shown expiry is taken back) until simulated time
+    // says otherwise.
+    let disarmed = Itimerspec { interval: timespec { tv_sec: 0, tv_nsec: 0 }, value: timespec { tv_sec: 0, tv_nsec: 0 } };
+    // SAFETY: the program's own timerfd.
+    unsafe { next(fd, 0, &disarmed, core::ptr::null_mut()) };
+    let timer = &TABLE[index];
+    // SAFETY: the caller's itimerspec (not null).
+    let new = unsafe { &*new };
+    let value = to_ns(&new.value);
+    let clock = timer.clock.load(Ordering::Relaxed);
+    let expiry = if value == 0 {
+        NEVER
+    } else if flags & TFD_TIMER_ABSTIME != 0 {
+        sim_time_of(shared, clock, value).unwrap_or(0)
+    } else {
+        sim_now(shared).saturating_add(value)
+    };
+    timer.interval.store(to_ns(&new.interval), Ordering::Relaxed);
+    timer.shown.store(false, Ordering::Relaxed);
+    timer.expiry.store(expiry, Ordering::Release);
+    charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+    0
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn timerfd_gettime(fd: c_int, current: *mut Itimerspec) -> c_int {
+    let (Some(shared), Some(index)) = (active(), timer_of(fd)) else {
+        let next = real!(timerfd_gettime: fn(c_int, *mut Itimerspec) -> c_int);
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(fd, current) };
+    };
+    if !current.is_null() {
+        // SAFETY: the caller's itimerspec.
+        unsafe { current.write(remaining(shared, index)) };
+    }
+    0
+}
+
+/// A read of a followed timer: `None` if `fd` is not one. Waits (on simulated time) for the
+/// expiry if the descriptor blocks; returns the expirations since the last read, as 8 bytes.
+pub(crate) fn read(fd: c_int, buf: *mut c_void, len: usize) -> Option<isize> {
+    let shared = active()?;
+    let index = timer_of(fd)?;
+    let timer = &TABLE[index];
+    note_call(shared, crate::abi::call::READ);
+    if len < 8 {
+        crate::sys::set_errno(22);
+        return Some(-1);
+    }
+    loop {
+        let (expiry, now) = (timer.expiry.load(Ordering::Acquire), sim_now(shared));
+        if expiry <= now {
+            let interval = timer.interval.load(Ordering::Relaxed);
+            let count = if interval == 0 { 1 } else { 1 + (now - expiry) / interval };
+            timer.expiry.store(if interval == 0 { NEVER } else { expiry + count * interval }, Ordering::Release);
+            // Take back what the kernel's timer showed (its count is not the simulated one).
+            if timer.shown.swap(false, Ordering::AcqRel) {
+                let mut drained = 0u64;
+                let real_read = real!(read: fn(c_int, *mut c_void, usize) -> isize);
+                // SAFETY: an 8-byte read of the program's own timerfd into our buffer.
+                unsafe { real_read(fd, (&mut drained as *mut u64).cast(), 8) };
+            }
+            // SAFETY: the caller's buffer, at least 8 bytes.
+            unsafe { buf.cast::<u64>().write_unaligned(count) };
+            return Some(8);
+        }
+        // SAFETY: fcntl F_GETFL on the program's descriptor.
+        if unsafe { fcntl(fd, F_GETFL) } & O_NONBLOCK != 0 {
+            crate::sys::set_errno(EAGAIN);
+            charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+            return Some(-1);
+        }
+        if park(shared, state::BLOCKED, expiry, 0, 0) == release::ENDING {
+            let real_read = real!(read: fn(c_int, *mut c_void, usize) -> isize);
+            // SAFETY: passing the caller's arguments through.
+            return Some(unsafe { real_read(fd, buf, len) });
+        }
+    }
+}
