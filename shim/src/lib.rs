@@ -81,6 +81,10 @@ fn reset_computation(shared: &Shared) {
     }
 }
 
+/// More than one CPU is online: a parked thread may spin a little (on one it would only take
+/// the CPU climbsim needs to let it go).
+static SEVERAL_CPUS: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
+
 /// Set once climbsim is found gone: the process goes on as after the run's end.
 static ORPHANED: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
@@ -119,6 +123,9 @@ extern "C" fn init() {
         return;
     }
     PID.store(sys::getpid(), Ordering::Relaxed);
+    const SC_NPROCESSORS_ONLN: c_int = 84;
+    // SAFETY: sysconf has no preconditions.
+    SEVERAL_CPUS.store(unsafe { sys::sysconf(SC_NPROCESSORS_ONLN) } > 1, Ordering::Relaxed);
     if let Err(why) = map(path) {
         sys::say(b"climbsim shim: ");
         sys::say(why);
@@ -373,7 +380,7 @@ fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64)
     notify_scheduler(shared);
     // climbsim usually lets a thread go within tens of microseconds: a short spin saves the
     // futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs more than that.
-    let spin_until = time::real_monotonic_ns().saturating_add(PARK_SPIN_NS);
+    let spin_until = time::real_monotonic_ns().saturating_add(if SEVERAL_CPUS.load(Ordering::Relaxed) { PARK_SPIN_NS } else { 0 });
     while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until {
         core::hint::spin_loop();
     }

@@ -18,7 +18,7 @@ use crate::runner::view::{LiveAddress, ViewOptions};
 use crate::scenario::{ExternalController, Scenario};
 use crate::sensor_server::{SensorFeed, VirtualSensorServer};
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, VirtualPort};
-use crate::virtual_time::VirtualTime;
+use crate::virtual_time::{Serves, VirtualTime};
 
 use super::clock::{Pace, TimeBase, VirtualClock, WallClock};
 use super::observe::{require_line, scenario_bus};
@@ -130,7 +130,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         // Under virtual time the scheduler answers each request at its simulated instant.
         Some(vt) => {
             let (server, url) = VirtualSensorServer::bind(Arc::clone(&feed), Arc::clone(vt)).during(|| "cannot start the sensor server".to_owned())?;
-            vt.drive(server);
+            vt.drive(Serves::Sensors, server);
             url
         }
         None => sensor_runtime.block_on(start_sensor_server(Arc::clone(&feed)))?,
@@ -146,7 +146,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         };
         // Under virtual time the session runs inside the scheduler, at exact simulated instants.
         match &virtual_time {
-            Some(vt) => vt.drive(session),
+            Some(vt) => vt.drive(Serves::Port, session),
             None => drop(tokio::spawn(session)),
         }
         Ok::<_, RunnerError>(port)

@@ -80,8 +80,21 @@ const BATCH_NS: u64 = 1_000;
 /// sleeps on the futex.
 const SETTLE_SPIN: Duration = Duration::from_micros(100);
 
-/// A future climbsim runs inside the scheduler (the pty session).
-type Driven = Pin<Box<dyn Future<Output = ()> + Send>>;
+/// How often (wall time) the driven futures are polled when the controller sent nothing: for
+/// clients climbsim does not follow.
+const UNFOLLOWED_CLIENTS_EVERY: Duration = Duration::from_millis(5);
+
+/// A future climbsim runs inside the scheduler, and what it serves.
+type Driven = (Serves, Pin<Box<dyn Future<Output = ()> + Send>>);
+
+/// What a driven future serves: it is polled when that has something for it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Serves {
+    /// The servo port (its bytes, its reply timers).
+    Port,
+    /// The sensor server's connections.
+    Sensors,
+}
 
 #[derive(Default)]
 struct Timers {
@@ -117,6 +130,10 @@ pub struct VtStats {
 pub struct VirtualTime {
     /// `serve`: the world waits while no controller is attached.
     waits_for_controller: AtomicBool,
+    /// When the driven futures were last polled (wall clock).
+    last_poll: Mutex<std::time::Instant>,
+    /// Spin before sleeping on a futex: only where the controller has a core of its own.
+    spin: bool,
     stats: Mutex<VtStats>,
     block: Block,
     settings: VtSettings,
@@ -151,7 +168,7 @@ impl VirtualTime {
         header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
+        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
     }
 
     pub fn settings(&self) -> VtSettings {
@@ -256,10 +273,17 @@ impl VirtualTime {
     /// Bytes the controller sent that climbsim has not read yet (on the port or to the sensor
     /// server): simulated time cannot move until it has.
     fn held(&self) -> bool {
+        let (port, sensors) = self.held_by();
+        port || sensors
+    }
+
+    /// Whether bytes wait for climbsim on the port, and on the sensor connections.
+    fn held_by(&self) -> (bool, bool) {
         let shared = self.shared();
         let header = &shared.header;
-        header.port_tx_read.load(Ordering::Acquire) != header.port_tx_total.load(Ordering::Acquire)
-            || shared.conns.iter().any(|c| c.client_port.load(Ordering::Acquire) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire))
+        let port = header.port_tx_read.load(Ordering::Acquire) != header.port_tx_total.load(Ordering::Acquire);
+        let sensors = shared.conns.iter().any(|c| c.client_port.load(Ordering::Acquire) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire));
+        (port, sensors)
     }
 
     /// A response waits on one of the connections in `mask`.
@@ -269,12 +293,12 @@ impl VirtualTime {
 
     /// Run `future` inside the scheduler: polled whenever the controller is parked, never on a
     /// thread of its own (so it acts at exact simulated instants).
-    pub fn drive(&self, future: impl Future<Output = ()> + Send + 'static) {
-        let mut future: Driven = Box::pin(future);
+    pub fn drive(&self, serves: Serves, future: impl Future<Output = ()> + Send + 'static) {
+        let mut future = Box::pin(future);
         // Polled once at once: up to its first wait, it sets itself up (the port says which
         // device it is) before any controller can use it.
         if future.as_mut().poll(&mut Context::from_waker(Waker::noop())).is_pending() {
-            lock(&self.driven).push(future);
+            lock(&self.driven).push((serves, future));
         }
     }
 
@@ -318,7 +342,7 @@ impl VirtualTime {
                 return Err(VtError::Interrupted);
             }
             // Clients that are not followed (a person's curl) are still answered meanwhile.
-            self.poll_driven();
+            self.poll_driven(None);
             let seen = header.sched_word.load(Ordering::Acquire);
             if !self.controller_attached() {
                 futex_wait(&header.sched_word, seen, Duration::from_millis(20));
@@ -402,7 +426,17 @@ impl VirtualTime {
         loop {
             let seen = header.sched_word.load(Ordering::Acquire);
             if !self.any_running() {
-                self.poll_driven();
+                // The driven futures have something to do only when the controller sent bytes
+                // (and after timers, which poll them themselves); clients climbsim does not
+                // follow (a person's curl) are answered at least every few milliseconds.
+                let (port, sensors) = self.held_by();
+                if self.last_poll_long_ago() {
+                    self.poll_driven(None);
+                } else if port {
+                    self.poll_driven(Some(Serves::Port));
+                } else if sensors {
+                    self.poll_driven(Some(Serves::Sensors));
+                }
                 if !self.held() {
                     return Ok(());
                 }
@@ -415,7 +449,7 @@ impl VirtualTime {
             }
             // A controller thread usually parks again within tens of microseconds: spin that
             // long before sleeping on the futex (its wake-up costs more on a VM).
-            let spin_until = std::time::Instant::now() + SETTLE_SPIN;
+            let spin_until = std::time::Instant::now() + if self.spin { SETTLE_SPIN } else { Duration::ZERO };
             while header.sched_word.load(Ordering::Acquire) == seen && std::time::Instant::now() < spin_until {
                 std::hint::spin_loop();
             }
@@ -438,10 +472,18 @@ impl VirtualTime {
         })
     }
 
-    fn poll_driven(&self) {
+    fn last_poll_long_ago(&self) -> bool {
+        lock(&self.last_poll).elapsed() > UNFOLLOWED_CLIENTS_EVERY
+    }
+
+    /// Poll the driven futures that serve `only` (None: all).
+    fn poll_driven(&self, only: Option<Serves>) {
+        if only.is_none() {
+            *lock(&self.last_poll) = std::time::Instant::now();
+        }
         let mut list = std::mem::take(&mut *lock(&self.driven));
         let mut cx = Context::from_waker(Waker::noop());
-        list.retain_mut(|future| future.as_mut().poll(&mut cx).is_pending());
+        list.retain_mut(|(serves, future)| only.is_some_and(|only| only != *serves) || future.as_mut().poll(&mut cx).is_pending());
         let mut driven = lock(&self.driven);
         list.append(&mut driven);
         *driven = list;
@@ -464,7 +506,8 @@ impl VirtualTime {
                 lock(&self.stats).timers_fired += 1;
             }
         }
-        self.poll_driven();
+        // Timers are the port session's (its replies and its inter-byte gaps).
+        self.poll_driven(Some(Serves::Port));
     }
 
     /// Bytes climbsim wrote to the port that the controller has not read.
@@ -550,4 +593,5 @@ impl Drop for Timer {
         }
     }
 }
+
 

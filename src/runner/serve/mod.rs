@@ -22,7 +22,7 @@ use crate::robot::RobotDescription;
 use crate::scenario::Scenario;
 use crate::runner::view::ViewOptions;
 use crate::sensor_server::{SensorFeed, VirtualSensorServer};
-use crate::virtual_time::VirtualTime;
+use crate::virtual_time::{Serves, VirtualTime};
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, PhysicsPace, VirtualPort};
 
 use super::clock::{Pace, TimeBase};
@@ -172,7 +172,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
         let pty_thread = match &virtual_time {
             Some(vt) => {
                 let session = pty::serve_pty(Arc::clone(&port), Arc::clone(&handle), transports.adapter);
-                vt.drive(async move {
+                vt.drive(Serves::Port, async move {
                     if let Err(error) = session.await {
                         warn!(%error, "pty session ended");
                     }
@@ -191,7 +191,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
                 let url = match &virtual_time {
                     Some(vt) => {
                         let (server, url) = VirtualSensorServer::bind(Arc::clone(&feed), Arc::clone(vt)).during(|| "cannot start the sensor server".to_owned())?;
-                        vt.drive(server);
+                        vt.drive(Serves::Sensors, server);
                         url
                     }
                     None => start_sensor_server(Arc::clone(&feed)).await?,
