@@ -116,6 +116,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         TimeBase::Virtual(settings) => Some(VirtualTime::create(settings).map_err(|error| RunnerError::Invalid(error.to_string()))?),
         TimeBase::Wall => None,
     };
+    let _ends = virtual_time.as_ref().map(VirtualTime::end_on_drop);
     let clock = virtual_time.as_ref().map_or_else(|| BusClock::scaled(options.pace.speed), |vt| BusClock::on_virtual_time(Arc::clone(vt)));
     let handle = BusHandle::with_clock(bus, None, recorder, clock.clone());
     let feed = Arc::new(SensorFeed::default());

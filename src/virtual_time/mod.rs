@@ -312,6 +312,13 @@ impl VirtualTime {
         Timer { vt: Arc::clone(self), due, seq, done: false }
     }
 
+    /// A guard that ends the run when dropped, whatever way the run is left (an error too):
+    /// the driven futures hold this scheduler, so without [`VirtualTime::end`] neither they nor
+    /// the block would ever go.
+    pub fn end_on_drop(self: &Arc<Self>) -> EndOnDrop {
+        EndOnDrop(Arc::clone(self))
+    }
+
     /// The run is over: the shim goes back to the kernel for everything, and every parked
     /// thread is let go, so that the controller's clean-up runs (on the wall clock).
     pub fn end(&self) {
@@ -541,6 +548,15 @@ fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
         let live = matches!(child.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED);
         live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
     })
+}
+
+/// Ends the run when dropped (see [`VirtualTime::end_on_drop`]).
+pub struct EndOnDrop(Arc<VirtualTime>);
+
+impl Drop for EndOnDrop {
+    fn drop(&mut self) {
+        self.0.end();
+    }
 }
 
 /// Let a parked thread go, saying why.

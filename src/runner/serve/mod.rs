@@ -132,6 +132,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
         }
         None => None,
     };
+    let _ends = virtual_time.as_ref().map(VirtualTime::end_on_drop);
     let clock = virtual_time.as_ref().map_or_else(|| BusClock::scaled(pace.speed), |vt| BusClock::on_virtual_time(Arc::clone(vt)));
     let handle = BusHandle::with_clock(bus, trace, recorder, clock);
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().during(|| "cannot start the runtime".to_owned())?;
