@@ -61,6 +61,9 @@ struct WatchedTicks<'a> {
     clock: BusClock,
     exit: Option<Exit>,
     error: Option<RunnerError>,
+    /// Under virtual time, the controller's process went on without the shim (it exec'd with
+    /// LD_PRELOAD dropped): watched as on the wall clock from then on.
+    unfollowed: bool,
 }
 
 impl Ticked for WatchedTicks<'_> {
@@ -75,9 +78,14 @@ impl Ticked for WatchedTicks<'_> {
         // Under virtual time the exit is seen when the shim saw it (at one simulated instant on
         // every run), not whenever the kernel's reaping comes round on the wall clock.
         let status = match self.clock.virtual_time() {
+            Some(_) if self.unfollowed => self.controller.try_wait(),
             // Seen at the first tick at or after the exit's own simulated time (the world may
             // be catching up with a controller that ran ahead).
-            Some(vt) if vt.first_process_ended() && vt.now() <= at => self.controller.wait_briefly(),
+            Some(vt) if vt.first_process_ended() && vt.now() <= at => {
+                let status = self.controller.wait_briefly();
+                self.unfollowed = matches!(status, Ok(None));
+                status
+            }
             Some(_) => Ok(None),
             None => self.controller.try_wait(),
         };
@@ -204,6 +212,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         clock: clock.clone(),
         exit: None,
         error: None,
+        unfollowed: false,
     };
     let ended = match &virtual_time {
         Some(vt) => run_ticks(&mut VirtualClock::new(Arc::clone(vt), stop), &mut ticks, stop),

@@ -132,9 +132,9 @@ impl Controller {
     }
 
     /// The exit of a controller known to be ending (its last handlers have run): waits for the
-    /// kernel to finish it, a few seconds at most; `None` if it is still there then.
+    /// kernel to finish it, a second at most; `None` if it is still there then.
     pub fn wait_briefly(&mut self) -> Result<Option<ExitStatus>> {
-        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1);
         loop {
             let status = self.try_wait()?;
             if status.is_some() || std::time::Instant::now() > deadline {
