@@ -140,7 +140,9 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
 /// A closed descriptor is no longer a sensor connection, a timer, nor in any epoll instance.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn close(fd: c_int) -> c_int {
-    if let Some(shared) = crate::shared() {
+    // A vfork child shares its parent's memory: what it closes is still open in the parent.
+    let vfork_child = crate::pid() != crate::sys::getpid();
+    if let Some(shared) = crate::shared().filter(|_| !vfork_child) {
         crate::net::forget(shared, fd);
         crate::epoll::forget(fd);
         crate::timerfd::forget(fd);

@@ -99,12 +99,23 @@ fn active() -> Option<&'static Shared> {
 fn climbsim_gone(shared: &Shared) -> bool {
     let pid = shared.header.climbsim_pid.load(Ordering::Relaxed);
     const ESRCH: c_int = 3;
+    let saved = sys::errno();
     // SAFETY: kill with signal 0 only checks that the process exists.
     let gone = pid > 0 && unsafe { sys::kill(pid, 0) } != 0 && sys::errno() == ESRCH;
-    if gone {
-        ORPHANED.store(true, Ordering::Relaxed);
+    sys::set_errno(saved);
+    if gone && !ORPHANED.swap(true, Ordering::AcqRel) {
+        // Clocks go on from here at the wall clock's rate, as after a run's end.
+        ORPHANED_AT.store(time::real_monotonic_ns(), Ordering::Relaxed);
     }
     gone
+}
+
+/// The wall clock (CLOCK_MONOTONIC) when climbsim was found gone.
+static ORPHANED_AT: core::sync::atomic::AtomicU64 = core::sync::atomic::AtomicU64::new(0);
+
+/// Whether climbsim was found gone, and when (wall clock).
+fn orphaned_at() -> Option<u64> {
+    ORPHANED.load(Ordering::Relaxed).then(|| ORPHANED_AT.load(Ordering::Relaxed))
 }
 
 /// The block, whatever its mode.
@@ -141,6 +152,7 @@ extern "C" fn init() {
         sys::__register_atfork(None, None, Some(forked_child), core::ptr::null_mut());
         sys::__cxa_atexit(process_exiting, core::ptr::null_mut(), core::ptr::null_mut());
     }
+    spawn::resolve_exec_functions();
     // The main thread is followed from the start: before its first call it is already running.
     my_slot();
 }
@@ -387,8 +399,17 @@ fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64)
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
+            let why = slot.release.load(Ordering::Acquire);
+            // A release meant for an earlier wait of this thread (it had woken by itself, from
+            // a real descriptor or a peer, before climbsim's decision landed): wait on.
+            if why != release::DATA && why != release::ENDING && deadline != abi::NEVER && time::sim_now(shared) < deadline {
+                slot.release.store(0, Ordering::Relaxed);
+                slot.state.store(parked, Ordering::Release);
+                notify_scheduler(shared);
+                continue;
+            }
             reset_computation(shared);
-            return slot.release.load(Ordering::Acquire);
+            return why;
         }
         if shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed) {
             slot.state.store(state::RUNNING, Ordering::Release);

@@ -37,8 +37,11 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
 
 /// An exec failed: the reservation goes.
 fn unreserve(slot: Option<&'static Slot>) {
-    if let Some(slot) = slot {
-        let _ = slot.state.compare_exchange(state::RESERVED, state::FREE, Ordering::AcqRel, Ordering::Relaxed);
+    if let Some(slot) = slot
+        && slot.state.compare_exchange(state::RESERVED, state::FREE, Ordering::AcqRel, Ordering::Relaxed).is_ok()
+        && let Some(shared) = shared()
+    {
+        crate::notify_scheduler(shared);
     }
 }
 
@@ -80,6 +83,7 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     let Some(shared) = shared() else { return run() };
     let mine = shared.slots.iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED));
     let before = mine.map(|s| s.state.swap(state::EXITED, Ordering::AcqRel));
+    crate::notify_scheduler(shared);
     let result = run();
     if let (Some(slot), Some(before)) = (mine, before) {
         slot.state.store(before, Ordering::Release);
@@ -87,16 +91,42 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     result
 }
 
+type ExecveFn = unsafe extern "C" fn(*const c_char, *const *const c_char, *const *const c_char) -> c_int;
+type ExecvFn = unsafe extern "C" fn(*const c_char, *const *const c_char) -> c_int;
+type FexecveFn = unsafe extern "C" fn(c_int, *const *const c_char, *const *const c_char) -> c_int;
+
+fn real_execve() -> ExecveFn {
+    real!(execve: fn(*const c_char, *const *const c_char, *const *const c_char) -> c_int)
+}
+fn real_execv() -> ExecvFn {
+    real!(execv: fn(*const c_char, *const *const c_char) -> c_int)
+}
+fn real_execvp() -> ExecvFn {
+    real!(execvp: fn(*const c_char, *const *const c_char) -> c_int)
+}
+fn real_execvpe() -> ExecveFn {
+    real!(execvpe: fn(*const c_char, *const *const c_char, *const *const c_char) -> c_int)
+}
+fn real_fexecve() -> FexecveFn {
+    real!(fexecve: fn(c_int, *const *const c_char, *const *const c_char) -> c_int)
+}
+
+/// Look libc's exec functions up now: in a vfork child (Python's subprocess) a first lookup
+/// would take the loader's lock, which a thread of the parent may hold.
+pub(crate) fn resolve_exec_functions() {
+    let _ = (real_execve(), real_execv(), real_execvp(), real_execvpe(), real_fexecve());
+}
+
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn execve(path: *const c_char, argv: *const *const c_char, envp: *const *const c_char) -> c_int {
-    let next = real!(execve: fn(*const c_char, *const *const c_char, *const *const c_char) -> c_int);
+    let next = real_execve();
     // SAFETY: passing the caller's arguments through.
     exec_with(envp, || unsafe { next(path, argv, envp) })
 }
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn execv(path: *const c_char, argv: *const *const c_char) -> c_int {
-    let next = real!(execv: fn(*const c_char, *const *const c_char) -> c_int);
+    let next = real_execv();
     // SAFETY: passing the caller's arguments through.
     // SAFETY: `environ` is libc's, valid for the process.
     exec_with(unsafe { environ }, || unsafe { next(path, argv) })
@@ -104,7 +134,7 @@ pub unsafe extern "C" fn execv(path: *const c_char, argv: *const *const c_char) 
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn execvp(file: *const c_char, argv: *const *const c_char) -> c_int {
-    let next = real!(execvp: fn(*const c_char, *const *const c_char) -> c_int);
+    let next = real_execvp();
     // SAFETY: passing the caller's arguments through.
     // SAFETY: as above.
     exec_with(unsafe { environ }, || unsafe { next(file, argv) })
@@ -112,14 +142,14 @@ pub unsafe extern "C" fn execvp(file: *const c_char, argv: *const *const c_char)
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn execvpe(file: *const c_char, argv: *const *const c_char, envp: *const *const c_char) -> c_int {
-    let next = real!(execvpe: fn(*const c_char, *const *const c_char, *const *const c_char) -> c_int);
+    let next = real_execvpe();
     // SAFETY: passing the caller's arguments through.
     exec_with(envp, || unsafe { next(file, argv, envp) })
 }
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn fexecve(fd: c_int, argv: *const *const c_char, envp: *const *const c_char) -> c_int {
-    let next = real!(fexecve: fn(c_int, *const *const c_char, *const *const c_char) -> c_int);
+    let next = real_fexecve();
     // SAFETY: passing the caller's arguments through.
     exec_with(envp, || unsafe { next(fd, argv, envp) })
 }

@@ -29,6 +29,14 @@ fn real_deadline_after(ns: u64) -> timespec {
 /// `d`, returning 0 when woken, ETIMEDOUT at `d`, or another error). Returns what the wait
 /// returns: 0 when woken, ETIMEDOUT at the deadline.
 fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(&timespec) -> c_int) -> c_int {
+    peer_wait_for(shared, addr, deadline, false, slice)
+}
+
+/// [`peer_wait`]; with `spurious`, a slice that ends without a wake-up returns 0 (a spurious
+/// wake-up, which condition variables allow): between slices the waiter holds the mutex, and a
+/// waker that signals after unlocking could signal then, which must not be lost. The caller
+/// checks its condition and waits again.
+fn peer_wait_for(shared: &Shared, addr: usize, deadline: u64, spurious: bool, slice: &mut dyn FnMut(&timespec) -> c_int) -> c_int {
     note_call(shared, call::PEER);
     let Some(slot) = my_slot() else {
         return slice_until(shared, deadline, slice);
@@ -57,8 +65,8 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
                 // went to another waiter, wait on).
                 _ => {
                     let rc = slice(&real_deadline_after(SLICE_NS));
-                    if rc != ETIMEDOUT {
-                        break rc;
+                    if rc != ETIMEDOUT || spurious {
+                        break if rc == ETIMEDOUT { 0 } else { rc };
                     }
                     publish();
                     continue;
@@ -66,9 +74,9 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
             }
         }
         let rc = slice(&real_deadline_after(SLICE_NS));
-        if rc != ETIMEDOUT {
+        if rc != ETIMEDOUT || spurious {
             slot.state.store(state::RUNNING, Ordering::Release);
-            break rc;
+            break if rc == ETIMEDOUT { 0 } else { rc };
         }
         if active().is_none() {
             slot.state.store(state::RUNNING, Ordering::Release);
@@ -143,7 +151,7 @@ pub unsafe extern "C" fn pthread_cond_wait(cond: *mut c_void, mutex: *mut c_void
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(cond, mutex) };
     };
-    peer_wait(shared, cond as usize, NEVER, &mut cond_slices(cond, mutex))
+    peer_wait_for(shared, cond as usize, NEVER, true, &mut cond_slices(cond, mutex))
 }
 
 #[unsafe(no_mangle)]
@@ -154,7 +162,7 @@ pub unsafe extern "C" fn pthread_cond_timedwait(cond: *mut c_void, mutex: *mut c
         return unsafe { next(cond, mutex, abstime) };
     };
     let deadline = deadline_of(shared, cond_clock(abstime), abstime);
-    peer_wait(shared, cond as usize, deadline, &mut cond_slices(cond, mutex))
+    peer_wait_for(shared, cond as usize, deadline, true, &mut cond_slices(cond, mutex))
 }
 
 #[unsafe(no_mangle)]
@@ -165,7 +173,7 @@ pub unsafe extern "C" fn pthread_cond_clockwait(cond: *mut c_void, mutex: *mut c
         return unsafe { next(cond, mutex, clock, abstime) };
     };
     let deadline = deadline_of(shared, clock, abstime);
-    peer_wait(shared, cond as usize, deadline, &mut cond_slices(cond, mutex))
+    peer_wait_for(shared, cond as usize, deadline, true, &mut cond_slices(cond, mutex))
 }
 
 #[unsafe(no_mangle)]

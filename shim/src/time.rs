@@ -19,10 +19,12 @@ const TAI_OFFSET_NS: u64 = 37_000_000_000;
 pub(crate) fn sim_now(shared: &Shared) -> u64 {
     let header = &shared.header;
     let now = header.now_ns.load(Ordering::Acquire);
-    if header.mode.load(Ordering::Acquire) == mode::VIRTUAL {
-        return now;
-    }
-    now.saturating_add(real_monotonic_ns().saturating_sub(header.ending_wall_ns.load(Ordering::Acquire)))
+    let ended_at = match crate::orphaned_at() {
+        Some(at) => at,
+        None if header.mode.load(Ordering::Acquire) == mode::VIRTUAL => return now,
+        None => header.ending_wall_ns.load(Ordering::Acquire),
+    };
+    now.saturating_add(real_monotonic_ns().saturating_sub(ended_at))
 }
 
 pub(crate) fn real_monotonic_ns() -> u64 {

@@ -416,13 +416,15 @@ impl VirtualTime {
                 }
                 continue;
             }
+            // fetch_max: a thread that woke by itself (a real descriptor, a peer) may have moved
+            // the clock within the horizon meanwhile; time never goes back.
             if due <= next {
-                header.now_ns.store(due, Ordering::Release);
+                header.now_ns.fetch_max(due, Ordering::AcqRel);
                 return Ok(());
             }
             lock(&self.stats).jumps += 1;
-            header.now_ns.store(next.max(now), Ordering::Release);
-            self.fire_timers(next.max(now));
+            let now = header.now_ns.fetch_max(next, Ordering::AcqRel).max(next);
+            self.fire_timers(now);
         }
     }
 
@@ -447,8 +449,13 @@ impl VirtualTime {
                 if !self.held() {
                     return Ok(());
                 }
-                // Sent, not yet handed over by the kernel (the pty's worker, loopback TCP).
+                if stop.load(Ordering::Relaxed) {
+                    return Err(VtError::Interrupted);
+                }
+                // Sent, not yet handed over by the kernel (the pty's worker, loopback TCP):
+                // microseconds, unless they were written where the shim cannot count them.
                 self.wait_port_readable();
+                watchdog.check_held(self.held_by())?;
                 continue;
             }
             if stop.load(Ordering::Relaxed) || header.mode.load(Ordering::Acquire) != mode::VIRTUAL {

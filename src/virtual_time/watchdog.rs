@@ -17,16 +17,35 @@ pub struct Watchdog {
     calls: u64,
     progress: Instant,
     liveness: Instant,
+    /// Since when bytes the controller sent have not reached climbsim.
+    held_since: Option<Instant>,
 }
 
 impl Watchdog {
     pub fn new(stuck_after: Duration) -> Self {
         let now = Instant::now();
-        Self { stuck_after, calls: u64::MAX, progress: now, liveness: now }
+        Self { stuck_after, calls: u64::MAX, progress: now, liveness: now, held_since: None }
+    }
+
+    /// Called while climbsim waits for bytes the shim counted as sent (on the port, on a
+    /// sensor connection): they come within microseconds, or never (sent by a path the shim
+    /// does not count the same way, such as a child without it, or on a connection the server
+    /// had closed).
+    pub fn check_held(&mut self, (port, sensors): (bool, bool)) -> Result<(), VtError> {
+        let since = *self.held_since.get_or_insert_with(Instant::now);
+        if since.elapsed() < self.stuck_after {
+            return Ok(());
+        }
+        let place = if port { "the servo port" } else if sensors { "a sensor-server connection" } else { return Ok(()) };
+        Err(VtError::Stuck(format!(
+            "virtual time: bytes the controller sent on {place} did not reach climbsim within {} s of wall time (written by a process without the shim, or on a connection already closed); simulated time cannot go on",
+            self.stuck_after.as_secs_f64()
+        )))
     }
 
     /// Called while climbsim waits for running controller threads.
     pub fn check(&mut self, shared: &Shared) -> Result<(), VtError> {
+        self.held_since = None;
         let calls = shared.header.calls.load(Ordering::Relaxed);
         if calls != self.calls {
             self.calls = calls;
@@ -118,9 +137,12 @@ fn describe(slot: &Slot, after: Duration) -> String {
 /// model, and time may move meanwhile.
 pub fn has_unfollowed_child(slot: &Slot) -> bool {
     let pid = slot.pid.load(Ordering::Relaxed);
-    let Ok(children) = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")) else { return false };
-    children.split_whitespace().any(|child| {
-        std::fs::read_to_string(format!("/proc/{child}/stat")).is_ok_and(|stat| stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| state != 'Z' && state != 'X'))
+    // Each thread's own children (another thread may have started the one waited for).
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
+    tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("children")).ok()).any(|children| {
+        children.split_whitespace().any(|child| {
+            std::fs::read_to_string(format!("/proc/{child}/stat")).is_ok_and(|stat| stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| state != 'Z' && state != 'X'))
+        })
     })
 }
 
