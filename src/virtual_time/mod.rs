@@ -454,7 +454,7 @@ impl VirtualTime {
                 }
                 // Sent, not yet handed over by the kernel (the pty's worker, loopback TCP):
                 // microseconds, unless they were written where the shim cannot count them.
-                self.wait_port_readable();
+                self.wait_for_bytes_in_flight();
                 watchdog.check_held(self.held_by())?;
                 continue;
             }
@@ -533,11 +533,12 @@ impl VirtualTime {
         if rc == 0 { pending.max(0) as usize } else { 0 }
     }
 
-    fn wait_port_readable(&self) {
-        let header = &self.shared().header;
+    /// Wait a moment for bytes the controller sent that the kernel has not handed over yet: on
+    /// the port until its master is readable (1 ms at most), on a sensor connection 20 µs.
+    fn wait_for_bytes_in_flight(&self) {
         let port = *lock(&self.port);
         match port {
-            Some(port) if header.port_tx_read.load(Ordering::Acquire) != header.port_tx_total.load(Ordering::Acquire) => {
+            Some(port) if self.held_by().0 => {
                 let mut fds = [libc::pollfd { fd: port.master, events: libc::POLLIN, revents: 0 }];
                 // SAFETY: one valid pollfd.
                 unsafe { libc::poll(fds.as_mut_ptr(), 1, 1) };
