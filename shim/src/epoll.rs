@@ -8,8 +8,8 @@ use core::sync::atomic::{AtomicI32, AtomicU32, Ordering};
 
 use crate::abi::call;
 use crate::sys::{real, timespec};
-use crate::time::to_ns;
-use crate::wait::{Interest, wait};
+use crate::time::{from_ns, to_ns};
+use crate::wait::{Interest, ms_timeout, wait, wall_ms};
 use crate::{active, shared};
 
 /// Registrations followed at once (all epoll instances of a process together).
@@ -104,14 +104,6 @@ pub unsafe extern "C" fn epoll_ctl(epfd: c_int, op: c_int, fd: c_int, event: *mu
     rc
 }
 
-fn ms_timeout(timeout_ms: c_int) -> Option<u64> {
-    (timeout_ms >= 0).then(|| timeout_ms as u64 * 1_000_000)
-}
-
-fn wall_ms(wall_ns: Option<u64>) -> c_int {
-    wall_ns.map_or(-1, |ns| ns.div_ceil(1_000_000).min(i32::MAX as u64) as c_int)
-}
-
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int, timeout_ms: c_int) -> c_int {
     let next = real!(epoll_wait: fn(c_int, *mut c_void, c_int, c_int) -> c_int);
@@ -144,7 +136,7 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
     // SAFETY: the caller's timespec, if any.
     let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
     wait(shared, call::POLL, interest(epfd), asked, &mut |wall| {
-        let limit = wall.map(|ns| timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 });
+        let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
         // SAFETY: the caller's arguments, with our timeout.
         unsafe { next(epfd, events, max, limit_ptr, sigmask) }

@@ -20,8 +20,7 @@ const SLICE_NS: u64 = 200_000;
 const ETIMEDOUT: c_int = 110;
 
 fn real_deadline_after(ns: u64) -> timespec {
-    let at = crate::time::real_monotonic_ns().saturating_add(ns);
-    timespec { tv_sec: (at / 1_000_000_000) as i64, tv_nsec: (at % 1_000_000_000) as i64 }
+    crate::time::from_ns(crate::time::real_monotonic_ns().saturating_add(ns))
 }
 
 /// Wait for `addr` (a condition variable, a semaphore, a thread) until simulated `deadline`

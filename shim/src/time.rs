@@ -78,7 +78,7 @@ pub(crate) fn to_ns(ts: &timespec) -> u64 {
     (ts.tv_sec.max(0) as u64).saturating_mul(1_000_000_000).saturating_add(ts.tv_nsec.max(0) as u64)
 }
 
-fn from_ns(ns: u64) -> timespec {
+pub(crate) fn from_ns(ns: u64) -> timespec {
     timespec { tv_sec: (ns / 1_000_000_000) as time_t, tv_nsec: (ns % 1_000_000_000) as i64 }
 }
 

@@ -8,7 +8,7 @@ use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
 
 use crate::abi::{NEVER, Shared, release, state};
 use crate::sys::{real, timespec};
-use crate::time::{clock_at, sim_now, sim_time_of, to_ns};
+use crate::time::{clock_at, from_ns, sim_now, sim_time_of, to_ns};
 use crate::{active, charge, note_call, park};
 
 /// Timers followed at once in a process.
@@ -103,8 +103,7 @@ fn remaining(shared: &Shared, index: usize) -> Itimerspec {
     let timer = &TABLE[index];
     let (expiry, interval) = (timer.expiry.load(Ordering::Acquire), timer.interval.load(Ordering::Relaxed));
     let left = if expiry == NEVER { 0 } else { expiry.saturating_sub(sim_now(shared)).max(1) };
-    let spec = |ns: u64| timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 };
-    Itimerspec { interval: spec(interval), value: spec(left) }
+    Itimerspec { interval: from_ns(interval), value: from_ns(left) }
 }
 
 #[unsafe(no_mangle)]

@@ -14,7 +14,7 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, call, release, state, waits};
 use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
-use crate::time::{sim_now, to_ns};
+use crate::time::{from_ns, sim_now, to_ns};
 use crate::{active, charge, my_slot, note_call, park};
 
 /// How long a timer set to fire at once may take to show on its descriptor (wall time).
@@ -185,11 +185,11 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
     }
 }
 
-fn ms_timeout(timeout_ms: c_int) -> Option<u64> {
+pub(crate) fn ms_timeout(timeout_ms: c_int) -> Option<u64> {
     (timeout_ms >= 0).then(|| timeout_ms as u64 * 1_000_000)
 }
 
-fn wall_ms(wall_ns: Option<u64>) -> c_int {
+pub(crate) fn wall_ms(wall_ns: Option<u64>) -> c_int {
     wall_ns.map_or(-1, |ns| ns.div_ceil(1_000_000).min(i32::MAX as u64) as c_int)
 }
 
@@ -230,7 +230,7 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
     // SAFETY: the caller's timespec, if any.
     let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
     wait(shared, call::POLL, interest, asked, &mut |wall| {
-        let limit = wall.map(|ns| timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 });
+        let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
         // SAFETY: the caller's arguments, with our timeout.
         unsafe { next(fds, count, limit_ptr, sigmask) }
@@ -317,7 +317,7 @@ pub unsafe extern "C" fn pselect(count: c_int, read: *mut fd_set, write: *mut fd
     let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
     wait(shared, call::SELECT, interest, asked, &mut |wall| {
         sets.restore();
-        let limit = wall.map(|ns| timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 });
+        let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
         // SAFETY: the caller's sets, with our timeout.
         unsafe { next(count, read, write, error, limit_ptr, sigmask) }

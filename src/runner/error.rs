@@ -70,6 +70,9 @@ pub enum RunnerError {
     Report(#[from] crate::report::ReportError),
     #[error(transparent)]
     Robot(#[from] crate::robot::RobotError),
+    /// Virtual time could not be set up (its shared block, its shim file).
+    #[error(transparent)]
+    VirtualTime(#[from] crate::virtual_time::VtError),
     /// Bad input that is not a file's: a flag, a command, a combination.
     #[error("{0}")]
     Invalid(String),

@@ -16,9 +16,9 @@ use crate::bus::Timing;
 use crate::robot::RobotDescription;
 use crate::runner::view::{LiveAddress, ViewOptions};
 use crate::scenario::{ExternalController, Scenario};
-use crate::sensor_server::{SensorFeed, VirtualSensorServer};
+use crate::sensor_server::SensorFeed;
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, VirtualPort};
-use crate::virtual_time::{Serves, VirtualTime};
+use crate::virtual_time::VirtualTime;
 
 use super::clock::{Pace, TimeBase, VirtualClock, WallClock};
 use super::observe::{require_line, scenario_bus};
@@ -26,7 +26,7 @@ use super::outputs::{RunOutcome, failures, fault_summary, finish_timing_report, 
 use super::process::{Controller, Launch, param_env, resolve_command};
 use super::recording::{RecordSpec, finish_recording, record_sensor_reads, start_recording};
 use super::feed::{WorldFailed, observer_hook, start_sensor_server};
-use super::serve::pty::serve_pty;
+use super::serve::pty::{drive_pty, serve_pty};
 use super::ticks::{HandleTicks, Ticked, run_ticks};
 use super::{Console, During as _, Result, RunnerError};
 
@@ -121,7 +121,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let observer = Arc::new(Mutex::new(observer));
     let recorder = options.record.map(|spec| start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;
     let virtual_time = match options.pace.time {
-        TimeBase::Virtual(settings) => Some(VirtualTime::create(settings).map_err(|error| RunnerError::Invalid(error.to_string()))?),
+        TimeBase::Virtual(settings) => Some(VirtualTime::create(settings)?),
         TimeBase::Wall => None,
     };
     let _ends = virtual_time.as_ref().map(VirtualTime::end_on_drop);
@@ -135,28 +135,20 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     // wait for that nor delay a reply (sharing one thread cost replies milliseconds of lateness).
     let runtime = |name: &str| tokio::runtime::Builder::new_multi_thread().worker_threads(1).thread_name(name).enable_all().build().during(|| format!("cannot start the {name} thread"));
     let sensor_runtime = runtime("sensors")?;
-    let sensors_url = match &virtual_time {
-        // Under virtual time the scheduler answers each request at its simulated instant.
-        Some(vt) => {
-            let (server, url) = VirtualSensorServer::bind(Arc::clone(&feed), Arc::clone(vt)).during(|| "cannot start the sensor server".to_owned())?;
-            vt.drive(Serves::Sensors, server);
-            url
-        }
-        None => sensor_runtime.block_on(start_sensor_server(Arc::clone(&feed)))?,
-    };
+    let sensors_url = sensor_runtime.block_on(start_sensor_server(Arc::clone(&feed), virtual_time.as_ref()))?;
     let pty_runtime = runtime("pty")?;
     let port = pty_runtime.block_on(async {
         let port = Arc::new(VirtualPort::open(options.link).during(|| "cannot open the pty".to_owned())?);
-        let session = serve_pty(Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal);
-        let session = async move {
-            if let Err(error) = session.await {
-                warn!(%error, "pty session ended");
-            }
-        };
-        // Under virtual time the session runs inside the scheduler, at exact simulated instants.
         match &virtual_time {
-            Some(vt) => vt.drive(Serves::Port, session),
-            None => drop(tokio::spawn(session)),
+            Some(vt) => drive_pty(vt, Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal),
+            None => {
+                let session = serve_pty(Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal);
+                tokio::spawn(async move {
+                    if let Err(error) = session.await {
+                        warn!(%error, "pty session ended");
+                    }
+                });
+            }
         }
         Ok::<_, RunnerError>(port)
     })?;
@@ -175,7 +167,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     ];
     env.extend(param_env(&external.param_text()));
     if let Some(vt) = &virtual_time {
-        env.extend(vt.controller_env().map_err(|error| RunnerError::Invalid(error.to_string()))?);
+        env.extend(vt.controller_env()?);
         vt.reserve_process();
     }
     let speed = if virtual_time.is_some() { 1.0 } else { options.pace.speed };

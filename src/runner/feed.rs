@@ -1,4 +1,4 @@
-//! What the sensor server serves a wall-clock run's controller (`/line`, `/frame`, `/state`,
+//! What the sensor server serves an external run's controller (`/line`, `/frame`, `/state`,
 //! `/lidar`, `/welds`): published from the world after each tick.
 
 use std::ops::ControlFlow;
@@ -7,15 +7,23 @@ use std::sync::{Arc, Mutex, PoisonError};
 use serde_json::json;
 use tracing::warn;
 
-use crate::sensor_server::{SensorFeed, SensorServer};
+use crate::sensor_server::{SensorFeed, SensorServer, VirtualSensorServer};
 use crate::sim::RobotWorld;
+use crate::virtual_time::{Serves, VirtualTime};
 
 use super::observe::{Observer, plan_pose, robot_relative};
 use super::ticks::TickHook;
 use super::{During as _, Result};
 
-/// Serve `feed` on an ephemeral localhost port (on the current runtime); its base URL.
-pub async fn start_sensor_server(feed: Arc<SensorFeed>) -> Result<String> {
+/// Serve `feed` on an ephemeral localhost port; its base URL. On the wall clock the server is a
+/// task of the current runtime; under virtual time the scheduler answers each request at its
+/// simulated instant.
+pub async fn start_sensor_server(feed: Arc<SensorFeed>, virtual_time: Option<&Arc<VirtualTime>>) -> Result<String> {
+    if let Some(vt) = virtual_time {
+        let (server, url) = VirtualSensorServer::bind(feed, Arc::clone(vt)).during(|| "cannot start the sensor server".to_owned())?;
+        vt.drive(Serves::Sensors, server);
+        return Ok(url);
+    }
     let server = SensorServer::bind(std::net::SocketAddr::from(([127, 0, 0, 1], 0))).await.during(|| "cannot start the sensor server".to_owned())?;
     let url = server.url().during(|| "the sensor server has no address".to_owned())?;
     tokio::spawn(async move {

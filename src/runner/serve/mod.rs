@@ -21,8 +21,8 @@ use crate::fault::ScheduledFault;
 use crate::robot::RobotDescription;
 use crate::scenario::Scenario;
 use crate::runner::view::ViewOptions;
-use crate::sensor_server::{SensorFeed, VirtualSensorServer};
-use crate::virtual_time::{Serves, VirtualTime};
+use crate::sensor_server::SensorFeed;
+use crate::virtual_time::VirtualTime;
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, PhysicsPace, VirtualPort};
 
 use super::clock::{Pace, TimeBase};
@@ -90,7 +90,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
             if transports.tcp.is_some() || transports.tcp_connect.is_some() || transports.can.is_some() || transports.device.is_some() {
                 return Err(RunnerError::Invalid("serve --clock virtual serves the pty only: a controller on TCP, CAN or a serial device keeps real time".to_owned()));
             }
-            let vt = VirtualTime::create(settings).map_err(|error| RunnerError::Invalid(error.to_string()))?;
+            let vt = VirtualTime::create(settings)?;
             vt.wait_for_controllers();
             Some(vt)
         }
@@ -172,12 +172,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
         // Under virtual time the session runs inside the scheduler, at exact simulated instants.
         let pty_thread = match &virtual_time {
             Some(vt) => {
-                let session = pty::serve_pty(Arc::clone(&port), Arc::clone(&handle), transports.adapter);
-                vt.drive(Serves::Port, async move {
-                    if let Err(error) = session.await {
-                        warn!(%error, "pty session ended");
-                    }
-                });
+                pty::drive_pty(vt, Arc::clone(&port), Arc::clone(&handle), transports.adapter);
                 None
             }
             None => Some(pty::start_thread(Arc::clone(&port), Arc::clone(&handle), transports.adapter)?),
@@ -189,17 +184,10 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
             Some(observer) => {
                 let feed = Arc::new(SensorFeed::default());
                 record_sensor_reads(&handle, &feed);
-                let url = match &virtual_time {
-                    Some(vt) => {
-                        let (server, url) = VirtualSensorServer::bind(Arc::clone(&feed), Arc::clone(vt)).during(|| "cannot start the sensor server".to_owned())?;
-                        vt.drive(Serves::Sensors, server);
-                        url
-                    }
-                    None => start_sensor_server(Arc::clone(&feed)).await?,
-                };
+                let url = start_sensor_server(Arc::clone(&feed), virtual_time.as_ref()).await?;
                 console.say(&format!("sensors: {url}"));
                 if let Some(vt) = &virtual_time {
-                    let mut env = vt.controller_env().map_err(|error| RunnerError::Invalid(error.to_string()))?;
+                    let mut env = vt.controller_env()?;
                     env.push(("DXL_PORT".to_owned(), port.path().display().to_string()));
                     env.push(("CLIMBSIM_SENSORS".to_owned(), url.clone()));
                     let assignments: Vec<String> = env.iter().map(|(k, v)| format!("{k}='{v}'")).collect();

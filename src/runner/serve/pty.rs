@@ -6,6 +6,8 @@ use crate::bus::Timing;
 use crate::transport::{Adapter, AdapterModel, BusHandle, TransportError, VirtualPort, serve_stream_through};
 
 use crate::runner::{During as _, Result};
+use crate::virtual_time::{Serves, VirtualTime};
+use tracing::warn;
 
 /// Serve the pty until the process ends, the controller behind `adapter`. The port outlives
 /// every controller connection.
@@ -16,6 +18,17 @@ pub async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: 
     }
     let spin_for_requests = handle.with_bus(|bus| bus.timing()) == Timing::Off;
     serve_stream_through(port.stream(spin_for_requests)?, handle, &line, AdapterModel::new(adapter)).await
+}
+
+/// Serve `port` inside the virtual-time scheduler: the session acts only at exact simulated
+/// instants, with the controller parked.
+pub fn drive_pty(virtual_time: &VirtualTime, port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) {
+    let session = serve_pty(port, handle, adapter);
+    virtual_time.drive(Serves::Port, async move {
+        if let Err(error) = session.await {
+            warn!(%error, "pty session ended");
+        }
+    });
 }
 
 /// Serve `port` on a thread of its own: precise reply timing spins, and must not stall anything.
