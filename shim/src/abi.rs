@@ -11,13 +11,16 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 1;
+pub const ABI: u32 = 2;
 /// Controller threads that can be followed at once (all processes together).
 pub const SLOTS: usize = 128;
 /// Sensor-server connections followed at once.
 pub const CONNS: usize = 64;
 /// "No deadline" / "nothing due".
 pub const NEVER: u64 = u64::MAX;
+/// Reply bytes written to the port ahead of their time, in at most this many runs (each
+/// visible from its own instant).
+pub const HELD_RUNS: usize = 64;
 
 /// `Header::mode`.
 pub mod mode {
@@ -143,7 +146,25 @@ pub struct Header {
     pub cpu_factor_ppm: AtomicU64,
     /// S: threads in a wait for another thread (wakers look for them only when there are some).
     pub peer_waiters: AtomicU32,
-    pub _pad2: AtomicU32,
+    /// C: odd while climbsim rewrites `held_runs` (a sequence lock: the shim reads them again).
+    pub held_seq: AtomicU32,
+    /// C: reply bytes climbsim has written to the port, in all (a stream offset).
+    pub port_rx_written: AtomicU64,
+    /// S: of those, the bytes the controller has read, or flushed while they were visible.
+    pub port_rx_taken: AtomicU64,
+    /// C: replies written ahead of their time: the bytes from `HeldRun::start` on become visible
+    /// at `HeldRun::due_ns` (and not before the runs ahead of them in the stream). The shim hides
+    /// what is not visible yet from reads, polls and FIONREAD, so that a Sync Read's eight
+    /// replies cost one write and no hand-over each. Unused runs have `due_ns` 0.
+    pub held_runs: [HeldRun; HELD_RUNS],
+}
+
+/// Bytes of the port's stream, from `start` up to the next run's start (or the end of what was
+/// written), that become visible at `due_ns`.
+#[repr(C)]
+pub struct HeldRun {
+    pub start: AtomicU64,
+    pub due_ns: AtomicU64,
 }
 
 #[repr(C)]

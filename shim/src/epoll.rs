@@ -4,7 +4,7 @@
 //! the poll family's (wait.rs).
 
 use core::ffi::{c_int, c_void};
-use core::sync::atomic::{AtomicI32, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64, Ordering};
 
 use crate::abi::call;
 use crate::sys::{real, timespec};
@@ -20,10 +20,12 @@ struct Entry {
     epfd: AtomicI32,
     fd: AtomicI32,
     events: AtomicU32,
+    /// The registration's user data, which is all a reported event carries.
+    data: AtomicU64,
 }
 
 #[allow(clippy::declare_interior_mutable_const)]
-const FREE: Entry = Entry { epfd: AtomicI32::new(-1), fd: AtomicI32::new(-1), events: AtomicU32::new(0) };
+const FREE: Entry = Entry { epfd: AtomicI32::new(-1), fd: AtomicI32::new(-1), events: AtomicU32::new(0), data: AtomicU64::new(0) };
 static ENTRIES_TABLE: [Entry; ENTRIES] = [FREE; ENTRIES];
 
 const EPOLL_CTL_ADD: c_int = 1;
@@ -32,6 +34,18 @@ const EPOLL_CTL_MOD: c_int = 3;
 const EPOLLIN: u32 = 0x1;
 const EPOLLPRI: u32 = 0x2;
 const EPOLLOUT: u32 = 0x4;
+const EPOLLRDNORM: u32 = 0x40;
+
+/// struct epoll_event: packed on x86-64 (4 + 8 bytes), padded elsewhere (4 + 4 + 8).
+#[cfg(target_arch = "x86_64")]
+const EVENT: (usize, usize) = (12, 4);
+#[cfg(not(target_arch = "x86_64"))]
+const EVENT: (usize, usize) = (16, 8);
+
+fn event_data(event: *const u8) -> u64 {
+    // SAFETY: one struct epoll_event of the caller's.
+    unsafe { event.add(EVENT.1).cast::<u64>().read_unaligned() }
+}
 
 fn find(epfd: c_int, fd: c_int) -> Option<&'static Entry> {
     ENTRIES_TABLE.iter().find(|e| e.epfd.load(Ordering::Relaxed) == epfd && e.fd.load(Ordering::Relaxed) == fd)
@@ -41,15 +55,18 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
     // struct epoll_event is packed on x86-64: its first 4 bytes are the events.
     // SAFETY: the caller's event, when the operation takes one.
     let events = if event.is_null() { 0 } else { unsafe { event.cast::<u32>().read_unaligned() } };
+    let data = if event.is_null() { 0 } else { event_data(event.cast()) };
     match op {
         EPOLL_CTL_ADD | EPOLL_CTL_MOD => {
             if let Some(entry) = find(epfd, fd) {
                 entry.events.store(events, Ordering::Relaxed);
+                entry.data.store(data, Ordering::Relaxed);
                 return;
             }
             if let Some(entry) = ENTRIES_TABLE.iter().find(|e| e.epfd.compare_exchange(-1, epfd, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
                 entry.fd.store(fd, Ordering::Relaxed);
                 entry.events.store(events, Ordering::Relaxed);
+                entry.data.store(data, Ordering::Relaxed);
             }
         }
         EPOLL_CTL_DEL => {
@@ -93,6 +110,36 @@ fn interest(epfd: c_int) -> Interest {
     interest
 }
 
+/// The events an epoll wait reported, without the port's readiness where nothing visible is
+/// there to read (held.rs): an event for the port's registration loses EPOLLIN, and is dropped
+/// if nothing else is left in it.
+fn mask_events(shared: &crate::abi::Shared, epfd: c_int, events: *mut c_void, ready: c_int, port_fd: Option<c_int>) -> c_int {
+    let Some(entry) = port_fd.filter(|_| ready > 0).and_then(|fd| find(epfd, fd)) else { return ready };
+    let port_data = entry.data.load(Ordering::Relaxed);
+    let base = events.cast::<u8>();
+    let mut kept = 0;
+    for index in 0..ready as usize {
+        // SAFETY: the kernel filled `ready` events of the caller's array.
+        let event = unsafe { base.add(index * EVENT.0) };
+        // SAFETY: as above.
+        let mut flags = unsafe { event.cast::<u32>().read_unaligned() };
+        if event_data(event) == port_data && crate::held::hide(shared, flags & (EPOLLIN | EPOLLRDNORM) != 0) {
+            flags &= !(EPOLLIN | EPOLLRDNORM);
+            // SAFETY: as above.
+            unsafe { event.cast::<u32>().write_unaligned(flags) };
+            if flags == 0 {
+                continue;
+            }
+        }
+        if kept != index {
+            // SAFETY: both within the reported events; `kept` < `index`.
+            unsafe { core::ptr::copy(event, base.add(kept * EVENT.0), EVENT.0) };
+        }
+        kept += 1;
+    }
+    kept as c_int
+}
+
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn epoll_ctl(epfd: c_int, op: c_int, fd: c_int, event: *mut c_void) -> c_int {
     let next = real!(epoll_ctl: fn(c_int, c_int, c_int, *mut c_void) -> c_int);
@@ -111,8 +158,9 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout_ms) };
     };
+    let interest = interest(epfd);
     // SAFETY: the caller's arguments, with our timeout.
-    wait(shared, call::POLL, interest(epfd), ms_timeout(timeout_ms), &mut |wall| unsafe { next(epfd, events, max, wall_ms(wall)) })
+    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| mask_events(shared, epfd, events, unsafe { next(epfd, events, max, wall_ms(wall)) }, interest.port_fd))
 }
 
 #[unsafe(no_mangle)]
@@ -122,8 +170,9 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout_ms, sigmask) };
     };
+    let interest = interest(epfd);
     // SAFETY: the caller's arguments, with our timeout.
-    wait(shared, call::POLL, interest(epfd), ms_timeout(timeout_ms), &mut |wall| unsafe { next(epfd, events, max, wall_ms(wall), sigmask) })
+    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| mask_events(shared, epfd, events, unsafe { next(epfd, events, max, wall_ms(wall), sigmask) }, interest.port_fd))
 }
 
 #[unsafe(no_mangle)]
@@ -135,10 +184,11 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
     };
     // SAFETY: the caller's timespec, if any.
     let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
-    wait(shared, call::POLL, interest(epfd), asked, &mut |wall| {
+    let interest = interest(epfd);
+    wait(shared, call::POLL, interest, asked, &mut |wall| {
         let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
         // SAFETY: the caller's arguments, with our timeout.
-        unsafe { next(epfd, events, max, limit_ptr, sigmask) }
+        mask_events(shared, epfd, events, unsafe { next(epfd, events, max, limit_ptr, sigmask) }, interest.port_fd)
     })
 }

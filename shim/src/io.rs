@@ -1,16 +1,18 @@
 //! The servo port's reads and writes. Writes are counted: climbsim holds simulated time until it
 //! has read (and so time-stamped) every byte the controller wrote, since the kernel hands them
 //! over a little later. A read that finds nothing waits on simulated time: a blocking one as the
-//! terminal's VMIN and VTIME say, a non-blocking one (the C++ SDK's loop) as a spin.
+//! terminal's VMIN and VTIME say, a non-blocking one (the C++ SDK's loop) as a spin. Reads, the
+//! FIONREAD ioctl and tcflush see only the reply bytes visible now (held.rs).
 
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{call, release, state, waits};
+use crate::abi::{Shared, call, release, waits};
+use crate::held::{stream_now, took};
 use crate::sys::{iovec, real};
-use crate::wait::is_port;
 use crate::time::sim_now;
-use crate::{active, charge, note_call, park};
+use crate::wait::{is_port, park_blocked};
+use crate::{active, charge, note_call};
 
 fn count_written(fd: c_int, written: isize) {
     if written <= 0 {
@@ -45,8 +47,14 @@ pub unsafe extern "C" fn writev(fd: c_int, iov: *const iovec, count: c_int) -> i
 
 const F_GETFL: c_int = 3;
 const O_NONBLOCK: c_int = 0o4000;
+const EAGAIN: c_int = 11;
+/// Also TIOCINQ.
 const FIONREAD: u64 = 0x541B;
 const TCGETS: u64 = 0x5401;
+const TCFLSH: u64 = 0x540B;
+const TCIFLUSH: c_int = 0;
+const TCOFLUSH: c_int = 1;
+const TCIOFLUSH: c_int = 2;
 /// struct termios: c_cc starts after four flags and c_line; VTIME and VMIN are its 5th and 6th.
 const C_CC: usize = 17;
 const VTIME: usize = 5;
@@ -54,13 +62,22 @@ const VMIN: usize = 6;
 
 unsafe extern "C" {
     fn fcntl(fd: c_int, command: c_int, ...) -> c_int;
-    fn ioctl(fd: c_int, request: u64, ...) -> c_int;
 }
 
-fn readable(fd: c_int) -> usize {
+/// libc's ioctl (the shim's own `ioctl` below hides what is held).
+fn real_ioctl(fd: c_int, request: u64, arg: *mut c_void) -> c_int {
+    let next = real!(ioctl: fn(c_int, u64, *mut c_void) -> c_int);
+    // SAFETY: the request's own argument, as the caller (or the shim) passed it.
+    unsafe { next(fd, request, arg) }
+}
+
+/// Bytes a read of the port may return now: what the kernel has, less what is not visible yet.
+fn readable(shared: &Shared, fd: c_int) -> usize {
     let mut available: c_int = 0;
-    // SAFETY: FIONREAD writes one int.
-    if unsafe { ioctl(fd, FIONREAD, &mut available) } == 0 { available.max(0) as usize } else { 0 }
+    // FIONREAD writes one int.
+    let kernel = if real_ioctl(fd, FIONREAD, (&mut available as *mut c_int).cast()) == 0 { available.max(0) as usize } else { 0 };
+    let stream = stream_now(shared);
+    if stream.hidden() > 0 { kernel.min(stream.unread() as usize) } else { kernel }
 }
 
 /// What a read of the port does when nothing is there yet.
@@ -75,23 +92,23 @@ enum PortRead {
 fn wait_for_port_bytes(shared: &'static crate::abi::Shared, fd: c_int, len: usize) -> PortRead {
     let mut termios = [0u8; 64];
     // SAFETY: TCGETS fills a struct termios (60 bytes on Linux).
-    if unsafe { ioctl(fd, TCGETS, termios.as_mut_ptr()) } != 0 {
+    if real_ioctl(fd, TCGETS, termios.as_mut_ptr().cast()) != 0 {
         return PortRead::Now(len);
     }
     let (vmin, vtime) = (termios[C_CC + VMIN], termios[C_CC + VTIME]);
     let deadline = if vmin == 0 && vtime > 0 { sim_now(shared).saturating_add(u64::from(vtime) * 100_000_000) } else { crate::abi::NEVER };
     loop {
-        let available = readable(fd);
+        let available = readable(shared, fd);
         if available > 0 {
             return PortRead::Now(len.min(available));
         }
         if vmin == 0 && vtime == 0 {
             // A read that never waits: a spin, as a non-blocking one.
             spun_on_empty_port(shared);
-            let available = readable(fd);
+            let available = readable(shared, fd);
             return if available > 0 { PortRead::Now(len.min(available)) } else { PortRead::Return(0) };
         }
-        match park(shared, state::BLOCKED, deadline, waits::PORT, 0) {
+        match park_blocked(shared, deadline, waits::PORT, 0) {
             release::DATA => {}
             release::ENDING => return PortRead::Now(len),
             _ => return PortRead::Return(0),
@@ -121,20 +138,92 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
     // SAFETY: fcntl F_GETFL on the caller's descriptor.
     let blocking = unsafe { fcntl(fd, F_GETFL) } & O_NONBLOCK == 0;
     if !blocking {
-        // SAFETY: passing the caller's arguments through.
-        let received = unsafe { next(fd, buf, len) };
+        let stream = stream_now(shared);
+        if stream.looks_empty() {
+            // Only bytes not due yet: the read finds nothing.
+            spun_on_empty_port(shared);
+            crate::sys::set_errno(EAGAIN);
+            return -1;
+        }
+        let limit = if stream.hidden() > 0 { len.min(stream.unread() as usize) } else { len };
+        // SAFETY: the caller's buffer, at most its length.
+        let received = unsafe { next(fd, buf, limit) };
         if received <= 0 {
             let errno = crate::sys::errno();
             spun_on_empty_port(shared);
             crate::sys::set_errno(errno);
         }
+        took(shared, received);
         return received;
     }
     match wait_for_port_bytes(shared, fd, len) {
-        // SAFETY: the caller's buffer, at most its length.
-        PortRead::Now(bytes) => unsafe { next(fd, buf, bytes) },
+        PortRead::Now(bytes) => {
+            // SAFETY: the caller's buffer, at most its length.
+            let received = unsafe { next(fd, buf, bytes) };
+            took(shared, received);
+            received
+        }
         PortRead::Return(value) => value,
     }
+}
+
+/// FIONREAD (TIOCINQ) counts only the visible bytes of the port; TCFLSH is tcflush's.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ioctl(fd: c_int, request: u64, arg: *mut c_void) -> c_int {
+    if request != FIONREAD && request != TCFLSH {
+        return real_ioctl(fd, request, arg);
+    }
+    let Some(shared) = active().filter(|shared| is_port(shared, fd)) else { return real_ioctl(fd, request, arg) };
+    if request == TCFLSH {
+        return flush_port(shared, fd, arg as usize as c_int);
+    }
+    let rc = real_ioctl(fd, request, arg);
+    let stream = stream_now(shared);
+    if rc == 0 && !arg.is_null() && stream.hidden() > 0 {
+        let count = arg.cast::<c_int>();
+        // SAFETY: FIONREAD's argument is the caller's int, which the kernel just wrote.
+        unsafe { *count = (*count).min(stream.unread().min(i32::MAX as u64) as c_int) };
+    }
+    rc
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn tcflush(fd: c_int, queue: c_int) -> c_int {
+    match active().filter(|shared| is_port(shared, fd)) {
+        Some(shared) => flush_port(shared, fd, queue),
+        None => real_ioctl(fd, TCFLSH, queue as usize as *mut c_void),
+    }
+}
+
+/// tcflush of the port: what arrived is discarded, what is still on its way (held) is not.
+fn flush_port(shared: &'static Shared, fd: c_int, queue: c_int) -> c_int {
+    note_call(shared, call::READ);
+    let stream = stream_now(shared);
+    let input = queue == TCIFLUSH || queue == TCIOFLUSH;
+    if !input || stream.hidden() == 0 {
+        let rc = real_ioctl(fd, TCFLSH, queue as usize as *mut c_void);
+        if rc == 0 && input {
+            // Everything written has been discarded.
+            shared.header.port_rx_taken.fetch_max(stream.written, Ordering::AcqRel);
+        }
+        return rc;
+    }
+    let read = real!(read: fn(c_int, *mut c_void, usize) -> isize);
+    let mut scratch = [0u8; 256];
+    let mut left = stream.unread() as usize;
+    while left > 0 {
+        // SAFETY: our own buffer; the bytes are in the kernel's queue, so this does not block.
+        let got = unsafe { read(fd, scratch.as_mut_ptr().cast(), left.min(scratch.len())) };
+        if got <= 0 {
+            break;
+        }
+        took(shared, got);
+        left -= got as usize;
+    }
+    if queue == TCIOFLUSH {
+        return real_ioctl(fd, TCFLSH, TCOFLUSH as usize as *mut c_void);
+    }
+    0
 }
 
 /// A closed descriptor is no longer a sensor connection, a timer, nor in any epoll instance.

@@ -20,6 +20,7 @@
 pub mod abi;
 mod children;
 mod epoll;
+mod held;
 mod io;
 mod net;
 mod spawn;

@@ -134,11 +134,15 @@ pub(crate) fn sleep_until(shared: &Shared, deadline: u64) {
         return;
     }
     if park(shared, state::BLOCKED, deadline, 0, 0) == release::ENDING {
-        let left = deadline.saturating_sub(sim_now(shared));
-        let nanosleep = real!(nanosleep: fn(*const timespec, *mut timespec) -> c_int);
-        // SAFETY: a valid timespec; the remainder is not wanted.
-        unsafe { nanosleep(&from_ns(left), core::ptr::null_mut()) };
+        real_sleep_ns(deadline.saturating_sub(sim_now(shared)));
     }
+}
+
+/// Sleep `ns` of wall time.
+pub(crate) fn real_sleep_ns(ns: u64) {
+    let nanosleep = real!(nanosleep: fn(*const timespec, *mut timespec) -> c_int);
+    // SAFETY: a valid timespec; the remainder is not wanted.
+    unsafe { nanosleep(&from_ns(ns), core::ptr::null_mut()) };
 }
 
 #[unsafe(no_mangle)]

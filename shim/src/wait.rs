@@ -27,6 +27,8 @@ const REPLY_JUMP_NS: u64 = 1_000_000;
 #[derive(Default, Clone, Copy)]
 pub(crate) struct Interest {
     port: bool,
+    /// The port's descriptor, when waited on (its readiness is masked while its bytes are held).
+    pub(crate) port_fd: Option<c_int>,
     /// Sensor connections (bit i: `Shared::conns[i]`).
     conns: u64,
     /// Timers on simulated time (bit i: timerfd.rs's entry i).
@@ -50,6 +52,7 @@ impl Interest {
         }
         if is_port(shared, fd) {
             self.port = true;
+            self.port_fd = Some(fd);
         } else if let Some((index, _)) = crate::net::conn_of(shared, fd) {
             self.conns |= 1 << index;
         } else {
@@ -112,7 +115,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
             if rc != 0 {
                 return rc;
             }
-        } else if park(shared, state::BLOCKED, deadline, parked_on, interest.conns) != release::DEADLINE {
+        } else if park_blocked(shared, deadline, parked_on, interest.conns) != release::DEADLINE {
             return real_wait(Some(1_000_000_000));
         }
         return real_wait(look(interest.show_expired_timers(shared)));
@@ -128,13 +131,21 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     if interest.other {
         return wait_on_real_world(shared, deadline, interest, real_wait);
     }
-    match park(shared, state::BLOCKED, deadline, interest.waits(), interest.conns) {
+    match park_blocked(shared, deadline, interest.waits(), interest.conns) {
         // Climbsim made the bytes visible before it released us; the guard only covers a kernel
         // that is slow to show them.
         release::DATA => real_wait(Some(1_000_000_000)),
         release::ENDING => real_wait(Some(deadline.saturating_sub(sim_now(shared)))),
         _ => real_wait(Some(0)),
     }
+}
+
+/// Block until `deadline` or data on what `waits` names (see `park`).
+pub(crate) fn park_blocked(shared: &'static Shared, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
+    if waits & waits::PORT != 0 {
+        crate::held::bound_horizon(shared);
+    }
+    park(shared, state::BLOCKED, deadline, waits, conn_mask)
 }
 
 /// A look at the port that found nothing, at simulated time `now`: time goes on to the next
@@ -145,7 +156,10 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
     // absent servo), by the cap. A timeout the program checks between its looks is so overshot
     // by at most the cap, or 1 ms while a reply is on its way. Within the horizon the thread
     // moves the clock itself; a reply due now, or anything beyond, is climbsim's.
-    let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire);
+    // Replies climbsim wrote ahead show at their instants without it: within the horizon the
+    // thread moves on to the next itself.
+    let held_due = crate::held::stream_at(shared, now).next_due;
+    let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire).min(held_due);
     let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
     if target <= now || !crate::advance_within_horizon(shared, now, target) {
         park(shared, state::YIELDED, target.max(now), waits::SPIN | waits::PORT, 0);
@@ -177,6 +191,11 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             return real_wait(Some(deadline.saturating_sub(sim_now(shared))));
         }
         let ready = real_wait(Some(SLICE_NS));
+        if ready == 0 && crate::held::take_masked() {
+            // The kernel saw the port readable for bytes not visible yet: it returned at once,
+            // and would again. A slice of sleep instead of a hot loop.
+            crate::time::real_sleep_ns(SLICE_NS / 10);
+        }
         if ready != 0 {
             // Woken by the real world; unless climbsim released us meanwhile, we run again now.
             let _ = slot.state.compare_exchange(state::BLOCKED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed);
@@ -216,7 +235,7 @@ pub unsafe extern "C" fn poll(fds: *mut pollfd, count: nfds_t, timeout_ms: c_int
     };
     let interest = poll_interest(shared, fds, count);
     // SAFETY: the caller's arguments, with our timeout.
-    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| unsafe { next(fds, count, wall_ms(wall)) })
+    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| crate::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, interest.port_fd))
 }
 
 #[unsafe(no_mangle)]
@@ -233,7 +252,7 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
         let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
         // SAFETY: the caller's arguments, with our timeout.
-        unsafe { next(fds, count, limit_ptr, sigmask) }
+        crate::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, interest.port_fd)
     })
 }
 
@@ -294,7 +313,7 @@ pub unsafe extern "C" fn select(count: c_int, read: *mut fd_set, write: *mut fd_
         let mut limit = wall.map(|ns| timeval { tv_sec: (ns / 1_000_000_000) as i64, tv_usec: (ns % 1_000_000_000).div_ceil(1000) as i64 });
         let limit_ptr = limit.as_mut().map_or(core::ptr::null_mut(), |t| t as *mut timeval);
         // SAFETY: the caller's sets, with our timeout.
-        unsafe { next(count, read, write, error, limit_ptr) }
+        crate::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr) }, interest.port_fd)
     });
     if !timeout.is_null() && result == 0 {
         // Linux reports the time left; a select that timed out has none.
@@ -320,6 +339,6 @@ pub unsafe extern "C" fn pselect(count: c_int, read: *mut fd_set, write: *mut fd
         let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
         // SAFETY: the caller's sets, with our timeout.
-        unsafe { next(count, read, write, error, limit_ptr, sigmask) }
+        crate::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, interest.port_fd)
     })
 }

@@ -134,22 +134,29 @@ impl Clock for WallClock {
 pub struct VirtualClock<'a> {
     virtual_time: Arc<VirtualTime>,
     stop: &'a AtomicBool,
+    /// The world's time: the last tick waited for. A controller may be ahead of it (it runs
+    /// within the horizon; the world catches up, tick by tick, never late).
+    world_now: Duration,
 }
 
 impl<'a> VirtualClock<'a> {
     pub fn new(virtual_time: Arc<VirtualTime>, stop: &'a AtomicBool) -> Self {
-        Self { virtual_time, stop }
+        let world_now = virtual_time.now();
+        Self { virtual_time, stop, world_now }
     }
 }
 
 impl Clock for VirtualClock<'_> {
     fn now(&self) -> Duration {
-        self.virtual_time.now()
+        self.world_now
     }
 
     fn wait_until(&mut self, due: Duration) -> Result<Duration, ClockStop> {
         match self.virtual_time.advance_to(due, self.stop) {
-            Ok(()) => Ok(Duration::ZERO),
+            Ok(()) => {
+                self.world_now = self.world_now.max(due);
+                Ok(Duration::ZERO)
+            }
             Err(VtError::Interrupted) => Err(ClockStop::Interrupted),
             Err(error) => Err(ClockStop::Failed(error.to_string())),
         }

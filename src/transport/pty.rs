@@ -201,6 +201,7 @@ impl AsyncWrite for VirtualTimeStream {
             }
             std::thread::yield_now();
         }
+        self.virtual_time.port_written(&data[..written]);
         Poll::Ready(Ok(written))
     }
 

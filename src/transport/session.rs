@@ -72,6 +72,7 @@ where
         physical_wire: line.physical_wire(),
         servo_bauds: Vec::new(),
         adapter,
+        ahead: None,
     };
     if session.physical_wire {
         session.servo_bauds = session.handle.with_bus(servo_bauds);
@@ -109,6 +110,8 @@ struct Session<'a, S> {
     servo_bauds: Vec<(u8, Option<u32>)>,
     /// The USB adapter in front of the controller (`--adapter`), if not an ideal one.
     adapter: Option<AdapterModel>,
+    /// Under virtual time: the last transaction's replies, written ahead of their time.
+    ahead: Option<Ahead>,
 }
 
 /// Bytes of one reply handed to the controller at `due`.
@@ -116,6 +119,16 @@ struct HandOver {
     due: Duration,
     reply: usize,
     bytes: std::ops::Range<usize>,
+}
+
+/// Replies written to the port before they are due, each hand-over shown by the shim at its
+/// instant (see [`Session::deliver_ahead`]). Until the last is due, bytes the controller sends
+/// may still collide with those on their way.
+struct Ahead {
+    replies: Vec<Reply>,
+    /// Each hand-over with its offset in the port's stream.
+    plan: Vec<(u64, HandOver)>,
+    last_due: Duration,
 }
 
 fn servo_bauds(bus: &mut Bus) -> Vec<(u8, Option<u32>)> {
@@ -151,6 +164,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 }
                 Some(read) => match read? {
                     0 => return Ok(()),
+                    n if self.ahead_still_due(now) => self.early_bytes_ahead(n),
                     n => {
                         self.line.read_done();
                         self.baud = self.line.baud();
@@ -212,7 +226,12 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         if !std::mem::take(&mut self.replies_since_unread_check) {
             return;
         }
-        let Some(bytes) = self.line.unread_by_controller().filter(|&b| b > 0) else { return };
+        // Under virtual time replies still on their way sit in the pty too: only visible ones count.
+        let unread = match self.clock.virtual_time() {
+            Some(virtual_time) => Some(virtual_time.port_unread_now() as usize),
+            None => self.line.unread_by_controller(),
+        };
+        let Some(bytes) = unread.filter(|&b| b > 0) else { return };
         let mut left = bytes;
         let mut replies = 0;
         for &len in self.last_reply_lens.iter().rev() {
@@ -228,8 +247,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
 
     /// Hand the transaction's replies over when the wire model says they have arrived, watching
     /// for bytes the controller sends meanwhile. True if the controller closed.
-    async fn deliver(&mut self, transaction: Transaction) -> Result<bool, TransportError> {
-        let mut replies = transaction.replies;
+    async fn deliver(&mut self, mut transaction: Transaction) -> Result<bool, TransportError> {
+        let mut replies = std::mem::take(&mut transaction.replies);
         if replies.is_empty() {
             return Ok(false);
         }
@@ -240,6 +259,12 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         }
         let byte_time = transaction.byte_time;
         let plan = self.hand_over_plan(&replies, byte_time);
+        if self.timing == Timing::Wire
+            && let Some(virtual_time) = self.clock.virtual_time().cloned()
+            && virtual_time.port_holds_room_for(plan.len())
+        {
+            return self.deliver_ahead(&virtual_time, &transaction, replies, plan).await;
+        }
         let mut closed = false;
         let (last_reply, last_due) = plan.last().map_or((0, Duration::ZERO), |h| (h.reply, h.due));
         for (index, hand_over) in plan.iter().enumerate() {
@@ -249,16 +274,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             if index == plan.len() - 1 {
                 // Counted just before the hand-over (a write to the kernel takes microseconds):
                 // once written, the controller may act on it, even end the session.
-                let now = self.clock.now();
-                let name = transaction.instruction.as_ref().map_or("Malformed", |i| i.name());
-                let (latency, late) = (now.saturating_sub(transaction.received_at), now.saturating_sub(last_due));
-                let replies_wire = byte_time * replies.iter().map(|r| r.bytes.len() as u32).sum::<u32>();
-                // Handed over at its start on a physical wire, its bytes still have to cross it.
-                let complete = if self.physical_wire { latency + byte_time * replies[last_reply].bytes.len() as u32 } else { latency };
-                let answer = Answered { instruction: name, replies: replies.len(), latency, late, at: now, complete, replies_wire };
-                self.handle.with_stats(|stats| stats.answered(answer));
-                self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
-                self.replies_since_unread_check = true;
+                self.count_answer(&transaction, &replies, self.clock.now(), last_reply, last_due);
             }
             let reply = &replies[hand_over.reply];
             let bytes = &reply.bytes[hand_over.bytes.clone()];
@@ -279,6 +295,78 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         }
         self.stream.flush().await?;
         Ok(closed)
+    }
+
+    /// The transaction's replies handed over, the last at `at` (due at `last_due`).
+    fn count_answer(&mut self, transaction: &Transaction, replies: &[Reply], at: Duration, last_reply: usize, last_due: Duration) {
+        let byte_time = transaction.byte_time;
+        let name = transaction.instruction.as_ref().map_or("Malformed", |i| i.name());
+        let (latency, late) = (at.saturating_sub(transaction.received_at), at.saturating_sub(last_due));
+        let replies_wire = byte_time * replies.iter().map(|r| r.bytes.len() as u32).sum::<u32>();
+        // Handed over at its start on a physical wire, its bytes still have to cross it.
+        let complete = if self.physical_wire { latency + byte_time * replies[last_reply].bytes.len() as u32 } else { latency };
+        let answer = Answered { instruction: name, replies: replies.len(), latency, late, at, complete, replies_wire };
+        self.handle.with_stats(|stats| stats.answered(answer));
+        self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
+        self.replies_since_unread_check = true;
+    }
+
+    /// Under virtual time: write every reply now, in one write, each hand-over marked with its
+    /// instant; the shim shows each byte only from then on (src/virtual_time/held.rs). Exact as
+    /// the timed writes, without a hand-over between climbsim and the controller per reply.
+    async fn deliver_ahead(&mut self, virtual_time: &Arc<VirtualTime>, transaction: &Transaction, replies: Vec<Reply>, plan: Vec<HandOver>) -> Result<bool, TransportError> {
+        let (last_reply, last_due) = plan.last().map_or((0, Duration::ZERO), |h| (h.reply, h.due));
+        self.count_answer(transaction, &replies, last_due.max(self.clock.now()), last_reply, last_due);
+        let base = virtual_time.port_written_total();
+        let mut offset = base;
+        let mut runs = Vec::with_capacity(plan.len());
+        let mut out = std::mem::take(&mut self.out);
+        out.clear();
+        for hand_over in &plan {
+            runs.push((offset, hand_over.due));
+            let bytes = &replies[hand_over.reply].bytes[hand_over.bytes.clone()];
+            out.extend_from_slice(bytes);
+            offset += bytes.len() as u64;
+            trace!(from = ?replies[hand_over.reply].from, bytes = bytes.len(), due = ?hand_over.due, "reply bytes written ahead");
+        }
+        virtual_time.hold_port_bytes(&runs);
+        let written = self.stream.write_all(&out).await;
+        out.clear();
+        self.out = out;
+        written?;
+        self.stream.flush().await?;
+        let plan = runs.into_iter().map(|(start, _)| start).zip(plan).collect();
+        self.ahead = Some(Ahead { replies, plan, last_due });
+        Ok(false)
+    }
+
+    /// Replies written ahead are still on their way at `now`.
+    fn ahead_still_due(&mut self, now: Duration) -> bool {
+        if self.ahead.as_ref().is_some_and(|ahead| now >= ahead.last_due) {
+            self.ahead = None;
+        }
+        self.ahead.is_some()
+    }
+
+    /// `n` bytes arrived while replies written ahead were still on their way: as
+    /// [`Session::early_bytes`], and what the collision changed of the replies not shown yet is
+    /// written again.
+    fn early_bytes_ahead(&mut self, n: usize) {
+        let at = self.clock.now();
+        let (Some(mut ahead), Some(virtual_time)) = (self.ahead.take(), self.clock.virtual_time().cloned()) else {
+            self.early_bytes(n, &mut []);
+            return;
+        };
+        let first = ahead.plan.iter().position(|(_, h)| h.due > at).unwrap_or(ahead.plan.len());
+        let first_reply = ahead.plan.get(first).map_or(ahead.replies.len(), |(_, h)| h.reply);
+        let before: Vec<Vec<u8>> = ahead.replies[first_reply..].iter().map(|r| r.bytes.clone()).collect();
+        self.early_bytes(n, &mut ahead.replies[first_reply..]);
+        let changed = ahead.replies[first_reply..].iter().zip(&before).any(|(reply, was)| reply.bytes != *was);
+        if changed && let Some(&(start, _)) = ahead.plan.get(first) {
+            let rest: Vec<u8> = ahead.plan[first..].iter().flat_map(|(_, h)| ahead.replies[h.reply].bytes[h.bytes.clone()].iter().copied()).collect();
+            virtual_time.rewrite_held_bytes(start, &rest);
+        }
+        self.ahead = Some(ahead);
     }
 
     /// When each part of the replies goes to the controller. A modelled wire hands a reply over

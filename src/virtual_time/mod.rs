@@ -15,6 +15,7 @@
 #[path = "../../shim/src/abi.rs"]
 pub mod abi;
 mod block;
+mod held;
 mod shim_file;
 mod watchdog;
 
@@ -140,6 +141,7 @@ pub struct VirtualTime {
     timers: Mutex<Timers>,
     driven: Mutex<Vec<Driven>>,
     port: Mutex<Option<PortFds>>,
+    held: Mutex<held::HeldBytes>,
 }
 
 impl std::fmt::Debug for VirtualTime {
@@ -168,7 +170,7 @@ impl VirtualTime {
         header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default() }))
+        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default() }))
     }
 
     pub fn settings(&self) -> VtSettings {
@@ -362,22 +364,26 @@ impl VirtualTime {
             if self.now_ns() >= due {
                 return Ok(());
             }
-            self.settle(&mut watchdog, stop)?;
+            self.settle(&mut watchdog, stop, due)?;
             let now = self.now_ns();
             if now >= due {
                 return Ok(());
             }
-            // A thread may have moved the clock onto a reply's time (the horizon includes it):
-            // that reply goes first.
-            let next_reply = self.next_timer();
-            if next_reply <= now {
+            // A thread may have moved the clock onto a timer's time (the horizon includes it):
+            // that timer goes first.
+            let next_timer = self.next_timer();
+            if next_timer <= now {
                 self.fire_timers(now);
                 continue;
             }
+            // Replies written ahead show at their instants: a thread waiting on the port is let
+            // go then (a spinning one moves there by itself if it runs first).
+            let next_reply = next_timer.min(self.next_held_due(now));
             // Who can run at this instant, and when the next parked thread is due.
-            let unread = self.port_unread();
+            let mut unread = None;
             let mut due_now = Vec::new();
             let mut next_thread = NEVER;
+            let mut blocked_on_port = false;
             for slot in &self.shared().slots {
                 let parked = slot.state.load(Ordering::Acquire);
                 if parked != state::BLOCKED && parked != state::YIELDED {
@@ -385,7 +391,9 @@ impl VirtualTime {
                 }
                 let waits_on = slot.waits.load(Ordering::Relaxed);
                 let response = waits_on & waits::CONN != 0 && self.response_waiting(slot.conn_mask.load(Ordering::Relaxed));
-                if (waits_on & waits::PORT != 0 && unread > 0) || response {
+                let on_port = waits_on & waits::PORT != 0;
+                blocked_on_port |= on_port && waits_on & waits::SPIN == 0;
+                if (on_port && *unread.get_or_insert_with(|| self.port_unread_visible()) > 0) || response {
                     due_now.push((slot, release::DATA));
                     continue;
                 }
@@ -401,10 +409,12 @@ impl VirtualTime {
                     next_thread = next_thread.min(at);
                 }
             }
-            // Not the world's next tick: a thread may run past it (the world catches up).
+            // Not the world's next tick: a thread may run past it (the world catches up). Nor a
+            // held reply's instant, unless a thread blocked on the port must be let go then.
             let next = next_thread.min(next_reply);
-            header.horizon_ns.store(next, Ordering::Release);
-            header.port_next_due_ns.store(next_reply, Ordering::Release);
+            let horizon = next_thread.min(next_timer).min(if blocked_on_port { next_reply } else { NEVER });
+            header.horizon_ns.store(horizon, Ordering::Release);
+            header.port_next_due_ns.store(next_timer, Ordering::Release);
             if !due_now.is_empty() {
                 let mut stats = lock(&self.stats);
                 for (slot, why) in due_now {
@@ -429,12 +439,18 @@ impl VirtualTime {
     }
 
     /// Wait until no controller thread runs and every byte it wrote has been read, running the
-    /// driven futures meanwhile.
-    fn settle(&self, watchdog: &mut watchdog::Watchdog, stop: &AtomicBool) -> Result<(), VtError> {
+    /// driven futures meanwhile; or until the controller, parked, is at or past the world's
+    /// next tick `due`: that tick runs first, and what the controller sent is read after it (a
+    /// tick precedes whatever happens at its instant, and bytes sent at T meet the world as it
+    /// is at T, however the two threads raced there).
+    fn settle(&self, watchdog: &mut watchdog::Watchdog, stop: &AtomicBool, due: u64) -> Result<(), VtError> {
         let header = &self.shared().header;
         loop {
             let seen = header.sched_word.load(Ordering::Acquire);
             if !self.any_running() {
+                if self.now_ns() >= due {
+                    return Ok(());
+                }
                 // The driven futures have something to do only when the controller sent bytes
                 // (and after timers, which poll them themselves); clients climbsim does not
                 // follow (a person's curl) are answered at least every few milliseconds.
@@ -522,15 +538,6 @@ impl VirtualTime {
         }
         // Timers are the port session's (its replies and its inter-byte gaps).
         self.poll_driven(Some(Serves::Port));
-    }
-
-    /// Bytes climbsim wrote to the port that the controller has not read.
-    fn port_unread(&self) -> usize {
-        let Some(port) = *lock(&self.port) else { return 0 };
-        let mut pending: libc::c_int = 0;
-        // SAFETY: FIONREAD writes one c_int.
-        let rc = unsafe { libc::ioctl(port.slave, libc::FIONREAD, &mut pending) };
-        if rc == 0 { pending.max(0) as usize } else { 0 }
     }
 
     /// Wait a moment for bytes the controller sent that the kernel has not handed over yet: on

@@ -1,0 +1,209 @@
+//! Replies written to the port ahead of their time (the shim's side: `shim/src/held.rs`).
+//!
+//! Under virtual time the pty session writes all the replies of a transaction at once, when it
+//! handles the request, and marks each run of bytes with the simulated instant it arrives on
+//! the modelled wire ([`VirtualTime::hold_port_bytes`]). The shim hides every byte until its
+//! instant. One write and no hand-over per reply: a Sync Read of eight servos used to cost eight
+//! round trips between climbsim and the controller.
+//!
+//! Bytes are counted as a stream: climbsim counts what it writes, the shim what the controller
+//! takes. climbsim keeps a copy of what the controller has not taken, so that replies still on
+//! their way can be changed (a collision with bytes the controller sent meanwhile): the pty's
+//! input is flushed and written again from the controller's position, the stream's offsets
+//! unchanged.
+
+use std::collections::VecDeque;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use tracing::warn;
+
+use super::abi::{HELD_RUNS, NEVER, Shared};
+use super::{VirtualTime, lock};
+
+/// climbsim's copy of the stream's bytes the controller has not taken.
+#[derive(Debug, Default)]
+pub(super) struct HeldBytes {
+    /// Stream offset of `copy[0]`.
+    copy_start: u64,
+    copy: VecDeque<u8>,
+}
+
+/// Bytes in `fd`'s input queue (0 if it cannot tell).
+fn queued(fd: i32) -> usize {
+    let mut pending: libc::c_int = 0;
+    // SAFETY: FIONREAD writes one c_int through the pointer, which is valid for the call.
+    let rc = unsafe { libc::ioctl(fd, libc::FIONREAD, &mut pending) };
+    if rc == 0 { pending.max(0) as usize } else { 0 }
+}
+
+/// The most of the stream climbsim keeps a copy of.
+const COPY_LIMIT: usize = 64 * 1024;
+
+/// How long a rewritten reply may take to reach the controller's side.
+const VISIBLE_WITHIN: Duration = Duration::from_millis(100);
+
+impl VirtualTime {
+    /// Bytes written to the port so far (the stream offset of the next byte).
+    pub fn port_written_total(&self) -> u64 {
+        self.shared().header.port_rx_written.load(Ordering::Acquire)
+    }
+
+    /// climbsim wrote `bytes` to the port (all of them now visible to the kernel).
+    pub fn port_written(&self, bytes: &[u8]) {
+        let header = &self.shared().header;
+        let mut held = lock(&self.held);
+        let taken = header.port_rx_taken.load(Ordering::Acquire);
+        let consumed = usize::try_from(taken.saturating_sub(held.copy_start)).unwrap_or(usize::MAX).min(held.copy.len());
+        held.copy.drain(..consumed);
+        held.copy_start += consumed as u64;
+        if held.copy.is_empty() {
+            held.copy_start = header.port_rx_written.load(Ordering::Acquire);
+        }
+        held.copy.extend(bytes);
+        // A controller that reads the port where the shim cannot count it never takes: keep
+        // the copy bounded (replies that far back are long visible, never rewritten).
+        let excess = held.copy.len().saturating_sub(COPY_LIMIT);
+        held.copy.drain(..excess);
+        held.copy_start += excess as u64;
+        header.port_rx_written.fetch_add(bytes.len() as u64, Ordering::AcqRel);
+    }
+
+    /// Whether `runs` more held runs fit in the block.
+    pub fn port_holds_room_for(&self, runs: usize) -> bool {
+        self.prune_held_runs(self.now_ns());
+        let used = self.shared().header.held_runs.iter().filter(|r| r.due_ns.load(Ordering::Relaxed) != 0).count();
+        used + runs <= HELD_RUNS
+    }
+
+    /// The bytes about to be written from stream offset `start` on become visible at `due`
+    /// (each run until the next one's start). Published before the bytes are written.
+    pub fn hold_port_bytes(&self, runs: &[(u64, Duration)]) {
+        let now = self.now_ns();
+        self.prune_held_runs(now);
+        self.edit_held_runs(|shared| {
+            let mut free = shared.header.held_runs.iter().filter(|r| r.due_ns.load(Ordering::Relaxed) == 0);
+            for &(start, due) in runs {
+                let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
+                if due <= now {
+                    continue;
+                }
+                let Some(run) = free.next() else {
+                    // The caller asked for room first; seen anyway, the bytes show at once.
+                    warn!("more held reply runs than the block has room for: shown early");
+                    break;
+                };
+                run.start.store(start, Ordering::Relaxed);
+                run.due_ns.store(due, Ordering::Relaxed);
+            }
+        });
+    }
+
+    /// Forget the runs that are visible by `now`.
+    fn prune_held_runs(&self, now: u64) {
+        let runs = &self.shared().header.held_runs;
+        if runs.iter().all(|r| r.due_ns.load(Ordering::Relaxed) == 0 || r.due_ns.load(Ordering::Relaxed) > now) {
+            return;
+        }
+        self.edit_held_runs(|shared| {
+            for run in &shared.header.held_runs {
+                let due = run.due_ns.load(Ordering::Relaxed);
+                if due != 0 && due <= now {
+                    run.due_ns.store(0, Ordering::Relaxed);
+                    run.start.store(0, Ordering::Relaxed);
+                }
+            }
+        });
+    }
+
+    /// Change the runs under the sequence lock the shim reads them with.
+    fn edit_held_runs(&self, edit: impl FnOnce(&Shared)) {
+        let shared = self.shared();
+        let seq = &shared.header.held_seq;
+        seq.fetch_add(1, Ordering::AcqRel);
+        std::sync::atomic::fence(Ordering::Release);
+        edit(shared);
+        seq.fetch_add(1, Ordering::Release);
+    }
+
+    /// The port's stream at simulated time `now`: (bytes visible, when more become visible).
+    fn port_visible(&self, now: u64) -> (u64, u64) {
+        let header = &self.shared().header;
+        let written = header.port_rx_written.load(Ordering::Acquire);
+        let (mut visible, mut next_due) = (written, NEVER);
+        for run in &header.held_runs {
+            let (due, start) = (run.due_ns.load(Ordering::Relaxed), run.start.load(Ordering::Relaxed));
+            if due > now && start < visible {
+                visible = start;
+                next_due = due;
+            }
+        }
+        (visible, next_due)
+    }
+
+    /// When the next held reply becomes visible ([`NEVER`]: none is held).
+    pub(super) fn next_held_due(&self, now: u64) -> u64 {
+        self.prune_held_runs(now);
+        self.port_visible(now).1
+    }
+
+    /// Visible bytes on the port the controller has not read (by the counts; the kernel's own
+    /// count caps it, for a controller that reads the port in a way the shim does not see).
+    pub(super) fn port_unread_visible(&self) -> usize {
+        let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
+        let (visible, _) = self.port_visible(self.now_ns());
+        if visible <= taken {
+            return 0;
+        }
+        let counted = usize::try_from(visible - taken).unwrap_or(usize::MAX);
+        match *lock(&self.port) {
+            Some(port) => counted.min(queued(port.slave)),
+            None => 0,
+        }
+    }
+
+    /// Bytes of the stream not visible yet.
+    pub fn port_hidden(&self) -> u64 {
+        let (visible, _) = self.port_visible(self.now_ns());
+        self.port_written_total().saturating_sub(visible)
+    }
+
+    /// Visible bytes the controller has not read (what a request finds unread).
+    pub fn port_unread_now(&self) -> u64 {
+        let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
+        self.port_visible(self.now_ns()).0.saturating_sub(taken)
+    }
+
+    /// Replace held bytes from stream offset `start` with `bytes` (a reply corrupted on its
+    /// way). Called with every controller thread parked: the pty's input is flushed and written
+    /// again from the controller's position.
+    pub fn rewrite_held_bytes(&self, start: u64, bytes: &[u8]) {
+        let Some(port) = *lock(&self.port) else { return };
+        let mut held = lock(&self.held);
+        let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
+        let Some(from) = start.checked_sub(held.copy_start).and_then(|o| usize::try_from(o).ok()) else { return };
+        for (index, &byte) in bytes.iter().enumerate() {
+            if let Some(slot) = held.copy.get_mut(from + index) {
+                *slot = byte;
+            }
+        }
+        let resume = usize::try_from(taken.saturating_sub(held.copy_start)).unwrap_or(usize::MAX).min(held.copy.len());
+        let rest: Vec<u8> = held.copy.iter().skip(resume).copied().collect();
+        // SAFETY: tcflush of climbsim's own slave descriptor.
+        unsafe { libc::tcflush(port.slave, libc::TCIFLUSH) };
+        let mut written = 0;
+        let deadline = Instant::now() + VISIBLE_WITHIN;
+        while written < rest.len() && Instant::now() < deadline {
+            // SAFETY: a write of our own buffer to climbsim's master descriptor.
+            let n = unsafe { libc::write(port.master, rest[written..].as_ptr().cast(), rest.len() - written) };
+            if n > 0 {
+                written += n as usize;
+            } else {
+                std::thread::yield_now();
+            }
+        }
+        while queued(port.slave) < written && Instant::now() < deadline {
+            std::thread::yield_now();
+        }
+    }
+}
