@@ -401,3 +401,36 @@ fn a_c_controller_on_a_blocking_port_waits_as_its_terminal_says_in_simulated_tim
     let vmin_ping = latencies(log, "vmin ping 1");
     assert!(vmin_ping.len() == 1 && (740.0..742.0).contains(&vmin_ping[0]) && log.contains("vmin ping 1: 74"), "{log}");
 }
+
+#[test]
+fn a_sync_reads_replies_arrive_each_at_its_wire_instant_and_collide_and_flush_as_on_the_wire() {
+    let dir = support::scratch_dir("vt-sync-read");
+    let path = scenario_1mbps(&dir, "arrivals", 1.0, &["tests/vt/sync_read_arrivals.py"]);
+    let (output, _) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("out").join("controller.log")).expect("controller.log");
+    // At 1 Mbps: the 22-byte request (220 µs), then per servo the 500 µs Return Delay Time and
+    // its 15-byte status (150 µs). climbsim writes all eight at once; FIONREAD must show each
+    // only when its last byte is in (the SDK's calls add a microsecond of charges at most).
+    let arrivals: Vec<(usize, f64)> = log
+        .lines()
+        .filter_map(|l| l.strip_prefix("arrival "))
+        .filter_map(|l| {
+            let (bytes, at) = l.split_once(" bytes at ")?;
+            Some((bytes.parse().ok()?, at.trim_end_matches(" us").parse().ok()?))
+        })
+        .collect();
+    assert_eq!(arrivals.len(), 8, "{log}");
+    for (index, (bytes, at)) in arrivals.iter().enumerate() {
+        let due = 870.0 + 650.0 * index as f64;
+        assert_eq!(*bytes, 15 * (index + 1), "{log}");
+        assert!((due..due + 3.0).contains(at), "status {} at {at} µs, due at {due} µs\n{log}", index + 1);
+    }
+    assert!(log.contains("arrivals: 8 valid statuses"), "{log}");
+    // tcflush 1 ms in: the first status had arrived and goes; the seven on their way do not.
+    assert!(log.contains("flush: 105 bytes kept, 7 valid statuses"), "{log}");
+    // A ping while the second status is on the wire: both are corrupted.
+    assert!(log.contains("collision: 120 bytes, 7 valid statuses"), "{log}");
+    let timing = std::fs::read_to_string(dir.join("out").join("timing.json")).expect("timing.json");
+    assert!(timing.contains("\"collisions\": 1"), "{timing}");
+}
