@@ -78,8 +78,11 @@ const MONOTONIC_BASE_NS: u64 = 1_000_000_000_000;
 const BATCH_NS: u64 = 1_000;
 
 /// How long (wall time) the scheduler spins for a running controller thread to park before it
-/// sleeps on the futex.
-const SETTLE_SPIN: Duration = Duration::from_micros(100);
+/// sleeps on the futex (a Python controller's period takes a few hundred microseconds), yielding
+/// the CPU every few microseconds to anything else that wants it.
+const SETTLE_SPIN: Duration = Duration::from_micros(400);
+/// Spin iterations between two yields.
+const SPINS_PER_YIELD: u32 = 64;
 
 /// How often (wall time) the driven futures are polled when the controller sent nothing: for
 /// clients climbsim does not follow.
@@ -346,7 +349,8 @@ impl VirtualTime {
         let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
         let header = &self.shared().header;
         let mut watchdog = watchdog::Watchdog::new(self.settings.stuck_after);
-        while self.waits_for_controller.load(Ordering::Relaxed) && !self.controller_attached() {
+        // (Not while the world still catches up with where a controller that has gone left it.)
+        while self.waits_for_controller.load(Ordering::Relaxed) && self.now_ns() < due && !self.controller_attached() {
             if stop.load(Ordering::Relaxed) {
                 return Err(VtError::Interrupted);
             }
@@ -379,63 +383,83 @@ impl VirtualTime {
             // Replies written ahead show at their instants: a thread waiting on the port is let
             // go then (a spinning one moves there by itself if it runs first).
             let next_reply = next_timer.min(self.next_held_due(now));
-            // Who can run at this instant, and when the next parked thread is due.
-            let mut unread = None;
-            let mut due_now = Vec::new();
-            let mut next_thread = NEVER;
-            let mut blocked_on_port = false;
-            for slot in &self.shared().slots {
-                let parked = slot.state.load(Ordering::Acquire);
-                if parked != state::BLOCKED && parked != state::YIELDED {
-                    continue;
-                }
-                let waits_on = slot.waits.load(Ordering::Relaxed);
-                let response = waits_on & waits::CONN != 0 && self.response_waiting(slot.conn_mask.load(Ordering::Relaxed));
-                let on_port = waits_on & waits::PORT != 0;
-                blocked_on_port |= on_port && waits_on & waits::SPIN == 0;
-                if (on_port && *unread.get_or_insert_with(|| self.port_unread_visible()) > 0) || response {
-                    due_now.push((slot, release::DATA));
-                    continue;
-                }
-                let mut at = slot.deadline_ns.load(Ordering::Relaxed);
-                if waits_on & waits::SPIN != 0 {
-                    // A spin on the port goes on to the next byte due on it (its own deadline
-                    // bounds the jump).
-                    at = at.min(next_reply);
-                }
-                if at <= now {
-                    due_now.push((slot, release::DEADLINE));
-                } else {
-                    next_thread = next_thread.min(at);
-                }
-            }
-            // Not the world's next tick: a thread may run past it (the world catches up). Nor a
-            // held reply's instant, unless a thread blocked on the port must be let go then.
-            let next = next_thread.min(next_reply);
-            let horizon = next_thread.min(next_timer).min(if blocked_on_port { next_reply } else { NEVER });
-            header.horizon_ns.store(horizon, Ordering::Release);
-            header.port_next_due_ns.store(next_timer, Ordering::Release);
-            if !due_now.is_empty() {
-                let mut stats = lock(&self.stats);
-                for (slot, why) in due_now {
-                    match why {
-                        release::DATA => stats.released_for_data += 1,
-                        _ => stats.released_at_deadline += 1,
-                    }
-                    release_slot(slot, why);
-                }
+            let plan = self.let_go_at(now, next_timer, next_reply);
+            if plan.released {
                 continue;
             }
             // fetch_max: a thread that woke by itself (a real descriptor, a peer) may have moved
             // the clock within the horizon meanwhile; time never goes back.
-            if due <= next {
+            if due <= plan.next {
+                if plan.next < next_timer {
+                    // The next instant is a thread's (or a held reply's), not climbsim's: jump
+                    // there and let the thread go now. The world catches up tick by tick while it
+                    // runs; what it sends is read once the world has reached its instant (see
+                    // `settle`), so nothing it can see depends on the race.
+                    lock(&self.stats).jumps += 1;
+                    let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
+                    self.let_go_at(now, next_timer, next_timer.min(self.next_held_due(now)));
+                    return Ok(());
+                }
                 header.now_ns.fetch_max(due, Ordering::AcqRel);
                 return Ok(());
             }
             lock(&self.stats).jumps += 1;
-            let now = header.now_ns.fetch_max(next, Ordering::AcqRel).max(next);
+            let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
             self.fire_timers(now);
         }
+    }
+
+    /// Let go every parked thread whose instant is `now` (its deadline, its spin's next byte, or
+    /// data for it), and set the horizon for those that run. `next_reply`: the next timer or
+    /// held reply.
+    fn let_go_at(&self, now: u64, next_timer: u64, next_reply: u64) -> LetGo {
+        let header = &self.shared().header;
+        let mut unread = None;
+        let mut due_now = Vec::new();
+        let mut next_thread = NEVER;
+        let mut blocked_on_port = false;
+        for slot in &self.shared().slots {
+            let parked = slot.state.load(Ordering::Acquire);
+            if parked != state::BLOCKED && parked != state::YIELDED {
+                continue;
+            }
+            let waits_on = slot.waits.load(Ordering::Relaxed);
+            let response = waits_on & waits::CONN != 0 && self.response_waiting(slot.conn_mask.load(Ordering::Relaxed));
+            let on_port = waits_on & waits::PORT != 0;
+            if (on_port && *unread.get_or_insert_with(|| self.port_unread_visible()) > 0) || response {
+                due_now.push((slot, release::DATA));
+                continue;
+            }
+            blocked_on_port |= on_port && waits_on & waits::SPIN == 0;
+            let mut at = slot.deadline_ns.load(Ordering::Relaxed);
+            if waits_on & waits::SPIN != 0 {
+                // A spin on the port goes on to the next byte due on it (its own deadline
+                // bounds the jump).
+                at = at.min(next_reply);
+            }
+            if at <= now {
+                due_now.push((slot, release::DEADLINE));
+            } else {
+                next_thread = next_thread.min(at);
+            }
+        }
+        // Not the world's next tick: a thread may run past it (the world catches up). Nor a
+        // held reply's instant, unless a thread blocked on the port must be let go then.
+        let horizon = next_thread.min(next_timer).min(if blocked_on_port { next_reply } else { NEVER });
+        header.horizon_ns.store(horizon, Ordering::Release);
+        header.port_next_due_ns.store(next_timer, Ordering::Release);
+        let released = !due_now.is_empty();
+        if released {
+            let mut stats = lock(&self.stats);
+            for (slot, why) in due_now {
+                match why {
+                    release::DATA => stats.released_for_data += 1,
+                    _ => stats.released_at_deadline += 1,
+                }
+                release_slot(slot, why);
+            }
+        }
+        LetGo { released, next: next_thread.min(next_reply) }
     }
 
     /// Wait until no controller thread runs and every byte it wrote has been read, running the
@@ -480,8 +504,13 @@ impl VirtualTime {
             // A controller thread usually parks again within tens of microseconds: spin that
             // long before sleeping on the futex (its wake-up costs more on a VM).
             let spin_until = std::time::Instant::now() + if self.spin { SETTLE_SPIN } else { Duration::ZERO };
+            let mut spins = 0u32;
             while header.sched_word.load(Ordering::Acquire) == seen && std::time::Instant::now() < spin_until {
                 std::hint::spin_loop();
+                spins = spins.wrapping_add(1);
+                if spins.is_multiple_of(SPINS_PER_YIELD) {
+                    std::thread::yield_now();
+                }
             }
             if header.sched_word.load(Ordering::Acquire) != seen {
                 continue;
@@ -563,6 +592,14 @@ fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
         let live = matches!(child.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED);
         live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
     })
+}
+
+/// What [`VirtualTime::let_go_at`] did.
+struct LetGo {
+    /// Some thread was let go.
+    released: bool,
+    /// The next instant a parked thread is due, or a reply ([`NEVER`]: none).
+    next: u64,
 }
 
 /// Ends the run when dropped (see [`VirtualTime::end_on_drop`]).
