@@ -434,3 +434,59 @@ fn a_sync_reads_replies_arrive_each_at_its_wire_instant_and_collide_and_flush_as
     let timing = std::fs::read_to_string(dir.join("out").join("timing.json")).expect("timing.json");
     assert!(timing.contains("\"collisions\": 1"), "{timing}");
 }
+
+/// The official C++ SDK's sources are on no package registry this project installs from, so the
+/// test needs a checkout: `DYNAMIXEL_SDK_CPP=<ROBOTIS-GIT/DynamixelSDK> cargo test --test
+/// virtual_time -- --ignored`. It builds tests/vt/sdk_cpp_controller.cpp against it.
+#[test]
+#[ignore = "needs the official C++ SDK's sources: DYNAMIXEL_SDK_CPP=<checkout of ROBOTIS-GIT/DynamixelSDK> cargo test --test virtual_time -- --ignored"]
+fn the_official_cpp_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_servos_timeout() {
+    let sdk = PathBuf::from(std::env::var("DYNAMIXEL_SDK_CPP").expect("DYNAMIXEL_SDK_CPP: a checkout of ROBOTIS-GIT/DynamixelSDK"));
+    let sources: Vec<PathBuf> = std::fs::read_dir(sdk.join("c++/src/dynamixel_sdk")).expect("the SDK's c++/src/dynamixel_sdk").filter_map(|e| Some(e.ok()?.path())).filter(|p| p.extension().is_some_and(|e| e == "cpp")).collect();
+    let dir = support::scratch_dir("vt-cpp-sdk");
+    let program = dir.join("sdk_cpp_controller");
+    let compiled = Command::new("g++")
+        .args(["-O2", "-w", "-I"])
+        .arg(sdk.join("c++/include/dynamixel_sdk"))
+        .arg(repo().join("tests/vt/sdk_cpp_controller.cpp"))
+        .args(&sources)
+        .arg("-o")
+        .arg(&program)
+        .output()
+        .expect("run g++");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    let path = scenario_1mbps(&dir, "cpp", 1.0, &[program.to_str().expect("utf-8 path")]);
+    let log = &controller_log_repeated(&path, &dir);
+    // Its non-blocking read loop and FIONREAD see each reply at its wire-model instant.
+    let pings = latencies(log, "ping 1 ");
+    assert_eq!(pings.len(), 3, "{log}");
+    for ping in pings {
+        assert!((740.0..742.0).contains(&ping), "{log}");
+    }
+    for sync_read in latencies(log, "sync read 8 ") {
+        assert!((5420.0..5423.0).contains(&sync_read), "{log}");
+    }
+    let absent = latencies(log, "ping 42 ");
+    assert_eq!(absent.len(), 2, "{log}");
+    for timeout in absent {
+        assert!((34_000.0..34_300.0).contains(&timeout), "{log}");
+    }
+}
+
+#[test]
+fn a_non_blocking_read_loop_as_the_cpp_sdks_sees_zero_not_eagain_and_each_reply_at_its_instant() {
+    let dir = support::scratch_dir("vt-nonblocking");
+    let program = compiled_c(&dir, "nonblocking_port");
+    let path = scenario_1mbps(&dir, "nonblocking", 1.0, &[program.to_str().expect("utf-8 path")]);
+    let log = controller_log_repeated(&path, &dir);
+    assert!(log.contains(", 0 returned -1"), "{log}");
+    // Each read returns what has arrived: the eight statuses one by one, at 870 µs, then every
+    // 650 µs (the 500 µs Return Delay Time and a 15-byte status at 1 Mbps).
+    let arrivals: Vec<&str> = log.lines().filter(|l| l.starts_with("arrival ")).collect();
+    assert_eq!(arrivals.len(), 8, "{log}");
+    for (index, line) in arrivals.iter().enumerate() {
+        let at: f64 = line.rsplit(" at ").next().and_then(|t| t.trim_end_matches(" us").parse().ok()).expect("a time");
+        let due = 870.0 + 650.0 * index as f64;
+        assert!(line.starts_with(&format!("arrival {} bytes", 15 * (index + 1))) && (due..due + 3.0).contains(&at), "{log}");
+    }
+}

@@ -88,14 +88,27 @@ enum PortRead {
     Return(isize),
 }
 
+/// The terminal's VMIN and VTIME (None: not a terminal).
+fn vmin_vtime(fd: c_int) -> Option<(u8, u8)> {
+    let mut termios = [0u8; 64];
+    // TCGETS fills a struct termios (60 bytes on Linux).
+    (real_ioctl(fd, TCGETS, termios.as_mut_ptr().cast()) == 0).then(|| (termios[C_CC + VMIN], termios[C_CC + VTIME]))
+}
+
+/// What a non-blocking read of an empty terminal returns: 0 with VMIN = VTIME = 0 (the kernel
+/// checks that before O_NONBLOCK; the C++ SDK adds the result to its count unchecked), else
+/// -1 with EAGAIN.
+fn empty_nonblocking_read(fd: c_int) -> isize {
+    if vmin_vtime(fd) == Some((0, 0)) {
+        return 0;
+    }
+    crate::sys::set_errno(EAGAIN);
+    -1
+}
+
 /// Wait on simulated time until a read of the port can go to the kernel without blocking.
 fn wait_for_port_bytes(shared: &'static crate::abi::Shared, fd: c_int, len: usize) -> PortRead {
-    let mut termios = [0u8; 64];
-    // SAFETY: TCGETS fills a struct termios (60 bytes on Linux).
-    if real_ioctl(fd, TCGETS, termios.as_mut_ptr().cast()) != 0 {
-        return PortRead::Now(len);
-    }
-    let (vmin, vtime) = (termios[C_CC + VMIN], termios[C_CC + VTIME]);
+    let Some((vmin, vtime)) = vmin_vtime(fd) else { return PortRead::Now(len) };
     let deadline = if vmin == 0 && vtime > 0 { sim_now(shared).saturating_add(u64::from(vtime) * 100_000_000) } else { crate::abi::NEVER };
     loop {
         let available = readable(shared, fd);
@@ -140,10 +153,9 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
     if !blocking {
         let stream = stream_now(shared);
         if stream.looks_empty() {
-            // Only bytes not due yet: the read finds nothing.
+            // Only bytes not due yet: the read finds nothing, and says so as the kernel would.
             spun_on_empty_port(shared);
-            crate::sys::set_errno(EAGAIN);
-            return -1;
+            return empty_nonblocking_read(fd);
         }
         let limit = if stream.hidden() > 0 { len.min(stream.unread() as usize) } else { len };
         // SAFETY: the caller's buffer, at most its length.
