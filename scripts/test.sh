@@ -89,5 +89,16 @@ else
 fi
 stage_done "the SocketCAN test"
 
+# The official C++ SDK's test (tests/virtual_time.rs, #[ignore]d) needs the SDK's sources, which no
+# package registry carries: run it where DYNAMIXEL_SDK_CPP names a checkout, say so elsewhere.
+# tests/vt/nonblocking_port.c, above, reads the port as that SDK does.
+if [[ -n "${DYNAMIXEL_SDK_CPP:-}" ]]; then
+    echo "==> cargo test --test virtual_time -- --ignored (the official C++ SDK in $DYNAMIXEL_SDK_CPP)"
+    cargo test --locked --test virtual_time -- --ignored
+else
+    echo "==> not run: the official C++ SDK's virtual-time test (DYNAMIXEL_SDK_CPP unset; point it at a checkout of ROBOTIS-GIT/DynamixelSDK)"
+fi
+stage_done "the C++ SDK test"
+
 echo "==> time by stage ($SECONDS s in all)"
 printf '%s\n' "${stages[@]}"
