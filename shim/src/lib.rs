@@ -45,11 +45,6 @@ static PID: core::sync::atomic::AtomicI32 = core::sync::atomic::AtomicI32::new(0
 static EXIT_KEY: AtomicU32 = AtomicU32::new(u32::MAX);
 
 const NO_SLOT: u32 = u32::MAX;
-/// How long (wall time) a parked thread spins before it sleeps on its futex: longer than the
-/// world's ticks between two controller periods usually take, so that the futex's sleep and
-/// wake-up (tens of microseconds on a VM whose idle vCPUs halt) is rare. The spin yields the
-/// CPU every few microseconds: another run on a busy machine loses next to nothing to it.
-const PARK_SPIN_NS: u64 = 400_000;
 /// Charges a thread may run up while climbsim has not read its bytes yet, before it yields.
 const HELD_CHARGE_LIMIT_NS: u64 = 50_000;
 
@@ -394,16 +389,13 @@ fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64)
     slot.release.store(0, Ordering::Relaxed);
     slot.state.store(parked, Ordering::Release);
     notify_scheduler(shared);
-    // climbsim usually lets a thread go within tens of microseconds: a short spin saves the
-    // futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs more than that.
-    let spin_until = time::real_monotonic_ns().saturating_add(if SEVERAL_CPUS.load(Ordering::Relaxed) { PARK_SPIN_NS } else { 0 });
-    let mut spins = 0u32;
+    // climbsim usually lets a thread go within a few hundred microseconds: a spin saves the
+    // futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs tens of them. How
+    // long is climbsim's call (none where the machine is busy).
+    let spin_ns = if SEVERAL_CPUS.load(Ordering::Relaxed) { shared.header.park_spin_ns.load(Ordering::Relaxed) } else { 0 };
+    let spin_until = time::real_monotonic_ns().saturating_add(spin_ns);
     while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until {
         core::hint::spin_loop();
-        spins = spins.wrapping_add(1);
-        if spins % sys::SPINS_PER_YIELD == 0 {
-            sys::yield_cpu();
-        }
     }
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);

@@ -93,7 +93,6 @@ unsafe extern "C" {
     pub fn dlsym(handle: *mut c_void, symbol: *const c_char) -> *mut c_void;
     pub fn getenv(name: *const c_char) -> *mut c_char;
     pub fn kill(pid: c_int, signal: c_int) -> c_int;
-    fn sched_yield() -> c_int;
     pub fn sysconf(name: c_int) -> i64;
     pub fn syscall(number: i64, ...) -> i64;
     pub fn __errno_location() -> *mut c_int;
@@ -184,15 +183,6 @@ pub fn futex_wake(word: &AtomicU32) {
     // SAFETY: a futex wake on a valid, aligned u32.
     unsafe { syscall(nr::FUTEX, word.as_ptr(), FUTEX_WAKE, i32::MAX as i64) };
     set_errno(saved);
-}
-
-/// Spin iterations (a few microseconds) between two yields of a spinning thread.
-pub const SPINS_PER_YIELD: u32 = 64;
-
-/// Let another thread that wants this CPU run (returns at once if none does).
-pub fn yield_cpu() {
-    // SAFETY: sched_yield has no preconditions.
-    unsafe { sched_yield() };
 }
 
 /// The character device number of `fd`, if it is one.

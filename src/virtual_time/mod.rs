@@ -16,6 +16,7 @@
 pub mod abi;
 mod block;
 mod held;
+mod quiet;
 mod shim_file;
 mod watchdog;
 
@@ -78,11 +79,11 @@ const MONOTONIC_BASE_NS: u64 = 1_000_000_000_000;
 const BATCH_NS: u64 = 1_000;
 
 /// How long (wall time) the scheduler spins for a running controller thread to park before it
-/// sleeps on the futex (a Python controller's period takes a few hundred microseconds), yielding
-/// the CPU every few microseconds to anything else that wants it.
-const SETTLE_SPIN: Duration = Duration::from_micros(400);
-/// Spin iterations between two yields.
-const SPINS_PER_YIELD: u32 = 64;
+/// sleeps on the futex, and a parked controller thread for climbsim (a Python controller's
+/// period, or the world's ticks between two, take a few hundred microseconds): the futex's
+/// sleep and wake-up costs tens of microseconds on a VM whose idle vCPUs halt. Only while the
+/// machine is quiet ([`quiet::Quiet`]).
+const SPIN: Duration = Duration::from_micros(400);
 
 /// How often (wall time) the driven futures are polled when the controller sent nothing: for
 /// clients climbsim does not follow.
@@ -145,6 +146,7 @@ pub struct VirtualTime {
     driven: Mutex<Vec<Driven>>,
     port: Mutex<Option<PortFds>>,
     held: Mutex<held::HeldBytes>,
+    quiet: Mutex<quiet::Quiet>,
 }
 
 impl std::fmt::Debug for VirtualTime {
@@ -173,7 +175,7 @@ impl VirtualTime {
         header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default() }))
+        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()) }))
     }
 
     pub fn settings(&self) -> VtSettings {
@@ -503,14 +505,11 @@ impl VirtualTime {
             }
             // A controller thread usually parks again within tens of microseconds: spin that
             // long before sleeping on the futex (its wake-up costs more on a VM).
-            let spin_until = std::time::Instant::now() + if self.spin { SETTLE_SPIN } else { Duration::ZERO };
-            let mut spins = 0u32;
+            let spin = if self.spin && lock(&self.quiet).now() { SPIN } else { Duration::ZERO };
+            header.park_spin_ns.store(spin.as_nanos() as u64, Ordering::Relaxed);
+            let spin_until = std::time::Instant::now() + spin;
             while header.sched_word.load(Ordering::Acquire) == seen && std::time::Instant::now() < spin_until {
                 std::hint::spin_loop();
-                spins = spins.wrapping_add(1);
-                if spins.is_multiple_of(SPINS_PER_YIELD) {
-                    std::thread::yield_now();
-                }
             }
             if header.sched_word.load(Ordering::Acquire) != seen {
                 continue;
