@@ -26,7 +26,7 @@ use rapier3d::parry::query::{
     WorkspaceData,
 };
 use rapier3d::parry::query::details::NormalConstraints;
-use rapier3d::parry::shape::{Ball, HeightField, Shape};
+use rapier3d::parry::shape::{Ball, HeightField, Shape, TrianglePseudoNormals};
 
 /// The dispatcher the world's narrow phase uses: ball on heightfield here, the rest by parry.
 pub fn dispatcher() -> QueryDispatcherChain<BallOnHeightField, DefaultQueryDispatcher> {
@@ -45,10 +45,14 @@ struct Workspace {
     triangles: HashMap<u32, Slot>,
 }
 
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct Slot {
     manifold: usize,
     timestamp: bool,
+    /// The triangle's pseudo-normals: the heightfield never changes, and a wheel rolling at
+    /// welding speed stays on a triangle for seconds, so they are computed once per contact
+    /// (they were 5 % of a tick, computed every step).
+    normals: Option<TrianglePseudoNormals>,
 }
 
 impl WorkspaceData for Workspace {
@@ -78,27 +82,34 @@ fn ball_on_heightfield(pos12: &Pose, field: &HeightField, ball: &Ball, predictio
     let bounds = ball.compute_aabb(pos12).loosened(prediction);
     let mut old_manifolds = std::mem::take(manifolds);
     field.map_elements_in_local_aabb(&bounds, &mut |id, triangle| {
+        // Out of reach of the triangle's bounding box, out of reach of the triangle: a few
+        // comparisons instead of the projection for the cell corners the ball's box takes in.
+        let (low, high) = (triangle.a.min(triangle.b).min(triangle.c), triangle.a.max(triangle.b).max(triangle.c));
+        let outside = (low - centre).max(centre - high).max(Vector::ZERO);
+        if outside.length_squared() > reach * reach {
+            return;
+        }
         let closest = triangle.project_local_point(centre, true).point;
         if closest.distance_squared(centre) > reach * reach {
             return;
         }
-        let manifold = match workspace.triangles.entry(id) {
+        let (manifold, slot) = match workspace.triangles.entry(id) {
             Entry::Occupied(entry) => {
                 let slot = entry.into_mut();
                 let manifold = old_manifolds[slot.manifold].take();
-                *slot = Slot { manifold: manifolds.len(), timestamp };
-                manifold
+                slot.manifold = manifolds.len();
+                slot.timestamp = timestamp;
+                (manifold, slot)
             }
             Entry::Vacant(entry) => {
-                entry.insert(Slot { manifold: manifolds.len(), timestamp });
+                let slot = entry.insert(Slot { manifold: manifolds.len(), timestamp, normals: field.triangle_normal_constraints(id) });
                 let (id1, id2) = if flipped { (0, id) } else { (id, 0) };
-                ContactManifold::with_data(id1, id2, ContactManifoldData::default())
+                (ContactManifold::with_data(id1, id2, ContactManifoldData::default()), slot)
             }
         };
         manifolds.push(manifold);
         let Some(manifold) = manifolds.last_mut() else { return };
-        let pseudo_normals = field.triangle_normal_constraints(id);
-        let constraints = pseudo_normals.as_ref().map(|n| n as &dyn NormalConstraints);
+        let constraints = slot.normals.as_ref().map(|n| n as &dyn NormalConstraints);
         // parry's ball-against-convex contact, as its dispatcher calls it for a heightfield's
         // triangle and a ball in either order: the triangle's pseudo-normals go with it.
         contact_manifold_convex_ball(pos12, triangle, ball, constraints, None, prediction, manifold, flipped);
