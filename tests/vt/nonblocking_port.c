@@ -13,20 +13,7 @@
 #include <time.h>
 #include <unistd.h>
 
-static uint16_t crc16(const uint8_t *data, size_t len) {
-    uint16_t crc = 0;
-    for (size_t i = 0; i < len; i++) {
-        crc ^= (uint16_t)data[i] << 8;
-        for (int bit = 0; bit < 8; bit++) crc = (crc & 0x8000) ? (uint16_t)((crc << 1) ^ 0x8005) : (uint16_t)(crc << 1);
-    }
-    return crc;
-}
-
-static double now_us(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    return ts.tv_sec * 1e6 + ts.tv_nsec / 1e3;
-}
+#include "protocol2.h"
 
 int main(void) {
     const char *path = getenv("DXL_PORT");
@@ -46,16 +33,16 @@ int main(void) {
     packet[20] = crc & 0xFF;
     packet[21] = crc >> 8;
     if (write(fd, packet, sizeof packet) != (ssize_t)sizeof packet) { perror("write"); return 1; }
-    double started = now_us();
+    double started = now_us(CLOCK_REALTIME);
     uint8_t reply[256];
     uint16_t got = 0; /* as the SDK counts: a -1 would wrap it */
     long empty_zero = 0, empty_negative = 0;
-    while (got < 120 && now_us() - started < 50000) {
+    while (got < 120 && now_us(CLOCK_REALTIME) - started < 50000) {
         int n = (int)read(fd, reply + got, 120 - got);
         if (n == 0) { empty_zero++; continue; }
         if (n < 0) { empty_negative++; if (errno != EAGAIN) { perror("read"); return 1; } continue; }
         got += (uint16_t)n;
-        printf("arrival %u bytes at %.0f us\n", got, now_us() - started);
+        printf("arrival %u bytes at %.0f us\n", got, now_us(CLOCK_REALTIME) - started);
     }
     printf("empty reads: %ld returned 0, %ld returned -1\n", empty_zero, empty_negative);
     fflush(stdout);

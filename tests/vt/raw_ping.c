@@ -9,21 +9,7 @@
 #include <time.h>
 #include <unistd.h>
 
-/* Protocol 2.0's CRC-16 (polynomial 0x8005, no reflection, initial 0). */
-static uint16_t crc16(const uint8_t *data, size_t len) {
-    uint16_t crc = 0;
-    for (size_t i = 0; i < len; i++) {
-        crc ^= (uint16_t)data[i] << 8;
-        for (int bit = 0; bit < 8; bit++) crc = (crc & 0x8000) ? (uint16_t)((crc << 1) ^ 0x8005) : (uint16_t)(crc << 1);
-    }
-    return crc;
-}
-
-static double now_us(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec * 1e6 + ts.tv_nsec / 1e3;
-}
+#include "protocol2.h"
 
 /* Ping `id`, then read up to 14 bytes with blocking reads until one returns 0 (VTIME ran out)
  * or the status is whole. */
@@ -32,7 +18,7 @@ static void ping(int fd, uint8_t id, const char *what) {
     uint16_t crc = crc16(packet, 8);
     packet[8] = crc & 0xFF;
     packet[9] = crc >> 8;
-    double started = now_us();
+    double started = now_us(CLOCK_MONOTONIC);
     if (write(fd, packet, sizeof packet) != (ssize_t)sizeof packet) { perror("write"); exit(1); }
     uint8_t reply[64];
     size_t got = 0;
@@ -42,7 +28,7 @@ static void ping(int fd, uint8_t id, const char *what) {
         if (n == 0) break;
         got += (size_t)n;
     }
-    printf("%s: %.1f us, %zu bytes\n", what, now_us() - started, got);
+    printf("%s: %.1f us, %zu bytes\n", what, now_us(CLOCK_MONOTONIC) - started, got);
     fflush(stdout);
 }
 
@@ -63,7 +49,7 @@ int main(void) {
     tio.c_cc[VMIN] = 1;
     tio.c_cc[VTIME] = 0;
     tcsetattr(fd, TCSANOW, &tio);
-    double started = now_us();
+    double started = now_us(CLOCK_MONOTONIC);
     uint8_t packet[10] = {0xFF, 0xFF, 0xFD, 0x00, 1, 0x03, 0x00, 0x01, 0x19, 0x4E};
     if (write(fd, packet, sizeof packet) != (ssize_t)sizeof packet) return 1;
     uint8_t reply[14];
@@ -73,6 +59,6 @@ int main(void) {
         if (n <= 0) return 1;
         got += (size_t)n;
     }
-    printf("vmin ping 1: %.1f us, %zu bytes\n", now_us() - started, got);
+    printf("vmin ping 1: %.1f us, %zu bytes\n", now_us(CLOCK_MONOTONIC) - started, got);
     return 0;
 }
