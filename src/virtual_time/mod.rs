@@ -18,23 +18,23 @@ mod block;
 mod held;
 mod quiet;
 mod shim_file;
+mod timer;
 mod watchdog;
 
-use std::collections::{BTreeMap, HashSet};
 use std::future::Future;
 use std::os::fd::RawFd;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::task::{Context, Poll, Waker};
+use std::task::{Context, Waker};
 use std::time::Duration;
 
 use thiserror::Error;
-use tracing::debug;
 
 use abi::{NEVER, Slot, mode, release, state, waits};
 use block::Block;
 pub use shim_file::{shim_bytes, shim_path};
+pub use timer::Timer;
 
 #[derive(Debug, Error)]
 pub enum VtError {
@@ -101,14 +101,6 @@ pub enum Serves {
     Sensors,
 }
 
-#[derive(Default)]
-struct Timers {
-    /// (due ns, sequence): registered and not fired.
-    pending: BTreeMap<(u64, u64), ()>,
-    fired: HashSet<u64>,
-    next_seq: u64,
-}
-
 /// The servo port's two ends, as climbsim holds them (owned by the port, which the driven
 /// session keeps alive).
 #[derive(Debug, Clone, Copy)]
@@ -142,7 +134,7 @@ pub struct VirtualTime {
     stats: Mutex<VtStats>,
     block: Block,
     settings: VtSettings,
-    timers: Mutex<Timers>,
+    timers: Mutex<timer::Timers>,
     driven: Mutex<Vec<Driven>>,
     port: Mutex<Option<PortFds>>,
     held: Mutex<held::HeldBytes>,
@@ -307,16 +299,6 @@ impl VirtualTime {
         if future.as_mut().poll(&mut Context::from_waker(Waker::noop())).is_pending() {
             lock(&self.driven).push((serves, future));
         }
-    }
-
-    /// A future that completes when simulated time reaches `due`.
-    pub fn timer(self: &Arc<Self>, due: Duration) -> Timer {
-        let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
-        let mut timers = lock(&self.timers);
-        let seq = timers.next_seq;
-        timers.next_seq += 1;
-        timers.pending.insert((due, seq), ());
-        Timer { vt: Arc::clone(self), due, seq, done: false }
     }
 
     /// A guard that ends the run when dropped, whatever way the run is left (an error too):
@@ -547,27 +529,6 @@ impl VirtualTime {
         *driven = list;
     }
 
-    fn next_timer(&self) -> u64 {
-        lock(&self.timers).pending.keys().next().map_or(NEVER, |&(due, _)| due)
-    }
-
-    /// Fire every timer due by `now`, then let the driven futures act on them.
-    fn fire_timers(&self, now: u64) {
-        {
-            let mut timers = lock(&self.timers);
-            while let Some(&(due, seq)) = timers.pending.keys().next() {
-                if due > now {
-                    break;
-                }
-                timers.pending.remove(&(due, seq));
-                timers.fired.insert(seq);
-                lock(&self.stats).timers_fired += 1;
-            }
-        }
-        // Timers are the port session's (its replies and its inter-byte gaps).
-        self.poll_driven(Some(Serves::Port));
-    }
-
     /// Wait a moment for bytes the controller sent that the kernel has not handed over yet: on
     /// the port until its master is readable (1 ms at most), on a sensor connection 20 µs.
     fn wait_for_bytes_in_flight(&self) {
@@ -629,36 +590,5 @@ fn futex_wake(word: &AtomicU32) {
     unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAKE, i32::MAX) };
 }
 
-/// Completes when simulated time reaches its due time (see [`VirtualTime::timer`]).
-pub struct Timer {
-    vt: Arc<VirtualTime>,
-    due: u64,
-    seq: u64,
-    done: bool,
-}
-
-impl Future for Timer {
-    type Output = ();
-
-    fn poll(mut self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<()> {
-        let fired = lock(&self.vt.timers).fired.remove(&self.seq);
-        if fired {
-            self.done = true;
-            debug!(due_ns = self.due, "virtual timer fired");
-            return Poll::Ready(());
-        }
-        Poll::Pending
-    }
-}
-
-impl Drop for Timer {
-    fn drop(&mut self) {
-        if !self.done {
-            let mut timers = lock(&self.vt.timers);
-            timers.pending.remove(&(self.due, self.seq));
-            timers.fired.remove(&self.seq);
-        }
-    }
-}
 
 
