@@ -228,7 +228,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         }
         // Under virtual time replies still on their way sit in the pty too: only visible ones count.
         let unread = match self.clock.virtual_time() {
-            Some(virtual_time) => Some(virtual_time.port_unread_now() as usize),
+            Some(virtual_time) => Some(virtual_time.port_unread_visible()),
             None => self.line.unread_by_controller(),
         };
         let Some(bytes) = unread.filter(|&b| b > 0) else { return };

@@ -148,8 +148,9 @@ impl VirtualTime {
     }
 
     /// Visible bytes on the port the controller has not read (by the counts; the kernel's own
-    /// count caps it, for a controller that reads the port in a way the shim does not see).
-    pub(super) fn port_unread_visible(&self) -> usize {
+    /// count caps it, for a controller that reads the port in a way the shim does not see): what
+    /// a thread waiting on the port is let go for, and what a new request finds unread.
+    pub fn port_unread_visible(&self) -> usize {
         let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
         let (visible, _) = self.port_visible(self.now_ns());
         if visible <= taken {
@@ -160,18 +161,6 @@ impl VirtualTime {
             Some(port) => counted.min(queued(port.slave)),
             None => 0,
         }
-    }
-
-    /// Bytes of the stream not visible yet.
-    pub fn port_hidden(&self) -> u64 {
-        let (visible, _) = self.port_visible(self.now_ns());
-        self.port_written_total().saturating_sub(visible)
-    }
-
-    /// Visible bytes the controller has not read (what a request finds unread).
-    pub fn port_unread_now(&self) -> u64 {
-        let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
-        self.port_visible(self.now_ns()).0.saturating_sub(taken)
     }
 
     /// Replace held bytes from stream offset `start` with `bytes` (a reply corrupted on its
