@@ -162,6 +162,26 @@ pub struct Header {
     pub held_runs: [HeldRun; HELD_RUNS],
 }
 
+impl Header {
+    /// The port's stream of `written` bytes at simulated time `now` as the held runs say: how
+    /// much of it is visible (a stream offset), and when more becomes visible ([`NEVER`]:
+    /// nothing is held). Bytes come in order: the first run in the stream still due hides all
+    /// after it. (The shim reads the runs under `held_seq`; climbsim, their only writer, as
+    /// they are.)
+    pub fn port_visible_at(&self, written: u64, now: u64) -> (u64, u64) {
+        let (mut visible, mut next_due) = (written, NEVER);
+        for run in &self.held_runs {
+            let due = run.due_ns.load(core::sync::atomic::Ordering::Relaxed);
+            let start = run.start.load(core::sync::atomic::Ordering::Relaxed);
+            if due > now && start < visible {
+                visible = start;
+                next_due = due;
+            }
+        }
+        (visible, next_due)
+    }
+}
+
 /// Bytes of the port's stream, from `start` up to the next run's start (or the end of what was
 /// written), that become visible at `due_ns`.
 #[repr(C)]

@@ -57,16 +57,7 @@ pub(crate) fn stream_at(shared: &Shared, now: u64) -> Stream {
             continue;
         }
         let written = header.port_rx_written.load(Ordering::Acquire);
-        let (mut visible, mut next_due) = (written, NEVER);
-        for run in &header.held_runs {
-            let due = run.due_ns.load(Ordering::Relaxed);
-            let start = run.start.load(Ordering::Relaxed);
-            // Bytes come in order: the first run in the stream still due hides the rest.
-            if due > now && start < visible {
-                visible = start;
-                next_due = due;
-            }
-        }
+        let (visible, next_due) = header.port_visible_at(written, now);
         fence(Ordering::Acquire);
         if header.held_seq.load(Ordering::Relaxed) == seq {
             let taken = header.port_rx_taken.load(Ordering::Acquire);

@@ -126,25 +126,10 @@ impl VirtualTime {
         seq.fetch_add(1, Ordering::Release);
     }
 
-    /// The port's stream at simulated time `now`: (bytes visible, when more become visible).
-    fn port_visible(&self, now: u64) -> (u64, u64) {
-        let header = &self.shared().header;
-        let written = header.port_rx_written.load(Ordering::Acquire);
-        let (mut visible, mut next_due) = (written, NEVER);
-        for run in &header.held_runs {
-            let (due, start) = (run.due_ns.load(Ordering::Relaxed), run.start.load(Ordering::Relaxed));
-            if due > now && start < visible {
-                visible = start;
-                next_due = due;
-            }
-        }
-        (visible, next_due)
-    }
-
     /// When the next held reply becomes visible ([`NEVER`]: none is held).
     pub(super) fn next_held_due(&self, now: u64) -> u64 {
         self.prune_held_runs(now);
-        self.port_visible(now).1
+        self.shared().header.port_visible_at(self.port_written_total(), now).1
     }
 
     /// Visible bytes on the port the controller has not read (by the counts; the kernel's own
@@ -152,7 +137,7 @@ impl VirtualTime {
     /// a thread waiting on the port is let go for, and what a new request finds unread.
     pub fn port_unread_visible(&self) -> usize {
         let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
-        let (visible, _) = self.port_visible(self.now_ns());
+        let (visible, _) = self.shared().header.port_visible_at(self.port_written_total(), self.now_ns());
         if visible <= taken {
             return 0;
         }
