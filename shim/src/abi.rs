@@ -146,8 +146,9 @@ pub struct Header {
     pub cpu_factor_ppm: AtomicU64,
     /// S: threads in a wait for another thread (wakers look for them only when there are some).
     pub peer_waiters: AtomicU32,
-    /// C: how long (wall time) a parked thread spins before it sleeps on its futex: 0 where the
-    /// machine is busy (a spin would take the CPU from the very thread it waits for).
+    /// C: how long (wall time) a parked thread spins before it sleeps on its futex: 0 on one
+    /// CPU or where the machine is busy (a spin would take the CPU from the very thread it waits
+    /// for). climbsim alone decides, for both sides.
     pub park_spin_ns: AtomicU64,
     /// C: odd while climbsim rewrites `held_runs` (a sequence lock: the shim reads them again).
     pub held_seq: AtomicU32,

@@ -80,10 +80,6 @@ fn reset_computation(shared: &Shared) {
     }
 }
 
-/// More than one CPU is online: a parked thread may spin a little (on one it would only take
-/// the CPU climbsim needs to let it go).
-static SEVERAL_CPUS: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
-
 /// Set once climbsim is found gone: the process goes on as after the run's end.
 static ORPHANED: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
 
@@ -133,9 +129,6 @@ extern "C" fn init() {
         return;
     }
     PID.store(sys::getpid(), Ordering::Relaxed);
-    const SC_NPROCESSORS_ONLN: c_int = 84;
-    // SAFETY: sysconf has no preconditions.
-    SEVERAL_CPUS.store(unsafe { sys::sysconf(SC_NPROCESSORS_ONLN) } > 1, Ordering::Relaxed);
     if let Err(why) = map(path) {
         sys::say(b"climbsim shim: ");
         sys::say(why);
@@ -391,8 +384,8 @@ fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64)
     notify_scheduler(shared);
     // climbsim usually lets a thread go within a few hundred microseconds: a spin saves the
     // futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs tens of them. How
-    // long is climbsim's call (none where the machine is busy).
-    let spin_ns = if SEVERAL_CPUS.load(Ordering::Relaxed) { shared.header.park_spin_ns.load(Ordering::Relaxed) } else { 0 };
+    // long is climbsim's call (none on one CPU, nor where the machine is busy).
+    let spin_ns = shared.header.park_spin_ns.load(Ordering::Relaxed);
     let spin_until = time::real_monotonic_ns().saturating_add(spin_ns);
     while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until {
         core::hint::spin_loop();

@@ -93,7 +93,6 @@ unsafe extern "C" {
     pub fn dlsym(handle: *mut c_void, symbol: *const c_char) -> *mut c_void;
     pub fn getenv(name: *const c_char) -> *mut c_char;
     pub fn kill(pid: c_int, signal: c_int) -> c_int;
-    pub fn sysconf(name: c_int) -> i64;
     pub fn syscall(number: i64, ...) -> i64;
     pub fn __errno_location() -> *mut c_int;
     pub fn open(path: *const c_char, flags: c_int, ...) -> c_int;
