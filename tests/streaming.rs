@@ -75,7 +75,7 @@ fn settings_record_everything_that_shaped_the_run() {
     assert_eq!(settings["payload_kg"], 1.5);
     assert_eq!(settings["friction"].as_f64().map(|v| (v - 0.6).abs() < 1e-6), Some(true), "{settings}");
     assert_eq!(settings["magnets"], true);
-    assert_eq!(settings["solver"]["iterations"], 3);
+    assert_eq!(settings["solver"]["iterations"], climbsim::sim::SolverSettings::default().iterations.get());
     assert_eq!(settings["capture"]["rate_hz"], 25.0);
     assert_eq!(settings["capture"]["on_line_tolerance_m"], 0.002);
 

@@ -113,6 +113,37 @@ pub fn climbing_current(solver: SolverSettings) -> (f32, f32) {
     (extra, torque / 10.6 * 4.4 / 2.69e-3)
 }
 
+/// How far the chassis may slide past its wheels' rotation while stalled on a slope (m).
+pub const STALL_SLIP_TOLERANCE_M: f32 = 0.005;
+
+/// A climb with a payload (see [`climb_with_payload`]).
+pub struct Climb {
+    /// The chassis' travel along the slope (m, negative when it rolls back).
+    pub travel_m: f32,
+    /// The wheels' mean Present Current (2.69 mA units).
+    pub current: i64,
+    /// The chassis' travel less the wheels' rolling distance (mean encoder angle × radius): how
+    /// far the treads slid (m).
+    pub slip_m: f32,
+    pub sim: Lockstep,
+}
+
+/// Drive at goal speed 100 for 1.5 s on a slope of `deg` carrying `payload_kg`.
+pub fn climb_with_payload(deg: f32, payload_kg: f32, solver: SolverSettings) -> Climb {
+    let mut sim = world_with(slope(deg), Vector::new(0.0, -G, 0.0), true, payload_kg, solver);
+    drive_wheels(&mut sim, 0);
+    sim.run(Duration::from_millis(300));
+    let start = sim.world().chassis_pose().translation;
+    let wheel_angle = |sim: &mut Lockstep| (1..=4).map(|id| sim.read_signed(id, PRESENT_POSITION, 4).expect("wheel position")).sum::<i64>() as f32 / 4.0 * std::f32::consts::TAU / 4096.0;
+    let turned_from = wheel_angle(&mut sim);
+    set_wheel_goal(&mut sim, 100);
+    sim.run(Duration::from_millis(1500));
+    let travel_m = (sim.world().chassis_pose().translation - start).x / deg.to_radians().cos();
+    let rolled_m = (wheel_angle(&mut sim) - turned_from) * robot().wheel.outer_radius_m;
+    let current = (1..=4).map(|id| sim.read_signed(id, PRESENT_CURRENT, 2).expect("current")).sum::<i64>() / 4;
+    Climb { travel_m, current, slip_m: travel_m - rolled_m, sim }
+}
+
 /// Encoder reading of a magnet servo as an angle from straight down (rad, positive forward).
 fn magnet_encoder_angle(sim: &mut Lockstep, id: u8) -> f32 {
     let pulses = sim.read_signed(id, PRESENT_POSITION, 4).expect("magnet position");
