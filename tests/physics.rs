@@ -128,21 +128,19 @@ fn a_slope_beyond_the_wheels_torque_stalls_them_and_a_shallow_one_does_not() {
     // 200 kg towed on 30°: about 1000 N along the slope, more than four wheels at 10.6 N·m on a
     // 50 mm radius give (848 N); friction (0.6 × (4 × 80 N + 1740 N)) still holds them.
     let payload = 200.0;
-    let climb = climb_with_payload(30.0, payload, SolverSettings::default());
-    let (travel, current, mut sim) = (climb.travel_m, climb.current, climb.sim);
+    let Climb { travel_m: travel, current, slip_m: slip, mut sim } = climb_with_payload(30.0, payload, SolverSettings::default());
     let stall_current = (4.4 / 2.69e-3) as i64;
     assert!(travel < 0.005, "climbed {travel:.3} m beyond stall torque");
     assert!(current > stall_current * 9 / 10, "Present Current {current} units, stall is {stall_current}");
     // The overloaded motors are back-driven and the robot rolls back, but friction holds the
     // treads: the chassis moves as far as the wheels turn (a solver that converges too little
     // lets it slide down past them).
-    assert!(climb.slip_m.abs() < STALL_SLIP_TOLERANCE_M, "slid {:.1} mm past the wheels' rotation at stall (rolled back {:.1} mm)", climb.slip_m * 1e3, -travel * 1e3);
+    assert!(slip.abs() < STALL_SLIP_TOLERANCE_M, "slid {:.1} mm past the wheels' rotation at stall (rolled back {:.1} mm)", slip * 1e3, -travel * 1e3);
     // Held at stall, the servos' overload protection trips (Hardware Error Status bit 5).
     sim.run(Duration::from_secs(2));
     let status = sim.read(1, 70, 1).expect("hardware error status")[0];
     assert_eq!(status & 0x20, 0x20, "overload latched after 2 s at stall: {status:#04X}");
-    let climb = climb_with_payload(3.0, payload, SolverSettings::default());
-    let (travel, current) = (climb.travel_m, climb.current);
+    let Climb { travel_m: travel, current, .. } = climb_with_payload(3.0, payload, SolverSettings::default());
     assert!(travel > 0.05, "on 3° the same load climbs: {travel:.3} m, current {current}");
 }
 
