@@ -1,6 +1,7 @@
 //! `--clock virtual`: an unchanged external controller on the simulation's clock. Real
 //! processes (Python, /bin/sh and its children), the embedded shim preloaded, real ptys.
 
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -168,23 +169,29 @@ fn latencies(log: &str, what: &str) -> Vec<f64> {
     log.lines().filter(|l| l.starts_with(what)).filter_map(|l| l.split(": ").nth(1)?.split(' ').next()?.parse().ok()).collect()
 }
 
+/// A ping's round trip at 1 Mbps in the wire model (µs): a 10-byte ping (100 µs), the default
+/// 500 µs Return Delay Time, a 14-byte status (140 µs); a client's own calls add about a
+/// microsecond of charges.
+const PING_AT_1MBPS_US: Range<f64> = 740.0..742.0;
+
+/// The log gives `count` latencies for `what`, each within `range` (µs).
+fn assert_latencies(log: &str, what: &str, count: usize, range: Range<f64>) {
+    let found = latencies(log, what);
+    assert_eq!(found.len(), count, "{count} × `{what}` expected in\n{log}");
+    for latency in found {
+        assert!(range.contains(&latency), "`{what}`: {latency} µs, outside {range:?}, in\n{log}");
+    }
+}
+
 #[test]
 fn the_official_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_servos_timeout() {
     let dir = support::scratch_dir("vt-sdk");
     let path = scenario_1mbps(&dir, "ping", 2.0, &["tests/vt/sdk_ping.py"]);
     let log = &controller_log_repeated(&path, &dir);
-    // At 1 Mbps: a 10-byte ping (100 µs), the default 500 µs Return Delay Time, a 14-byte status
-    // (140 µs); the SDK's own calls add about a microsecond of charges.
-    for ping in latencies(log, "ping 1 ") {
-        assert!((740.0..742.0).contains(&ping), "{log}");
-    }
+    assert_latencies(log, "ping 1 ", 3, PING_AT_1MBPS_US);
     // The SDK waits 16 × 2 + 2 ms plus the expected packet's bytes (about 0.1 ms) for an absent
     // servo: in simulated time, at most the 100 µs spin cap late.
-    let absent = latencies(log, "ping 42 ");
-    assert_eq!(absent.len(), 2, "{log}");
-    for timeout in absent {
-        assert!((34_100.0..34_300.0).contains(&timeout), "{log}");
-    }
+    assert_latencies(log, "ping 42 ", 2, 34_100.0..34_300.0);
 }
 
 /// Two processes that keep both cores busy while they live.
@@ -246,13 +253,9 @@ fn a_dynamixel2_controller_sees_exact_latencies_and_its_own_timeout() {
     let path = scenario_1mbps(&dir, "d2", 2.0, &[controller.to_str().expect("utf-8 path")]);
     let log = &controller_log_repeated(&path, &dir);
     // serial2 waits in poll(2) with a timeout: blocked, let go when the reply is there.
-    for ping in latencies(log, "ping 1 ") {
-        assert!((740.0..742.0).contains(&ping), "{log}");
-    }
+    assert_latencies(log, "ping 1 ", 3, PING_AT_1MBPS_US);
     assert!(log.contains("sync read 8 (8 answered)"), "{log}");
-    let absent = latencies(log, "ping 42 (no reply)");
-    assert_eq!(absent.len(), 1, "{log}");
-    assert!((30_000.0..60_000.0).contains(&absent[0]), "{log}");
+    assert_latencies(log, "ping 42 (no reply)", 1, 30_000.0..60_000.0);
 }
 
 #[test]
@@ -393,13 +396,13 @@ fn a_c_controller_on_a_blocking_port_waits_as_its_terminal_says_in_simulated_tim
     let path = scenario_1mbps(&dir, "raw", 2.0, &[program.to_str().expect("utf-8 path")]);
     let log = &controller_log_repeated(&path, &dir);
     // VMIN 0, VTIME 2: the reply's bytes as they come (740 µs at 1 Mbps), else 0 after 200 ms.
-    let vtime_ping = latencies(log, "vtime ping 1");
-    assert!(vtime_ping.len() == 1 && (740.0..742.0).contains(&vtime_ping[0]) && log.contains("vtime ping 1: 74"), "{log}");
-    let absent = latencies(log, "vtime ping 42");
-    assert!(absent.len() == 1 && (200_000.0..200_100.0).contains(&absent[0]) && log.contains(", 0 bytes"), "{log}");
+    assert_latencies(log, "vtime ping 1", 1, PING_AT_1MBPS_US);
+    assert!(log.contains("vtime ping 1: 74"), "{log}");
+    assert_latencies(log, "vtime ping 42", 1, 200_000.0..200_100.0);
+    assert!(log.contains(", 0 bytes"), "{log}");
     // VMIN 1: blocked until the bytes come.
-    let vmin_ping = latencies(log, "vmin ping 1");
-    assert!(vmin_ping.len() == 1 && (740.0..742.0).contains(&vmin_ping[0]) && log.contains("vmin ping 1: 74"), "{log}");
+    assert_latencies(log, "vmin ping 1", 1, PING_AT_1MBPS_US);
+    assert!(log.contains("vmin ping 1: 74"), "{log}");
 }
 
 #[test]
@@ -458,19 +461,9 @@ fn the_official_cpp_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_ser
     let path = scenario_1mbps(&dir, "cpp", 1.0, &[program.to_str().expect("utf-8 path")]);
     let log = &controller_log_repeated(&path, &dir);
     // Its non-blocking read loop and FIONREAD see each reply at its wire-model instant.
-    let pings = latencies(log, "ping 1 ");
-    assert_eq!(pings.len(), 3, "{log}");
-    for ping in pings {
-        assert!((740.0..742.0).contains(&ping), "{log}");
-    }
-    for sync_read in latencies(log, "sync read 8 ") {
-        assert!((5420.0..5423.0).contains(&sync_read), "{log}");
-    }
-    let absent = latencies(log, "ping 42 ");
-    assert_eq!(absent.len(), 2, "{log}");
-    for timeout in absent {
-        assert!((34_000.0..34_300.0).contains(&timeout), "{log}");
-    }
+    assert_latencies(log, "ping 1 ", 3, PING_AT_1MBPS_US);
+    assert_latencies(log, "sync read 8 ", 2, 5420.0..5423.0);
+    assert_latencies(log, "ping 42 ", 2, 34_000.0..34_300.0);
 }
 
 #[test]
