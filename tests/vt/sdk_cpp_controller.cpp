@@ -29,13 +29,19 @@ int main() {
     std::fprintf(stderr, "cannot open the port\n");
     return 1;
   }
-  for (int attempt = 0; attempt < 3; attempt++) {
-    uint8_t error = 0;
-    double started = now_us();
-    int result = packet->ping(port, 1, &error);
-    std::printf("ping 1 #%d: %.1f us -> %d\n", attempt, now_us() - started, result);
-    if (result != COMM_SUCCESS) return 1;
-  }
+  // Pings `id` `attempts` times, printing each one's wall time; false at the first result that
+  // is not `expected`.
+  auto pings = [&](uint8_t id, int attempts, int expected) {
+    for (int attempt = 0; attempt < attempts; attempt++) {
+      uint8_t error = 0;
+      double started = now_us();
+      int result = packet->ping(port, id, &error);
+      std::printf("ping %d #%d: %.1f us -> %d\n", id, attempt, now_us() - started, result);
+      if (result != expected) return false;
+    }
+    return true;
+  };
+  if (!pings(1, 3, COMM_SUCCESS)) return 1;
   dynamixel::GroupSyncRead reader(port, packet, 132, 4);
   dynamixel::GroupSyncWrite writer(port, packet, 104, 4);
   for (uint8_t id = 1; id <= 8; id++) reader.addParam(id);
@@ -62,13 +68,7 @@ int main() {
     if (left > 0) usleep(static_cast<useconds_t>(left));
     std::printf("period %d ends at +%.1f us\n", period, now_us() - period_start);
   }
-  for (int attempt = 0; attempt < 2; attempt++) {
-    uint8_t error = 0;
-    double started = now_us();
-    int result = packet->ping(port, 42, &error);
-    std::printf("ping 42 #%d: %.1f us -> %d\n", attempt, now_us() - started, result);
-    if (result != COMM_RX_TIMEOUT) return 1;
-  }
+  if (!pings(42, 2, COMM_RX_TIMEOUT)) return 1;
   std::fflush(stdout);
   port->closePort();
   return 0;
