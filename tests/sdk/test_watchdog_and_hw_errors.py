@@ -6,10 +6,16 @@ from dynamixel_sdk import COMM_SUCCESS
 
 from conftest import (
     A_GOAL_POS,
+    A_GOAL_PWM,
     A_GOAL_VEL,
     A_HW_ERROR,
     A_MAX_VOLT,
+    A_MOVING,
+    A_OP_MODE,
     A_PRESENT_POS,
+    A_PRESENT_PWM,
+    A_PRESENT_VEL,
+    A_PWM_LIMIT,
     A_SHUTDOWN,
     A_TEMP_LIMIT,
     A_TORQUE,
@@ -36,6 +42,38 @@ def test_bus_watchdog_trips_and_blocks_goals(dxl):
     assert dxl.read_u(1, A_WATCHDOG, 1) == 0
     dxl.write_ok(1, A_GOAL_POS, 4, present)
     assert dxl.read_u(1, A_HW_ERROR, 1) == 0, "the watchdog must not set a hardware error"
+
+
+def test_bus_watchdog_cleared_velocity_servo_moves_again(dxl):
+    """e-Manual, Bus Watchdog(98): after expiry the servo stops and refuses goals; writing 0 clears
+    the error and new goals work. The expiry had zeroed Goal PWM, which limits the output in
+    velocity mode, so the cleared servo accepted Goal Velocity 60 and never moved."""
+    dxl.write_ok(7, A_OP_MODE, 1, 1)
+    dxl.torque(7, True)
+    dxl.write_ok(7, A_GOAL_VEL, 4, 50)
+    dxl.write_ok(7, A_WATCHDOG, 1, 5)  # 100 ms
+    time.sleep(0.4)  # silence on the bus
+    assert dxl.read_s(7, A_WATCHDOG, 1) == -1, "Bus Watchdog did not expire after 400 ms of silence"
+    result, error = dxl.write(7, A_GOAL_VEL, 4, 60)
+    dxl.expect_error(result, error, ERR_DATA_RANGE, "Goal Velocity write after watchdog expiry")
+    time.sleep(1.0)
+    stopped = dxl.read_s(7, A_PRESENT_VEL, 4)
+    assert abs(stopped) <= 1, f"Present Velocity {stopped} a second after the expiry, expected a stop"
+
+    dxl.write_ok(7, A_WATCHDOG, 1, 0)
+    assert dxl.read_s(7, A_WATCHDOG, 1) == 0
+    dxl.write_ok(7, A_GOAL_VEL, 4, 60)
+    assert dxl.read_s(7, A_GOAL_VEL, 4) == 60
+    assert dxl.read_u(7, A_TORQUE, 1) == 1
+    assert dxl.read_u(7, A_HW_ERROR, 1) == 0, "the watchdog must not set a hardware error"
+    pwm_limit = dxl.read_u(7, A_PWM_LIMIT, 2)
+    goal_pwm = dxl.read_s(7, A_GOAL_PWM, 2)
+    assert goal_pwm == pwm_limit, f"Goal PWM {goal_pwm} after the expiry, expected PWM Limit {pwm_limit} (a limit in velocity mode)"
+    time.sleep(1.0)
+    velocity = dxl.read_s(7, A_PRESENT_VEL, 4)
+    assert abs(velocity - 60) <= 5, f"Present Velocity {velocity} a second after Goal Velocity 60, expected 60 +- 5"
+    assert dxl.read_u(7, A_MOVING, 1) == 1, "Moving not 1 after the watchdog was cleared"
+    assert dxl.read_s(7, A_PRESENT_PWM, 2) != 0, "Present PWM 0 after the watchdog was cleared"
 
 
 def test_bus_watchdog_restarted_by_traffic(dxl):

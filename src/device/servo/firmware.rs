@@ -357,15 +357,33 @@ impl Servo {
             self.watchdog_tripped = true;
             self.watchdog_expiries += 1;
             self.table.set(keys.bus_watchdog, WATCHDOG_TRIPPED);
-            // Stop as if both profile values were 0: hold here, or zero speed/effort.
-            self.table.set(keys.profile_velocity, 0);
-            self.table.set(keys.profile_acceleration, 0);
-            self.table.set(keys.goal_position, self.get(keys.present_position));
-            self.table.set(keys.goal_velocity, 0);
-            self.table.set(keys.goal_pwm, 0);
-            self.table.set(keys.goal_current, 0);
-            self.reset_trajectory();
+            self.stop_for_watchdog();
         }
+    }
+
+    /// The expiry's stop (reference §8, e-manual Bus Watchdog(98)): the mode's own goal becomes
+    /// "stay here" and the profile is applied as 0 for the stop, so it is immediate. Only the goal
+    /// the mode follows changes. Goal PWM and Goal Current are limits outside PWM and current
+    /// modes: zeroing them left a servo unable to move once the watchdog was cleared with 0,
+    /// which the manual says makes goals work again. The profile items are the controller's
+    /// settings ("applied as 0", not written): zeroing them turned its next move into a step.
+    fn stop_for_watchdog(&mut self) {
+        let keys = self.keys;
+        let modes = self.profile().operating_modes;
+        let mode = self.operating_mode();
+        if self.is_position_mode(mode) {
+            self.table.set(keys.goal_position, self.get(keys.present_position));
+        } else if mode == i64::from(modes.velocity) {
+            self.table.set(keys.goal_velocity, 0);
+        } else if mode == i64::from(modes.pwm) {
+            self.table.set(keys.goal_pwm, 0);
+        } else if mode == i64::from(modes.current) {
+            self.table.set(keys.goal_current, 0);
+        }
+        self.reset_trajectory();
+        // Profile Acceleration applied as 0: the velocity profile starts at its goal, not at the
+        // present speed (reset_trajectory already leaves the position profile at rest).
+        self.loops.trajectory_velocity_units = 0.0;
     }
 
     /// A servo whose torque is off and shaft at rest has nothing to simulate: the plant may skip

@@ -195,3 +195,68 @@ fn moving_status_keeps_the_moves_profile_type() {
     let during: Vec<i64> = status.iter().filter(|&&st| st & 0x02 != 0).map(|&st| (st >> 4) & 0x03).collect();
     assert!(!during.is_empty() && during.iter().all(|&kind| kind == 2), "profile types of a short move: {during:?}");
 }
+
+fn read_i16(servo: &Servo, address: u16) -> i16 {
+    let bytes = servo.table().read(address, 2).unwrap();
+    i16::from_le_bytes(bytes.try_into().unwrap())
+}
+
+/// e-manual, Bus Watchdog(98): after expiry, writing 0 clears the error and new goals work. The
+/// expiry had zeroed Goal PWM, a limit outside PWM mode, so a cleared servo never moved again.
+#[test]
+fn watchdog_cleared_velocity_servo_follows_new_goals() {
+    let mut s = servo();
+    let mut load = BenchLoad::new(0.0);
+    write(&mut s, Duration::ZERO, 11, &[1]).unwrap();
+    write(&mut s, Duration::ZERO, 64, &[1]).unwrap();
+    write(&mut s, Duration::ZERO, 104, &50i32.to_le_bytes()).unwrap();
+    write(&mut s, Duration::ZERO, 98, &[5]).unwrap();
+    let now = run(&mut s, &mut load, Duration::ZERO, 0.4);
+    assert_eq!(s.table().read(98, 1).unwrap(), [0xFF]);
+    assert_eq!(read_i32(&mut s, 104), 0, "velocity mode stops with Goal Velocity 0");
+    assert_eq!(write(&mut s, now, 104, &60i32.to_le_bytes()), Err(DeviceError::DataRange));
+    write(&mut s, now, 98, &[0]).unwrap();
+    write(&mut s, now, 104, &60i32.to_le_bytes()).unwrap();
+    assert_eq!(read_i16(&s, 100), 885, "Goal PWM (a limit in velocity mode) kept its value");
+    run(&mut s, &mut load, now, 1.5);
+    let velocity = read_i32(&mut s, 128);
+    assert!((velocity - 60).abs() <= 3, "Present Velocity {velocity} after clearing, goal 60");
+}
+
+/// In current-based position mode Goal Current is the limit and the profile shapes the move: the
+/// expiry stops the servo where it is (the profile applied as 0) but changes neither, so after
+/// clearing a new goal is followed as configured.
+#[test]
+fn watchdog_expiry_keeps_goal_current_limit_and_profile() {
+    let (mut s, mut load) = positioned(&[(11, vec![5]), (112, 20i32.to_le_bytes().to_vec())]);
+    let start = Duration::from_secs(1);
+    write(&mut s, start, 98, &[5]).unwrap();
+    write(&mut s, start, 116, &600i32.to_le_bytes()).unwrap();
+    let now = run(&mut s, &mut load, start, 0.5);
+    assert_eq!(s.table().read(98, 1).unwrap(), [0xFF]);
+    let stopped_at = read_i32(&mut s, 132);
+    assert!(stopped_at < 100, "the move (313 pulses/s) stopped at expiry, not at {stopped_at}");
+    assert_eq!(read_i32(&mut s, 116), stopped_at, "Goal Position became Present Position");
+    assert_eq!(read_i32(&mut s, 112), 20, "Profile Velocity is applied as 0, not written");
+    assert_eq!(read_i16(&s, 102), 2047, "Goal Current (the limit in mode 5) kept its value");
+    write(&mut s, now, 98, &[0]).unwrap();
+    write(&mut s, now, 116, &600i32.to_le_bytes()).unwrap();
+    run(&mut s, &mut load, now, 3.0);
+    let present = read_i32(&mut s, 132);
+    assert!((present - 600).abs() <= 5, "Present Position {present} after clearing, goal 600");
+}
+
+/// In PWM mode Goal PWM is the output itself: the expiry's stop is Goal PWM 0.
+#[test]
+fn watchdog_expiry_in_pwm_mode_zeroes_goal_pwm() {
+    let mut s = servo();
+    let mut load = BenchLoad::new(0.0);
+    write(&mut s, Duration::ZERO, 11, &[16]).unwrap();
+    write(&mut s, Duration::ZERO, 64, &[1]).unwrap();
+    write(&mut s, Duration::ZERO, 100, &400i16.to_le_bytes()).unwrap();
+    write(&mut s, Duration::ZERO, 98, &[5]).unwrap();
+    run(&mut s, &mut load, Duration::ZERO, 0.4);
+    assert_eq!(s.table().read(98, 1).unwrap(), [0xFF]);
+    assert_eq!(read_i16(&s, 100), 0);
+    assert_eq!(read_i16(&s, 124), 0, "Present PWM after the stop");
+}
