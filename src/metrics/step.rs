@@ -1,70 +1,9 @@
-//! Step-response characteristics of a sampled run, as the seed report defines them (sections 4.1
-//! and 5.1), and line-tracking figures for the distance error.
-//!
-//! Two kinds of step are measured:
-//!
-//! - a **decaying error** ([`decaying_error_step`]): the distance error `d(t)` starts at an initial
-//!   error `e0 ≠ 0` and the controller drives it to zero (the line-following experiment);
-//! - a **rising step** ([`rising_step`]): the speed `v(t)` is commanded from zero to a target
-//!   (the velocity-control experiment).
-//!
-//! Both are reduced to one *normalised response* `r(t)` that goes from 0 towards 1, so that one
-//! set of definitions serves both:
-//!
-//! | step           | reference `ref`      | normalised response `r(t)` |
-//! |----------------|----------------------|----------------------------|
-//! | decaying error | `e0 = d(t_step)`     | `1 − d(t) / e0`            |
-//! | rising         | `target`             | `v(t) / target`            |
-//!
-//! On `r`, with the options' defaults (10 %, 90 %, band 2 %):
-//!
-//! - **rise time**: first time `r` reaches 0.9 minus first time it reaches 0.1. For the decaying
-//!   error this is the seed's "time for the error to fall from 90 % to 10 % of the initial error".
-//!   Each first crossing is interpolated linearly between the two samples around it; a sample
-//!   at or after `t_step` that is already past the level counts as crossing at its own time.
-//! - **settling time**: time from `t_step` after which `|r − 1| ≤ band` holds for every later
-//!   sample (the error stays within 2 % of `|e0|`, or the speed within 2 % of the target). The
-//!   instant is interpolated linearly between the last sample outside the band and the next one.
-//!   A run whose last sample is outside the band has not settled.
-//! - **overshoot %**: `100 · max(r − 1)` over the samples from `t_step`, or 0 if `r` never passes
-//!   1: for the decaying error, the largest excursion past zero on the side opposite to `e0`, as a
-//!   percentage of `|e0|`; for the rising step, the largest excursion above the target.
-//! - **steady-state error**, in the units of the signal: for the decaying error the signed mean of
-//!   `d` over the samples from the settling instant on; for the rising step `target − mean(v)`
-//!   over the same samples. If the run never settled, the mean is taken over the last 10 % (by
-//!   time) of the step window `[t_step, t_end]` and `settled` is `false`.
-//!
-//! Times are in the units of `t` (seconds in climbsim); samples before `t_step` are ignored.
+//! The step-response characteristics: the rising step and the decaying error, reduced to one
+//! normalised response (definitions in the [module documentation](super)).
 
 use serde::Serialize;
-use thiserror::Error;
 
-/// Why a series could not be measured.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum MetricsError {
-    #[error("the series has {len} samples; at least 2 are needed")]
-    TooFewSamples { len: usize },
-    #[error("the time series has {t_len} samples but the value series has {y_len}")]
-    LengthMismatch { t_len: usize, y_len: usize },
-    #[error("{series}[{index}] is not a finite number")]
-    NotFinite { series: &'static str, index: usize },
-    #[error("time does not increase at sample {index}")]
-    TimeNotIncreasing { index: usize },
-    #[error("step time {t_step} is outside the run [{t_first}, {t_last})")]
-    StepOutsideRun {
-        t_step: f64,
-        t_first: f64,
-        t_last: f64,
-    },
-    #[error("the step's reference ({what}) is zero or not finite: {value}")]
-    DegenerateReference { what: &'static str, value: f64 },
-    #[error("option {name} = {value} is out of range ({expected})")]
-    InvalidOption {
-        name: &'static str,
-        value: f64,
-        expected: &'static str,
-    },
-}
+use super::{MetricsError, mean, validate_series};
 
 /// Levels and band of the step-response definitions. The defaults are the seed's.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -94,7 +33,7 @@ impl Default for StepOptions {
     }
 }
 
-/// The step-response characteristics of one run. See the [module documentation](self) for the
+/// The step-response characteristics of one run. See the [module documentation](super) for the
 /// definitions. Fields that may not exist in a run are `Option`s.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct StepCharacteristics {
@@ -113,21 +52,6 @@ pub struct StepCharacteristics {
     /// Signed, in the units of the signal: mean error after settling (decaying error), or target
     /// minus mean speed after settling (rising step); over the run's tail if it never settled.
     pub steady_state_error: f64,
-}
-
-/// How closely the distance error kept to the line.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct LineTracking {
-    /// Largest `|d|` over all samples.
-    pub max_abs: f64,
-    /// Root mean square of `d` over the samples (equal weights: the runner samples at fixed dt).
-    pub rms: f64,
-    /// The `tolerance` the time on line was measured against.
-    pub tolerance: f64,
-    /// Time during which `|d| < tolerance`, with `d` interpolated linearly between samples.
-    pub time_on_line: f64,
-    /// `time_on_line` as a fraction of the run's duration `t_end − t_first`.
-    pub fraction_on_line: f64,
 }
 
 /// Step characteristics of an error that starts at `e0 = error(t_step)` (interpolated if
@@ -176,75 +100,6 @@ pub fn rising_step(
     let step = characterise(&window_t, &response, options);
     let steady_state_error = target - mean(&window_value[step.steady_state_from..]);
     Ok(step.into_characteristics(window_t[0], target, steady_state_error))
-}
-
-/// Largest and RMS distance error, and the time spent within `tolerance` of the line (for the
-/// painted line, half its width). Measured over the whole series.
-pub fn line_tracking(
-    t: &[f64],
-    distance: &[f64],
-    tolerance: f64,
-) -> Result<LineTracking, MetricsError> {
-    validate_series(t, distance)?;
-    if !(tolerance.is_finite() && tolerance > 0.0) {
-        return Err(MetricsError::InvalidOption {
-            name: "tolerance",
-            value: tolerance,
-            expected: "finite and > 0",
-        });
-    }
-    let max_abs = distance.iter().fold(0.0_f64, |max, d| max.max(d.abs()));
-    let squares: Vec<f64> = distance.iter().map(|d| d * d).collect();
-    let rms = mean(&squares).sqrt();
-    let time_on_line: f64 = t
-        .windows(2)
-        .zip(distance.windows(2))
-        .map(|(ts, ds)| (ts[1] - ts[0]) * fraction_within(ds[0], ds[1], tolerance))
-        .sum();
-    let duration = t[t.len() - 1] - t[0];
-    Ok(LineTracking {
-        max_abs,
-        rms,
-        tolerance,
-        time_on_line,
-        fraction_on_line: time_on_line / duration,
-    })
-}
-
-/// Fraction of a segment, along which the value goes linearly from `a` to `b`, where
-/// `|value| < tolerance`.
-fn fraction_within(a: f64, b: f64, tolerance: f64) -> f64 {
-    if a == b {
-        return if a.abs() < tolerance { 1.0 } else { 0.0 };
-    }
-    // value(s) = a + s·(b − a) for s in [0, 1]; solve for the s at ±tolerance and clip.
-    let s_at = |level: f64| (level - a) / (b - a);
-    let (s_low, s_high) = {
-        let (s1, s2) = (s_at(-tolerance), s_at(tolerance));
-        (s1.min(s2), s1.max(s2))
-    };
-    (s_high.min(1.0) - s_low.max(0.0)).max(0.0)
-}
-
-fn validate_series(t: &[f64], y: &[f64]) -> Result<(), MetricsError> {
-    if t.len() != y.len() {
-        return Err(MetricsError::LengthMismatch {
-            t_len: t.len(),
-            y_len: y.len(),
-        });
-    }
-    if t.len() < 2 {
-        return Err(MetricsError::TooFewSamples { len: t.len() });
-    }
-    for (series, values) in [("t", t), ("y", y)] {
-        if let Some(index) = values.iter().position(|v| !v.is_finite()) {
-            return Err(MetricsError::NotFinite { series, index });
-        }
-    }
-    if let Some(index) = t.windows(2).position(|w| w[1] <= w[0]) {
-        return Err(MetricsError::TimeNotIncreasing { index: index + 1 });
-    }
-    Ok(())
 }
 
 fn validate_options(options: &StepOptions) -> Result<(), MetricsError> {
@@ -330,10 +185,6 @@ impl NormalisedStep {
             steady_state_error,
         }
     }
-}
-
-fn mean(values: &[f64]) -> f64 {
-    values.iter().sum::<f64>() / values.len() as f64
 }
 
 /// The characteristics of a normalised response `r` (0 → 1) sampled at `t`, which starts at the
@@ -630,85 +481,5 @@ mod tests {
         assert!((step.overshoot_pct - 15.0).abs() < 1e-9);
         assert!(step.settled);
         assert_eq!(step.steady_state_error, 0.0);
-    }
-
-    #[test]
-    fn bad_input_is_an_error_not_a_panic() {
-        let options = StepOptions::default();
-        assert_eq!(
-            rising_step(&[], &[], 1.0, &options),
-            Err(MetricsError::TooFewSamples { len: 0 })
-        );
-        assert_eq!(
-            decaying_error_step(&[0.0], &[1.0], &options),
-            Err(MetricsError::TooFewSamples { len: 1 })
-        );
-        assert_eq!(
-            rising_step(&[0.0, 1.0], &[0.0], 1.0, &options),
-            Err(MetricsError::LengthMismatch { t_len: 2, y_len: 1 })
-        );
-        assert_eq!(
-            decaying_error_step(&[0.0, 1.0, 2.0], &[1.0, f64::NAN, 0.0], &options),
-            Err(MetricsError::NotFinite {
-                series: "y",
-                index: 1
-            })
-        );
-        assert_eq!(
-            line_tracking(&[0.0, f64::INFINITY], &[1.0, 0.0], 0.1),
-            Err(MetricsError::NotFinite {
-                series: "t",
-                index: 1
-            })
-        );
-        assert_eq!(
-            rising_step(&[0.0, 1.0, 1.0], &[0.0, 1.0, 1.0], 1.0, &options),
-            Err(MetricsError::TimeNotIncreasing { index: 2 })
-        );
-        assert!(matches!(
-            decaying_error_step(&[0.0, 1.0], &[0.0, 1.0], &options),
-            Err(MetricsError::DegenerateReference { .. })
-        ));
-        assert!(matches!(
-            rising_step(&[0.0, 1.0], &[0.0, 1.0], f64::NAN, &options),
-            Err(MetricsError::DegenerateReference { .. })
-        ));
-        let late = StepOptions {
-            t_step: Some(1.0),
-            ..options
-        };
-        assert!(matches!(
-            rising_step(&[0.0, 1.0], &[0.0, 1.0], 1.0, &late),
-            Err(MetricsError::StepOutsideRun { .. })
-        ));
-        let wide = StepOptions {
-            band: 1.5,
-            ..options
-        };
-        assert!(matches!(
-            rising_step(&[0.0, 1.0], &[0.0, 1.0], 1.0, &wide),
-            Err(MetricsError::InvalidOption { name: "band", .. })
-        ));
-        assert!(matches!(
-            line_tracking(&[0.0, 1.0], &[0.0, 1.0], -1.0),
-            Err(MetricsError::InvalidOption {
-                name: "tolerance",
-                ..
-            })
-        ));
-    }
-
-    #[test]
-    fn line_tracking_counts_the_interpolated_time_within_tolerance() {
-        // d goes linearly from −1 to 1 over 2 s: |d| < 0.5 for the middle second.
-        let t = [0.0, 1.0, 2.0];
-        let d = [-1.0, 0.0, 1.0];
-        let tracking = line_tracking(&t, &d, 0.5).expect("measurable");
-        assert!((tracking.time_on_line - 1.0).abs() < 1e-12);
-        assert!((tracking.fraction_on_line - 0.5).abs() < 1e-12);
-        assert_eq!(tracking.max_abs, 1.0);
-        assert!((tracking.rms - (2.0_f64 / 3.0).sqrt()).abs() < 1e-12);
-        let on_line = line_tracking(&t, &[0.1, 0.1, -0.1], 0.5).expect("measurable");
-        assert_eq!(on_line.time_on_line, 2.0);
     }
 }
