@@ -39,6 +39,17 @@ fn run_writes_every_output_file() {
     assert!(std::fs::read_dir(&out).expect("out").all(|e| !e.expect("entry").file_name().to_string_lossy().ends_with(".tmp")));
 }
 
+/// `run --help` names the clock an external controller runs on (it said "in real time" after
+/// `--clock virtual` was built; the default for `run` is the wall clock).
+#[test]
+fn run_help_says_which_clock_an_external_controller_runs_on() {
+    let output = climbsim(&["run", "--help"]);
+    assert!(output.status.success(), "{}", text(&output));
+    let help = String::from_utf8_lossy(&output.stdout);
+    assert!(!help.contains("runs in real time"), "{help}");
+    assert!(help.contains("runs on `--clock`: the wall clock unless `--clock virtual`"), "{help}");
+}
+
 #[test]
 fn check_fails_on_a_broken_threshold_and_writes_junit() {
     let dir = support::scratch_dir("check");

@@ -18,7 +18,8 @@ use super::interrupt;
 
 /// Run a scenario and write its time series, summary, workbook and plots. A built-in
 /// controller runs in lockstep, faster than real time; an external one (`command = [...]`)
-/// is started with `DXL_PORT` and `CLIMBSIM_SENSORS` and runs in real time.
+/// is started with `DXL_PORT` and `CLIMBSIM_SENSORS` and runs on `--clock`: the wall clock
+/// unless `--clock virtual` is given (simulated time).
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
     /// Scenario file (default: scenarios/flat-line.toml).

@@ -1,5 +1,5 @@
 //! An external controller's run (`run`, `check`, `sweep`): the world on the wall clock (or N ×
-//! it with `--speed N`), the servos on a pty, the sensor server on localhost, and the
+//! it with `--speed N`) or on virtual time (`--clock virtual`), the servos on a pty, the sensor server on localhost, and the
 //! controller's own process, watched: a controller that dies, a world that could not keep its
 //! pace, or a capture that failed is a failed run.
 

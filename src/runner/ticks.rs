@@ -112,7 +112,7 @@ impl Ticked for HandleTicks {
     }
 }
 
-/// A world on the wall clock on a thread of its own, for as long as it is wanted (`serve`, whose
+/// A world on its handle's clock (the wall clock, or virtual time) on a thread of its own, for as long as it is wanted (`serve`, whose
 /// main thread waits for signals).
 pub struct Pacer {
     stop: Arc<AtomicBool>,

@@ -1,6 +1,6 @@
 //! `climbsim serve`: the robot's servos on every transport asked for (pty always; TCP listener,
 //! TCP client, SocketCAN, a real serial device), on the bench or in a scenario's world, which
-//! then runs on the wall clock ([`crate::runner::ticks::Pacer`]) with its sensor server and
+//! then runs on its clock ([`crate::runner::ticks::Pacer`]) with its sensor server and
 //! view, until SIGINT or SIGTERM. Each transport is started by its own module.
 
 pub mod can;
