@@ -483,3 +483,32 @@ fn a_non_blocking_read_loop_as_the_cpp_sdks_sees_zero_not_eagain_and_each_reply_
         assert!(line.starts_with(&format!("arrival {} bytes", 15 * (index + 1))) && (due..due + 3.0).contains(&at), "{log}");
     }
 }
+
+#[test]
+fn raw_system_calls_and_glibcs_futex_waits_follow_simulated_time() {
+    let dir = support::scratch_dir("vt-raw-futex");
+    let program = compiled_c(&dir, "raw_futex");
+    let path = scenario(&dir, "raw-futex", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    // futex, clock_gettime, nanosleep and clock_nanosleep made with syscall(2), not libc's
+    // wrappers: a wake at 20 ms and an absolute 50 ms deadline, exactly.
+    assert!(log.contains("plain wait: woken at 20.000 ms"), "{log}");
+    assert!(log.contains("bitset wait: timed out at 50.000 ms"), "{log}");
+    // glibc's condition variable and a contended mutex: their futex waits are blocked ones.
+    assert!(log.contains("condvar: timed out after 30.000 ms"), "{log}");
+    assert!(log.contains("mutex: taken after 9.000 ms"), "{log}");
+}
+
+#[test]
+fn rust_std_threads_and_an_mpsc_channel_on_dynamixel2_repeat_exactly() {
+    let dir = support::scratch_dir("vt-rust-threads");
+    let controller = example("vt_threads_controller");
+    let path = scenario_1mbps(&dir, "rust-threads", 3.0, &[controller.to_str().expect("utf-8 path")]);
+    let log = controller_log_repeated(&path, &dir);
+    assert!(log.contains("ping 1-8: 8 found"), "{log}");
+    // 100 cycles of 20 ms, each Sync Read answered by the four wheels; the statistics thread's
+    // 7 ms timeouts fire twice between cycles (std's futex waits with absolute deadlines).
+    assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
+    assert!(log.contains("loop: 100 cycles in 2000."), "{log}");
+    assert!(log.contains("longest period 20.0"), "{log}");
+}

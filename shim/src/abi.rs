@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 2;
+pub const ABI: u32 = 4;
 /// Controller threads that can be followed at once (all processes together).
 pub const SLOTS: usize = 128;
 /// Sensor-server connections followed at once.
@@ -42,6 +42,10 @@ pub mod state {
     /// Gave time up to a due instant (a charge past the horizon, a spin on an empty port).
     pub const YIELDED: u32 = 4;
     pub const EXITED: u32 = 5;
+    /// Free to run (let go by climbsim at its instant, or woken by the thread that ran): runs
+    /// when climbsim gives it the turn. One followed thread runs at a time, in an order that
+    /// does not depend on the host's scheduling, so that runs repeat exactly.
+    pub const READY: u32 = 6;
 }
 
 /// `Slot::waits`: what a blocked or yielded thread waits on.
@@ -61,6 +65,9 @@ pub mod waits {
     /// Another thread (a condition variable, a semaphore, a join): `Slot::conn_mask` holds the
     /// address waited on; the waking thread marks it running.
     pub const PEER: u32 = 32;
+    /// A futex (a system call, whatever library made it): `Slot::futex_addr` says which; the
+    /// thread that wakes it marks it running.
+    pub const FUTEX: u32 = 64;
 }
 
 /// `Slot::release`: why climbsim let a thread go.
@@ -82,6 +89,7 @@ pub mod call {
     pub const NET: u32 = 7;
     pub const WAIT_CHILD: u32 = 8;
     pub const PEER: u32 = 9;
+    pub const FUTEX: u32 = 10;
 
     pub fn name(call: u32) -> &'static str {
         match call {
@@ -94,6 +102,7 @@ pub mod call {
             NET => "a socket call",
             WAIT_CHILD => "waitpid",
             PEER => "a wait for another thread",
+            FUTEX => "futex",
             _ => "nothing yet",
         }
     }
@@ -152,6 +161,10 @@ pub struct Header {
     pub park_spin_ns: AtomicU64,
     /// C: odd while climbsim rewrites `held_runs` (a sequence lock: the shim reads them again).
     pub held_seq: AtomicU32,
+    /// S: the lock over every slot's futex queue fields (0 free, 1 held, 2 held with sleepers).
+    pub futex_lock: AtomicU32,
+    /// S: the last futex ticket handed out.
+    pub futex_tickets: AtomicU64,
     /// C: reply bytes climbsim has written to the port, in all (a stream offset).
     pub port_rx_written: AtomicU64,
     /// S: of those, the bytes the controller has read, or flushed while they were visible.
@@ -216,6 +229,15 @@ pub struct Slot {
     pub calls: AtomicU64,
     /// S: simulated time of the last call.
     pub last_call_ns: AtomicU64,
+    /// S, under `Header::futex_lock`: the futex this thread waits in (`futex.rs`): its address
+    /// in its process, and which wake-ups it takes (FUTEX_WAIT_BITSET's mask).
+    pub futex_addr: AtomicU64,
+    pub futex_bitset: AtomicU32,
+    /// S, under `Header::futex_lock`: 1 while queued on `futex_addr`; a waker takes it to 0.
+    pub futex_queued: AtomicU32,
+    /// S, under `Header::futex_lock`: the order it queued in (wake-ups go first come, first
+    /// served, as the kernel's do among equal priorities).
+    pub futex_ticket: AtomicU64,
 }
 
 /// One connection from the controller to the sensor server, seen from both ends.

@@ -29,7 +29,7 @@ fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> 
     notify_scheduler(shared);
     let result = wait();
     slot.waits.store(0, Ordering::Relaxed);
-    slot.state.store(state::RUNNING, Ordering::Release);
+    crate::resume_after_kernel_wake(shared, slot);
     result
 }
 
@@ -41,7 +41,7 @@ pub(crate) fn wake_waiting_parent(shared: &Shared, pid: i32, parent: i32) {
         }
         let awaited = slot.conn_mask.load(Ordering::Relaxed) as i64;
         if awaited <= 0 || awaited == i64::from(pid) {
-            slot.state.store(state::RUNNING, Ordering::Release);
+            let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
         }
     }
 }

@@ -20,9 +20,13 @@
 pub mod abi;
 mod children;
 mod epoll;
+mod futex;
 mod held;
 mod io;
+mod maps;
+mod native;
 mod net;
+mod seccomp;
 mod spawn;
 mod sync;
 mod timerfd;
@@ -56,6 +60,30 @@ thread_local! {
     /// This thread's CPU time (real, ns) when its computation was last charged
     /// (`--controller-cpu`); 0: not yet read.
     static CPU_SEEN: Cell<u64> = const { Cell::new(0) };
+    /// Non-zero while the shim itself is at work in this thread (in the trap handler, or
+    /// calling libc for a thread): its system calls go to the kernel as they are.
+    static OWN_CALLS: Cell<u32> = const { Cell::new(0) };
+}
+
+/// Whether the shim is at work in this thread (see `OWN_CALLS`).
+fn in_shim() -> bool {
+    OWN_CALLS.with(Cell::get) != 0
+}
+
+/// Marks the shim at work in this thread while it lives.
+struct OwnCalls;
+
+impl OwnCalls {
+    fn enter() -> Self {
+        OWN_CALLS.with(|c| c.set(c.get() + 1));
+        OwnCalls
+    }
+}
+
+impl Drop for OwnCalls {
+    fn drop(&mut self) {
+        OWN_CALLS.with(|c| c.set(c.get().saturating_sub(1)));
+    }
 }
 
 /// With `--controller-cpu F`: the CPU time this thread used since it was last charged, × F.
@@ -126,6 +154,16 @@ extern "C" fn init() {
     // SAFETY: getenv with a NUL-terminated name; the result is a C string or null.
     let path = unsafe { sys::getenv(c"CLIMBSIM_VT".as_ptr()) };
     if path.is_null() {
+        // Dormant; but a program exec'd by a followed one that dropped CLIMBSIM_VT (to run on
+        // the wall clock) inherits the seccomp filter, and its trapped calls need the handler.
+        if seccomp::inherited() {
+            spawn::remember_shim_environment();
+            if let Err(why) = seccomp::install_passthrough() {
+                sys::say(b"climbsim shim: ");
+                sys::say(why);
+                sys::say(b"\n");
+            }
+        }
         return;
     }
     PID.store(sys::getpid(), Ordering::Relaxed);
@@ -145,6 +183,12 @@ extern "C" fn init() {
         sys::__cxa_atexit(process_exiting, core::ptr::null_mut(), core::ptr::null_mut());
     }
     spawn::resolve_exec_functions();
+    spawn::remember_shim_environment();
+    if let Err(why) = seccomp::install() {
+        sys::say(b"climbsim shim: ");
+        sys::say(why);
+        sys::say(b"; only calls through libc's symbols are followed\n");
+    }
     // The main thread is followed from the start: before its first call it is already running.
     my_slot();
 }
@@ -267,7 +311,6 @@ fn claim_reserved(index: usize) {
     slot.pid.store(pid(), Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
     slot.parent.store(sys::getppid(), Ordering::Relaxed);
-    slot.state.store(state::RUNNING, Ordering::Release);
     SLOT.with(|s| s.set(index as u32));
     UNAPPLIED.with(|u| u.set(0));
     let key = EXIT_KEY.load(Ordering::Relaxed);
@@ -275,6 +318,45 @@ fn claim_reserved(index: usize) {
         // SAFETY: a key from pthread_key_create; the value only has to be non-null.
         unsafe { sys::pthread_setspecific(key, 1 as *const c_void) };
     }
+    // It starts in its turn: its creator runs on until it parks.
+    match active() {
+        Some(shared) => {
+            slot.state.store(state::READY, Ordering::Release);
+            await_turn(shared, slot);
+        }
+        None => slot.state.store(state::RUNNING, Ordering::Release),
+    }
+}
+
+/// Wait, ready to run, until climbsim gives this thread the turn (it marks it running). After
+/// the run's end (or without climbsim) every thread simply runs.
+fn await_turn(shared: &Shared, slot: &Slot) {
+    notify_scheduler(shared);
+    loop {
+        let seen = slot.wake_word.load(Ordering::Acquire);
+        if slot.state.load(Ordering::Acquire) != state::READY {
+            return;
+        }
+        if shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed) {
+            slot.state.store(state::RUNNING, Ordering::Release);
+            return;
+        }
+        sys::futex_wait(&slot.wake_word, seen, 100_000_000);
+        if slot.wake_word.load(Ordering::Acquire) == seen {
+            climbsim_gone(shared);
+        }
+    }
+}
+
+/// This thread, which the kernel woke (a descriptor, a child's end, a join), runs again: in its
+/// turn, unless climbsim or a waker let it go already.
+fn resume_after_kernel_wake(shared: &Shared, slot: &Slot) {
+    if active().is_none() {
+        slot.state.store(state::RUNNING, Ordering::Release);
+        return;
+    }
+    let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
+    await_turn(shared, slot);
 }
 
 /// The process is ending (exit or return from main): every thread of it stops with it.
@@ -375,13 +457,25 @@ fn advance_within_horizon(shared: &Shared, now: u64, target: u64) -> bool {
 /// a slot cannot be followed: it returns at once, as if its deadline had come.
 fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
     let Some(slot) = my_slot() else { return release::DEADLINE };
+    publish_parked(slot, parked, deadline, waits, conn_mask);
+    notify_scheduler(shared);
+    await_release(shared, slot, parked, deadline)
+}
+
+/// Publish this thread (whose slot is `slot`) as parked until `deadline` on `waits`; nobody is
+/// told yet (see [`park`]). Its unapplied charges are dropped: a blocked thread costs nothing.
+fn publish_parked(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask: u64) {
     UNAPPLIED.with(|u| u.set(0));
     slot.deadline_ns.store(deadline, Ordering::Relaxed);
     slot.waits.store(waits, Ordering::Relaxed);
     slot.conn_mask.store(conn_mask, Ordering::Relaxed);
     slot.release.store(0, Ordering::Relaxed);
     slot.state.store(parked, Ordering::Release);
-    notify_scheduler(shared);
+}
+
+/// Sleep, parked as [`publish_parked`] published, until climbsim (or a waker) lets this thread
+/// go; why (`abi::release`).
+fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline: u64) -> u32 {
     // climbsim usually lets a thread go within a few hundred microseconds: a spin saves the
     // futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs tens of them. How
     // long is climbsim's call (none on one CPU, nor where the machine is busy).

@@ -197,3 +197,142 @@ pub unsafe extern "C" fn posix_spawnp(pid: *mut c_int, file: *const c_char, acti
     // SAFETY: passing the caller's arguments through.
     spawn_with(pid, || unsafe { next(pid, file, actions, attr, argv, envp) })
 }
+
+/// This process's own `LD_PRELOAD=…` entry, as its environment held it at the start (the string
+/// stays where it is even if the program unsets it).
+static PRELOAD_ENTRY: core::sync::atomic::AtomicPtr<c_char> = core::sync::atomic::AtomicPtr::new(core::ptr::null_mut());
+
+const PRELOAD: &[u8] = b"LD_PRELOAD=";
+
+/// Whether the C string `text` starts with `prefix`.
+fn starts_with(text: *const c_char, prefix: &[u8]) -> bool {
+    // SAFETY: a NUL-terminated string; the comparison stops at its NUL (which no prefix holds).
+    (0..prefix.len()).all(|i| unsafe { *text.add(i) } as u8 == prefix[i])
+}
+
+fn c_len(text: *const c_char) -> usize {
+    let mut len = 0;
+    // SAFETY: a NUL-terminated string.
+    while unsafe { *text.add(len) } != 0 {
+        len += 1;
+    }
+    len
+}
+
+/// Whether the C string `haystack` contains the bytes `needle`.
+fn contains(haystack: *const c_char, needle: &[u8]) -> bool {
+    let len = c_len(haystack);
+    // SAFETY: `len` bytes of a NUL-terminated string.
+    let bytes = unsafe { core::slice::from_raw_parts(haystack.cast::<u8>(), len) };
+    !needle.is_empty() && bytes.windows(needle.len()).any(|w| w == needle)
+}
+
+/// Remember this process's shim entries (from the constructor).
+pub(crate) fn remember_shim_environment() {
+    // SAFETY: libc's environment at start-up, a NULL-terminated array of C strings.
+    let mut entry = unsafe { environ };
+    if entry.is_null() {
+        return;
+    }
+    // SAFETY: as above.
+    unsafe {
+        while !(*entry).is_null() {
+            if starts_with(*entry, PRELOAD) {
+                PRELOAD_ENTRY.store((*entry).cast_mut(), Ordering::Relaxed);
+            }
+            entry = entry.add(1);
+        }
+    }
+}
+
+/// `envp` with the shim in it: under the filter a program without the shim would die at its
+/// first followed call (the filter outlives the exec), so an environment that dropped
+/// `LD_PRELOAD` (or the shim from it) gets it back. One that dropped `CLIMBSIM_VT` keeps it
+/// dropped: its program runs on the wall clock as asked, its shim only passing the trapped calls
+/// through. The new array lives in fresh pages (never the heap: this may be a vfork child); the
+/// exec replaces them.
+fn with_shim(envp: *const *const c_char) -> *const *const c_char {
+    let preload = PRELOAD_ENTRY.load(Ordering::Relaxed);
+    if preload.is_null() {
+        return envp;
+    }
+    // SAFETY: our own entry, a C string.
+    let shim_value = unsafe { core::slice::from_raw_parts(preload.cast::<u8>().add(PRELOAD.len()), c_len(preload) - PRELOAD.len()) };
+    let mut count = 0;
+    let mut their_preload = core::ptr::null::<c_char>();
+    if !envp.is_null() {
+        // SAFETY: the exec's environment, a NULL-terminated array of C strings.
+        unsafe {
+            while !(*envp.add(count)).is_null() {
+                let text = *envp.add(count);
+                if starts_with(text, PRELOAD) {
+                    their_preload = text;
+                }
+                count += 1;
+            }
+        }
+    }
+    let preload_ok = !their_preload.is_null() && contains(their_preload, shim_value);
+    if preload_ok {
+        return envp;
+    }
+    // The new LD_PRELOAD: ours, then theirs if they had one.
+    let theirs_len = if their_preload.is_null() { 0 } else { c_len(their_preload) - PRELOAD.len() };
+    let string_bytes = PRELOAD.len() + shim_value.len() + 1 + theirs_len + 1;
+    let array_bytes = (count + 2) * core::mem::size_of::<*const c_char>();
+    let Some(memory) = fresh_pages(array_bytes + string_bytes) else { return envp };
+    let array = memory.cast::<*const c_char>();
+    // SAFETY: `memory` holds array_bytes + string_bytes writable bytes; the sources are C strings.
+    unsafe {
+        let combined = memory.add(array_bytes);
+        let mut at = 0;
+        for part in [PRELOAD, shim_value] {
+            core::ptr::copy_nonoverlapping(part.as_ptr(), combined.add(at), part.len());
+            at += part.len();
+        }
+        if theirs_len > 0 {
+            *combined.add(at) = b':';
+            core::ptr::copy_nonoverlapping(their_preload.cast::<u8>().add(PRELOAD.len()), combined.add(at + 1), theirs_len);
+            at += 1 + theirs_len;
+        }
+        *combined.add(at) = 0;
+        let mut out = 0;
+        *array.add(out) = combined.cast::<c_char>();
+        out += 1;
+        for i in 0..count {
+            let text = *envp.add(i);
+            if !starts_with(text, PRELOAD) {
+                *array.add(out) = text;
+                out += 1;
+            }
+        }
+        *array.add(out) = core::ptr::null();
+    }
+    array.cast_const()
+}
+
+/// Zeroed, writable pages of at least `bytes` (an anonymous mapping, made natively).
+fn fresh_pages(bytes: usize) -> Option<*mut u8> {
+    const MMAP: i64 = 9;
+    const PROT_READ_WRITE: i64 = 3;
+    const MAP_PRIVATE_ANONYMOUS: i64 = 0x22;
+    let address = crate::native::call6(MMAP, 0, bytes as i64, PROT_READ_WRITE, MAP_PRIVATE_ANONYMOUS, -1, 0);
+    (address > 0).then_some(address as *mut u8)
+}
+
+/// An exec trapped by the filter (execve, or execveat with `at` = (dirfd, flags)): with the shim
+/// in its environment, and a slot for the program to come; what the system call returns.
+pub(crate) fn exec_trapped(path: usize, argv: usize, envp: usize, at: Option<(i64, i64)>) -> i64 {
+    const EXECVE: i64 = 59;
+    const EXECVEAT: i64 = 322;
+    let envp = with_shim(envp as *const *const c_char);
+    let mut result = 0;
+    exec_with(envp, || {
+        result = match at {
+            Some((dirfd, flags)) => crate::native::call6(EXECVEAT, dirfd, path as i64, argv as i64, envp as i64, flags, 0),
+            None => crate::native::call3(EXECVE, path as i64, argv as i64, envp as i64),
+        };
+        if result < 0 { -1 } else { 0 }
+    });
+    result
+}

@@ -1,18 +1,18 @@
-//! Threads, and threads waiting on one another (condition variables, semaphores, joins).
+//! Threads, and joins.
 //!
 //! A new thread gets a slot reserved by its creator before it exists, so that no simulated time
-//! passes while it starts. A thread that waits for another counts as blocked: its real wait is
-//! cut into 200 µs slices of wall time, between which it looks whether climbsim let it go (its
-//! timeout came, in simulated time). The thread that wakes it marks it running *before* the
-//! wake-up, so that time cannot move between the two. Programs' timeouts are in their clocks'
-//! simulated time; the slices use the kernel's monotonic clock.
+//! passes while it starts. Locks, condition variables and semaphores need nothing here: their
+//! futex calls are emulated (`futex.rs`). A join is the exception, because the kernel itself
+//! wakes it when the thread's id is cleared at its exit: a joining thread counts as blocked,
+//! its real wait cut into 200 µs slices of wall time, and the ending thread marks it running
+//! before it goes, so that time cannot move between the two.
 
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, Shared, call, release, state, waits};
 use crate::sys::{self, clockid_t, real, timespec};
-use crate::time::{sim_now, sim_time_of, to_ns};
+use crate::time::sim_now;
 use crate::{active, my_slot, note_call, notify_scheduler, pid, reset_computation};
 
 /// One slice of a real wait (wall time).
@@ -23,19 +23,11 @@ fn real_deadline_after(ns: u64) -> timespec {
     crate::time::from_ns(crate::time::real_monotonic_ns().saturating_add(ns))
 }
 
-/// Wait for `addr` (a condition variable, a semaphore, a thread) until simulated `deadline`
-/// ([`NEVER`]: none), one `slice` at a time (`slice(d)` waits for real until the monotonic
-/// `d`, returning 0 when woken, ETIMEDOUT at `d`, or another error). Returns what the wait
-/// returns: 0 when woken, ETIMEDOUT at the deadline.
+/// Wait for `addr` (a thread, to join it) until simulated `deadline` ([`NEVER`]: none), one
+/// `slice` at a time (`slice(d)` waits for real until the monotonic `d`, returning 0 when
+/// woken, ETIMEDOUT at `d`, or another error). Returns what the wait returns: 0 when woken,
+/// ETIMEDOUT at the deadline.
 fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(&timespec) -> c_int) -> c_int {
-    peer_wait_for(shared, addr, deadline, false, slice)
-}
-
-/// [`peer_wait`]; with `spurious`, a slice that ends without a wake-up returns 0 (a spurious
-/// wake-up, which condition variables allow): between slices the waiter holds the mutex, and a
-/// waker that signals after unlocking could signal then, which must not be lost. The caller
-/// checks its condition and waits again.
-fn peer_wait_for(shared: &Shared, addr: usize, deadline: u64, spurious: bool, slice: &mut dyn FnMut(&timespec) -> c_int) -> c_int {
     note_call(shared, call::PEER);
     let Some(slot) = my_slot() else {
         return slice_until(shared, deadline, slice);
@@ -64,8 +56,8 @@ fn peer_wait_for(shared: &Shared, addr: usize, deadline: u64, spurious: bool, sl
                 // went to another waiter, wait on).
                 _ => {
                     let rc = slice(&real_deadline_after(SLICE_NS));
-                    if rc != ETIMEDOUT || spurious {
-                        break if rc == ETIMEDOUT { 0 } else { rc };
+                    if rc != ETIMEDOUT {
+                        break rc;
                     }
                     publish();
                     continue;
@@ -73,9 +65,9 @@ fn peer_wait_for(shared: &Shared, addr: usize, deadline: u64, spurious: bool, sl
             }
         }
         let rc = slice(&real_deadline_after(SLICE_NS));
-        if rc != ETIMEDOUT || spurious {
-            slot.state.store(state::RUNNING, Ordering::Release);
-            break if rc == ETIMEDOUT { 0 } else { rc };
+        if rc != ETIMEDOUT {
+            crate::resume_after_kernel_wake(shared, slot);
+            break rc;
         }
         if active().is_none() {
             slot.state.store(state::RUNNING, Ordering::Release);
@@ -114,148 +106,9 @@ fn wake_peers(addr: usize) {
             && slot.conn_mask.load(Ordering::Relaxed) == addr as u64
             && slot.pid.load(Ordering::Relaxed) == me
         {
-            let _ = slot.state.compare_exchange(state::BLOCKED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed);
+            let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
         }
     }
-}
-
-/// The simulated deadline of an absolute `abstime` on `clock`.
-fn deadline_of(shared: &Shared, clock: clockid_t, abstime: *const timespec) -> u64 {
-    if abstime.is_null() {
-        return NEVER;
-    }
-    // SAFETY: the caller's timespec.
-    sim_time_of(shared, clock, to_ns(unsafe { &*abstime })).unwrap_or(0)
-}
-
-/// pthread_cond_timedwait's clock is the condition variable's (REALTIME unless set): the
-/// simulated clocks are 55 years apart, so the deadline itself says which.
-fn cond_clock(abstime: *const timespec) -> clockid_t {
-    // SAFETY: the caller's timespec (null checked).
-    if !abstime.is_null() && unsafe { (*abstime).tv_sec } > 1_000_000_000 { sys::CLOCK_REALTIME } else { sys::CLOCK_MONOTONIC }
-}
-
-type CondClockwait = unsafe extern "C" fn(*mut c_void, *mut c_void, clockid_t, *const timespec) -> c_int;
-
-fn cond_slices(cond: *mut c_void, mutex: *mut c_void) -> impl FnMut(&timespec) -> c_int {
-    let clockwait: CondClockwait = real!(pthread_cond_clockwait: fn(*mut c_void, *mut c_void, clockid_t, *const timespec) -> c_int);
-    // SAFETY: the caller's condition variable and mutex, which it holds.
-    move |until: &timespec| unsafe { clockwait(cond, mutex, sys::CLOCK_MONOTONIC, until) }
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn pthread_cond_wait(cond: *mut c_void, mutex: *mut c_void) -> c_int {
-    let Some(shared) = active() else {
-        let next = real!(pthread_cond_wait: fn(*mut c_void, *mut c_void) -> c_int);
-        // SAFETY: passing the caller's arguments through.
-        return unsafe { next(cond, mutex) };
-    };
-    peer_wait_for(shared, cond as usize, NEVER, true, &mut cond_slices(cond, mutex))
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn pthread_cond_timedwait(cond: *mut c_void, mutex: *mut c_void, abstime: *const timespec) -> c_int {
-    let Some(shared) = active() else {
-        let next = real!(pthread_cond_timedwait: fn(*mut c_void, *mut c_void, *const timespec) -> c_int);
-        // SAFETY: passing the caller's arguments through.
-        return unsafe { next(cond, mutex, abstime) };
-    };
-    let deadline = deadline_of(shared, cond_clock(abstime), abstime);
-    peer_wait_for(shared, cond as usize, deadline, true, &mut cond_slices(cond, mutex))
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn pthread_cond_clockwait(cond: *mut c_void, mutex: *mut c_void, clock: clockid_t, abstime: *const timespec) -> c_int {
-    let Some(shared) = active() else {
-        let next: CondClockwait = real!(pthread_cond_clockwait: fn(*mut c_void, *mut c_void, clockid_t, *const timespec) -> c_int);
-        // SAFETY: passing the caller's arguments through.
-        return unsafe { next(cond, mutex, clock, abstime) };
-    };
-    let deadline = deadline_of(shared, clock, abstime);
-    peer_wait_for(shared, cond as usize, deadline, true, &mut cond_slices(cond, mutex))
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn pthread_cond_signal(cond: *mut c_void) -> c_int {
-    wake_peers(cond as usize);
-    let next = real!(pthread_cond_signal: fn(*mut c_void) -> c_int);
-    // SAFETY: passing the caller's argument through.
-    unsafe { next(cond) }
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn pthread_cond_broadcast(cond: *mut c_void) -> c_int {
-    wake_peers(cond as usize);
-    let next = real!(pthread_cond_broadcast: fn(*mut c_void) -> c_int);
-    // SAFETY: passing the caller's argument through.
-    unsafe { next(cond) }
-}
-
-/// A semaphore wait: taken at once if it can be, else a peer wait (errno-style results).
-fn sem_wait_until(sem: *mut c_void, deadline_of_call: impl FnOnce(&'static Shared) -> u64) -> c_int {
-    let trywait = real!(sem_trywait: fn(*mut c_void) -> c_int);
-    let clockwait = real!(sem_clockwait: fn(*mut c_void, clockid_t, *const timespec) -> c_int);
-    let Some(shared) = active() else { return -2 };
-    // SAFETY: the caller's semaphore.
-    if unsafe { trywait(sem) } == 0 {
-        return 0;
-    }
-    let deadline = deadline_of_call(shared);
-    let mut slice = |until: &timespec| {
-        // SAFETY: the caller's semaphore.
-        if unsafe { clockwait(sem, sys::CLOCK_MONOTONIC, until) } == 0 { 0 } else { sys::errno() }
-    };
-    match peer_wait(shared, sem as usize, deadline, &mut slice) {
-        0 => 0,
-        error => {
-            sys::set_errno(error);
-            -1
-        }
-    }
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn sem_wait(sem: *mut c_void) -> c_int {
-    match sem_wait_until(sem, |_| NEVER) {
-        -2 => {
-            let next = real!(sem_wait: fn(*mut c_void) -> c_int);
-            // SAFETY: passing the caller's argument through.
-            unsafe { next(sem) }
-        }
-        rc => rc,
-    }
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn sem_timedwait(sem: *mut c_void, abstime: *const timespec) -> c_int {
-    match sem_wait_until(sem, |shared| deadline_of(shared, sys::CLOCK_REALTIME, abstime)) {
-        -2 => {
-            let next = real!(sem_timedwait: fn(*mut c_void, *const timespec) -> c_int);
-            // SAFETY: passing the caller's arguments through.
-            unsafe { next(sem, abstime) }
-        }
-        rc => rc,
-    }
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn sem_clockwait(sem: *mut c_void, clock: clockid_t, abstime: *const timespec) -> c_int {
-    match sem_wait_until(sem, |shared| deadline_of(shared, clock, abstime)) {
-        -2 => {
-            let next = real!(sem_clockwait: fn(*mut c_void, clockid_t, *const timespec) -> c_int);
-            // SAFETY: passing the caller's arguments through.
-            unsafe { next(sem, clock, abstime) }
-        }
-        rc => rc,
-    }
-}
-
-#[unsafe(no_mangle)]
-pub unsafe extern "C" fn sem_post(sem: *mut c_void) -> c_int {
-    wake_peers(sem as usize);
-    let next = real!(sem_post: fn(*mut c_void) -> c_int);
-    // SAFETY: passing the caller's argument through.
-    unsafe { next(sem) }
 }
 
 #[unsafe(no_mangle)]
@@ -266,8 +119,13 @@ pub unsafe extern "C" fn pthread_join(thread: usize, result: *mut *mut c_void) -
         return unsafe { next(thread, result) };
     };
     let clockjoin = real!(pthread_clockjoin_np: fn(usize, *mut *mut c_void, clockid_t, *const timespec) -> c_int);
-    // SAFETY: the caller's thread and result pointer.
-    let mut slice = |until: &timespec| unsafe { clockjoin(thread, result, sys::CLOCK_MONOTONIC, until) };
+    let mut slice = |until: &timespec| {
+        // The slice's futex wait is the kernel's (its deadline is on the wall clock, and the
+        // kernel wakes a join itself when the thread's id is cleared at its exit).
+        let _own = crate::OwnCalls::enter();
+        // SAFETY: the caller's thread and result pointer.
+        unsafe { clockjoin(thread, result, sys::CLOCK_MONOTONIC, until) }
+    };
     peer_wait(shared, thread, NEVER, &mut slice)
 }
 

@@ -6,6 +6,8 @@
 use core::ffi::{c_char, c_int, c_long, c_void};
 use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 
+use crate::native;
+
 pub type time_t = i64;
 pub type clockid_t = c_int;
 pub type nfds_t = u64;
@@ -65,7 +67,7 @@ pub const EINVAL: c_int = 22;
 const RTLD_NEXT: *mut c_void = -1isize as *mut c_void;
 
 #[cfg(target_arch = "x86_64")]
-mod nr {
+pub mod nr {
     pub const FUTEX: i64 = 202;
     pub const GETTID: i64 = 186;
     pub const GETPID: i64 = 39;
@@ -78,7 +80,7 @@ mod nr {
 }
 
 #[cfg(target_arch = "aarch64")]
-mod nr {
+pub mod nr {
     pub const FUTEX: i64 = 98;
     pub const GETTID: i64 = 178;
     pub const GETPID: i64 = 172;
@@ -93,7 +95,6 @@ unsafe extern "C" {
     pub fn dlsym(handle: *mut c_void, symbol: *const c_char) -> *mut c_void;
     pub fn getenv(name: *const c_char) -> *mut c_char;
     pub fn kill(pid: c_int, signal: c_int) -> c_int;
-    pub fn syscall(number: i64, ...) -> i64;
     pub fn __errno_location() -> *mut c_int;
     pub fn open(path: *const c_char, flags: c_int, ...) -> c_int;
     pub fn mmap(addr: *mut c_void, len: usize, prot: c_int, flags: c_int, fd: c_int, offset: i64) -> *mut c_void;
@@ -135,8 +136,7 @@ pub(crate) use real;
 
 /// A line on standard error, without going through anything the shim intercepts.
 pub fn say(text: &[u8]) {
-    // SAFETY: a write(2) of a valid buffer.
-    unsafe { syscall(nr::WRITE, 2i64, text.as_ptr(), text.len()) };
+    native::call3(nr::WRITE, 2, text.as_ptr() as c_long, text.len() as c_long);
 }
 
 pub fn errno() -> c_int {
@@ -150,47 +150,37 @@ pub fn set_errno(value: c_int) {
 }
 
 pub fn gettid() -> i32 {
-    // SAFETY: gettid has no arguments and cannot fail.
-    unsafe { syscall(nr::GETTID) as i32 }
+    native::call0(nr::GETTID) as i32
 }
 
 pub fn getppid() -> i32 {
-    // SAFETY: getppid has no arguments and cannot fail.
-    unsafe { syscall(nr::GETPPID) as i32 }
+    native::call0(nr::GETPPID) as i32
 }
 
 pub fn getpid() -> i32 {
-    // SAFETY: getpid has no arguments and cannot fail.
-    unsafe { syscall(nr::GETPID) as i32 }
+    native::call0(nr::GETPID) as i32
 }
 
-const FUTEX_WAIT: i64 = 0;
-const FUTEX_WAKE: i64 = 1;
+const FUTEX_WAIT: c_long = 0;
+const FUTEX_WAKE: c_long = 1;
 
 /// Sleep while `word` still holds `expected`, at most `timeout_ns` (shared futex: the word lives
 /// in memory mapped by climbsim too).
 pub fn futex_wait(word: &AtomicU32, expected: u32, timeout_ns: u64) {
     let timeout = timespec { tv_sec: (timeout_ns / 1_000_000_000) as time_t, tv_nsec: (timeout_ns % 1_000_000_000) as c_long };
-    let saved = errno();
-    // SAFETY: a futex wait on a valid, aligned u32 with a valid timeout.
-    unsafe { syscall(nr::FUTEX, word.as_ptr(), FUTEX_WAIT, expected as i64, &timeout as *const timespec, 0i64, 0i64) };
-    set_errno(saved);
+    // Native (never the emulated futex): the word is the shim's own, shared with climbsim.
+    native::call4(nr::FUTEX, word.as_ptr() as c_long, FUTEX_WAIT, expected as c_long, &timeout as *const timespec as c_long);
 }
 
 pub fn futex_wake(word: &AtomicU32) {
-    let saved = errno();
-    // SAFETY: a futex wake on a valid, aligned u32.
-    unsafe { syscall(nr::FUTEX, word.as_ptr(), FUTEX_WAKE, i32::MAX as i64) };
-    set_errno(saved);
+    native::call3(nr::FUTEX, word.as_ptr() as c_long, FUTEX_WAKE, i32::MAX as c_long);
 }
 
 /// The character device number of `fd`, if it is one.
 pub fn char_device(fd: c_int) -> Option<u64> {
     let mut stat = [0u8; 256];
-    let saved = errno();
-    // SAFETY: fstat writes at most sizeof(struct stat) (144 or 128 bytes) into the buffer.
-    let rc = unsafe { syscall(nr::FSTAT, fd as i64, stat.as_mut_ptr()) };
-    set_errno(saved);
+    // fstat writes at most sizeof(struct stat) (144 or 128 bytes) into the buffer.
+    let rc = native::call2(nr::FSTAT, fd as c_long, stat.as_mut_ptr() as c_long);
     if rc != 0 {
         return None;
     }

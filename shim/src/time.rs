@@ -65,7 +65,7 @@ pub(crate) fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Op
 }
 
 /// A clock read: charged, then answered from the block (when the shim answers this clock).
-fn read_clock(clock: clockid_t) -> Option<u64> {
+pub(crate) fn read_clock(clock: clockid_t) -> Option<u64> {
     if let Some(shared) = active() {
         note_call(shared, call::CLOCK);
         charge(shared, shared.header.clock_read_ns.load(Ordering::Relaxed));
@@ -145,17 +145,28 @@ pub(crate) fn real_sleep_ns(ns: u64) {
     unsafe { nanosleep(&from_ns(ns), core::ptr::null_mut()) };
 }
 
+/// clock_nanosleep on simulated time, for the interposer and the trap alike: the error number
+/// (0 for done), or None where the kernel's clock answers (a CPU-time clock, or no run).
+pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *const timespec) -> Option<c_int> {
+    let shared = active()?;
+    if request.is_null() || clock_at(shared, clock, 0).is_none() {
+        return None;
+    }
+    // SAFETY: the caller's timespec (non-null).
+    let request = unsafe { &*request };
+    if request.tv_nsec < 0 || request.tv_nsec >= 1_000_000_000 || request.tv_sec < 0 {
+        return Some(sys::EINVAL);
+    }
+    let asked = to_ns(request);
+    let deadline = if flags & sys::TIMER_ABSTIME != 0 { sim_time_of(shared, clock, asked).unwrap_or(0) } else { sim_now(shared).saturating_add(asked) };
+    sleep_until(shared, deadline);
+    Some(0)
+}
+
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn clock_nanosleep(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec) -> c_int {
-    if let Some(shared) = active()
-        && !request.is_null()
-        && clock_at(shared, clock, 0).is_some()
-    {
-        // SAFETY: the caller's timespec.
-        let asked = to_ns(unsafe { &*request });
-        let deadline = if flags & sys::TIMER_ABSTIME != 0 { sim_time_of(shared, clock, asked).unwrap_or(0) } else { sim_now(shared).saturating_add(asked) };
-        sleep_until(shared, deadline);
-        return 0;
+    if let Some(error) = clock_nanosleep_virtual(clock, flags, request) {
+        return error;
     }
     let next = real!(clock_nanosleep: fn(clockid_t, c_int, *const timespec, *mut timespec) -> c_int);
     // SAFETY: passing the caller's arguments through.
@@ -164,17 +175,13 @@ pub unsafe extern "C" fn clock_nanosleep(clock: clockid_t, flags: c_int, request
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn nanosleep(request: *const timespec, remain: *mut timespec) -> c_int {
-    if let Some(shared) = active()
-        && !request.is_null()
-    {
-        // SAFETY: the caller's timespec.
-        let request = unsafe { &*request };
-        if request.tv_nsec < 0 || request.tv_nsec >= 1_000_000_000 || request.tv_sec < 0 {
-            sys::set_errno(sys::EINVAL);
+    match clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, request) {
+        Some(0) => return 0,
+        Some(error) => {
+            sys::set_errno(error);
             return -1;
         }
-        sleep_until(shared, sim_now(shared).saturating_add(to_ns(request)));
-        return 0;
+        None => {}
     }
     let next = real!(nanosleep: fn(*const timespec, *mut timespec) -> c_int);
     // SAFETY: passing the caller's arguments through.

@@ -197,8 +197,8 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             crate::time::real_sleep_ns(SLICE_NS / 10);
         }
         if ready != 0 {
-            // Woken by the real world; unless climbsim released us meanwhile, we run again now.
-            let _ = slot.state.compare_exchange(state::BLOCKED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed);
+            // Woken by the real world; we run again in our turn.
+            crate::resume_after_kernel_wake(shared, slot);
             return ready;
         }
     }

@@ -121,6 +121,8 @@ pub struct VtStats {
     pub timers_fired: u64,
     /// Times simulated time jumped to a thread's deadline or a timer (not a world tick).
     pub jumps: u64,
+    /// Turns given: a ready thread let run while no other did.
+    pub turns: u64,
 }
 
 /// climbsim's side of virtual time for one run.
@@ -205,7 +207,7 @@ impl VirtualTime {
     }
 
     fn controller_attached(&self) -> bool {
-        self.shared().slots.iter().any(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED))
+        self.shared().slots.iter().any(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY))
     }
 
     /// Hold time until the process about to be started has loaded the shim (it takes this slot).
@@ -321,8 +323,11 @@ impl VirtualTime {
         // the cycle, so that the block is removed when the run lets go of it.
         drop(std::mem::take(&mut *lock(&self.driven)));
         for slot in &self.shared().slots {
-            if matches!(slot.state.load(Ordering::Acquire), state::BLOCKED | state::YIELDED) {
-                release_slot(slot, release::ENDING);
+            match slot.state.load(Ordering::Acquire) {
+                state::BLOCKED | state::YIELDED => let_run(slot, release::ENDING),
+                // Keeps the reason it was let go for.
+                state::READY => let_run(slot, slot.release.load(Ordering::Acquire)),
+                _ => {}
             }
         }
     }
@@ -456,6 +461,10 @@ impl VirtualTime {
         loop {
             let seen = header.sched_word.load(Ordering::Acquire);
             if !self.any_running() {
+                // Threads ready at this instant run first, one at a time.
+                if self.give_turn() {
+                    continue;
+                }
                 if self.now_ns() >= due {
                     return Ok(());
                 }
@@ -499,6 +508,17 @@ impl VirtualTime {
             futex_wait(&header.sched_word, seen, Duration::from_millis(10));
             watchdog.check(self.shared())?;
         }
+    }
+
+    /// Give the turn to the ready thread in the lowest slot, if there is one (and no thread
+    /// runs): the order does not depend on which the host happened to schedule first.
+    fn give_turn(&self) -> bool {
+        let ready = self.shared().slots.iter().find(|s| s.state.load(Ordering::Acquire) == state::READY);
+        if let Some(slot) = ready {
+            lock(&self.stats).turns += 1;
+            let_run(slot, slot.release.load(Ordering::Acquire));
+        }
+        ready.is_some()
     }
 
     fn any_running(&self) -> bool {
@@ -549,7 +569,7 @@ fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
     let pid = parent.pid.load(Ordering::Relaxed);
     let awaited = parent.conn_mask.load(Ordering::Relaxed) as i64;
     slots.iter().any(|child| {
-        let live = matches!(child.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED);
+        let live = matches!(child.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY);
         live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
     })
 }
@@ -572,7 +592,14 @@ impl Drop for EndOnDrop {
 }
 
 /// Let a parked thread go, saying why.
+/// Let a parked thread go at its instant: ready, to run in its turn (see [`VirtualTime::give_turn`]).
 fn release_slot(slot: &Slot, why: u32) {
+    slot.release.store(why, Ordering::Relaxed);
+    slot.state.store(state::READY, Ordering::Release);
+}
+
+/// Let a thread run now (its turn, or every thread once the run is over).
+fn let_run(slot: &Slot, why: u32) {
     slot.release.store(why, Ordering::Relaxed);
     slot.state.store(state::RUNNING, Ordering::Release);
     slot.wake_word.fetch_add(1, Ordering::AcqRel);

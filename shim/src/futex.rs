@@ -1,0 +1,316 @@
+//! Futexes on simulated time: every futex system call a followed thread makes (glibc's locks,
+//! condition variables, semaphores and joins, libstdc++'s, Rust std's, the JVM's, libuv's)
+//! reaches here through the seccomp trap, and none of them is handed to the kernel's futex.
+//!
+//! A wait publishes the thread as blocked (until its timeout, in simulated time) and queues it
+//! on the futex's key; a wake takes waiters off the queue and marks them running *before* it
+//! wakes them, so that climbsim never sees every thread blocked while one is about to run. The
+//! queues are the slots' futex fields in the shared block, under one lock in the block, so
+//! wakers and waiters in different processes meet on a futex in shared memory too.
+//!
+//! The value check of a wait is the kernel's own: a native FUTEX_WAIT with a zero timeout says
+//! whether the word still holds the expected value (and faults for a bad address as a real wait
+//! would), under the queue lock, which every wake of that key also takes; so no wake-up can fall
+//! between the check and the queueing.
+//!
+//! Not emulated (run natively, so that their waits are the kernel's): the priority-inheritance
+//! operations, which glibc uses only for PTHREAD_PRIO_INHERIT mutexes.
+
+use core::ffi::c_long;
+use core::sync::atomic::Ordering;
+
+use crate::abi::{NEVER, Shared, Slot, call, release, state, waits};
+use crate::native;
+use crate::sys::{self, nr, timespec};
+use crate::time::{sim_now, sim_time_of, to_ns};
+use crate::{active, charge, my_slot, note_call, notify_scheduler};
+
+const FUTEX_WAIT: i32 = 0;
+const FUTEX_WAKE: i32 = 1;
+const FUTEX_REQUEUE: i32 = 3;
+const FUTEX_CMP_REQUEUE: i32 = 4;
+const FUTEX_WAKE_OP: i32 = 5;
+const FUTEX_WAIT_BITSET: i32 = 9;
+const FUTEX_WAKE_BITSET: i32 = 10;
+const FUTEX_PRIVATE_FLAG: i32 = 128;
+const FUTEX_CLOCK_REALTIME: i32 = 256;
+const FUTEX_BITSET_MATCH_ANY: u32 = u32::MAX;
+
+const EINVAL: c_long = 22;
+const ETIMEDOUT: c_long = 110;
+
+/// Where a futex lives: in this process's memory (`space` = its pid, `offset` = the address),
+/// or in a shared file mapping (`space` = the file, `offset` = the offset in it), where another
+/// process may wait on the same word at another address.
+#[derive(Clone, Copy, PartialEq, Eq)]
+struct Key {
+    space: u64,
+    offset: u64,
+}
+
+/// The arguments of futex(2), as the trap saw them.
+pub(crate) struct Args {
+    pub uaddr: usize,
+    pub op: i32,
+    pub val: u32,
+    /// The timeout pointer, or val2 for the requeue and wake-op operations.
+    pub timeout_or_val2: usize,
+    pub uaddr2: usize,
+    pub val3: u32,
+}
+
+/// Run one futex call for a followed thread; what the system call returns (negative errno).
+pub(crate) fn emulate(args: &Args) -> c_long {
+    let (Some(shared), Some(slot)) = (active(), my_slot()) else { return native_futex(args) };
+    let private = args.op & FUTEX_PRIVATE_FLAG != 0;
+    let command = args.op & !(FUTEX_PRIVATE_FLAG | FUTEX_CLOCK_REALTIME);
+    let key = |addr: usize| key_of(addr, private);
+    match command {
+        FUTEX_WAIT => {
+            // A relative timeout on CLOCK_MONOTONIC.
+            let deadline = if args.timeout_or_val2 == 0 {
+                NEVER
+            } else {
+                // SAFETY: the caller's timespec (the kernel would fault on a bad one; so do we).
+                sim_now(shared).saturating_add(to_ns(unsafe { &*(args.timeout_or_val2 as *const timespec) }))
+            };
+            wait(shared, slot, args, key(args.uaddr), deadline, FUTEX_BITSET_MATCH_ANY)
+        }
+        FUTEX_WAIT_BITSET => {
+            if args.val3 == 0 {
+                return -EINVAL;
+            }
+            // An absolute timeout on CLOCK_MONOTONIC, or CLOCK_REALTIME with the flag.
+            let deadline = if args.timeout_or_val2 == 0 {
+                NEVER
+            } else {
+                let clock = if args.op & FUTEX_CLOCK_REALTIME != 0 { sys::CLOCK_REALTIME } else { sys::CLOCK_MONOTONIC };
+                // SAFETY: the caller's timespec.
+                let at = to_ns(unsafe { &*(args.timeout_or_val2 as *const timespec) });
+                sim_time_of(shared, clock, at).unwrap_or(0)
+            };
+            wait(shared, slot, args, key(args.uaddr), deadline, args.val3)
+        }
+        FUTEX_WAKE => counted(shared, wake(shared, key(args.uaddr), args.val, FUTEX_BITSET_MATCH_ANY)),
+        FUTEX_WAKE_BITSET => {
+            if args.val3 == 0 {
+                return -EINVAL;
+            }
+            counted(shared, wake(shared, key(args.uaddr), args.val, args.val3))
+        }
+        FUTEX_REQUEUE | FUTEX_CMP_REQUEUE => {
+            let expected = (command == FUTEX_CMP_REQUEUE).then_some(args.val3);
+            counted(shared, requeue(shared, args, key(args.uaddr), key(args.uaddr2), expected))
+        }
+        FUTEX_WAKE_OP => counted(shared, wake_op(shared, args, key(args.uaddr), key(args.uaddr2))),
+        _ => native_futex(args),
+    }
+}
+
+/// A wake-up is counted but costs no simulated time: it is part of the lock or queue operation
+/// that made it (glibc's unlock, a condition variable's signal), as it was when those were
+/// followed through their symbols; charging it would let a thread that wakes another run past
+/// instants it used to keep.
+fn counted(shared: &Shared, result: c_long) -> c_long {
+    note_call(shared, call::FUTEX);
+    result
+}
+
+fn native_futex(args: &Args) -> c_long {
+    native::call6(nr::FUTEX, args.uaddr as c_long, args.op as c_long, args.val as c_long, args.timeout_or_val2 as c_long, args.uaddr2 as c_long, args.val3 as c_long)
+}
+
+/// Whether the word at `uaddr` holds `val`, asked of the kernel (0 if so, else -EAGAIN, -EFAULT
+/// or -EINVAL as a real wait would return).
+fn word_holds(uaddr: usize, val: u32, private: bool) -> c_long {
+    let zero = timespec { tv_sec: 0, tv_nsec: 0 };
+    let op = FUTEX_WAIT | if private { FUTEX_PRIVATE_FLAG } else { 0 };
+    match native::call4(nr::FUTEX, uaddr as c_long, op as c_long, val as c_long, &zero as *const timespec as c_long) {
+        rc if rc == -ETIMEDOUT => 0,
+        rc => rc,
+    }
+}
+
+fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, deadline: u64, bitset: u32) -> c_long {
+    note_call(shared, call::FUTEX);
+    let header = &shared.header;
+    lock(shared);
+    let holds = word_holds(args.uaddr, args.val, args.op & FUTEX_PRIVATE_FLAG != 0);
+    if holds != 0 {
+        unlock(shared);
+        charge(shared, header.syscall_ns.load(Ordering::Relaxed));
+        return holds;
+    }
+    if deadline <= sim_now(shared) {
+        unlock(shared);
+        charge(shared, header.syscall_ns.load(Ordering::Relaxed));
+        return -ETIMEDOUT;
+    }
+    slot.futex_addr.store(key.offset, Ordering::Relaxed);
+    slot.conn_mask.store(key.space, Ordering::Relaxed);
+    slot.futex_bitset.store(bitset, Ordering::Relaxed);
+    slot.futex_ticket.store(header.futex_tickets.fetch_add(1, Ordering::Relaxed), Ordering::Relaxed);
+    slot.futex_queued.store(1, Ordering::Release);
+    // Published blocked under the lock: a waker that takes this thread off the queue finds it
+    // blocked and marks it running, whenever it comes.
+    crate::publish_parked(slot, state::BLOCKED, deadline, waits::FUTEX, key.space);
+    unlock(shared);
+    notify_scheduler(shared);
+    let why = crate::await_release(shared, slot, state::BLOCKED, deadline);
+    lock(shared);
+    let still_queued = slot.futex_queued.swap(0, Ordering::AcqRel) == 1;
+    unlock(shared);
+    slot.waits.store(0, Ordering::Relaxed);
+    if !still_queued {
+        return 0;
+    }
+    match why {
+        release::DEADLINE => -ETIMEDOUT,
+        // The run ended (or climbsim is gone): a spurious wake-up, which every futex user
+        // handles; its next wait goes to the kernel.
+        _ => 0,
+    }
+}
+
+/// Take up to `count` waiters on `key` whose bitset meets `bitset` off the queue, oldest first,
+/// and make them ready to run; how many. The caller holds the lock.
+fn wake_locked(shared: &Shared, key: Key, count: u32, bitset: u32) -> u32 {
+    let mut woken = 0;
+    while woken < count {
+        let Some(slot) = oldest_waiter(shared, key, bitset) else { break };
+        slot.futex_queued.store(0, Ordering::Release);
+        // Ready, not running: it runs when climbsim gives it the turn (after this thread parks).
+        slot.release.store(release::DATA, Ordering::Release);
+        let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
+        woken += 1;
+    }
+    woken
+}
+
+fn oldest_waiter(shared: &Shared, key: Key, bitset: u32) -> Option<&Slot> {
+    shared
+        .slots
+        .iter()
+        .filter(|s| {
+            s.futex_queued.load(Ordering::Acquire) == 1
+                && s.futex_addr.load(Ordering::Relaxed) == key.offset
+                && s.conn_mask.load(Ordering::Relaxed) == key.space
+                && s.futex_bitset.load(Ordering::Relaxed) & bitset != 0
+        })
+        .min_by_key(|s| s.futex_ticket.load(Ordering::Relaxed))
+}
+
+fn wake(shared: &Shared, key: Key, count: u32, bitset: u32) -> c_long {
+    lock(shared);
+    let woken = wake_locked(shared, key, count, bitset);
+    unlock(shared);
+    c_long::from(woken)
+}
+
+/// FUTEX_REQUEUE and FUTEX_CMP_REQUEUE: wake `val` waiters on `from`, move up to `val2` of the
+/// rest to `to` (after checking that `from` still holds `expected`).
+fn requeue(shared: &Shared, args: &Args, from: Key, to: Key, expected: Option<u32>) -> c_long {
+    let (wake_count, move_count) = (args.val, args.timeout_or_val2 as u32);
+    if (wake_count as i32) < 0 || (move_count as i32) < 0 {
+        return -EINVAL;
+    }
+    lock(shared);
+    if let Some(expected) = expected {
+        let holds = word_holds(args.uaddr, expected, args.op & FUTEX_PRIVATE_FLAG != 0);
+        if holds != 0 {
+            unlock(shared);
+            return holds;
+        }
+    }
+    let woken = wake_locked(shared, from, wake_count, FUTEX_BITSET_MATCH_ANY);
+    let mut moved = 0;
+    while moved < move_count {
+        let Some(slot) = oldest_waiter(shared, from, FUTEX_BITSET_MATCH_ANY) else { break };
+        slot.futex_addr.store(to.offset, Ordering::Relaxed);
+        slot.conn_mask.store(to.space, Ordering::Relaxed);
+        moved += 1;
+    }
+    unlock(shared);
+    // The kernel's count: woken, plus requeued for the CMP variant.
+    c_long::from(woken) + if expected.is_some() { c_long::from(moved) } else { 0 }
+}
+
+/// FUTEX_WAKE_OP: change the word at `uaddr2` atomically, wake `val` waiters on `uaddr`, and
+/// `val2` on `uaddr2` if the word's old value met the condition.
+fn wake_op(shared: &Shared, args: &Args, first: Key, second: Key) -> c_long {
+    // Decoded as the kernel does: op in bits 28-30 (bit 31: the argument is a shift), the
+    // comparison in 24-27, two sign-extended 12-bit arguments.
+    let encoded = args.val3;
+    let sign12 = |v: u32| ((v << 20) as i32) >> 20;
+    let op = (encoded >> 28) & 7;
+    let cmp = (encoded >> 24) & 15;
+    let mut oparg = sign12((encoded >> 12) & 0xfff) as u32;
+    let cmparg = sign12(encoded & 0xfff);
+    if encoded & (8 << 28) != 0 {
+        oparg = 1 << (oparg & 31);
+    }
+    if !args.uaddr2.is_multiple_of(4) || args.uaddr2 == 0 {
+        return -EINVAL;
+    }
+    lock(shared);
+    // SAFETY: the caller's futex word (aligned, checked above); the kernel would fault too.
+    let word = unsafe { &*(args.uaddr2 as *const core::sync::atomic::AtomicU32) };
+    let old = match op {
+        0 => word.swap(oparg, Ordering::AcqRel),
+        1 => word.fetch_add(oparg, Ordering::AcqRel),
+        2 => word.fetch_or(oparg, Ordering::AcqRel),
+        3 => word.fetch_and(!oparg, Ordering::AcqRel),
+        4 => word.fetch_xor(oparg, Ordering::AcqRel),
+        _ => {
+            unlock(shared);
+            return -38; // ENOSYS, as the kernel answers an unknown op
+        }
+    };
+    let (old_signed, arg_signed) = (old as i32, cmparg);
+    let met = match cmp {
+        0 => old_signed == arg_signed,
+        1 => old_signed != arg_signed,
+        2 => old_signed < arg_signed,
+        3 => old_signed <= arg_signed,
+        4 => old_signed > arg_signed,
+        5 => old_signed >= arg_signed,
+        _ => {
+            unlock(shared);
+            return -38;
+        }
+    };
+    let mut woken = wake_locked(shared, first, args.val, FUTEX_BITSET_MATCH_ANY);
+    if met {
+        woken += wake_locked(shared, second, args.timeout_or_val2 as u32, FUTEX_BITSET_MATCH_ANY);
+    }
+    unlock(shared);
+    c_long::from(woken)
+}
+
+/// The queue lock (Drepper's three-state mutex on a shared word).
+fn lock(shared: &Shared) {
+    let word = &shared.header.futex_lock;
+    if word.compare_exchange(0, 1, Ordering::Acquire, Ordering::Relaxed).is_ok() {
+        return;
+    }
+    while word.swap(2, Ordering::Acquire) != 0 {
+        sys::futex_wait(word, 2, 100_000_000);
+    }
+}
+
+fn unlock(shared: &Shared) {
+    let word = &shared.header.futex_lock;
+    if word.swap(0, Ordering::Release) == 2 {
+        sys::futex_wake(word);
+    }
+}
+
+/// The key of the futex at `addr`: process-private unless the call says it may be shared and
+/// the word lies in a shared file mapping (a POSIX semaphore in /dev/shm, say).
+fn key_of(addr: usize, private: bool) -> Key {
+    let own = Key { space: crate::pid() as u64, offset: addr as u64 };
+    if private {
+        return own;
+    }
+    crate::maps::shared_file_offset(addr).map_or(own, |(file, offset)| Key { space: file | 1 << 63, offset })
+}

@@ -1,0 +1,376 @@
+//! The second layer: system calls, whatever made them. A seccomp filter raises SIGSYS for every
+//! call of the families climbsim follows that was made anywhere but the shim's own page
+//! (`native.rs`): by libc internally, libstdc++, Rust std, a JIT, an inline `syscall`. The
+//! handler here runs it on simulated time, on the registers the kernel saved, and writes the
+//! result where the caller will find it. The preloaded symbols stay in front as the fast path;
+//! what they do not see, this catches.
+//!
+//! What is trapped is chosen so that a program exec'd under the filter (which it inherits, and
+//! which no one can remove) survives until its own shim has loaded: the loader and libc's start
+//! make only memory, file and thread-setup calls, none of them trapped here (checked with strace
+//! for Python, sh, Node.js and Java). The exec itself is trapped, and puts the shim into the new
+//! program's environment if it was dropped.
+//!
+//! The handler keeps SIGSYS deliverable everywhere: a trapped call while SIGSYS is blocked would
+//! be fatal, so the program's signal masks (sigprocmask, sigaction's masks) never include it,
+//! and nobody can replace the handler (its wish is remembered and reported back to it).
+
+use core::ffi::{c_int, c_long, c_void};
+use core::sync::atomic::{AtomicUsize, Ordering};
+
+use crate::native;
+use crate::sys;
+
+/// The x86_64 system calls the filter traps.
+#[cfg(target_arch = "x86_64")]
+mod nr {
+    pub const RT_SIGACTION: i64 = 13;
+    pub const RT_SIGPROCMASK: i64 = 14;
+    pub const NANOSLEEP: i64 = 35;
+    pub const EXECVE: i64 = 59;
+    pub const GETTIMEOFDAY: i64 = 96;
+    pub const TIME: i64 = 201;
+    pub const FUTEX: i64 = 202;
+    pub const CLOCK_GETTIME: i64 = 228;
+    pub const CLOCK_NANOSLEEP: i64 = 230;
+    pub const EXECVEAT: i64 = 322;
+    pub const PRCTL: i64 = 157;
+    pub const SECCOMP: i64 = 317;
+
+    pub const TRAPPED: &[i64] = &[RT_SIGACTION, RT_SIGPROCMASK, NANOSLEEP, EXECVE, GETTIMEOFDAY, TIME, FUTEX, CLOCK_GETTIME, CLOCK_NANOSLEEP, EXECVEAT];
+}
+
+const SIGSYS: c_int = 31;
+const SIGSYS_BIT: u64 = 1 << (SIGSYS - 1);
+const EINVAL: c_long = 22;
+const SIG_SETMASK: i64 = 2;
+
+/// The program's own wish for SIGSYS (a `KernelSigaction`'s handler, flags, restorer, mask),
+/// reported back to it by sigaction; the shim's handler stays.
+static PROGRAM_SIGSYS: [AtomicUsize; 4] = [AtomicUsize::new(0), AtomicUsize::new(0), AtomicUsize::new(0), AtomicUsize::new(0)];
+
+/// struct sigaction as the kernel takes it (rt_sigaction, x86_64).
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct KernelSigaction {
+    handler: usize,
+    flags: u64,
+    restorer: usize,
+    mask: u64,
+}
+
+/// Install the SIGSYS handler and the filter; whether system calls are now followed. Called from
+/// the constructor, single-threaded, once the block is mapped.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn install() -> Result<(), &'static [u8]> {
+    if !native::map_page() {
+        return Err(b"cannot map the shim's system-call page");
+    }
+    install_handler()?;
+    install_filter()
+}
+
+/// Whether this process runs under a seccomp filter it inherited (an exec from a followed
+/// program).
+pub(crate) fn inherited() -> bool {
+    const PR_GET_SECCOMP: c_long = 21;
+    const SECCOMP_MODE_FILTER: c_long = 2;
+    native::call1(nr::PRCTL, PR_GET_SECCOMP) == SECCOMP_MODE_FILTER
+}
+
+/// The handler alone, for a dormant shim under an inherited filter: every trapped call goes
+/// to the kernel as it is.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn install_passthrough() -> Result<(), &'static [u8]> {
+    if !native::map_page() {
+        return Err(b"cannot map the shim's system-call page under an inherited filter");
+    }
+    install_handler()
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) fn install_passthrough() -> Result<(), &'static [u8]> {
+    Ok(())
+}
+
+
+
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) fn install() -> Result<(), &'static [u8]> {
+    Err(b"system calls are followed on x86_64 only")
+}
+
+#[cfg(target_arch = "x86_64")]
+fn install_handler() -> Result<(), &'static [u8]> {
+    const SA_SIGINFO: u64 = 4;
+    const SA_RESTORER: u64 = 0x0400_0000;
+    const SA_NODEFER: u64 = 0x4000_0000;
+    // The kernel's rt_sigaction from the page, not libc's: after an exec the inherited filter
+    // traps sigaction, and there is no handler yet to take the trap.
+    // While the handler runs every other signal waits: a wake-up or a wait in a signal handler
+    // that interrupted the shim's own queue work would meet its lock. SIGSYS itself stays
+    // deliverable (NODEFER), so that what the handler calls may trap again.
+    let action = KernelSigaction {
+        handler: on_sigsys as *const () as usize,
+        flags: SA_SIGINFO | SA_NODEFER | SA_RESTORER,
+        restorer: native::PAGE_ADDRESS + native::RESTORER_OFFSET,
+        mask: !SIGSYS_BIT,
+    };
+    if native::call4(nr::RT_SIGACTION, SIGSYS as c_long, &action as *const KernelSigaction as c_long, 0, 8) != 0 {
+        return Err(b"cannot install the SIGSYS handler");
+    }
+    Ok(())
+}
+
+/// The filter: a classic BPF program over `struct seccomp_data` (nr at 0, arch at 4, the
+/// instruction pointer at 8).
+#[cfg(target_arch = "x86_64")]
+fn install_filter() -> Result<(), &'static [u8]> {
+    const LD_W_ABS: u16 = 0x20;
+    const JEQ_K: u16 = 0x15;
+    const JGE_K: u16 = 0x35;
+    const RET_K: u16 = 0x06;
+    const AUDIT_ARCH_X86_64: u32 = 0xc000_003e;
+    const RET_ALLOW: u32 = 0x7fff_0000;
+    const RET_TRAP: u32 = 0x0003_0000;
+    #[repr(C)]
+    #[derive(Clone, Copy)]
+    struct Insn {
+        code: u16,
+        jt: u8,
+        jf: u8,
+        k: u32,
+    }
+    let insn = |code, jt, jf, k| Insn { code, jt, jf, k };
+    let page = native::PAGE_ADDRESS as u64;
+    let (page_high, page_low) = ((page >> 32) as u32, page as u32);
+    let mut program = [insn(0, 0, 0, 0); 32];
+    let mut n = 0;
+    let mut push = |i: Insn| {
+        program[n] = i;
+        n += 1;
+    };
+    let trapped = nr::TRAPPED;
+    let count = trapped.len() as u8;
+    // 0: other ABIs (32-bit calls) are not followed.
+    push(insn(LD_W_ABS, 0, 0, 4));
+    push(insn(JEQ_K, 1, 0, AUDIT_ARCH_X86_64));
+    push(insn(RET_K, 0, 0, RET_ALLOW));
+    // 3: calls from the shim's page go through.
+    push(insn(LD_W_ABS, 0, 0, 12));
+    push(insn(JEQ_K, 0, 4, page_high));
+    push(insn(LD_W_ABS, 0, 0, 8));
+    push(insn(JGE_K, 0, 2, page_low));
+    push(insn(JGE_K, 1, 0, page_low + native::PAGE_BYTES as u32));
+    push(insn(RET_K, 0, 0, RET_ALLOW));
+    // 9: the followed calls trap; everything else goes through.
+    push(insn(LD_W_ABS, 0, 0, 0));
+    for (index, &number) in trapped.iter().enumerate() {
+        // Jump to the RET_TRAP after the list when equal.
+        let to_trap = count - index as u8;
+        push(insn(JEQ_K, to_trap, 0, number as u32));
+    }
+    push(insn(RET_K, 0, 0, RET_ALLOW));
+    push(insn(RET_K, 0, 0, RET_TRAP));
+    #[repr(C)]
+    struct Program {
+        len: u16,
+        filter: *const Insn,
+    }
+    let filter = Program { len: n as u16, filter: program.as_ptr() };
+    const PR_SET_NO_NEW_PRIVS: c_long = 38;
+    const SECCOMP_SET_MODE_FILTER: c_long = 1;
+    const SECCOMP_FILTER_FLAG_TSYNC: c_long = 1;
+    if native::call2(nr::PRCTL, PR_SET_NO_NEW_PRIVS, 1) != 0 {
+        return Err(b"cannot set no_new_privs for the seccomp filter");
+    }
+    if native::call3(nr::SECCOMP, SECCOMP_SET_MODE_FILTER, SECCOMP_FILTER_FLAG_TSYNC, &filter as *const Program as c_long) != 0 {
+        return Err(b"the kernel refused the seccomp filter");
+    }
+    Ok(())
+}
+
+/// Offsets into the x86_64 `ucontext_t` the kernel passes: the general registers, and the
+/// signal mask restored when the handler returns.
+#[cfg(target_arch = "x86_64")]
+mod context {
+    pub const GREGS: usize = 40;
+    pub const SIGMASK: usize = 296;
+    pub const R8: usize = 0;
+    pub const R9: usize = 1;
+    pub const R10: usize = 2;
+    pub const RDI: usize = 8;
+    pub const RSI: usize = 9;
+    pub const RDX: usize = 12;
+    pub const RAX: usize = 13;
+}
+
+#[cfg(target_arch = "x86_64")]
+unsafe extern "C" fn on_sigsys(_signal: c_int, _info: *mut c_void, context: *mut c_void) {
+    let saved_errno = sys::errno();
+    // SAFETY: the kernel's ucontext for this signal, x86_64 layout.
+    let gregs = unsafe { context.cast::<u8>().add(context::GREGS).cast::<i64>() };
+    // SAFETY: as above.
+    let sigmask = unsafe { &mut *context.cast::<u8>().add(context::SIGMASK).cast::<u64>() };
+    // SAFETY: reading saved registers within the ucontext.
+    let reg = |index: usize| unsafe { *gregs.add(index) };
+    let number = reg(context::RAX);
+    let args = [reg(context::RDI), reg(context::RSI), reg(context::RDX), reg(context::R10), reg(context::R8), reg(context::R9)];
+    let result = dispatch(number, args, sigmask);
+    // SAFETY: the return value goes where the caller's `syscall` leaves it.
+    unsafe { *gregs.add(context::RAX) = result };
+    sys::set_errno(saved_errno);
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+unsafe extern "C" fn on_sigsys(_signal: c_int, _info: *mut c_void, _context: *mut c_void) {}
+
+fn native_call(number: i64, a: [i64; 6]) -> c_long {
+    native::call6(number, a[0], a[1], a[2], a[3], a[4], a[5])
+}
+
+#[cfg(target_arch = "x86_64")]
+fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
+    match number {
+        // Never under the shim's own-calls mark: in a vfork child an exec that succeeds never
+        // comes back to clear it, and the mark is the parent's thread-local.
+        nr::EXECVE | nr::EXECVEAT => {
+            // The new program inherits the signal mask in force at the exec: the program's own,
+            // not the handler's (which blocks everything).
+            native::call4(nr::RT_SIGPROCMASK, SIG_SETMASK, sigmask as *const u64 as c_long, 0, 8);
+            return match number {
+                nr::EXECVE => crate::spawn::exec_trapped(a[0] as usize, a[1] as usize, a[2] as usize, None),
+                _ => crate::spawn::exec_trapped(a[1] as usize, a[2] as usize, a[3] as usize, Some((a[0], a[4]))),
+            };
+        }
+        nr::RT_SIGPROCMASK => return sigprocmask(a, sigmask),
+        nr::RT_SIGACTION => return sigaction_call(a),
+        _ => {}
+    }
+    if crate::in_shim() {
+        return native_call(number, a);
+    }
+    let _own = crate::OwnCalls::enter();
+    let handled = match number {
+        nr::FUTEX => Some(crate::futex::emulate(&crate::futex::Args {
+            uaddr: a[0] as usize,
+            op: a[1] as i32,
+            val: a[2] as u32,
+            timeout_or_val2: a[3] as usize,
+            uaddr2: a[4] as usize,
+            val3: a[5] as u32,
+        })),
+        nr::CLOCK_GETTIME => clock_gettime(a[0] as c_int, a[1] as *mut sys::timespec),
+        nr::GETTIMEOFDAY => gettimeofday(a[0] as *mut sys::timeval),
+        nr::TIME => crate::time::read_clock(sys::CLOCK_REALTIME).map(|ns| {
+            let seconds = (ns / 1_000_000_000) as c_long;
+            if a[0] != 0 {
+                // SAFETY: the caller's time_t.
+                unsafe { *(a[0] as *mut c_long) = seconds };
+            }
+            seconds
+        }),
+        nr::NANOSLEEP => crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec).map(|e| -c_long::from(e)),
+        nr::CLOCK_NANOSLEEP => crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec).map(|e| -c_long::from(e)),
+        _ => None,
+    };
+    handled.unwrap_or_else(|| native_as_program(number, a, sigmask))
+}
+
+/// A trapped call that goes to the kernel as it is (a clock climbsim does not answer, after the
+/// run's end, a dormant shim's): made with the program's own signal mask, not the handler's, so
+/// that a signal interrupts it (EINTR) and its handler runs as it would have without the shim.
+fn native_as_program(number: i64, a: [i64; 6], sigmask: &u64) -> c_long {
+    native::call4(nr::RT_SIGPROCMASK, SIG_SETMASK, sigmask as *const u64 as c_long, 0, 8);
+    native_call(number, a)
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn dispatch(number: i64, a: [i64; 6], _sigmask: &mut u64) -> c_long {
+    native_call(number, a)
+}
+
+fn clock_gettime(clock: c_int, ts: *mut sys::timespec) -> Option<c_long> {
+    if ts.is_null() {
+        return None;
+    }
+    let ns = crate::time::read_clock(clock)?;
+    // SAFETY: the caller's timespec.
+    unsafe { *ts = crate::time::from_ns(ns) };
+    Some(0)
+}
+
+fn gettimeofday(tv: *mut sys::timeval) -> Option<c_long> {
+    if tv.is_null() {
+        return None;
+    }
+    let ns = crate::time::read_clock(sys::CLOCK_REALTIME)?;
+    // SAFETY: the caller's timeval.
+    unsafe { *tv = sys::timeval { tv_sec: (ns / 1_000_000_000) as sys::time_t, tv_usec: ((ns % 1_000_000_000) / 1000) as c_long } };
+    Some(0)
+}
+
+/// rt_sigprocmask inside the handler: the mask in force after the call is the one the kernel
+/// restores from the ucontext when the handler returns, so that is the one changed (never with
+/// SIGSYS in it).
+fn sigprocmask(a: [i64; 6], current: &mut u64) -> c_long {
+    const SIG_BLOCK: i64 = 0;
+    const SIG_UNBLOCK: i64 = 1;
+    let (how, set, old, size) = (a[0], a[1] as *const u64, a[2] as *mut u64, a[3]);
+    if size != 8 {
+        return -EINVAL;
+    }
+    let before = *current;
+    if !set.is_null() {
+        // SAFETY: the caller's sigset (8 bytes, as size says).
+        let set = unsafe { *set };
+        let after = match how {
+            SIG_BLOCK => before | set,
+            SIG_UNBLOCK => before & !set,
+            SIG_SETMASK => set,
+            _ => return -EINVAL,
+        };
+        // SIGKILL and SIGSTOP cannot be blocked either (the kernel drops them silently).
+        *current = after & !(SIGSYS_BIT | 1 << 8 | 1 << 18);
+    }
+    if !old.is_null() {
+        // SAFETY: the caller's sigset.
+        unsafe { *old = before };
+    }
+    0
+}
+
+/// rt_sigaction: SIGSYS stays the shim's; other handlers run with SIGSYS deliverable.
+fn sigaction_call(a: [i64; 6]) -> c_long {
+    let (signal, action, old, size) = (a[0] as c_int, a[1] as *const KernelSigaction, a[2] as *mut KernelSigaction, a[3]);
+    if size != 8 {
+        return -EINVAL;
+    }
+    if signal == SIGSYS {
+        let previous = KernelSigaction {
+            handler: PROGRAM_SIGSYS[0].load(Ordering::Relaxed),
+            flags: PROGRAM_SIGSYS[1].load(Ordering::Relaxed) as u64,
+            restorer: PROGRAM_SIGSYS[2].load(Ordering::Relaxed),
+            mask: PROGRAM_SIGSYS[3].load(Ordering::Relaxed) as u64,
+        };
+        if !action.is_null() {
+            // SAFETY: the caller's sigaction.
+            let wanted = unsafe { *action };
+            for (slot, value) in PROGRAM_SIGSYS.iter().zip([wanted.handler, wanted.flags as usize, wanted.restorer, wanted.mask as usize]) {
+                slot.store(value, Ordering::Relaxed);
+            }
+        }
+        if !old.is_null() {
+            // SAFETY: the caller's sigaction.
+            unsafe { *old = previous };
+        }
+        return 0;
+    }
+    if action.is_null() {
+        return native_call(nr::RT_SIGACTION, a);
+    }
+    // SAFETY: the caller's sigaction.
+    let mut cleaned = unsafe { *action };
+    cleaned.mask &= !SIGSYS_BIT;
+    native::call4(nr::RT_SIGACTION, signal as c_long, &cleaned as *const KernelSigaction as c_long, old as c_long, size)
+}
