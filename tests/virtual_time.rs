@@ -378,6 +378,15 @@ fn compiled_c(dir: &Path, name: &str) -> PathBuf {
     program
 }
 
+/// `tests/vt/NAME.cpp` compiled into `dir` with the system's C++ compiler (threads and C++17).
+fn compiled_cpp(dir: &Path, name: &str) -> PathBuf {
+    let program = dir.join(name);
+    let source = repo().join(format!("tests/vt/{name}.cpp"));
+    let compiled = Command::new("c++").args(["-O1", "-std=c++17", "-pthread"]).arg(&source).arg("-o").arg(&program).output().expect("run c++");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    program
+}
+
 #[test]
 fn a_c_control_loop_on_a_timerfd_follows_simulated_time() {
     let dir = support::scratch_dir("vt-timerfd");
@@ -500,6 +509,16 @@ fn raw_system_calls_and_glibcs_futex_waits_follow_simulated_time() {
 }
 
 #[test]
+fn a_semaphore_shared_by_two_processes_wakes_its_waiter_at_the_posting_instant() {
+    let dir = support::scratch_dir("vt-shared-semaphore");
+    let program = compiled_c(&dir, "shared_semaphore");
+    let path = scenario(&dir, "shared-semaphore", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    // The word is in a shared file mapping at a different address in each process: one futex.
+    assert!(log.contains("posted by the child after 30.000 ms"), "{log}");
+}
+
+#[test]
 fn rust_std_threads_and_an_mpsc_channel_on_dynamixel2_repeat_exactly() {
     let dir = support::scratch_dir("vt-rust-threads");
     let controller = example("vt_threads_controller");
@@ -511,4 +530,17 @@ fn rust_std_threads_and_an_mpsc_channel_on_dynamixel2_repeat_exactly() {
     assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
     assert!(log.contains("loop: 100 cycles in 2000."), "{log}");
     assert!(log.contains("longest period 20.0"), "{log}");
+}
+
+#[test]
+fn cpp_threads_and_a_condition_variable_on_the_cpp_sdks_pattern_repeat_exactly() {
+    let dir = support::scratch_dir("vt-cpp-threads");
+    let program = compiled_cpp(&dir, "cpp_threads");
+    let path = scenario_1mbps(&dir, "cpp-threads", 3.0, &[program.to_str().expect("utf-8 path")]);
+    let log = controller_log_repeated(&path, &dir);
+    assert!(log.contains("ping 1-8: 8 found"), "{log}");
+    // condition_variable::wait_until reads steady_clock while it holds the mutex the loop
+    // thread needs: both are followed (the clock read, the futex waits), never a hang.
+    assert!(log.contains("stats: 100 cycles, 400 replies, 200 timeouts"), "{log}");
+    assert!(log.contains("loop: 100 cycles in 2000.000 ms, longest period 20.000 ms"), "{log}");
 }

@@ -85,19 +85,18 @@ fn parse_line(line: &[u8], addr: usize) -> Option<Option<(u64, u64)>> {
 }
 
 fn hex(text: &[u8]) -> Option<u64> {
-    let mut value = 0u64;
-    for &b in text {
-        let digit = (b as char).to_digit(16)?;
-        value = value.checked_mul(16)?.checked_add(u64::from(digit))?;
-    }
-    (!text.is_empty()).then_some(value)
+    number(text, 16)
 }
 
 fn decimal(text: &[u8]) -> Option<u64> {
+    number(text, 10)
+}
+
+fn number(text: &[u8], radix: u32) -> Option<u64> {
     let mut value = 0u64;
     for &b in text {
-        let digit = (b as char).to_digit(10)?;
-        value = value.checked_mul(10)?.checked_add(u64::from(digit))?;
+        let digit = (b as char).to_digit(radix)?;
+        value = value.checked_mul(u64::from(radix))?.checked_add(u64::from(digit))?;
     }
     (!text.is_empty()).then_some(value)
 }

@@ -387,6 +387,9 @@ impl VirtualTime {
                     lock(&self.stats).jumps += 1;
                     let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
                     self.let_go_at(now, next_timer, next_timer.min(self.next_held_due(now)));
+                    // The first of them runs while the world catches up (every thread is parked
+                    // here); the others get their turns at the next settle.
+                    self.give_turn();
                     return Ok(());
                 }
                 header.now_ns.fetch_max(due, Ordering::AcqRel);
@@ -527,7 +530,7 @@ impl VirtualTime {
             state::RUNNING | state::RESERVED => true,
             // In waitpid: blocked only while a followed child it waits for lives; else the
             // kernel is about to return it (its child has just ended).
-            state::BLOCKED if s.waits.load(Ordering::Relaxed) == waits::CHILD => !waits_on_live_child(slots, s) && !watchdog::has_unfollowed_child(s),
+            state::BLOCKED if s.waits.load(Ordering::Relaxed) == waits::CHILD => !waits_on_live_child(slots, s) && !watchdog::has_unfollowed_child(slots, s),
             _ => false,
         })
     }

@@ -134,14 +134,18 @@ fn describe(slot: &Slot, after: Duration) -> String {
 
 /// The slot's process has a child that is not followed (it dropped the shim) and has not
 /// ended: its waitpid waits on the real world, like a wait on a descriptor climbsim does not
-/// model, and time may move meanwhile.
-pub fn has_unfollowed_child(slot: &Slot) -> bool {
+/// model, and time may move meanwhile. A followed child (one with a slot, even one already
+/// marked exited, which the kernel may still be taking down for a while) is no such child: its
+/// parent is about to be woken.
+pub fn has_unfollowed_child(slots: &[Slot], slot: &Slot) -> bool {
     let pid = slot.pid.load(Ordering::Relaxed);
+    let followed = |child: i32| slots.iter().any(|s| s.state.load(Ordering::Acquire) != state::FREE && s.pid.load(Ordering::Relaxed) == child);
     // Each thread's own children (another thread may have started the one waited for).
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
     tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("children")).ok()).any(|children| {
-        children.split_whitespace().any(|child| {
-            std::fs::read_to_string(format!("/proc/{child}/stat")).is_ok_and(|stat| stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| state != 'Z' && state != 'X'))
+        children.split_whitespace().filter_map(|child| child.parse::<i32>().ok()).any(|child| {
+            !followed(child)
+                && std::fs::read_to_string(format!("/proc/{child}/stat")).is_ok_and(|stat| stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| state != 'Z' && state != 'X'))
         })
     })
 }

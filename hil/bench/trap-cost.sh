@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# The cost of the seccomp trap under --clock virtual: compiles hil/bench/trap_cost.c and runs it
+# as an external controller on virtual time (docs/virtual-time.md, "What a trap costs").
+# Usage: hil/bench/trap-cost.sh [climbsim binary, default target/release/climbsim]
+set -euo pipefail
+repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+climbsim="${1:-$repo/target/release/climbsim}"
+work="$(mktemp -d)"
+trap 'rm -rf "$work"' EXIT
+cc -O2 -o "$work/trap_cost" "$repo/hil/bench/trap_cost.c"
+cat > "$work/trap-cost.toml" <<TOML
+[world]
+duration_s = 60.0
+[terrain]
+kind = "flat"
+size_m = 4.0
+[line]
+points = [[-0.5, 0.0], [1.5, 0.0]]
+[controller]
+kind = "external"
+command = ["$work/trap_cost"]
+ends_by_itself = true
+TOML
+(cd "$repo" && "$climbsim" run "$work/trap-cost.toml" --clock virtual --out "$work/out" > /dev/null)
+cat "$work/out/controller.log"

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Runs one scenario N times on virtual time, optionally beside two busy loops that keep both
+# cores loaded, and counts the runs that passed and the distinct controller logs and time
+# series among them: a deterministic controller run gives N passed, 1 distinct of each.
+# Usage: hil/bench/vt-repeat.sh SCENARIO [RUNS=20] [--loaded] (from the checkout; climbsim is
+# $CLIMBSIM or target/debug/climbsim).
+set -euo pipefail
+scenario="$1"; runs="${2:-20}"; loaded="${3:-}"
+climbsim="${CLIMBSIM:-target/debug/climbsim}"
+work="$(mktemp -d)"
+busy=()
+cleanup() { for pid in "${busy[@]}"; do kill "$pid" 2> /dev/null || true; done; rm -rf "$work"; }
+trap cleanup EXIT
+if [[ "$loaded" == "--loaded" ]]; then
+    for _ in 1 2; do sh -c 'while :; do :; done' & busy+=($!); done
+fi
+passed=0
+started=$SECONDS
+for run in $(seq 1 "$runs"); do
+    if timeout 120 "$climbsim" run "$scenario" --clock virtual --out "$work/$run" > "$work/$run.out" 2>&1; then
+        passed=$((passed + 1))
+        md5sum < "$work/$run/controller.log" >> "$work/logs"
+        md5sum < "$work/$run/timeseries.csv" >> "$work/series"
+    else
+        echo "run $run failed:"; tail -3 "$work/$run.out"
+    fi
+done
+echo "$scenario: $passed of $runs passed${loaded:+ (both cores loaded)}; distinct controller logs: $(sort -u "$work/logs" 2>/dev/null | wc -l), distinct time series: $(sort -u "$work/series" 2>/dev/null | wc -l); $((SECONDS - started)) s"
