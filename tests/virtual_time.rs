@@ -519,6 +519,18 @@ fn a_semaphore_shared_by_two_processes_wakes_its_waiter_at_the_posting_instant()
 }
 
 #[test]
+fn a_posix_spawned_child_gets_one_slot_and_sleeps_in_simulated_time() {
+    let dir = support::scratch_dir("vt-spawn");
+    let program = compiled_c(&dir, "spawn");
+    let path = scenario(&dir, "spawn", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    // glibc's spawned child execs inside libc: the trap sees it and takes the slot the parent
+    // reserved, not a second one (which would hold time still until the watchdog fired).
+    assert!(log.contains("spawned sleep 0.2 ended after 200.0"), "{log}");
+    assert!(log.contains("status 0"), "{log}");
+}
+
+#[test]
 fn rust_std_threads_and_an_mpsc_channel_on_dynamixel2_repeat_exactly() {
     let dir = support::scratch_dir("vt-rust-threads");
     let controller = example("vt_threads_controller");

@@ -59,13 +59,15 @@ pub(crate) struct Args {
     pub val3: u32,
 }
 
-/// Run one futex call for a followed thread; what the system call returns (negative errno).
-pub(crate) fn emulate(args: &Args) -> c_long {
-    let (Some(shared), Some(slot)) = (active(), my_slot()) else { return native_futex(args) };
+/// Run one futex call for a followed thread: what the system call returns (negative errno), or
+/// None for a call that goes to the kernel as it is (after the run, a thread without a slot,
+/// the priority-inheritance operations).
+pub(crate) fn emulate(args: &Args) -> Option<c_long> {
+    let (Some(shared), Some(slot)) = (active(), my_slot()) else { return None };
     let private = args.op & FUTEX_PRIVATE_FLAG != 0;
     let command = args.op & !(FUTEX_PRIVATE_FLAG | FUTEX_CLOCK_REALTIME);
     let key = |addr: usize| key_of(addr, private);
-    match command {
+    Some(match command {
         FUTEX_WAIT => {
             // A relative timeout on CLOCK_MONOTONIC.
             let deadline = if args.timeout_or_val2 == 0 {
@@ -78,7 +80,7 @@ pub(crate) fn emulate(args: &Args) -> c_long {
         }
         FUTEX_WAIT_BITSET => {
             if args.val3 == 0 {
-                return -EINVAL;
+                return Some(-EINVAL);
             }
             // An absolute timeout on CLOCK_MONOTONIC, or CLOCK_REALTIME with the flag.
             let deadline = if args.timeout_or_val2 == 0 {
@@ -94,7 +96,7 @@ pub(crate) fn emulate(args: &Args) -> c_long {
         FUTEX_WAKE => counted(shared, wake(shared, key(args.uaddr), args.val, FUTEX_BITSET_MATCH_ANY)),
         FUTEX_WAKE_BITSET => {
             if args.val3 == 0 {
-                return -EINVAL;
+                return Some(-EINVAL);
             }
             counted(shared, wake(shared, key(args.uaddr), args.val, args.val3))
         }
@@ -103,8 +105,8 @@ pub(crate) fn emulate(args: &Args) -> c_long {
             counted(shared, requeue(shared, args, key(args.uaddr), key(args.uaddr2), expected))
         }
         FUTEX_WAKE_OP => counted(shared, wake_op(shared, args, key(args.uaddr), key(args.uaddr2))),
-        _ => native_futex(args),
-    }
+        _ => return None,
+    })
 }
 
 /// A wake-up is counted but costs no simulated time: it is part of the lock or queue operation
@@ -114,10 +116,6 @@ pub(crate) fn emulate(args: &Args) -> c_long {
 fn counted(shared: &Shared, result: c_long) -> c_long {
     note_call(shared, call::FUTEX);
     result
-}
-
-fn native_futex(args: &Args) -> c_long {
-    native::call6(nr::FUTEX, args.uaddr as c_long, args.op as c_long, args.val as c_long, args.timeout_or_val2 as c_long, args.uaddr2 as c_long, args.val3 as c_long)
 }
 
 /// Whether the word at `uaddr` holds `val`, asked of the kernel (0 if so, else -EAGAIN, -EFAULT
@@ -193,6 +191,8 @@ fn oldest_waiter(shared: &Shared, key: Key, bitset: u32) -> Option<&Slot> {
         .iter()
         .filter(|s| {
             s.futex_queued.load(Ordering::Acquire) == 1
+                // A waiter is blocked while queued; one whose process died is not.
+                && s.state.load(Ordering::Acquire) == state::BLOCKED
                 && s.futex_addr.load(Ordering::Relaxed) == key.offset
                 && s.conn_mask.load(Ordering::Relaxed) == key.space
                 && s.futex_bitset.load(Ordering::Relaxed) & bitset != 0
@@ -224,7 +224,8 @@ fn requeue(shared: &Shared, args: &Args, from: Key, to: Key, expected: Option<u3
     }
     let woken = wake_locked(shared, from, wake_count, FUTEX_BITSET_MATCH_ANY);
     let mut moved = 0;
-    while moved < move_count {
+    // Onto the same futex the waiters stay where they are (and in the same order).
+    while moved < move_count && from != to {
         let Some(slot) = oldest_waiter(shared, from, FUTEX_BITSET_MATCH_ANY) else { break };
         slot.futex_addr.store(to.offset, Ordering::Relaxed);
         slot.conn_mask.store(to.space, Ordering::Relaxed);

@@ -236,6 +236,7 @@ fn my_slot() -> Option<&'static Slot> {
     }
     let (tid, pid) = (sys::gettid(), sys::getpid());
     let claim = |index: usize, slot: &'static Slot| {
+        slot.futex_queued.store(0, Ordering::Release);
         slot.pid.store(pid, Ordering::Relaxed);
         slot.tid.store(tid, Ordering::Relaxed);
         slot.parent.store(sys::getppid(), Ordering::Relaxed);
@@ -307,6 +308,18 @@ fn unreserve_slot(index: usize) {
 /// A new thread's first act: the slot its creator reserved is its own.
 fn claim_reserved(index: usize) {
     let Some(slot) = shared().and_then(|s| s.slots.get(index)) else { return };
+    // A thread that made a followed call before its start routine (glibc's "stopped start",
+    // for explicit scheduling attributes, waits on a lock first) claimed a slot of its own
+    // then: that one goes, or it would count as running for ever.
+    let before = SLOT.with(Cell::get);
+    if before != NO_SLOT
+        && before as usize != index
+        && let Some(old) = shared().and_then(|s| s.slots.get(before as usize))
+    {
+        old.futex_queued.store(0, Ordering::Release);
+        old.state.store(state::EXITED, Ordering::Release);
+    }
+    slot.futex_queued.store(0, Ordering::Release);
     let tid = sys::gettid();
     slot.pid.store(pid(), Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);

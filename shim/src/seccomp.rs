@@ -206,7 +206,13 @@ mod context {
 }
 
 #[cfg(target_arch = "x86_64")]
-unsafe extern "C" fn on_sigsys(_signal: c_int, _info: *mut c_void, context: *mut c_void) {
+unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut c_void) {
+    // Only the filter's traps (si_code SYS_SECCOMP); a SIGSYS sent with kill(2) carries no call.
+    const SYS_SECCOMP: c_int = 1;
+    // SAFETY: the kernel's siginfo: si_signo, si_errno, si_code are its first three ints.
+    if unsafe { *info.cast::<c_int>().add(2) } != SYS_SECCOMP {
+        return;
+    }
     let saved_errno = sys::errno();
     // SAFETY: the kernel's ucontext for this signal, x86_64 layout.
     let gregs = unsafe { context.cast::<u8>().add(context::GREGS).cast::<i64>() };
@@ -252,14 +258,14 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
     }
     let _own = crate::OwnCalls::enter();
     let handled = match number {
-        nr::FUTEX => Some(crate::futex::emulate(&crate::futex::Args {
+        nr::FUTEX => crate::futex::emulate(&crate::futex::Args {
             uaddr: a[0] as usize,
             op: a[1] as i32,
             val: a[2] as u32,
             timeout_or_val2: a[3] as usize,
             uaddr2: a[4] as usize,
             val3: a[5] as u32,
-        })),
+        }),
         nr::CLOCK_GETTIME => clock_gettime(a[0] as c_int, a[1] as *mut sys::timespec),
         nr::GETTIMEOFDAY => gettimeofday(a[0] as *mut sys::timeval),
         nr::TIME => crate::time::read_clock(sys::CLOCK_REALTIME).map(|ns| {

@@ -22,6 +22,15 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
     if tid != 0 && shared.slots.iter().any(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED)) {
         return None;
     }
+    // A child of posix_spawn (whose exec glibc makes inside, where only the trap sees it) finds
+    // the slot its parent reserved for it before the clone: it is this task's, not a second one.
+    if tid != 0 {
+        let parent = sys::getppid();
+        if let Some(ours) = shared.slots.iter().find(|s| s.state.load(Ordering::Acquire) == state::RESERVED && s.tid.load(Ordering::Relaxed) == 0 && s.pid.load(Ordering::Relaxed) == parent) {
+            ours.tid.store(tid, Ordering::Release);
+            return None;
+        }
+    }
     for slot in shared.slots.iter().skip(1) {
         if crate::take_unused(slot, state::RESERVED) {
             slot.pid.store(if tid == 0 { parent } else { tid }, Ordering::Relaxed);
@@ -82,11 +91,13 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     }
     let Some(shared) = shared() else { return run() };
     let mine = shared.slots.iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED));
-    let before = mine.map(|s| s.state.swap(state::EXITED, Ordering::AcqRel));
+    // Exited, and no longer this process's: a parent waiting for it waits on the real world.
+    let before = mine.map(|s| (s.state.swap(state::EXITED, Ordering::AcqRel), s.pid.swap(0, Ordering::AcqRel)));
     crate::notify_scheduler(shared);
     let result = run();
-    if let (Some(slot), Some(before)) = (mine, before) {
-        slot.state.store(before, Ordering::Release);
+    if let (Some(slot), Some((state_before, pid_before))) = (mine, before) {
+        slot.pid.store(pid_before, Ordering::Relaxed);
+        slot.state.store(state_before, Ordering::Release);
     }
     result
 }

@@ -28,6 +28,8 @@ pub(crate) fn sim_now(shared: &Shared) -> u64 {
 }
 
 pub(crate) fn real_monotonic_ns() -> u64 {
+    // The shim's own: should libc fall back to the system call, it goes to the kernel.
+    let _own = crate::OwnCalls::enter();
     let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
     let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
     // SAFETY: a valid timespec for the call.
@@ -38,6 +40,8 @@ pub(crate) fn real_monotonic_ns() -> u64 {
 /// This thread's CPU time (the kernel's, ns).
 pub(crate) fn thread_cpu_ns() -> u64 {
     const CLOCK_THREAD_CPUTIME_ID: clockid_t = 3;
+    // The vDSO falls back to the system call for this clock: the shim's own, not trapped.
+    let _own = crate::OwnCalls::enter();
     let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
     let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
     // SAFETY: a valid timespec for the call.
@@ -140,6 +144,9 @@ pub(crate) fn sleep_until(shared: &Shared, deadline: u64) {
 
 /// Sleep `ns` of wall time.
 pub(crate) fn real_sleep_ns(ns: u64) {
+    // glibc's nanosleep is the clock_nanosleep system call, which would trap: this sleep is the
+    // shim's own, on the wall clock.
+    let _own = crate::OwnCalls::enter();
     let nanosleep = real!(nanosleep: fn(*const timespec, *mut timespec) -> c_int);
     // SAFETY: a valid timespec; the remainder is not wanted.
     unsafe { nanosleep(&from_ns(ns), core::ptr::null_mut()) };
