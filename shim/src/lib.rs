@@ -345,6 +345,11 @@ fn claim_reserved(index: usize) {
 /// the run's end (or without climbsim) every thread simply runs.
 fn await_turn(shared: &Shared, slot: &Slot) {
     notify_scheduler(shared);
+    // The turn usually comes within microseconds: spin as a parked thread does (see `park`).
+    let spin_until = time::real_monotonic_ns().saturating_add(shared.header.park_spin_ns.load(Ordering::Relaxed));
+    while slot.state.load(Ordering::Acquire) == state::READY && time::real_monotonic_ns() < spin_until {
+        core::hint::spin_loop();
+    }
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
         if slot.state.load(Ordering::Acquire) != state::READY {

@@ -387,9 +387,6 @@ impl VirtualTime {
                     lock(&self.stats).jumps += 1;
                     let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
                     self.let_go_at(now, next_timer, next_timer.min(self.next_held_due(now)));
-                    // The first of them runs while the world catches up (every thread is parked
-                    // here); the others get their turns at the next settle.
-                    self.give_turn();
                     return Ok(());
                 }
                 header.now_ns.fetch_max(due, Ordering::AcqRel);
@@ -450,6 +447,12 @@ impl VirtualTime {
                 }
                 release_slot(slot, why);
             }
+        }
+        if released {
+            // Every thread is parked here: the first of them runs at once, while the world
+            // catches up or ticks (it sees the world only through replies made at their
+            // instants); the others get their turns as it parks.
+            self.give_turn();
         }
         LetGo { released, next: next_thread.min(next_reply) }
     }
