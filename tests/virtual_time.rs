@@ -506,6 +506,9 @@ fn raw_system_calls_and_glibcs_futex_waits_follow_simulated_time() {
     // glibc's condition variable and a contended mutex: their futex waits are blocked ones.
     assert!(log.contains("condvar: timed out after 30.000 ms"), "{log}");
     assert!(log.contains("mutex: taken after 9.000 ms"), "{log}");
+    // FUTEX_WAKE_OP changes the second word and wakes its waiter; a bad address is EFAULT.
+    assert!(log.contains("wake-op wait: woken at 85.000 ms"), "{log}");
+    assert!(log.contains("wake-op: 1 woken; on an unmapped word -1 (EFAULT)"), "{log}");
 }
 
 #[test]

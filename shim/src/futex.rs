@@ -253,6 +253,14 @@ fn wake_op(shared: &Shared, args: &Args, first: Key, second: Key) -> c_long {
     if !args.uaddr2.is_multiple_of(4) || args.uaddr2 == 0 {
         return -EINVAL;
     }
+    // The word is changed under the queue lock, which every followed process shares: a fault
+    // there would kill this process holding it. The kernel checks it first (adding 0, waking
+    // nobody), and a bad address is the EFAULT a real call returns.
+    const ADD_ZERO_NEVER_MET: c_long = (1 << 28) | (6 << 24);
+    let probe = native::call6(nr::FUTEX, args.uaddr2 as c_long, (FUTEX_WAKE_OP | FUTEX_PRIVATE_FLAG) as c_long, 0, 0, args.uaddr2 as c_long, ADD_ZERO_NEVER_MET);
+    if probe < 0 && probe != -38 {
+        return probe;
+    }
     lock(shared);
     // SAFETY: the caller's futex word (aligned, checked above); the kernel would fault too.
     let word = unsafe { &*(args.uaddr2 as *const core::sync::atomic::AtomicU32) };

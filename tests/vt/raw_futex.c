@@ -49,6 +49,17 @@ static void *waits_for_wake(void *unused) {
     return NULL;
 }
 
+static uint32_t op_word;
+
+static void *waits_for_wake_op(void *unused) {
+    (void)unused;
+    while (__atomic_load_n(&op_word, __ATOMIC_ACQUIRE) == 0) {
+        syscall(SYS_futex, &op_word, FUTEX_WAIT_PRIVATE, 0, NULL, NULL, 0);
+    }
+    printf("wake-op wait: woken at %.3f ms\n", raw_ms());
+    return NULL;
+}
+
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
 
 static void *holds_the_lock(void *unused) {
@@ -90,6 +101,17 @@ int main(void) {
     int rc = pthread_cond_timedwait(&cond, &lock, &deadline);
     pthread_mutex_unlock(&lock);
     printf("condvar: %s after %.3f ms\n", rc == ETIMEDOUT ? "timed out" : "woken", raw_ms() - before);
+
+    // FUTEX_WAKE_OP: set the word to 1 and wake its waiter if it held 0; then one on an address
+    // that is not mapped, which must fail with EFAULT as the kernel's does (not crash).
+    pthread_t d;
+    pthread_create(&d, NULL, waits_for_wake_op, NULL);
+    raw_sleep_ms(5);
+    uint32_t first = 0;
+    long woken = syscall(SYS_futex, &first, FUTEX_WAKE_OP_PRIVATE, 0, 1, &op_word, FUTEX_OP(FUTEX_OP_SET, 1, FUTEX_OP_CMP_EQ, 0));
+    pthread_join(d, NULL);
+    long bad = syscall(SYS_futex, &first, FUTEX_WAKE_OP_PRIVATE, 0, 1, (uint32_t *)4096, FUTEX_OP(FUTEX_OP_SET, 1, FUTEX_OP_CMP_EQ, 0));
+    printf("wake-op: %ld woken; on an unmapped word %ld (%s)\n", woken, bad, bad == -1 && errno == EFAULT ? "EFAULT" : "?");
 
     // A contended mutex: its holder sleeps 10 ms with it.
     pthread_t c;
