@@ -345,25 +345,42 @@ fn claim_reserved(index: usize) {
 /// the run's end (or without climbsim) every thread simply runs.
 fn await_turn(shared: &Shared, slot: &Slot) {
     notify_scheduler(shared);
-    // The turn usually comes within microseconds: spin as a parked thread does (see `park`).
-    let spin_until = time::real_monotonic_ns().saturating_add(shared.header.park_spin_ns.load(Ordering::Relaxed));
-    while slot.state.load(Ordering::Acquire) == state::READY && time::real_monotonic_ns() < spin_until {
-        core::hint::spin_loop();
-    }
+    spin_while_not_running(shared, slot);
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
         if slot.state.load(Ordering::Acquire) != state::READY {
             return;
         }
-        if shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed) {
+        if run_over(shared) {
             slot.state.store(state::RUNNING, Ordering::Release);
             return;
         }
-        sys::futex_wait(&slot.wake_word, seen, 100_000_000);
-        if slot.wake_word.load(Ordering::Acquire) == seen {
-            climbsim_gone(shared);
-        }
+        sleep_on_wake_word(shared, slot, seen);
     }
+}
+
+/// climbsim usually lets a parked (or ready) thread run within a few hundred microseconds: a
+/// spin saves the futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs tens of
+/// them. How long is climbsim's call (none on one CPU, nor where the machine is busy).
+fn spin_while_not_running(shared: &Shared, slot: &Slot) {
+    let spin_until = time::real_monotonic_ns().saturating_add(shared.header.park_spin_ns.load(Ordering::Relaxed));
+    while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until {
+        core::hint::spin_loop();
+    }
+}
+
+/// Sleep until climbsim bumps the slot's wake word past `seen`; the timeout only notices a
+/// climbsim that went away without waking us.
+fn sleep_on_wake_word(shared: &Shared, slot: &Slot, seen: u32) {
+    sys::futex_wait(&slot.wake_word, seen, 100_000_000);
+    if slot.wake_word.load(Ordering::Acquire) == seen {
+        climbsim_gone(shared);
+    }
+}
+
+/// The run has ended, or climbsim is gone: nobody gives turns or releases any more.
+fn run_over(shared: &Shared) -> bool {
+    shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed)
 }
 
 /// This thread, which the kernel woke (a descriptor, a child's end, a join), runs again: in its
@@ -494,14 +511,7 @@ fn publish_parked(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask
 /// Sleep, parked as [`publish_parked`] published, until climbsim (or a waker) lets this thread
 /// go; why (`abi::release`).
 fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline: u64) -> u32 {
-    // climbsim usually lets a thread go within a few hundred microseconds: a spin saves the
-    // futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs tens of them. How
-    // long is climbsim's call (none on one CPU, nor where the machine is busy).
-    let spin_ns = shared.header.park_spin_ns.load(Ordering::Relaxed);
-    let spin_until = time::real_monotonic_ns().saturating_add(spin_ns);
-    while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until {
-        core::hint::spin_loop();
-    }
+    spin_while_not_running(shared, slot);
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
@@ -517,14 +527,10 @@ fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline: u64) -> u3
             reset_computation(shared);
             return why;
         }
-        if shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed) {
+        if run_over(shared) {
             slot.state.store(state::RUNNING, Ordering::Release);
             return release::ENDING;
         }
-        // A timeout only to notice a climbsim that went away without waking us.
-        sys::futex_wait(&slot.wake_word, seen, 100_000_000);
-        if slot.wake_word.load(Ordering::Acquire) == seen {
-            climbsim_gone(shared);
-        }
+        sleep_on_wake_word(shared, slot, seen);
     }
 }

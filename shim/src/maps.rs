@@ -4,19 +4,7 @@
 use core::ffi::c_long;
 
 use crate::native;
-
-#[cfg(target_arch = "x86_64")]
-mod nr {
-    pub const OPENAT: i64 = 257;
-    pub const READ: i64 = 0;
-    pub const CLOSE: i64 = 3;
-}
-#[cfg(target_arch = "aarch64")]
-mod nr {
-    pub const OPENAT: i64 = 56;
-    pub const READ: i64 = 63;
-    pub const CLOSE: i64 = 57;
-}
+use crate::sys::nr;
 
 /// If `addr` lies in a shared mapping of a file: the file (device and inode, folded into 63
 /// bits) and the offset in it.

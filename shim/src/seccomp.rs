@@ -19,26 +19,11 @@ use core::ffi::{c_int, c_long, c_void};
 use core::sync::atomic::{AtomicUsize, Ordering};
 
 use crate::native;
-use crate::sys;
+use crate::sys::{self, nr};
 
-/// The x86_64 system calls the filter traps.
+/// The system calls the filter traps (x86_64).
 #[cfg(target_arch = "x86_64")]
-mod nr {
-    pub const RT_SIGACTION: i64 = 13;
-    pub const RT_SIGPROCMASK: i64 = 14;
-    pub const NANOSLEEP: i64 = 35;
-    pub const EXECVE: i64 = 59;
-    pub const GETTIMEOFDAY: i64 = 96;
-    pub const TIME: i64 = 201;
-    pub const FUTEX: i64 = 202;
-    pub const CLOCK_GETTIME: i64 = 228;
-    pub const CLOCK_NANOSLEEP: i64 = 230;
-    pub const EXECVEAT: i64 = 322;
-    pub const PRCTL: i64 = 157;
-    pub const SECCOMP: i64 = 317;
-
-    pub const TRAPPED: &[i64] = &[RT_SIGACTION, RT_SIGPROCMASK, NANOSLEEP, EXECVE, GETTIMEOFDAY, TIME, FUTEX, CLOCK_GETTIME, CLOCK_NANOSLEEP, EXECVEAT];
-}
+const TRAPPED: &[i64] = &[nr::RT_SIGACTION, nr::RT_SIGPROCMASK, nr::NANOSLEEP, nr::EXECVE, nr::GETTIMEOFDAY, nr::TIME, nr::FUTEX, nr::CLOCK_GETTIME, nr::CLOCK_NANOSLEEP, nr::EXECVEAT];
 
 const SIGSYS: c_int = 31;
 const SIGSYS_BIT: u64 = 1 << (SIGSYS - 1);
@@ -150,7 +135,7 @@ fn install_filter() -> Result<(), &'static [u8]> {
         program[n] = i;
         n += 1;
     };
-    let trapped = nr::TRAPPED;
+    let trapped = TRAPPED;
     let count = trapped.len() as u8;
     // 0: other ABIs (32-bit calls) are not followed.
     push(insn(LD_W_ABS, 0, 0, 4));
@@ -243,7 +228,7 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         nr::EXECVE | nr::EXECVEAT => {
             // The new program inherits the signal mask in force at the exec: the program's own,
             // not the handler's (which blocks everything).
-            native::call4(nr::RT_SIGPROCMASK, SIG_SETMASK, sigmask as *const u64 as c_long, 0, 8);
+            use_program_mask(sigmask);
             return match number {
                 nr::EXECVE => crate::spawn::exec_trapped(a[0] as usize, a[1] as usize, a[2] as usize, None),
                 _ => crate::spawn::exec_trapped(a[1] as usize, a[2] as usize, a[3] as usize, Some((a[0], a[4]))),
@@ -287,8 +272,13 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
 /// run's end, a dormant shim's): made with the program's own signal mask, not the handler's, so
 /// that a signal interrupts it (EINTR) and its handler runs as it would have without the shim.
 fn native_as_program(number: i64, a: [i64; 6], sigmask: &u64) -> c_long {
-    native::call4(nr::RT_SIGPROCMASK, SIG_SETMASK, sigmask as *const u64 as c_long, 0, 8);
+    use_program_mask(sigmask);
     native_call(number, a)
+}
+
+/// From here on, inside the handler, the program's own signal mask (the one the kernel saved).
+fn use_program_mask(sigmask: &u64) {
+    native::call4(nr::RT_SIGPROCMASK, SIG_SETMASK, sigmask as *const u64 as c_long, 0, 8);
 }
 
 #[cfg(not(target_arch = "x86_64"))]

@@ -324,24 +324,21 @@ fn with_shim(envp: *const *const c_char) -> *const *const c_char {
 
 /// Zeroed, writable pages of at least `bytes` (an anonymous mapping, made natively).
 fn fresh_pages(bytes: usize) -> Option<*mut u8> {
-    const MMAP: i64 = 9;
     const PROT_READ_WRITE: i64 = 3;
     const MAP_PRIVATE_ANONYMOUS: i64 = 0x22;
-    let address = crate::native::call6(MMAP, 0, bytes as i64, PROT_READ_WRITE, MAP_PRIVATE_ANONYMOUS, -1, 0);
+    let address = crate::native::call6(sys::nr::MMAP, 0, bytes as i64, PROT_READ_WRITE, MAP_PRIVATE_ANONYMOUS, -1, 0);
     (address > 0).then_some(address as *mut u8)
 }
 
 /// An exec trapped by the filter (execve, or execveat with `at` = (dirfd, flags)): with the shim
 /// in its environment, and a slot for the program to come; what the system call returns.
 pub(crate) fn exec_trapped(path: usize, argv: usize, envp: usize, at: Option<(i64, i64)>) -> i64 {
-    const EXECVE: i64 = 59;
-    const EXECVEAT: i64 = 322;
     let envp = with_shim(envp as *const *const c_char);
     let mut result = 0;
     exec_with(envp, || {
         result = match at {
-            Some((dirfd, flags)) => crate::native::call6(EXECVEAT, dirfd, path as i64, argv as i64, envp as i64, flags, 0),
-            None => crate::native::call3(EXECVE, path as i64, argv as i64, envp as i64),
+            Some((dirfd, flags)) => crate::native::call6(sys::nr::EXECVEAT, dirfd, path as i64, argv as i64, envp as i64, flags, 0),
+            None => crate::native::call3(sys::nr::EXECVE, path as i64, argv as i64, envp as i64),
         };
         if result < 0 { -1 } else { 0 }
     });

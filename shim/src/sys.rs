@@ -66,14 +66,30 @@ pub const EINVAL: c_int = 22;
 
 const RTLD_NEXT: *mut c_void = -1isize as *mut c_void;
 
+/// The system calls the shim makes or follows, by number (one table per architecture).
 #[cfg(target_arch = "x86_64")]
 pub mod nr {
-    pub const FUTEX: i64 = 202;
-    pub const GETTID: i64 = 186;
-    pub const GETPID: i64 = 39;
-    pub const GETPPID: i64 = 110;
-    pub const FSTAT: i64 = 5;
+    pub const READ: i64 = 0;
     pub const WRITE: i64 = 1;
+    pub const CLOSE: i64 = 3;
+    pub const FSTAT: i64 = 5;
+    pub const MMAP: i64 = 9;
+    pub const RT_SIGACTION: i64 = 13;
+    pub const RT_SIGPROCMASK: i64 = 14;
+    pub const NANOSLEEP: i64 = 35;
+    pub const GETPID: i64 = 39;
+    pub const EXECVE: i64 = 59;
+    pub const GETTIMEOFDAY: i64 = 96;
+    pub const GETPPID: i64 = 110;
+    pub const PRCTL: i64 = 157;
+    pub const GETTID: i64 = 186;
+    pub const TIME: i64 = 201;
+    pub const FUTEX: i64 = 202;
+    pub const CLOCK_GETTIME: i64 = 228;
+    pub const CLOCK_NANOSLEEP: i64 = 230;
+    pub const OPENAT: i64 = 257;
+    pub const SECCOMP: i64 = 317;
+    pub const EXECVEAT: i64 = 322;
     /// struct stat: st_mode's and st_rdev's offsets.
     pub const ST_MODE: usize = 24;
     pub const ST_RDEV: usize = 40;
@@ -81,12 +97,26 @@ pub mod nr {
 
 #[cfg(target_arch = "aarch64")]
 pub mod nr {
+    pub const OPENAT: i64 = 56;
+    pub const CLOSE: i64 = 57;
+    pub const READ: i64 = 63;
+    pub const WRITE: i64 = 64;
+    pub const FSTAT: i64 = 80;
     pub const FUTEX: i64 = 98;
-    pub const GETTID: i64 = 178;
+    pub const NANOSLEEP: i64 = 101;
+    pub const CLOCK_GETTIME: i64 = 113;
+    pub const CLOCK_NANOSLEEP: i64 = 115;
+    pub const RT_SIGACTION: i64 = 134;
+    pub const RT_SIGPROCMASK: i64 = 135;
+    pub const PRCTL: i64 = 167;
+    pub const GETTIMEOFDAY: i64 = 169;
     pub const GETPID: i64 = 172;
     pub const GETPPID: i64 = 173;
-    pub const FSTAT: i64 = 80;
-    pub const WRITE: i64 = 64;
+    pub const GETTID: i64 = 178;
+    pub const EXECVE: i64 = 221;
+    pub const MMAP: i64 = 222;
+    pub const SECCOMP: i64 = 277;
+    pub const EXECVEAT: i64 = 281;
     pub const ST_MODE: usize = 16;
     pub const ST_RDEV: usize = 32;
 }
