@@ -48,6 +48,7 @@ const RESTORER: [u8; 7] = [0xb8, 0x0f, 0x00, 0x00, 0x00, 0x0f, 0x05];
 static READY: AtomicBool = AtomicBool::new(false);
 
 unsafe extern "C" {
+    fn __errno_location() -> *mut c_int;
     fn syscall(number: c_long, ...) -> c_long;
     fn mmap(addr: *mut c_void, len: usize, prot: c_int, flags: c_int, fd: c_int, offset: i64) -> *mut c_void;
     fn mprotect(addr: *mut c_void, len: usize, prot: c_int) -> c_int;
@@ -111,11 +112,11 @@ pub fn call6(number: c_long, a: c_long, b: c_long, c: c_long, d: c_long, e: c_lo
         // SAFETY: the caller's arguments are the system call's; the kernel checks them.
         return unsafe { entry(number, a, b, c, d, e, f) };
     }
-    let saved = crate::sys::errno();
+    let saved = errno();
     // SAFETY: as above, through libc, which returns -1 and sets errno instead.
     let result = unsafe { syscall(number, a, b, c, d, e, f) };
-    let result = if result == -1 { -c_long::from(crate::sys::errno()) } else { result };
-    crate::sys::set_errno(saved);
+    let result = if result == -1 { -c_long::from(errno()) } else { result };
+    set_errno(saved);
     result
 }
 
@@ -137,4 +138,15 @@ pub fn call3(number: c_long, a: c_long, b: c_long, c: c_long) -> c_long {
 
 pub fn call4(number: c_long, a: c_long, b: c_long, c: c_long, d: c_long) -> c_long {
     call6(number, a, b, c, d, 0, 0)
+}
+
+/// This thread's errno (glibc's, valid for the calling thread).
+pub fn errno() -> c_int {
+    // SAFETY: glibc's errno location is valid for the calling thread.
+    unsafe { *__errno_location() }
+}
+
+pub fn set_errno(value: c_int) {
+    // SAFETY: as above.
+    unsafe { *__errno_location() = value };
 }

@@ -7,6 +7,7 @@ use core::ffi::{c_char, c_int, c_long, c_void};
 use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 
 use crate::native;
+pub use crate::native::{errno, set_errno};
 
 pub type time_t = i64;
 pub type clockid_t = c_int;
@@ -125,7 +126,6 @@ unsafe extern "C" {
     pub fn dlsym(handle: *mut c_void, symbol: *const c_char) -> *mut c_void;
     pub fn getenv(name: *const c_char) -> *mut c_char;
     pub fn kill(pid: c_int, signal: c_int) -> c_int;
-    pub fn __errno_location() -> *mut c_int;
     pub fn open(path: *const c_char, flags: c_int, ...) -> c_int;
     pub fn mmap(addr: *mut c_void, len: usize, prot: c_int, flags: c_int, fd: c_int, offset: i64) -> *mut c_void;
     pub fn __cxa_atexit(func: unsafe extern "C" fn(*mut c_void), arg: *mut c_void, dso: *mut c_void) -> c_int;
@@ -167,16 +167,6 @@ pub(crate) use real;
 /// A line on standard error, without going through anything the shim intercepts.
 pub fn say(text: &[u8]) {
     native::call3(nr::WRITE, 2, text.as_ptr() as c_long, text.len() as c_long);
-}
-
-pub fn errno() -> c_int {
-    // SAFETY: glibc's errno location is valid for the calling thread.
-    unsafe { *__errno_location() }
-}
-
-pub fn set_errno(value: c_int) {
-    // SAFETY: as above.
-    unsafe { *__errno_location() = value };
 }
 
 pub fn gettid() -> i32 {
