@@ -164,7 +164,8 @@ fn a_controllers_children_do_not_outlive_the_run() {
             ),
             extra,
         );
-        let output = climbsim(&["run", &path.display().to_string(), "--set", "expect={}", "--out", &dir.join(name).display().to_string()]);
+        // Not a test of pace: on a loaded CI machine a wall-clock run can fall behind its ticks.
+        let output = climbsim(&["run", &path.display().to_string(), "--set", "expect={}", "--pace-tolerance-ms", "1000", "--out", &dir.join(name).display().to_string()]);
         assert!(output.status.success(), "{name}: {}", text(&output));
         let started: Vec<u32> = std::fs::read_to_string(format!("{}.{name}", pids.display())).expect("pids").lines().map(|l| l.trim().parse().expect("a pid")).collect();
         assert_eq!(started.len(), 3, "{name}: {started:?}");
@@ -180,7 +181,7 @@ fn a_controllers_log_is_capped_keeping_head_and_tail() {
     let dir = support::scratch_dir("ext-loud");
     let path = scenario(&dir, "loud", 1.0, "echo first-line\nhead -c 100000000 /dev/zero | tr '\\0' x\necho\necho last-line\nsleep 30", "");
     let out = dir.join("out");
-    let output = climbsim(&["run", &path.display().to_string(), "--set", "expect={}", "--out", &out.display().to_string()]);
+    let output = climbsim(&["run", &path.display().to_string(), "--set", "expect={}", "--pace-tolerance-ms", "1000", "--out", &out.display().to_string()]);
     assert!(output.status.success(), "{}", text(&output));
     let log = std::fs::read(out.join("controller.log")).expect("controller.log");
     assert!(log.len() < 9 << 20, "controller.log is {} bytes", log.len());
