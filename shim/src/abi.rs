@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 4;
+pub const ABI: u32 = 5;
 /// Controller threads that can be followed at once (all processes together).
 pub const SLOTS: usize = 128;
 /// Sensor-server connections followed at once.
@@ -116,7 +116,10 @@ pub struct Header {
     pub mode: AtomicU32,
     /// S bumps it (and wakes climbsim's scheduler) whenever a thread blocks, yields or exits.
     pub sched_word: AtomicU32,
-    pub _pad0: AtomicU32,
+    /// C: bumped when a scheduling decision is due after threads ran: every thread waiting on
+    /// descriptors climbsim does not model (a pipe, an eventfd) looks at them again first, and
+    /// says so in `Slot::checked_epoch`, since what a thread that ran wrote may have woken it.
+    pub check_epoch: AtomicU32,
     /// C (and S within the horizon): simulated time, ns since the run's start.
     pub now_ns: AtomicU64,
     /// C: a thread may move `now_ns` itself (charging its calls) up to here, not beyond.
@@ -150,7 +153,8 @@ pub struct Header {
     pub port_next_due_ns: AtomicU64,
     /// C: climbsim's process: a shim whose climbsim is gone leaves virtual time.
     pub climbsim_pid: AtomicI32,
-    pub _pad1: AtomicU32,
+    /// S bumps it (and wakes the futex) when a thread has looked again for `check_epoch`.
+    pub checks_word: AtomicU32,
     /// C: each thread's CPU time is also charged, × this / 1e6 (`--controller-cpu`; 0: free).
     pub cpu_factor_ppm: AtomicU64,
     /// S: threads in a wait for another thread (wakers look for them only when there are some).
@@ -238,6 +242,10 @@ pub struct Slot {
     /// S, under `Header::futex_lock`: the order it queued in (wake-ups go first come, first
     /// served, as the kernel's do among equal priorities).
     pub futex_ticket: AtomicU64,
+    /// S: the last `Header::check_epoch` at which this thread, waiting on descriptors climbsim
+    /// does not model, found none of them ready.
+    pub checked_epoch: AtomicU32,
+    pub _pad0: AtomicU32,
 }
 
 /// One connection from the controller to the sensor server, seen from both ends.

@@ -487,6 +487,21 @@ fn advance_within_horizon(shared: &Shared, now: u64, target: u64) -> bool {
     target <= header.horizon_ns.load(Ordering::Acquire) && !held(shared) && header.now_ns.compare_exchange(now, target, Ordering::AcqRel, Ordering::Acquire).is_ok()
 }
 
+/// A thread about to wait on what the kernel wakes (a descriptor climbsim does not model, a
+/// thread's end): climbsim waits for its first look before it decides anything (see
+/// `wait::wait_on_real_world`).
+fn expect_look(shared: &Shared, slot: &Slot) {
+    slot.checked_epoch.store(shared.header.check_epoch.load(Ordering::Acquire).wrapping_sub(1), Ordering::Relaxed);
+}
+
+/// The thread looked at what it waits on, as climbsim asked at `epoch`, and found nothing.
+fn answer_look(shared: &Shared, slot: &Slot, epoch: u32) {
+    if slot.checked_epoch.swap(epoch, Ordering::AcqRel) != epoch {
+        shared.header.checks_word.fetch_add(1, Ordering::AcqRel);
+        sys::futex_wake(&shared.header.checks_word);
+    }
+}
+
 /// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on
 /// `waits`, and sleep until climbsim releases it; why it did (`abi::release`). A thread without
 /// a slot cannot be followed: it returns at once, as if its deadline had come.

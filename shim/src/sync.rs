@@ -4,8 +4,9 @@
 //! passes while it starts. Locks, condition variables and semaphores need nothing here: their
 //! futex calls are emulated (`futex.rs`). A join is the exception, because the kernel itself
 //! wakes it when the thread's id is cleared at its exit: a joining thread counts as blocked,
-//! its real wait cut into 200 µs slices of wall time, and the ending thread marks it running
-//! before it goes, so that time cannot move between the two.
+//! the ending thread marks it ready before it goes, and the joiner looks at the thread again
+//! whenever climbsim asks (climbsim first waits until an ending thread is gone) and every
+//! 200 µs of wall time, so that time cannot move between the two.
 
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
@@ -42,6 +43,7 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         slot.waits.store(waits::PEER, Ordering::Relaxed);
         slot.conn_mask.store(addr as u64, Ordering::Relaxed);
         slot.release.store(0, Ordering::Relaxed);
+        crate::expect_look(shared, slot);
         slot.state.store(state::BLOCKED, Ordering::Release);
         notify_scheduler(shared);
     };
@@ -64,15 +66,21 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
                 }
             }
         }
-        let rc = slice(&real_deadline_after(SLICE_NS));
-        if rc != ETIMEDOUT {
-            crate::resume_after_kernel_wake(shared, slot);
-            break rc;
-        }
         if active().is_none() {
             slot.state.store(state::RUNNING, Ordering::Release);
             break slice_until(shared, deadline, slice);
         }
+        // A look whenever climbsim asks (threads ran: the one joined may have ended), and one
+        // every slice of wall time.
+        let epoch = shared.header.check_epoch.load(Ordering::Acquire);
+        let seen = slot.wake_word.load(Ordering::Acquire);
+        let rc = slice(&real_deadline_after(0));
+        if rc != ETIMEDOUT {
+            crate::resume_after_kernel_wake(shared, slot);
+            break rc;
+        }
+        crate::answer_look(shared, slot, epoch);
+        sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
     };
     slot.waits.store(0, Ordering::Relaxed);
     shared.header.peer_waiters.fetch_sub(1, Ordering::AcqRel);

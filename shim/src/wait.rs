@@ -166,8 +166,13 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
     }
 }
 
-/// A wait that includes descriptors climbsim does not model: poll them for real in short
-/// slices, blocked (in simulated time) until one is ready or climbsim releases the thread.
+/// A wait that includes descriptors climbsim does not model (a pipe, an eventfd, a socket of
+/// its own): blocked (in simulated time) until one is ready or climbsim releases the thread.
+/// The kernel is asked without waiting, at climbsim's request and every millisecond of wall
+/// time: climbsim bumps the check epoch whenever threads ran since the last decision, and waits
+/// until every such thread has looked again before it gives a turn or moves time. So a write by
+/// another followed thread (tokio's eventfd, asyncio's self-pipe, a child's output) wakes this
+/// one at the instant it was made, not whenever the host got round to it.
 fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
     const SLICE_NS: u64 = 1_000_000;
     let Some(slot) = my_slot() else { return real_wait(Some(deadline.saturating_sub(sim_now(shared)))) };
@@ -175,6 +180,7 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
     slot.waits.store(waits::OTHER | interest.waits(), Ordering::Relaxed);
     slot.conn_mask.store(interest.conns, Ordering::Relaxed);
     slot.release.store(0, Ordering::Relaxed);
+    crate::expect_look(shared, slot);
     slot.state.store(state::BLOCKED, Ordering::Release);
     crate::notify_scheduler(shared);
     let mut slices = 0u32;
@@ -190,17 +196,19 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             slot.state.store(state::RUNNING, Ordering::Release);
             return real_wait(Some(deadline.saturating_sub(sim_now(shared))));
         }
-        let ready = real_wait(Some(SLICE_NS));
-        if ready == 0 && crate::held::take_masked() {
-            // The kernel saw the port readable for bytes not visible yet: it returned at once,
-            // and would again. A slice of sleep instead of a hot loop.
-            crate::time::real_sleep_ns(SLICE_NS / 10);
-        }
+        let epoch = shared.header.check_epoch.load(Ordering::Acquire);
+        let seen = slot.wake_word.load(Ordering::Acquire);
+        let ready = real_wait(Some(0));
+        // The port masked as empty (bytes not visible yet) costs nothing here: the kernel is
+        // never waited in.
+        crate::held::take_masked();
         if ready != 0 {
             // Woken by the real world; we run again in our turn.
             crate::resume_after_kernel_wake(shared, slot);
             return ready;
         }
+        crate::answer_look(shared, slot, epoch);
+        sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
     }
 }
 

@@ -17,6 +17,7 @@ pub mod abi;
 mod block;
 mod held;
 mod quiet;
+mod real_world;
 mod shim_file;
 mod timer;
 mod watchdog;
@@ -141,6 +142,7 @@ pub struct VirtualTime {
     port: Mutex<Option<PortFds>>,
     held: Mutex<held::HeldBytes>,
     quiet: Mutex<quiet::Quiet>,
+    real_world: Mutex<real_world::RealWorld>,
 }
 
 impl std::fmt::Debug for VirtualTime {
@@ -169,7 +171,7 @@ impl VirtualTime {
         header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()) }))
+        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()), real_world: Mutex::new(real_world::RealWorld::new()) }))
     }
 
     pub fn settings(&self) -> VtSettings {
@@ -467,6 +469,12 @@ impl VirtualTime {
         loop {
             let seen = header.sched_word.load(Ordering::Acquire);
             if !self.any_running() {
+                // What the threads that ran wrote may have woken threads waiting on the real
+                // world: they look before anything is decided.
+                if !lock(&self.real_world).settled(self.shared()) {
+                    watchdog.check(self.shared())?;
+                    continue;
+                }
                 // Threads ready at this instant run first, one at a time.
                 if self.give_turn() {
                     continue;

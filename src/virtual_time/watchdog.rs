@@ -90,11 +90,23 @@ fn stat_path(slot: &Slot) -> Option<String> {
     (pid > 0 && tid > 0).then(|| format!("/proc/{pid}/task/{tid}"))
 }
 
+/// The state letter (R, S, D, Z, …) of the task whose `stat` file is at `path`: Err if there is
+/// no such task, Ok(None) if the file does not parse.
+fn state_letter(path: &str) -> Result<Option<char>, std::io::Error> {
+    let stat = std::fs::read_to_string(path)?;
+    // The state is the field after the command's closing parenthesis (the command may hold any byte).
+    Ok(stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()))
+}
+
+/// The task whose `stat` file is at `path` exists and is neither a zombie nor dead.
+pub(super) fn lives(path: &str) -> bool {
+    state_letter(path).is_ok_and(|letter| letter.is_some_and(|state| state != 'Z' && state != 'X'))
+}
+
 fn task_state(slot: &Slot) -> TaskState {
     let Some(task) = stat_path(slot) else { return TaskState::Unknown };
-    let Ok(stat) = std::fs::read_to_string(format!("{task}/stat")) else { return TaskState::Gone };
-    // The state is the field after the command's closing parenthesis (the command may hold any byte).
-    let Some(letter) = stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()) else { return TaskState::Unknown };
+    let Ok(letter) = state_letter(&format!("{task}/stat")) else { return TaskState::Gone };
+    let Some(letter) = letter else { return TaskState::Unknown };
     match letter {
         'Z' | 'X' => TaskState::Gone,
         'T' | 't' => TaskState::Stopped,
@@ -144,8 +156,7 @@ pub fn has_unfollowed_child(slots: &[Slot], slot: &Slot) -> bool {
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
     tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("children")).ok()).any(|children| {
         children.split_whitespace().filter_map(|child| child.parse::<i32>().ok()).any(|child| {
-            !followed(child)
-                && std::fs::read_to_string(format!("/proc/{child}/stat")).is_ok_and(|stat| stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| state != 'Z' && state != 'X'))
+            !followed(child) && lives(&format!("/proc/{child}/stat"))
         })
     })
 }
