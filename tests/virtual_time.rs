@@ -362,6 +362,22 @@ fn threads_wait_on_each_other_in_simulated_time() {
 }
 
 #[test]
+fn pipes_subprocesses_and_multiprocessing_follow_simulated_time() {
+    let dir = support::scratch_dir("vt-pipes");
+    let path = scenario(&dir, "pipes", 5.0, &["tests/vt/pipes.py"], true);
+    let log = &controller_log_repeated(&path, &dir);
+    // Each reader blocks on a pipe (a read, or a poll) until the followed process that writes
+    // it does, at that instant: never refused as "blocked in read", never woken late.
+    assert!(log.contains("check_output b'hi\\n' after 0.500 s"), "{log}");
+    assert!(log.contains("command substitution b'nested\\n' after 0.250 s"), "{log}");
+    assert!(log.contains("pipe b'from child' after 0.125 s"), "{log}");
+    assert!(log.contains("queue [1, 2, 3] after 0.300 s"), "{log}");
+    // The pool's worker handler polls a pipe that is ready until another thread reads it: it
+    // gives up its turn after a quantum instead of keeping it for ever.
+    assert!(log.contains("pool [1, 2, 3]\ndone"), "{log}");
+}
+
+#[test]
 fn asyncio_sleeps_and_timeouts_follow_simulated_time() {
     let dir = support::scratch_dir("vt-asyncio");
     let path = scenario(&dir, "asyncio", 3.0, &["tests/vt/asyncio_sleeps.py"], true);

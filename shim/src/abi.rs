@@ -16,6 +16,10 @@ pub const ABI: u32 = 5;
 pub const SLOTS: usize = 128;
 /// Sensor-server connections followed at once.
 pub const CONNS: usize = 64;
+/// Simulated time a thread may run (charged calls, its CPU time with `--controller-cpu`)
+/// before it gives up its turn, as a kernel's time slice: a loop that polls what is ready and
+/// never blocks would otherwise keep every other thread from running.
+pub const TURN_QUANTUM_NS: u64 = 1_000_000;
 /// "No deadline" / "nothing due".
 pub const NEVER: u64 = u64::MAX;
 /// Reply bytes written to the port ahead of their time, in at most this many runs (each
@@ -68,6 +72,9 @@ pub mod waits {
     /// A futex (a system call, whatever library made it): `Slot::futex_addr` says which; the
     /// thread that wakes it marks it running.
     pub const FUTEX: u32 = 64;
+    /// A running thread that gave up its turn after [`super::TURN_QUANTUM_NS`]: when it is
+    /// ready again, the threads ready for any other reason run first.
+    pub const TURN: u32 = 128;
 }
 
 /// `Slot::release`: why climbsim let a thread go.

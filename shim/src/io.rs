@@ -9,9 +9,9 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, call, release, waits};
 use crate::held::{stream_now, took};
-use crate::sys::{iovec, real};
+use crate::sys::{iovec, nfds_t, pollfd, real};
 use crate::time::sim_now;
-use crate::wait::{is_port, park_blocked};
+use crate::wait::{Interest, is_port, park_blocked};
 use crate::{active, charge, note_call};
 
 fn count_written(fd: c_int, written: isize) {
@@ -140,13 +140,19 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
     if let Some(result) = crate::timerfd::read(fd, buf, len) {
         return result;
     }
-    let port = active().filter(|shared| len > 0 && crate::wait::is_port(shared, fd));
-    let Some(shared) = port else {
+    let Some(shared) = active() else {
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(fd, buf, len) };
+    };
+    if len == 0 || !crate::wait::is_port(shared, fd) {
+        if len > 0 {
+            await_readable(shared, fd);
+        }
         // SAFETY: passing the caller's arguments through.
         let received = unsafe { next(fd, buf, len) };
         crate::net::count_received(fd, received);
         return received;
-    };
+    }
     note_call(shared, call::READ);
     // SAFETY: fcntl F_GETFL on the caller's descriptor.
     let blocking = unsafe { fcntl(fd, F_GETFL) } & O_NONBLOCK == 0;
@@ -177,6 +183,34 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
         }
         PortRead::Return(value) => value,
     }
+}
+
+/// A blocking read (or receive) of a descriptor other than the port, about to be made: if the
+/// kernel has nothing for it yet, wait for that on simulated time first, so that the thread
+/// counts as blocked (a pipe's reader: a shell's `$(…)`, Python's `subprocess`, a pipe to a
+/// child) and wakes at the instant the writer wrote, rather than sitting in the kernel where
+/// climbsim cannot see it. A sensor connection waits for climbsim's response the same way.
+pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) {
+    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
+    let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
+    let saved = crate::sys::errno();
+    // SAFETY: one pollfd of ours; a zero timeout.
+    let ready = unsafe { poll(&mut entry, 1, 0) } != 0;
+    // A descriptor in non-blocking mode (or none at all: fcntl fails, -1 has the bit) never
+    // waits in the kernel: the read itself says what there is.
+    // SAFETY: fcntl F_GETFL on the caller's descriptor.
+    if ready || unsafe { fcntl(fd, F_GETFL) } & O_NONBLOCK != 0 {
+        crate::sys::set_errno(saved);
+        return;
+    }
+    let mut interest = Interest::default();
+    interest.add(shared, fd, true, false);
+    crate::wait::wait(shared, call::READ, interest, None, &mut |wall| {
+        entry.revents = 0;
+        // SAFETY: as above, with the wait's timeout.
+        unsafe { poll(&mut entry, 1, crate::wait::wall_ms(wall)) }
+    });
+    crate::sys::set_errno(saved);
 }
 
 /// FIONREAD (TIOCINQ) counts only the visible bytes of the port; TCFLSH is tcflush's.

@@ -60,6 +60,8 @@ thread_local! {
     /// This thread's CPU time (real, ns) when its computation was last charged
     /// (`--controller-cpu`); 0: not yet read.
     static CPU_SEEN: Cell<u64> = const { Cell::new(0) };
+    /// Simulated time when this thread last got the turn (see [`charge`]).
+    static TURN_FROM: Cell<u64> = const { Cell::new(0) };
     /// Non-zero while the shim itself is at work in this thread (in the trap handler, or
     /// calling libc for a thread): its system calls go to the kernel as they are.
     static OWN_CALLS: Cell<u32> = const { Cell::new(0) };
@@ -242,6 +244,7 @@ fn my_slot() -> Option<&'static Slot> {
         slot.parent.store(sys::getppid(), Ordering::Relaxed);
         slot.state.store(state::RUNNING, Ordering::Release);
         SLOT.with(|s| s.set(index as u32));
+        took_turn(shared);
         let key = EXIT_KEY.load(Ordering::Relaxed);
         if key != u32::MAX && tid != pid {
             // SAFETY: a key from pthread_key_create; the value only has to be non-null.
@@ -349,6 +352,7 @@ fn await_turn(shared: &Shared, slot: &Slot) {
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
         if slot.state.load(Ordering::Acquire) != state::READY {
+            took_turn(shared);
             return;
         }
         if run_over(shared) {
@@ -357,6 +361,11 @@ fn await_turn(shared: &Shared, slot: &Slot) {
         }
         sleep_on_wake_word(shared, slot, seen);
     }
+}
+
+/// This thread runs from now: its quantum starts (see [`charge`]).
+fn took_turn(shared: &Shared) {
+    TURN_FROM.with(|t| t.set(time::sim_now(shared)));
 }
 
 /// climbsim usually lets a parked (or ready) thread run within a few hundred microseconds: a
@@ -470,6 +479,13 @@ fn charge(shared: &Shared, ns: u64) {
     loop {
         let now = header.now_ns.load(Ordering::Acquire);
         let target = now.saturating_add(total);
+        // A thread that keeps the turn (a loop that polls what is already ready, a spin on the
+        // clock) gives it up after a quantum, as the kernel's scheduler would: the threads
+        // ready meanwhile run first (climbsim puts it after them), whoever they are.
+        if target.saturating_sub(TURN_FROM.with(Cell::get)) >= abi::TURN_QUANTUM_NS {
+            park(shared, state::YIELDED, target, abi::waits::TURN, 0);
+            return;
+        }
         if advance_within_horizon(shared, now, target) {
             return;
         }
@@ -540,6 +556,7 @@ fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline: u64) -> u3
                 continue;
             }
             reset_computation(shared);
+            took_turn(shared);
             return why;
         }
         if run_over(shared) {

@@ -142,9 +142,21 @@ pub unsafe extern "C" fn sendmsg(fd: c_int, message: *const c_void, flags: c_int
     sent
 }
 
+const MSG_DONTWAIT: c_int = 0x40;
+
+/// A receive that may block waits on simulated time first (see `io::await_readable`).
+fn before_receive(fd: c_int, flags: c_int) {
+    if let Some(shared) = active()
+        && flags & MSG_DONTWAIT == 0
+    {
+        crate::io::await_readable(shared, fd);
+    }
+}
+
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_int) -> isize {
     let next = real!(recv: fn(c_int, *mut c_void, usize, c_int) -> isize);
+    before_receive(fd, flags);
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, buf, len, flags) };
     if flags & 2 == 0 {
@@ -157,6 +169,7 @@ pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags: c_int, addr: *mut c_void, addr_len: *mut u32) -> isize {
     let next = real!(recvfrom: fn(c_int, *mut c_void, usize, c_int, *mut c_void, *mut u32) -> isize);
+    before_receive(fd, flags);
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, buf, len, flags, addr, addr_len) };
     if flags & 2 == 0 {
@@ -168,6 +181,7 @@ pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recvmsg(fd: c_int, message: *mut c_void, flags: c_int) -> isize {
     let next = real!(recvmsg: fn(c_int, *mut c_void, c_int) -> isize);
+    before_receive(fd, flags);
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, message, flags) };
     if flags & 2 == 0 {

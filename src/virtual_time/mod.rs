@@ -525,9 +525,12 @@ impl VirtualTime {
     }
 
     /// Give the turn to the ready thread in the lowest slot, if there is one (and no thread
-    /// runs): the order does not depend on which the host happened to schedule first.
+    /// runs): the order does not depend on which the host happened to schedule first. A
+    /// thread that gave its turn up after a quantum comes after every other ready one.
     fn give_turn(&self) -> bool {
-        let ready = self.shared().slots.iter().find(|s| s.state.load(Ordering::Acquire) == state::READY);
+        let slots = &self.shared().slots;
+        let ready = |s: &&Slot| s.state.load(Ordering::Acquire) == state::READY;
+        let ready = slots.iter().filter(ready).find(|s| s.waits.load(Ordering::Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready));
         if let Some(slot) = ready {
             lock(&self.stats).turns += 1;
             let_run(slot, slot.release.load(Ordering::Acquire));
