@@ -234,9 +234,12 @@ fn the_reference_line_follower_repeats_exactly_under_virtual_time_even_on_a_load
         // The controller polled the sensor server every period and got a line each time.
         let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
         assert!(log.contains(", 0 without a line measurement"), "{log}");
-        runs.push((std::fs::read(out.join("timeseries.csv")).expect("timeseries"), std::fs::read(out.join("timing.json")).expect("timing"), summary));
+        runs.push((std::fs::read(out.join("timeseries.csv")).expect("timeseries"), std::fs::read(out.join("timing.json")).expect("timing"), summary, log));
     }
     drop(load);
+    // Its own output too: it is asked to stop while parked at the run's last instant, not
+    // after it ran on for a while on the wall clock.
+    assert_eq!(runs[0].3, runs[1].3, "controller.log differs between runs");
     assert!(runs[0].0 == runs[1].0, "timeseries.csv differs between runs");
     assert!(runs[0].1 == runs[1].1, "timing.json differs between runs");
     assert_eq!(runs[0].2, runs[1].2, "summary.json differs between runs");

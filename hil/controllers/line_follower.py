@@ -138,6 +138,9 @@ def main():
     while running:
         now = time.monotonic()
         result = reader.txRxPacket()
+        if not running:
+            # Stopped during the transaction (the run ended): the bus is no longer answered.
+            break
         if result != COMM_SUCCESS:
             print(f"sync read failed: {packet.getTxRxResult(result)}", file=sys.stderr)
         else:

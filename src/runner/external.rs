@@ -215,7 +215,9 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let pace = ended.pace;
     let sim_s = clock.now().as_secs_f64();
     // The controller's clean-up runs on the wall clock: it can neither hang nor move the world.
+    // It is asked to stop first, while parked at the run's last instant.
     if let Some(vt) = &virtual_time {
+        controller.ask_to_stop()?;
         vt.end();
     }
     // Stopped either way: a controller that ended by itself may have left children running.

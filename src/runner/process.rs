@@ -67,6 +67,8 @@ pub struct Controller {
     marker: Vec<u8>,
     /// Its process group and every marked process have been ended.
     ended: bool,
+    /// When SIGTERM was sent (see [`Controller::ask_to_stop`]).
+    asked_to_stop: Option<Instant>,
 }
 
 /// Resolve `./` and `../` arguments against the scenario's folder, so a scenario can name a
@@ -119,7 +121,7 @@ impl Controller {
             }
         }
         let child = command.spawn().during(|| format!("cannot start the controller `{description}`"))?;
-        Ok(Self { child, description, log_path: launch.log_path.to_owned(), log: Some(log), marker: format!("{RUN_MARKER}={marker}").into_bytes(), ended: false })
+        Ok(Self { child, description, log_path: launch.log_path.to_owned(), log: Some(log), marker: format!("{RUN_MARKER}={marker}").into_bytes(), ended: false, asked_to_stop: None })
     }
 
     pub fn id(&self) -> u32 {
@@ -149,11 +151,11 @@ impl Controller {
     /// grace period, then SIGKILL for whatever is left. The controller's exit status (if it had
     /// already ended by itself, that one: what it left running is ended all the same).
     pub fn stop(&mut self) -> Result<ExitStatus> {
-        let pgid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).map_err(|_| RunnerError::Invalid("pid out of range".to_owned()))?);
+        let pgid = self.process_group()?;
         let mut status = self.try_wait()?;
         if !self.ended {
-            self.signal_all(pgid, nix::sys::signal::Signal::SIGTERM);
-            let deadline = Instant::now() + STOP_GRACE;
+            let asked = self.ask_to_stop()?;
+            let deadline = asked + STOP_GRACE;
             while Instant::now() < deadline {
                 status = status.or(self.try_wait()?);
                 if status.is_some() && !self.any_left(pgid) {
@@ -178,6 +180,25 @@ impl Controller {
             warn!(log = %self.log_path.display(), "the controller's output was still being written after {LOG_FINISH:?}");
         }
         Ok(status)
+    }
+
+    /// SIGTERM to the controller and everything it started, once (what [`Controller::stop`]
+    /// begins with); when it was sent. Under virtual time it is sent while every controller
+    /// thread is still parked at the run's last instant, so that what the controller does on
+    /// it does not depend on how far it ran on the wall clock after the run.
+    pub fn ask_to_stop(&mut self) -> Result<Instant> {
+        if let Some(asked) = self.asked_to_stop {
+            return Ok(asked);
+        }
+        if !self.ended {
+            self.signal_all(self.process_group()?, nix::sys::signal::Signal::SIGTERM);
+        }
+        Ok(*self.asked_to_stop.insert(Instant::now()))
+    }
+
+    /// The controller's process group (it leads its own).
+    fn process_group(&self) -> Result<nix::unistd::Pid> {
+        Ok(nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).map_err(|_| RunnerError::Invalid("pid out of range".to_owned()))?))
     }
 
     /// Send `signal` to the controller's process group and to every process marked as its run's.
