@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every climbsim test on a fresh machine: makes .venv with the pinned official DynamixelSDK
-# (tests/sdk/requirements.txt), then `cargo test` (unit, golden-vector, property, dynamixel2 and
-# official-SDK tests), then `climbsim check scenarios/` (every shipped scenario against its
+# (tests/sdk/requirements.txt) and tests/vt/node's node_modules (npm ci), then `cargo test`
+# (unit, golden-vector, property, dynamixel2 and official-SDK tests), then `climbsim check scenarios/` (every shipped scenario against its
 # [expect], on virtual time, and the 1 Mbps external one on the wall clock), then the SocketCAN test if a vcan interface
 # exists. Installs Debian's libfaketime (for --speed) when missing and it can (root + apt-get).
 # Extra arguments go to the first `cargo test`.
@@ -29,19 +29,37 @@ fi
 export CLIMBSIM_PYTHON="$venv/bin/python"
 stage_done "the SDK's venv"
 
-# --speed N runs external controllers under libfaketime (LD_PRELOAD); the tests use it.
-if ! compgen -G "/usr/lib/*/faketime/libfaketimeMT.so.1" > /dev/null && [[ -z "${CLIMBSIM_LIBFAKETIME:-}" ]]; then
+# The Node.js controller of the virtual-time tests runs on npm's serialport (prebuilt for
+# linux-x64 in the package: nothing compiles), pinned by tests/vt/node/package-lock.json.
+node_modules="tests/vt/node/node_modules"
+node_stamp="$node_modules/.lock.sha256"
+node_want="$(sha256sum tests/vt/node/package-lock.json | cut -d' ' -f1)"
+if [[ "$(cat "$node_stamp" 2>/dev/null)" != "$node_want" ]]; then
+    echo "==> npm ci in tests/vt/node (npm's serialport for the Node.js controller)"
+    npm ci --prefix tests/vt/node --no-audit --no-fund --loglevel=error
+    echo "$node_want" > "$node_stamp"
+fi
+stage_done "npm's serialport"
+
+# Debian packages the tests need, installed when missing where we can (root + apt-get).
+need_debian_package() { # PACKAGE GLOB-OF-A-FILE-IT-INSTALLS WHY
+    compgen -G "$2" > /dev/null && return 0
     if [[ $(id -u) == 0 ]] && command -v apt-get > /dev/null; then
-        echo "==> installing Debian's libfaketime (for --speed)"
-        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libfaketime > /dev/null \
-            || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libfaketime > /dev/null; }
+        echo "==> installing Debian's $1 ($3)"
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$1" > /dev/null \
+            || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$1" > /dev/null; }
     else
-        echo "error: libfaketime is missing (apt-get install libfaketime, or set CLIMBSIM_LIBFAKETIME to libfaketimeMT.so.1)" >&2
+        echo "error: $1 is missing ($3): apt-get install $1" >&2
         exit 2
     fi
+}
+# --speed N runs external controllers under libfaketime (LD_PRELOAD); the tests use it.
+if [[ -z "${CLIMBSIM_LIBFAKETIME:-}" ]]; then
+    need_debian_package libfaketime "/usr/lib/*/faketime/libfaketimeMT.so.1" "for --speed; or set CLIMBSIM_LIBFAKETIME to libfaketimeMT.so.1"
 fi
-
-stage_done "libfaketime"
+# The Java controller of the virtual-time tests runs on jSSC.
+need_debian_package libjssc-java "/usr/share/java/jssc.jar" "the Java controller of the virtual-time tests"
+stage_done "Debian packages"
 echo "==> cargo test"
 cargo test --locked --no-run "$@"
 stage_done "cargo test: build"

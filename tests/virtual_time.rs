@@ -586,6 +586,51 @@ fn tokio_multi_thread_runtime_on_dynamixel2_repeats_exactly() {
     assert!(log.contains("longest period 20."), "{log}");
 }
 
+/// Node.js, found on PATH (the machine's own; scripts/test.sh installs npm's serialport for it).
+fn node() -> PathBuf {
+    let found = std::process::Command::new("sh").args(["-c", "command -v node"]).output().expect("sh");
+    let path = String::from_utf8_lossy(&found.stdout).trim().to_owned();
+    assert!(!path.is_empty(), "Node.js is not on PATH: the Node.js controller's test needs it");
+    assert!(repo().join("tests/vt/node/node_modules/serialport").is_dir(), "npm's serialport is missing: run scripts/test.sh (it runs `npm ci --prefix tests/vt/node`)");
+    PathBuf::from(path)
+}
+
+#[test]
+fn nodejs_with_npms_serialport_and_a_worker_thread_repeats_exactly() {
+    let dir = support::scratch_dir("vt-node");
+    let node = node();
+    let script = repo().join("tests/vt/node/serialport_controller.js");
+    let path = scenario_1mbps(&dir, "node", 3.0, &[node.to_str().expect("utf-8 path"), script.to_str().expect("utf-8 path")]);
+    let log = controller_log_repeated(&path, &dir);
+    // libuv's loop waits in epoll_wait; serialport's reads and writes go through libuv's
+    // thread pool, which reports them through an eventfd; the worker thread is a second V8.
+    assert!(log.contains("ping 1-8: 8 found"), "{log}");
+    assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
+    assert!(log.contains("loop: 100 cycles in 200"), "{log}");
+}
+
+/// Debian's jSSC (libjssc-java: scripts/test.sh installs it).
+const JSSC_JAR: &str = "/usr/share/java/jssc.jar";
+
+#[test]
+fn java_with_jssc_and_a_blocking_queue_repeats_exactly() {
+    let dir = support::scratch_dir("vt-java");
+    assert!(Path::new(JSSC_JAR).is_file(), "{JSSC_JAR} is missing: apt-get install libjssc-java (scripts/test.sh does)");
+    let compiled = std::process::Command::new("javac").args(["-cp", JSSC_JAR, "-d"]).arg(&dir).arg(repo().join("tests/vt/java/JsscController.java")).output().expect("javac (a JDK) is needed for the Java controller's test");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    let found = std::process::Command::new("sh").args(["-c", "command -v java"]).output().expect("sh");
+    let java = String::from_utf8_lossy(&found.stdout).trim().to_owned();
+    let classpath = format!("{JSSC_JAR}:{}", dir.display());
+    let path = scenario_1mbps(&dir, "java", 3.0, &[&java, "-Djava.library.path=/usr/lib/jni", "-cp", &classpath, "JsscController"]);
+    let log = controller_log_repeated(&path, &dir);
+    // The JVM's own threads (JIT compilers, the garbage collector) park on futexes; jSSC's
+    // readBytes polls the port and sleeps; the statistics thread polls its queue with a
+    // timeout: all on simulated time, one thread at a time.
+    assert!(log.contains("ping 1-8: 8 found"), "{log}");
+    assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
+    assert!(log.contains("loop: 100 cycles in 200"), "{log}");
+}
+
 #[test]
 fn cpp_threads_and_a_condition_variable_on_the_cpp_sdks_pattern_repeat_exactly() {
     let dir = support::scratch_dir("vt-cpp-threads");
