@@ -408,10 +408,16 @@ unsafe extern "C" fn process_exiting(_: *mut c_void) {
     let Some(shared) = shared() else { return };
     let pid = sys::getpid();
     children::wake_waiting_parent(shared, pid, sys::getppid());
+    // This thread's own slot last: until then it runs, so climbsim decides nothing on a
+    // process half marked (it would move time to the deadline of a thread not yet marked).
+    let own = my_slot().map(|slot| slot as *const Slot);
     for slot in &shared.slots {
-        if slot.pid.load(Ordering::Relaxed) == pid && slot.state.load(Ordering::Acquire) != state::FREE {
+        if slot.pid.load(Ordering::Relaxed) == pid && slot.state.load(Ordering::Acquire) != state::FREE && Some(slot as *const Slot) != own {
             exit_slot(slot);
         }
+    }
+    if let Some(own) = my_slot() {
+        exit_slot(own);
     }
 }
 

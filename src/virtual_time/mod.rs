@@ -387,6 +387,7 @@ impl VirtualTime {
                     // runs; what it sends is read once the world has reached its instant (see
                     // `settle`), so nothing it can see depends on the race.
                     lock(&self.stats).jumps += 1;
+                    self.trace_jump(plan.next);
                     let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
                     self.let_go_at(now, next_timer, next_timer.min(self.next_held_due(now)));
                     return Ok(());
@@ -395,6 +396,7 @@ impl VirtualTime {
                 return Ok(());
             }
             lock(&self.stats).jumps += 1;
+            self.trace_jump(plan.next);
             let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
             self.fire_timers(now);
         }
@@ -536,6 +538,27 @@ impl VirtualTime {
             let_run(slot, slot.release.load(Ordering::Acquire));
         }
         ready.is_some()
+    }
+
+    /// At trace level (`RUST_LOG=climbsim::virtual_time=trace`): a jump of simulated time to
+    /// `to`, with every followed thread's state, to find which wait a run that does not repeat
+    /// waited on.
+    fn trace_jump(&self, to: u64) {
+        if !tracing::enabled!(tracing::Level::TRACE) {
+            return;
+        }
+        let threads: Vec<String> = self
+            .shared()
+            .slots
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+            .map(|(i, s)| {
+                let deadline = s.deadline_ns.load(Ordering::Relaxed);
+                format!("#{i} tid {} state {} waits {:#x} until {} last {}", s.tid.load(Ordering::Relaxed), s.state.load(Ordering::Acquire), s.waits.load(Ordering::Relaxed), if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) }, abi::call::name(s.last_call.load(Ordering::Relaxed)))
+            })
+            .collect();
+        tracing::trace!(from_s = self.now_ns() as f64 / 1e9, to_s = to as f64 / 1e9, "jump; {}", threads.join("; "));
     }
 
     fn any_running(&self) -> bool {
