@@ -202,13 +202,25 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
         // The port masked as empty (bytes not visible yet) costs nothing here: the kernel is
         // never waited in.
         crate::held::take_masked();
-        if ready != 0 {
-            // Woken by the real world; we run again in our turn.
-            crate::resume_after_kernel_wake(shared, slot);
+        if ready == 0 {
+            crate::answer_look(shared, slot, epoch);
+            sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
+            continue;
+        }
+        // Woken by the real world: we run again in our turn, and only then say what is ready.
+        // This look may have come while another thread ran (and moved the clock), and what it
+        // found then depends on the host; in our turn everything else is parked.
+        crate::resume_after_kernel_wake(shared, slot);
+        let ready = real_wait(Some(0));
+        crate::held::take_masked();
+        if ready != 0 || crate::active().is_none() {
             return ready;
         }
-        crate::answer_look(shared, slot, epoch);
-        sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
+        // Taken by a thread that ran first: wait on.
+        crate::expect_look(shared, slot);
+        slot.release.store(0, Ordering::Relaxed);
+        slot.state.store(state::BLOCKED, Ordering::Release);
+        crate::notify_scheduler(shared);
     }
 }
 

@@ -21,7 +21,7 @@ use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 use thiserror::Error;
 use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
-use tracing::{info, warn};
+use tracing::{debug, info, warn};
 
 use super::busy_poll::BusyPoll;
 use crate::virtual_time::VirtualTime;
@@ -156,8 +156,18 @@ pub struct VirtualTimeStream {
 }
 
 /// How long a written reply may take to reach the controller's side before climbsim goes on
-/// without it (a controller that never reads fills the terminal's buffer).
-const VISIBLE_WITHIN: Duration = Duration::from_millis(100);
+/// without it (a controller that never reads fills the terminal's buffer). The kernel's pty
+/// worker usually hands bytes over within microseconds, but on a loaded machine it was seen to
+/// take more than 100 ms (the replies were then lost to a controller let go at their instant).
+const VISIBLE_WITHIN: Duration = Duration::from_secs(2);
+
+/// How long the terminal's buffer may stay full before what does not fit is lost (a controller
+/// that does not read the port).
+const FULL_FOR: Duration = Duration::from_millis(100);
+
+/// How long climbsim spins for the hand-over before it sleeps between looks (a spin takes the
+/// CPU from the kernel's worker on a loaded machine).
+const HAND_OVER_SPIN: Duration = Duration::from_micros(50);
 
 impl AsyncRead for VirtualTimeStream {
     fn poll_read(self: Pin<&mut Self>, _cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
@@ -178,7 +188,7 @@ impl AsyncWrite for VirtualTimeStream {
         let slave = self.port.slave.as_raw_fd();
         let before = queued_bytes(slave).unwrap_or(0);
         let mut fds = [PollFd::new(self.port.master_fd(), PollFlags::POLLOUT)];
-        let deadline = Instant::now() + VISIBLE_WITHIN;
+        let deadline = Instant::now() + FULL_FOR;
         let written = loop {
             match nix::unistd::write(self.port.master_fd(), data) {
                 Ok(n) => break n,
@@ -194,12 +204,21 @@ impl AsyncWrite for VirtualTimeStream {
                 Err(e) => return Poll::Ready(Err(e.into())),
             }
         };
+        let handing_over = Instant::now();
+        let deadline = handing_over + VISIBLE_WITHIN;
         while queued_bytes(slave).unwrap_or(0) < before + written {
             if Instant::now() > deadline {
-                warn!(bytes = written, "reply bytes not visible to the controller after 100 ms (is it reading the port?)");
+                warn!(bytes = written, "reply bytes not visible to the controller after {VISIBLE_WITHIN:?} (is it reading the port?)");
                 break;
             }
-            std::thread::yield_now();
+            if handing_over.elapsed() < HAND_OVER_SPIN {
+                std::thread::yield_now();
+            } else {
+                std::thread::sleep(Duration::from_micros(20));
+            }
+        }
+        if handing_over.elapsed() > Duration::from_millis(5) {
+            debug!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the pty's hand-over was slow");
         }
         self.virtual_time.port_written(&data[..written]);
         Poll::Ready(Ok(written))
