@@ -411,6 +411,22 @@ fn compiled_cpp(dir: &Path, name: &str) -> PathBuf {
 }
 
 #[test]
+fn two_hundred_threads_each_wake_at_their_instant_and_past_the_limit_the_run_fails_naming_it() {
+    let dir = support::scratch_dir("vt-many-threads");
+    let program = compiled_c(&dir, "many_threads");
+    let path = scenario(&dir, "two-hundred", 2.0, &[program.to_str().expect("utf-8 path"), "200"], true);
+    let (output, _) = run_virtual(&path, &dir.join("two-hundred"));
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("two-hundred/controller.log")).expect("controller.log");
+    assert!(log.contains("200 threads: each woke within 0.000 ms of its instant; all joined after 200.000 ms"), "{log}");
+    // Past the slots the block has (it had 128, and sleeps past them returned at once).
+    let path = scenario(&dir, "too-many", 2.0, &[program.to_str().expect("utf-8 path"), "5000"], true);
+    let (output, _) = run_virtual(&path, &dir.join("too-many"));
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    assert!(output_text(&output).contains("virtual time follows at most 4095 threads at once"), "{}", output_text(&output));
+}
+
+#[test]
 fn a_c_control_loop_on_a_timerfd_follows_simulated_time() {
     let dir = support::scratch_dir("vt-timerfd");
     let program = compiled_c(&dir, "timer_loop");

@@ -25,4 +25,7 @@ for run in $(seq 1 "$runs"); do
         echo "run $run failed:"; tail -3 "$work/$run.out"
     fi
 done
+# A run can pass with its controller stuck (a controller killed at the scenario's end exits 0):
+# the last line it printed says how far it got.
+echo "last line of the first run's controller log: $(tail -n 1 "$work/1/controller.log" 2>/dev/null)"
 echo "$scenario: $passed of $runs passed${loaded:+ (both cores loaded)}; distinct controller logs: $(sort -u "$work/logs" 2>/dev/null | wc -l), distinct time series: $(sort -u "$work/series" 2>/dev/null | wc -l); $((SECONDS - started)) s"

@@ -11,9 +11,16 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 5;
-/// Controller threads that can be followed at once (all processes together).
-pub const SLOTS: usize = 128;
+pub const ABI: u32 = 6;
+/// Controller threads that can be followed at once (all processes together). Far more than a
+/// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
+/// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
+/// fails, naming the limit, never a thread left unfollowed.
+pub const SLOTS: usize = 4096;
+/// epoll registrations followed per process (all its epoll instances together).
+pub const EPOLL_ENTRIES: usize = 1024;
+/// timerfds followed per process.
+pub const TIMERFDS: usize = 64;
 /// Sensor-server connections followed at once.
 pub const CONNS: usize = 64;
 /// Simulated time a thread may run (charged calls, its CPU time with `--controller-cpu`)
@@ -33,6 +40,30 @@ pub mod mode {
     /// The run is over: calls go to the real kernel again, clocks go on from where virtual time
     /// stopped at the wall clock's rate, so a controller's clean-up cannot hang.
     pub const ENDING: u32 = 2;
+}
+
+/// `Header::tables_full`: a table of the block or of a shim that had no room left, so that
+/// something was not followed (the run fails naming it).
+pub mod full {
+    pub const SLOTS: u32 = 1;
+    pub const EPOLL: u32 = 2;
+    pub const TIMERFDS: u32 = 4;
+    pub const CONNS: u32 = 8;
+
+    /// What ran out, in words, and its limit, for the run's failure.
+    pub fn describe(bits: u32) -> Option<(&'static str, usize)> {
+        Some(if bits & SLOTS != 0 {
+            ("threads at once (all the controller's processes together)", super::SLOTS - 1)
+        } else if bits & EPOLL != 0 {
+            ("epoll registrations in one process", super::EPOLL_ENTRIES)
+        } else if bits & TIMERFDS != 0 {
+            ("timerfds in one process", super::TIMERFDS)
+        } else if bits & CONNS != 0 {
+            ("connections to the sensor server at once", super::CONNS)
+        } else {
+            return None;
+        })
+    }
 }
 
 /// `Slot::state`.
@@ -180,6 +211,11 @@ pub struct Header {
     pub port_rx_written: AtomicU64,
     /// S: of those, the bytes the controller has read, or flushed while they were visible.
     pub port_rx_taken: AtomicU64,
+    /// S (and C for slot 0): one past the highest slot ever taken; raised before a slot is, so
+    /// that a scan up to it never misses a thread.
+    pub slots_high: AtomicU32,
+    /// S: see [`full`].
+    pub tables_full: AtomicU32,
     /// C: replies written ahead of their time: the bytes from `HeldRun::start` on become visible
     /// at `HeldRun::due_ns` (and not before the runs ahead of them in the stream). The shim hides
     /// what is not visible yet from reads, polls and FIONREAD, so that a Sync Read's eight
@@ -279,6 +315,14 @@ pub struct Shared {
     pub header: Header,
     pub slots: [Slot; SLOTS],
     pub conns: [Conn; CONNS],
+}
+
+impl Shared {
+    /// The slots that have ever been taken (those past them are free): what every scan looks at.
+    pub fn live_slots(&self) -> &[Slot] {
+        let high = self.header.slots_high.load(core::sync::atomic::Ordering::Acquire) as usize;
+        &self.slots[..high.clamp(1, SLOTS)]
+    }
 }
 
 /// The block's size in bytes, for the file climbsim creates.

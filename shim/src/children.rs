@@ -35,7 +35,7 @@ fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> 
 
 /// This process is ending: a parent waiting for it runs again from now.
 pub(crate) fn wake_waiting_parent(shared: &Shared, pid: i32, parent: i32) {
-    for slot in &shared.slots {
+    for slot in shared.live_slots() {
         if slot.pid.load(Ordering::Relaxed) != parent || slot.state.load(Ordering::Acquire) != state::BLOCKED || slot.waits.load(Ordering::Relaxed) != waits::CHILD {
             continue;
         }

@@ -13,7 +13,7 @@ use crate::wait::{Interest, ms_timeout, wait, wall_ms};
 use crate::{active, shared};
 
 /// Registrations followed at once (all epoll instances of a process together).
-const ENTRIES: usize = 512;
+const ENTRIES: usize = crate::abi::EPOLL_ENTRIES;
 
 struct Entry {
     /// The epoll instance; -1: free.
@@ -63,10 +63,13 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
                 entry.data.store(data, Ordering::Relaxed);
                 return;
             }
-            if let Some(entry) = ENTRIES_TABLE.iter().find(|e| e.epfd.compare_exchange(-1, epfd, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
-                entry.fd.store(fd, Ordering::Relaxed);
-                entry.events.store(events, Ordering::Relaxed);
-                entry.data.store(data, Ordering::Relaxed);
+            match ENTRIES_TABLE.iter().find(|e| e.epfd.compare_exchange(-1, epfd, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
+                Some(entry) => {
+                    entry.fd.store(fd, Ordering::Relaxed);
+                    entry.events.store(events, Ordering::Relaxed);
+                    entry.data.store(data, Ordering::Relaxed);
+                }
+                None => crate::table_full(crate::abi::full::EPOLL),
             }
         }
         EPOLL_CTL_DEL => {
@@ -91,8 +94,10 @@ pub(crate) fn forget(fd: c_int) {
 
 /// What a wait on `epfd` waits on. (After fork the child's table is its own copy of its
 /// parent's, and stays right: it inherits the instances.)
-fn interest(epfd: c_int) -> Interest {
+fn interest(call: EpollCall) -> Interest {
+    let epfd = call.epfd;
     let mut interest = Interest::default();
+    interest.epoll = Some(call);
     let Some(shared) = shared() else { return interest };
     let mut any = false;
     for entry in &ENTRIES_TABLE {
@@ -108,6 +113,50 @@ fn interest(epfd: c_int) -> Interest {
         interest.add_other();
     }
     interest
+}
+
+/// An epoll wait's own arguments: where its events go, and how many fit.
+#[derive(Clone, Copy)]
+pub(crate) struct EpollCall {
+    pub(crate) epfd: c_int,
+    pub(crate) events: *mut c_void,
+    pub(crate) max: c_int,
+}
+
+/// The wait's first `first` events were taken at a look; add what is ready now (with the port
+/// masked as ever), an event for a registration already reported merged into it. The total.
+pub(crate) fn collect_more(shared: &crate::abi::Shared, call: EpollCall, first: c_int, port_fd: Option<c_int>) -> c_int {
+    let next = real!(epoll_wait: fn(c_int, *mut c_void, c_int, c_int) -> c_int);
+    let room = call.max - first;
+    if room <= 0 {
+        return first;
+    }
+    let base = call.events.cast::<u8>();
+    // SAFETY: within the caller's array of `max` events.
+    let tail = unsafe { base.add(first as usize * EVENT.0) };
+    let saved = crate::sys::errno();
+    // SAFETY: the caller's epoll instance and the free part of its array; no wait.
+    let more = mask_events(shared, call.epfd, tail.cast(), unsafe { next(call.epfd, tail.cast(), room, 0) }, port_fd);
+    crate::sys::set_errno(saved);
+    let mut total = first as usize;
+    for index in 0..more.max(0) as usize {
+        // SAFETY: the kernel filled `more` events after the first ones.
+        let event = unsafe { tail.add(index * EVENT.0) };
+        let data = event_data(event);
+        // SAFETY: as above; the flags are the event's first 4 bytes.
+        let flags = unsafe { event.cast::<u32>().read_unaligned() };
+        let same = (0..first as usize).map(|i| unsafe { base.add(i * EVENT.0) }).find(|&e| event_data(e) == data);
+        match same {
+            // SAFETY: one of the first events.
+            Some(earlier) => unsafe { earlier.cast::<u32>().write_unaligned(earlier.cast::<u32>().read_unaligned() | flags) },
+            None => {
+                // SAFETY: both within the array; `total` <= `first + index`.
+                unsafe { core::ptr::copy(event, base.add(total * EVENT.0), EVENT.0) };
+                total += 1;
+            }
+        }
+    }
+    total as c_int
 }
 
 /// The events an epoll wait reported, without the port's readiness where nothing visible is
@@ -158,7 +207,7 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout_ms) };
     };
-    let interest = interest(epfd);
+    let interest = interest(EpollCall { epfd, events, max });
     // SAFETY: the caller's arguments, with our timeout.
     wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| mask_events(shared, epfd, events, unsafe { next(epfd, events, max, wall_ms(wall)) }, interest.port_fd))
 }
@@ -170,7 +219,7 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout_ms, sigmask) };
     };
-    let interest = interest(epfd);
+    let interest = interest(EpollCall { epfd, events, max });
     // SAFETY: the caller's arguments, with our timeout.
     wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| mask_events(shared, epfd, events, unsafe { next(epfd, events, max, wall_ms(wall), sigmask) }, interest.port_fd))
 }
@@ -184,7 +233,7 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
     };
     // SAFETY: the caller's timespec, if any.
     let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
-    let interest = interest(epfd);
+    let interest = interest(EpollCall { epfd, events, max });
     wait(shared, call::POLL, interest, asked, &mut |wall| {
         let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);

@@ -187,7 +187,7 @@ fn wake_locked(shared: &Shared, key: Key, count: u32, bitset: u32) -> u32 {
 
 fn oldest_waiter(shared: &Shared, key: Key, bitset: u32) -> Option<&Slot> {
     shared
-        .slots
+        .live_slots()
         .iter()
         .filter(|s| {
             s.futex_queued.load(Ordering::Acquire) == 1

@@ -255,7 +255,7 @@ fn my_slot() -> Option<&'static Slot> {
     // After an exec the thread is the same task: its old slot (or the one it reserved before
     // the exec) is still running. A child of posix_spawn finds the one its parent reserved.
     let parent = sys::getppid();
-    for (index, slot) in shared.slots.iter().enumerate() {
+    for (index, slot) in shared.live_slots().iter().enumerate() {
         let held = slot.state.load(Ordering::Acquire);
         let slot_tid = slot.tid.load(Ordering::Relaxed);
         let mine = matches!(held, state::RUNNING | state::RESERVED) && slot_tid == tid;
@@ -269,19 +269,41 @@ fn my_slot() -> Option<&'static Slot> {
         return claim(0, first);
     }
     // A free slot, or one whose thread has ended (a shell's children come and go).
-    for (index, slot) in shared.slots.iter().enumerate().skip(1) {
-        if take_unused(slot, state::RUNNING) {
-            let claimed = claim(index, slot);
-            notify_scheduler(shared);
-            return claimed;
-        }
-    }
-    None
+    let (index, slot) = take_free_slot(shared, state::RUNNING)?;
+    let claimed = claim(index, slot);
+    notify_scheduler(shared);
+    claimed
 }
 
 /// Take `slot` if nobody uses it (free, or its thread ended), putting it in state `to`.
 fn take_unused(slot: &Slot, to: u32) -> bool {
     [state::FREE, state::EXITED].into_iter().any(|from| slot.state.compare_exchange(from, to, Ordering::AcqRel, Ordering::Relaxed).is_ok())
+}
+
+/// A table had no room for something to follow (`abi::full`): the run fails naming it.
+fn table_full(which: u32) {
+    if let Some(shared) = shared() {
+        shared.header.tables_full.fetch_or(which, Ordering::AcqRel);
+        notify_scheduler(shared);
+    }
+}
+
+/// A slot nobody uses (slot 0 is climbsim's to reserve), taken in state `to`. None if every one
+/// is in use: the table is then marked full, which fails the run naming it, rather than leave
+/// a thread unfollowed without a word.
+fn take_free_slot(shared: &Shared, to: u32) -> Option<(usize, &Slot)> {
+    for (index, slot) in shared.slots.iter().enumerate().skip(1) {
+        if !matches!(slot.state.load(Ordering::Acquire), state::FREE | state::EXITED) {
+            continue;
+        }
+        // Scans stop at the high-water mark: it is raised before the slot is taken.
+        shared.header.slots_high.fetch_max(index as u32 + 1, Ordering::AcqRel);
+        if take_unused(slot, to) {
+            return Some((index, slot));
+        }
+    }
+    table_full(abi::full::SLOTS);
+    None
 }
 
 unsafe extern "C" fn thread_exited(_: *mut c_void) {
@@ -294,8 +316,7 @@ unsafe extern "C" fn thread_exited(_: *mut c_void) {
 /// Reserve a slot for a thread about to be created (the creator runs on meanwhile).
 fn reserve_thread_slot() -> Option<usize> {
     let shared = shared()?;
-    let index = shared.slots.iter().skip(1).position(|slot| take_unused(slot, state::RESERVED))? + 1;
-    let slot = &shared.slots[index];
+    let (index, slot) = take_free_slot(shared, state::RESERVED)?;
     slot.pid.store(pid(), Ordering::Relaxed);
     // Not 0, which marks a process's reservation (see `my_slot`).
     slot.tid.store(-1, Ordering::Relaxed);
@@ -411,7 +432,7 @@ unsafe extern "C" fn process_exiting(_: *mut c_void) {
     // This thread's own slot last: until then it runs, so climbsim decides nothing on a
     // process half marked (it would move time to the deadline of a thread not yet marked).
     let own = my_slot().map(|slot| slot as *const Slot);
-    for slot in &shared.slots {
+    for slot in shared.live_slots() {
         if slot.pid.load(Ordering::Relaxed) == pid && slot.state.load(Ordering::Acquire) != state::FREE && Some(slot as *const Slot) != own {
             exit_slot(slot);
         }

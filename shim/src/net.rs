@@ -63,6 +63,7 @@ fn follow_connection(shared: &'static Shared, fd: c_int, to: *const SockaddrIn) 
             return;
         }
     }
+    crate::table_full(crate::abi::full::CONNS);
 }
 
 /// The descriptor is closed (or reused): its connection is no longer followed.

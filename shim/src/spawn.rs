@@ -19,29 +19,25 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
         return None;
     }
     // The task may hold a slot already (a followed process that execs): it keeps it.
-    if tid != 0 && shared.slots.iter().any(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED)) {
+    if tid != 0 && shared.live_slots().iter().any(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED)) {
         return None;
     }
     // A child of posix_spawn (whose exec glibc makes inside, where only the trap sees it) finds
     // the slot its parent reserved for it before the clone: it is this task's, not a second one.
     if tid != 0 {
         let parent = sys::getppid();
-        if let Some(ours) = shared.slots.iter().find(|s| s.state.load(Ordering::Acquire) == state::RESERVED && s.tid.load(Ordering::Relaxed) == 0 && s.pid.load(Ordering::Relaxed) == parent) {
+        if let Some(ours) = shared.live_slots().iter().find(|s| s.state.load(Ordering::Acquire) == state::RESERVED && s.tid.load(Ordering::Relaxed) == 0 && s.pid.load(Ordering::Relaxed) == parent) {
             ours.tid.store(tid, Ordering::Release);
             return None;
         }
     }
-    for slot in shared.slots.iter().skip(1) {
-        if crate::take_unused(slot, state::RESERVED) {
-            slot.pid.store(if tid == 0 { parent } else { tid }, Ordering::Relaxed);
-            // The program to come is a child of `parent` (fork, posix_spawn), or of this
-            // process's parent (an exec: the same process).
-            slot.parent.store(if tid == 0 { parent } else { sys::getppid() }, Ordering::Relaxed);
-            slot.tid.store(tid, Ordering::Release);
-            return Some(slot);
-        }
-    }
-    None
+    let (_, slot) = crate::take_free_slot(shared, state::RESERVED)?;
+    slot.pid.store(if tid == 0 { parent } else { tid }, Ordering::Relaxed);
+    // The program to come is a child of `parent` (fork, posix_spawn), or of this process's
+    // parent (an exec: the same process).
+    slot.parent.store(if tid == 0 { parent } else { sys::getppid() }, Ordering::Relaxed);
+    slot.tid.store(tid, Ordering::Release);
+    Some(slot)
 }
 
 /// An exec failed: the reservation goes.
@@ -90,7 +86,7 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
         return result;
     }
     let Some(shared) = shared() else { return run() };
-    let mine = shared.slots.iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED));
+    let mine = shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED));
     // Exited, and no longer this process's: a parent waiting for it waits on the real world.
     let before = mine.map(|s| (s.state.swap(state::EXITED, Ordering::AcqRel), s.pid.swap(0, Ordering::AcqRel)));
     crate::notify_scheduler(shared);

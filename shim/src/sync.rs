@@ -108,7 +108,7 @@ fn wake_peers(addr: usize) {
         return;
     }
     let me = pid();
-    for slot in &shared.slots {
+    for slot in shared.live_slots() {
         if slot.state.load(Ordering::Acquire) == state::BLOCKED
             && slot.waits.load(Ordering::Relaxed) == waits::PEER
             && slot.conn_mask.load(Ordering::Relaxed) == addr as u64

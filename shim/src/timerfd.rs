@@ -12,7 +12,7 @@ use crate::time::{clock_at, from_ns, sim_now, sim_time_of, to_ns};
 use crate::{active, charge, note_call, park};
 
 /// Timers followed at once in a process.
-pub(crate) const TIMERS: usize = 64;
+pub(crate) const TIMERS: usize = crate::abi::TIMERFDS;
 
 struct Timer {
     /// The descriptor; -1: free.
@@ -88,12 +88,15 @@ pub unsafe extern "C" fn timerfd_create(clock: c_int, flags: c_int) -> c_int {
         && clock_at(shared, clock, 0).is_some()
     {
         forget(fd);
-        if let Some(timer) = TABLE.iter().find(|t| t.fd.compare_exchange(-1, -2, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
-            timer.clock.store(clock, Ordering::Relaxed);
-            timer.expiry.store(NEVER, Ordering::Relaxed);
-            timer.interval.store(0, Ordering::Relaxed);
-            timer.shown.store(false, Ordering::Relaxed);
-            timer.fd.store(fd, Ordering::Release);
+        match TABLE.iter().find(|t| t.fd.compare_exchange(-1, -2, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
+            Some(timer) => {
+                timer.clock.store(clock, Ordering::Relaxed);
+                timer.expiry.store(NEVER, Ordering::Relaxed);
+                timer.interval.store(0, Ordering::Relaxed);
+                timer.shown.store(false, Ordering::Relaxed);
+                timer.fd.store(fd, Ordering::Release);
+            }
+            None => crate::table_full(crate::abi::full::TIMERFDS),
         }
     }
     fd

@@ -34,6 +34,8 @@ pub(crate) struct Interest {
     /// Timers on simulated time (bit i: timerfd.rs's entry i).
     timers: u64,
     other: bool,
+    /// The epoll wait this is (its results are taken by a look: see `wait_on_real_world`).
+    pub(crate) epoll: Option<crate::epoll::EpollCall>,
 }
 
 impl Interest {
@@ -209,9 +211,14 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
         }
         // Woken by the real world: we run again in our turn, and only then say what is ready.
         // This look may have come while another thread ran (and moved the clock), and what it
-        // found then depends on the host; in our turn everything else is parked.
+        // found then depends on the host; in our turn everything else is parked. An epoll
+        // wait's look took its events (edge-triggered ones are not reported twice): what is
+        // ready now is added to them.
         crate::resume_after_kernel_wake(shared, slot);
-        let ready = real_wait(Some(0));
+        let ready = match interest.epoll {
+            Some(call) if ready > 0 => crate::epoll::collect_more(shared, call, ready, interest.port_fd),
+            _ => real_wait(Some(0)),
+        };
         crate::held::take_masked();
         if ready != 0 || crate::active().is_none() {
             return ready;

@@ -170,6 +170,8 @@ impl VirtualTime {
         header.climbsim_pid.store(std::process::id() as i32, Ordering::Relaxed);
         header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
+        // Slot 0 is the process climbsim starts (reserve_process).
+        header.slots_high.store(1, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
         Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()), real_world: Mutex::new(real_world::RealWorld::new()) }))
     }
@@ -209,7 +211,7 @@ impl VirtualTime {
     }
 
     fn controller_attached(&self) -> bool {
-        self.shared().slots.iter().any(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY))
+        self.shared().live_slots().iter().any(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY))
     }
 
     /// Hold time until the process about to be started has loaded the shim (it takes this slot).
@@ -324,7 +326,7 @@ impl VirtualTime {
         // The driven futures hold this scheduler (through their clocks): dropping them ends
         // the cycle, so that the block is removed when the run lets go of it.
         drop(std::mem::take(&mut *lock(&self.driven)));
-        for slot in &self.shared().slots {
+        for slot in self.shared().live_slots() {
             match slot.state.load(Ordering::Acquire) {
                 state::BLOCKED | state::YIELDED => let_run(slot, release::ENDING),
                 // Keeps the reason it was let go for.
@@ -353,6 +355,9 @@ impl VirtualTime {
             }
         }
         loop {
+            if let Some((what, limit)) = abi::full::describe(header.tables_full.load(Ordering::Acquire)) {
+                return Err(VtError::Stuck(format!("virtual time follows at most {limit} {what}, and the controller needed more: the one past them could not be followed (run it with --clock wall)")));
+            }
             // The world catches up with the controller before climbsim looks at anything the
             // controller sent: ticks may run while it runs, since it can see the world only
             // through replies and answers, which climbsim makes only here, with it parked.
@@ -411,7 +416,7 @@ impl VirtualTime {
         let mut due_now = Vec::new();
         let mut next_thread = NEVER;
         let mut blocked_on_port = false;
-        for slot in &self.shared().slots {
+        for slot in self.shared().live_slots() {
             let parked = slot.state.load(Ordering::Acquire);
             if parked != state::BLOCKED && parked != state::YIELDED {
                 continue;
@@ -530,7 +535,7 @@ impl VirtualTime {
     /// runs): the order does not depend on which the host happened to schedule first. A
     /// thread that gave its turn up after a quantum comes after every other ready one.
     fn give_turn(&self) -> bool {
-        let slots = &self.shared().slots;
+        let slots = self.shared().live_slots();
         let ready = |s: &&Slot| s.state.load(Ordering::Acquire) == state::READY;
         let ready = slots.iter().filter(ready).find(|s| s.waits.load(Ordering::Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready));
         if let Some(slot) = ready {
@@ -549,7 +554,7 @@ impl VirtualTime {
         }
         let threads: Vec<String> = self
             .shared()
-            .slots
+            .live_slots()
             .iter()
             .enumerate()
             .filter(|(_, s)| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
@@ -562,7 +567,7 @@ impl VirtualTime {
     }
 
     fn any_running(&self) -> bool {
-        let slots = &self.shared().slots;
+        let slots = self.shared().live_slots();
         slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
             state::RUNNING | state::RESERVED => true,
             // In waitpid: blocked only while a followed child it waits for lives; else the

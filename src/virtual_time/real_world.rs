@@ -27,16 +27,16 @@ pub(super) struct RealWorld {
     /// `Header::sched_word` when the check epoch was last bumped: threads ran since, if it moved.
     epoch_for_sched: Option<u32>,
     /// Per slot: the thread id last seen gone for good (its slot is not looked at again).
-    gone: [i32; SLOTS],
+    gone: Vec<i32>,
     /// Per slot: the thread seen going away, and since when.
-    exiting_since: [Option<(i32, Instant)>; SLOTS],
+    exiting_since: Vec<Option<(i32, Instant)>>,
     /// Since when climbsim waits for waiters to look (wall time).
     asked_since: Option<Instant>,
 }
 
 impl RealWorld {
     pub(super) fn new() -> Self {
-        Self { epoch_for_sched: None, gone: [0; SLOTS], exiting_since: [None; SLOTS], asked_since: None }
+        Self { epoch_for_sched: None, gone: vec![0; SLOTS], exiting_since: vec![None; SLOTS], asked_since: None }
     }
 
     /// Whether every thread waiting on the real world has looked at it since threads last ran,
@@ -44,7 +44,7 @@ impl RealWorld {
     /// and climbsim waits a moment for their answers.
     pub(super) fn settled(&mut self, shared: &Shared) -> bool {
         let header = &shared.header;
-        let waiting = || shared.slots.iter().filter(|s| s.state.load(Ordering::Acquire) == state::BLOCKED && s.waits.load(Ordering::Relaxed) & (waits::OTHER | waits::PEER) != 0);
+        let waiting = || shared.live_slots().iter().filter(|s| s.state.load(Ordering::Acquire) == state::BLOCKED && s.waits.load(Ordering::Relaxed) & (waits::OTHER | waits::PEER) != 0);
         if waiting().next().is_none() {
             return true;
         }
@@ -86,7 +86,7 @@ impl RealWorld {
     /// A followed thread that has said it exits still lives (not yet a zombie, nor reaped).
     fn any_exiting(&mut self, shared: &Shared) -> bool {
         let mut exiting = false;
-        for (index, slot) in shared.slots.iter().enumerate() {
+        for (index, slot) in shared.live_slots().iter().enumerate() {
             if slot.state.load(Ordering::Acquire) != state::EXITED {
                 self.exiting_since[index] = None;
                 continue;
@@ -127,5 +127,5 @@ fn alive(slot: &Slot) -> bool {
 /// The thread also holds another slot that is in use (one it moved to, as a thread created
 /// with explicit scheduling does).
 fn followed_elsewhere(shared: &Shared, index: usize, tid: i32) -> bool {
-    shared.slots.iter().enumerate().any(|(other, s)| other != index && s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+    shared.live_slots().iter().enumerate().any(|(other, s)| other != index && s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
 }

@@ -74,7 +74,7 @@ impl Watchdog {
 }
 
 fn running(shared: &Shared) -> impl Iterator<Item = &Slot> {
-    shared.slots.iter().filter(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED))
+    shared.live_slots().iter().filter(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED))
 }
 
 enum TaskState {
