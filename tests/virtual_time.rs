@@ -572,16 +572,24 @@ fn a_posix_spawned_child_gets_one_slot_and_sleeps_in_simulated_time() {
     assert!(log.contains("status 0"), "{log}");
 }
 
+/// A wheel controller of one runtime (`command`, in `dir`), run twice at 1 Mbps for 3 s with
+/// identical outputs: its pings all answered, and 100 cycles of a Sync Read answered by the
+/// four wheels reported by its second thread or task. Its log, for what is the runtime's own.
+fn wheel_controller_repeated(dir: &Path, name: &str, command: &[&str]) -> String {
+    let path = scenario_1mbps(dir, name, 3.0, command);
+    let log = controller_log_repeated(&path, dir);
+    assert!(log.contains("ping 1-8: 8 found"), "{log}");
+    assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
+    log
+}
+
 #[test]
 fn rust_std_threads_and_an_mpsc_channel_on_dynamixel2_repeat_exactly() {
     let dir = support::scratch_dir("vt-rust-threads");
     let controller = example("vt_threads_controller");
-    let path = scenario_1mbps(&dir, "rust-threads", 3.0, &[controller.to_str().expect("utf-8 path")]);
-    let log = controller_log_repeated(&path, &dir);
-    assert!(log.contains("ping 1-8: 8 found"), "{log}");
-    // 100 cycles of 20 ms, each Sync Read answered by the four wheels; the statistics thread's
-    // 7 ms timeouts fire twice between cycles (std's futex waits with absolute deadlines).
-    assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
+    // 100 cycles of 20 ms; the statistics thread's 7 ms timeouts fire twice between cycles
+    // (std's futex waits with absolute deadlines).
+    let log = wheel_controller_repeated(&dir, "rust-threads", &[controller.to_str().expect("utf-8 path")]);
     assert!(log.contains("loop: 100 cycles in 2000."), "{log}");
     assert!(log.contains("longest period 20.0"), "{log}");
 }
@@ -590,13 +598,10 @@ fn rust_std_threads_and_an_mpsc_channel_on_dynamixel2_repeat_exactly() {
 fn tokio_multi_thread_runtime_on_dynamixel2_repeats_exactly() {
     let dir = support::scratch_dir("vt-tokio");
     let controller = example("vt_tokio_controller");
-    let path = scenario_1mbps(&dir, "tokio", 3.0, &[controller.to_str().expect("utf-8 path")]);
-    let log = controller_log_repeated(&path, &dir);
-    assert!(log.contains("ping 1-8: 8 found"), "{log}");
     // Workers parked on futexes, the timer in epoll_wait's timeout, wake-ups through an eventfd
     // (a wait on a descriptor climbsim does not model, looked at again after every thread that
     // ran), the blocking pool's threads joined at the end: all on simulated time.
-    assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
+    let log = wheel_controller_repeated(&dir, "tokio", &[controller.to_str().expect("utf-8 path")]);
     // 99 periods of 20 ms (tokio's timer rounds up to its millisecond), then the last cycle.
     assert!(log.contains("loop: 100 cycles in 198"), "{log}");
     assert!(log.contains("longest period 20."), "{log}");
@@ -617,12 +622,9 @@ fn nodejs_with_npms_serialport_and_a_worker_thread_repeats_exactly() {
     let dir = support::scratch_dir("vt-node");
     let node = node();
     let script = repo().join("tests/vt/node/serialport_controller.js");
-    let path = scenario_1mbps(&dir, "node", 3.0, &[node.to_str().expect("utf-8 path"), script.to_str().expect("utf-8 path")]);
-    let log = controller_log_repeated(&path, &dir);
     // libuv's loop waits in epoll_wait; serialport's reads and writes go through libuv's
     // thread pool, which reports them through an eventfd; the worker thread is a second V8.
-    assert!(log.contains("ping 1-8: 8 found"), "{log}");
-    assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
+    let log = wheel_controller_repeated(&dir, "node", &[node.to_str().expect("utf-8 path"), script.to_str().expect("utf-8 path")]);
     assert!(log.contains("loop: 100 cycles in 200"), "{log}");
 }
 
@@ -638,13 +640,10 @@ fn java_with_jssc_and_a_blocking_queue_repeats_exactly() {
     let found = std::process::Command::new("sh").args(["-c", "command -v java"]).output().expect("sh");
     let java = String::from_utf8_lossy(&found.stdout).trim().to_owned();
     let classpath = format!("{JSSC_JAR}:{}", dir.display());
-    let path = scenario_1mbps(&dir, "java", 3.0, &[&java, "-Djava.library.path=/usr/lib/jni", "-cp", &classpath, "JsscController"]);
-    let log = controller_log_repeated(&path, &dir);
     // The JVM's own threads (JIT compilers, the garbage collector) park on futexes; jSSC's
     // readBytes polls the port and sleeps; the statistics thread polls its queue with a
     // timeout: all on simulated time, one thread at a time.
-    assert!(log.contains("ping 1-8: 8 found"), "{log}");
-    assert!(log.contains("stats: 100 cycles, 400 replies"), "{log}");
+    let log = wheel_controller_repeated(&dir, "java", &[&java, "-Djava.library.path=/usr/lib/jni", "-cp", &classpath, "JsscController"]);
     assert!(log.contains("loop: 100 cycles in 200"), "{log}");
 }
 
@@ -652,9 +651,7 @@ fn java_with_jssc_and_a_blocking_queue_repeats_exactly() {
 fn cpp_threads_and_a_condition_variable_on_the_cpp_sdks_pattern_repeat_exactly() {
     let dir = support::scratch_dir("vt-cpp-threads");
     let program = compiled_cpp(&dir, "cpp_threads");
-    let path = scenario_1mbps(&dir, "cpp-threads", 3.0, &[program.to_str().expect("utf-8 path")]);
-    let log = controller_log_repeated(&path, &dir);
-    assert!(log.contains("ping 1-8: 8 found"), "{log}");
+    let log = wheel_controller_repeated(&dir, "cpp-threads", &[program.to_str().expect("utf-8 path")]);
     // condition_variable::wait_until reads steady_clock while it holds the mutex the loop
     // thread needs: both are followed (the clock read, the futex waits), never a hang.
     assert!(log.contains("stats: 100 cycles, 400 replies, 200 timeouts"), "{log}");
