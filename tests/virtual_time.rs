@@ -607,11 +607,17 @@ fn tokio_multi_thread_runtime_on_dynamixel2_repeats_exactly() {
     assert!(log.contains("longest period 20."), "{log}");
 }
 
-/// Node.js, found on PATH (the machine's own; scripts/test.sh installs npm's serialport for it).
-fn node() -> PathBuf {
-    let found = std::process::Command::new("sh").args(["-c", "command -v node"]).output().expect("sh");
+/// `program`'s path on PATH (the machine's own runtimes), or a failure saying which test needs it.
+fn on_path(program: &str, needed_by: &str) -> String {
+    let found = Command::new("sh").args(["-c", &format!("command -v {program}")]).output().expect("sh");
     let path = String::from_utf8_lossy(&found.stdout).trim().to_owned();
-    assert!(!path.is_empty(), "Node.js is not on PATH: the Node.js controller's test needs it");
+    assert!(!path.is_empty(), "{program} is not on PATH: {needed_by} needs it");
+    path
+}
+
+/// Node.js (scripts/test.sh installs npm's serialport for it).
+fn node() -> PathBuf {
+    let path = on_path("node", "the Node.js controller's test");
     assert!(repo().join("tests/vt/node/node_modules/serialport").is_dir(), "npm's serialport is missing: run scripts/test.sh (it runs `npm ci --prefix tests/vt/node`)");
     PathBuf::from(path)
 }
@@ -635,10 +641,9 @@ const JSSC_JAR: &str = "/usr/share/java/jssc.jar";
 fn java_with_jssc_and_a_blocking_queue_repeats_exactly() {
     let dir = support::scratch_dir("vt-java");
     assert!(Path::new(JSSC_JAR).is_file(), "{JSSC_JAR} is missing: apt-get install libjssc-java (scripts/test.sh does)");
-    let compiled = std::process::Command::new("javac").args(["-cp", JSSC_JAR, "-d"]).arg(&dir).arg(repo().join("tests/vt/java/JsscController.java")).output().expect("javac (a JDK) is needed for the Java controller's test");
+    let compiled = Command::new("javac").args(["-cp", JSSC_JAR, "-d"]).arg(&dir).arg(repo().join("tests/vt/java/JsscController.java")).output().expect("javac (a JDK) is needed for the Java controller's test");
     assert!(compiled.status.success(), "{}", output_text(&compiled));
-    let found = std::process::Command::new("sh").args(["-c", "command -v java"]).output().expect("sh");
-    let java = String::from_utf8_lossy(&found.stdout).trim().to_owned();
+    let java = on_path("java", "the Java controller's test");
     let classpath = format!("{JSSC_JAR}:{}", dir.display());
     // The JVM's own threads (JIT compilers, the garbage collector) park on futexes; jSSC's
     // readBytes polls the port and sleeps; the statistics thread polls its queue with a

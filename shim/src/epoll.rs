@@ -9,7 +9,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64, Ordering};
 use crate::abi::call;
 use crate::sys::{real, timespec};
 use crate::time::{from_ns, to_ns};
-use crate::wait::{Interest, ms_timeout, wait, wall_ms};
+use crate::wait::{EpollCall, Interest, ms_timeout, wait, wall_ms};
 use crate::{active, shared};
 
 /// Registrations followed at once (all epoll instances of a process together).
@@ -115,17 +115,9 @@ fn interest(call: EpollCall) -> Interest {
     interest
 }
 
-/// An epoll wait's own arguments: where its events go, and how many fit.
-#[derive(Clone, Copy)]
-pub(crate) struct EpollCall {
-    pub(crate) epfd: c_int,
-    pub(crate) events: *mut c_void,
-    pub(crate) max: c_int,
-}
-
 /// The wait's first `first` events were taken at a look; add what is ready now (with the port
 /// masked as ever), an event for a registration already reported merged into it. The total.
-pub(crate) fn collect_more(shared: &crate::abi::Shared, call: EpollCall, first: c_int, port_fd: Option<c_int>) -> c_int {
+fn collect_more(shared: &crate::abi::Shared, call: EpollCall, first: c_int, port_fd: Option<c_int>) -> c_int {
     let next = real!(epoll_wait: fn(c_int, *mut c_void, c_int, c_int) -> c_int);
     let room = call.max - first;
     if room <= 0 {
@@ -207,7 +199,7 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout_ms) };
     };
-    let interest = interest(EpollCall { epfd, events, max });
+    let interest = interest(EpollCall { epfd, events, max, collect_more });
     // SAFETY: the caller's arguments, with our timeout.
     wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| mask_events(shared, epfd, events, unsafe { next(epfd, events, max, wall_ms(wall)) }, interest.port_fd))
 }
@@ -219,7 +211,7 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout_ms, sigmask) };
     };
-    let interest = interest(EpollCall { epfd, events, max });
+    let interest = interest(EpollCall { epfd, events, max, collect_more });
     // SAFETY: the caller's arguments, with our timeout.
     wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| mask_events(shared, epfd, events, unsafe { next(epfd, events, max, wall_ms(wall), sigmask) }, interest.port_fd))
 }
@@ -233,7 +225,7 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
     };
     // SAFETY: the caller's timespec, if any.
     let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
-    let interest = interest(EpollCall { epfd, events, max });
+    let interest = interest(EpollCall { epfd, events, max, collect_more });
     wait(shared, call::POLL, interest, asked, &mut |wall| {
         let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);

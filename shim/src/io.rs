@@ -1,6 +1,8 @@
-//! The servo port's reads and writes. Writes are counted: climbsim holds simulated time until it
-//! has read (and so time-stamped) every byte the controller wrote, since the kernel hands them
-//! over a little later. A read that finds nothing waits on simulated time: a blocking one as the
+//! Reads and writes: the servo port's, receives (a sensor connection's are counted, net.rs),
+//! and a blocking read of anything else, which waits on simulated time first
+//! (`wait::await_readable`). The servo port's writes are counted: climbsim holds simulated time
+//! until it has read (and so time-stamped) every byte the controller wrote, since the kernel
+//! hands them over a little later. A read that finds nothing waits on simulated time: a blocking one as the
 //! terminal's VMIN and VTIME say, a non-blocking one (the C++ SDK's loop) as a spin. Reads, the
 //! FIONREAD ioctl and tcflush see only the reply bytes visible now (held.rs).
 
@@ -9,9 +11,9 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, call, release, waits};
 use crate::held::{stream_now, took};
-use crate::sys::{iovec, nfds_t, pollfd, real};
+use crate::sys::{iovec, real};
 use crate::time::sim_now;
-use crate::wait::{Interest, is_port, park_blocked};
+use crate::wait::{await_readable, is_port, park_blocked};
 use crate::{active, charge, note_call};
 
 fn count_written(fd: c_int, written: isize) {
@@ -45,8 +47,6 @@ pub unsafe extern "C" fn writev(fd: c_int, iov: *const iovec, count: c_int) -> i
     written
 }
 
-const F_GETFL: c_int = 3;
-const O_NONBLOCK: c_int = 0o4000;
 const EAGAIN: c_int = 11;
 /// Also TIOCINQ.
 const FIONREAD: u64 = 0x541B;
@@ -59,10 +59,6 @@ const TCIOFLUSH: c_int = 2;
 const C_CC: usize = 17;
 const VTIME: usize = 5;
 const VMIN: usize = 6;
-
-unsafe extern "C" {
-    fn fcntl(fd: c_int, command: c_int, ...) -> c_int;
-}
 
 /// libc's ioctl (the shim's own `ioctl` below hides what is held).
 fn real_ioctl(fd: c_int, request: u64, arg: *mut c_void) -> c_int {
@@ -155,7 +151,7 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
     }
     note_call(shared, call::READ);
     // SAFETY: fcntl F_GETFL on the caller's descriptor.
-    let blocking = unsafe { fcntl(fd, F_GETFL) } & O_NONBLOCK == 0;
+    let blocking = unsafe { crate::sys::fcntl(fd, crate::sys::F_GETFL) } & crate::sys::O_NONBLOCK == 0;
     if !blocking {
         let stream = stream_now(shared);
         if stream.looks_empty() {
@@ -183,34 +179,6 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
         }
         PortRead::Return(value) => value,
     }
-}
-
-/// A blocking read (or receive) of a descriptor other than the port, about to be made: if the
-/// kernel has nothing for it yet, wait for that on simulated time first, so that the thread
-/// counts as blocked (a pipe's reader: a shell's `$(…)`, Python's `subprocess`, a pipe to a
-/// child) and wakes at the instant the writer wrote, rather than sitting in the kernel where
-/// climbsim cannot see it. A sensor connection waits for climbsim's response the same way.
-pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) {
-    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
-    let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
-    let saved = crate::sys::errno();
-    // SAFETY: one pollfd of ours; a zero timeout.
-    let ready = unsafe { poll(&mut entry, 1, 0) } != 0;
-    // A descriptor in non-blocking mode (or none at all: fcntl fails, -1 has the bit) never
-    // waits in the kernel: the read itself says what there is.
-    // SAFETY: fcntl F_GETFL on the caller's descriptor.
-    if ready || unsafe { fcntl(fd, F_GETFL) } & O_NONBLOCK != 0 {
-        crate::sys::set_errno(saved);
-        return;
-    }
-    let mut interest = Interest::default();
-    interest.add(shared, fd, true, false);
-    crate::wait::wait(shared, call::READ, interest, None, &mut |wall| {
-        entry.revents = 0;
-        // SAFETY: as above, with the wait's timeout.
-        unsafe { poll(&mut entry, 1, crate::wait::wall_ms(wall)) }
-    });
-    crate::sys::set_errno(saved);
 }
 
 /// FIONREAD (TIOCINQ) counts only the visible bytes of the port; TCFLSH is tcflush's.
@@ -286,3 +254,53 @@ pub unsafe extern "C" fn close(fd: c_int) -> c_int {
     // SAFETY: passing the caller's argument through.
     unsafe { next(fd) }
 }
+
+/// Receives: from the sensor server (counted, net.rs), or from anything else that may block.
+const MSG_DONTWAIT: c_int = 0x40;
+
+/// A receive that may block waits on simulated time first (see `io::await_readable`).
+fn before_receive(fd: c_int, flags: c_int) {
+    if let Some(shared) = active()
+        && flags & MSG_DONTWAIT == 0
+    {
+        await_readable(shared, fd);
+    }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_int) -> isize {
+    let next = real!(recv: fn(c_int, *mut c_void, usize, c_int) -> isize);
+    before_receive(fd, flags);
+    // SAFETY: passing the caller's arguments through.
+    let received = unsafe { next(fd, buf, len, flags) };
+    if flags & 2 == 0 {
+        // Not MSG_PEEK: the bytes are taken.
+        crate::net::count_received(fd, received);
+    }
+    received
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags: c_int, addr: *mut c_void, addr_len: *mut u32) -> isize {
+    let next = real!(recvfrom: fn(c_int, *mut c_void, usize, c_int, *mut c_void, *mut u32) -> isize);
+    before_receive(fd, flags);
+    // SAFETY: passing the caller's arguments through.
+    let received = unsafe { next(fd, buf, len, flags, addr, addr_len) };
+    if flags & 2 == 0 {
+        crate::net::count_received(fd, received);
+    }
+    received
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn recvmsg(fd: c_int, message: *mut c_void, flags: c_int) -> isize {
+    let next = real!(recvmsg: fn(c_int, *mut c_void, c_int) -> isize);
+    before_receive(fd, flags);
+    // SAFETY: passing the caller's arguments through.
+    let received = unsafe { next(fd, message, flags) };
+    if flags & 2 == 0 {
+        crate::net::count_received(fd, received);
+    }
+    received
+}
+

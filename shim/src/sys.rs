@@ -49,6 +49,8 @@ pub struct iovec {
 }
 
 pub const POLLIN: i16 = 0x1;
+pub const F_GETFL: c_int = 3;
+pub const O_NONBLOCK: c_int = 0o4000;
 pub const POLLPRI: i16 = 0x2;
 pub const POLLOUT: i16 = 0x4;
 
@@ -123,6 +125,7 @@ pub mod nr {
 }
 
 unsafe extern "C" {
+    pub fn fcntl(fd: c_int, command: c_int, ...) -> c_int;
     pub fn dlsym(handle: *mut c_void, symbol: *const c_char) -> *mut c_void;
     pub fn getenv(name: *const c_char) -> *mut c_char;
     pub fn kill(pid: c_int, signal: c_int) -> c_int;

@@ -35,7 +35,7 @@ pub(crate) struct Interest {
     timers: u64,
     other: bool,
     /// The epoll wait this is (its results are taken by a look: see `wait_on_real_world`).
-    pub(crate) epoll: Option<crate::epoll::EpollCall>,
+    pub(crate) epoll: Option<EpollCall>,
 }
 
 impl Interest {
@@ -84,6 +84,16 @@ impl Interest {
     fn waits(&self) -> u32 {
         (if self.port { waits::PORT } else { 0 }) | (if self.conns != 0 { waits::CONN } else { 0 })
     }
+}
+
+/// An epoll wait's own arguments (where its events go, how many fit), and how epoll.rs adds
+/// what is ready in the thread's turn to the `first` events a look took.
+#[derive(Clone, Copy)]
+pub(crate) struct EpollCall {
+    pub(crate) epfd: c_int,
+    pub(crate) events: *mut core::ffi::c_void,
+    pub(crate) max: c_int,
+    pub(crate) collect_more: fn(shared: &Shared, call: EpollCall, first: c_int, port_fd: Option<c_int>) -> c_int,
 }
 
 /// The descriptor is the servo port (the pty slave climbsim serves).
@@ -216,7 +226,7 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
         // ready now is added to them.
         crate::resume_after_kernel_wake(shared, slot);
         let ready = match interest.epoll {
-            Some(call) if ready > 0 => crate::epoll::collect_more(shared, call, ready, interest.port_fd),
+            Some(call) if ready > 0 => (call.collect_more)(shared, call, ready, interest.port_fd),
             _ => real_wait(Some(0)),
         };
         crate::held::take_masked();
@@ -229,6 +239,34 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
         slot.state.store(state::BLOCKED, Ordering::Release);
         crate::notify_scheduler(shared);
     }
+}
+
+/// A blocking read (or receive) of a descriptor other than the port, about to be made: if the
+/// kernel has nothing for it yet, wait for that on simulated time first, so that the thread
+/// counts as blocked (a pipe's reader: a shell's `$(…)`, Python's `subprocess`, a pipe to a
+/// child) and wakes at the instant the writer wrote, rather than sitting in the kernel where
+/// climbsim cannot see it. A sensor connection waits for climbsim's response the same way.
+pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) {
+    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
+    let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
+    let saved = crate::sys::errno();
+    // SAFETY: one pollfd of ours; a zero timeout.
+    let ready = unsafe { poll(&mut entry, 1, 0) } != 0;
+    // A descriptor in non-blocking mode (or none at all: fcntl fails, -1 has the bit) never
+    // waits in the kernel: the read itself says what there is.
+    // SAFETY: fcntl F_GETFL on the caller's descriptor.
+    if ready || unsafe { sys::fcntl(fd, sys::F_GETFL) } & sys::O_NONBLOCK != 0 {
+        crate::sys::set_errno(saved);
+        return;
+    }
+    let mut interest = Interest::default();
+    interest.add(shared, fd, true, false);
+    wait(shared, call::READ, interest, None, &mut |wall| {
+        entry.revents = 0;
+        // SAFETY: as above, with the wait's timeout.
+        unsafe { poll(&mut entry, 1, wall_ms(wall)) }
+    });
+    crate::sys::set_errno(saved);
 }
 
 pub(crate) fn ms_timeout(timeout_ms: c_int) -> Option<u64> {

@@ -20,6 +20,7 @@ mod quiet;
 mod real_world;
 mod shim_file;
 mod timer;
+mod turns;
 mod watchdog;
 
 use std::future::Future;
@@ -32,7 +33,8 @@ use std::time::Duration;
 
 use thiserror::Error;
 
-use abi::{NEVER, Slot, mode, release, state, waits};
+use abi::{NEVER, mode, release, state, waits};
+use turns::{let_run, release_slot};
 use block::Block;
 pub use shim_file::{shim_bytes, shim_path};
 pub use timer::Timer;
@@ -531,52 +533,6 @@ impl VirtualTime {
         }
     }
 
-    /// Give the turn to the ready thread in the lowest slot, if there is one (and no thread
-    /// runs): the order does not depend on which the host happened to schedule first. A
-    /// thread that gave its turn up after a quantum comes after every other ready one.
-    fn give_turn(&self) -> bool {
-        let slots = self.shared().live_slots();
-        let ready = |s: &&Slot| s.state.load(Ordering::Acquire) == state::READY;
-        let ready = slots.iter().filter(ready).find(|s| s.waits.load(Ordering::Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready));
-        if let Some(slot) = ready {
-            lock(&self.stats).turns += 1;
-            let_run(slot, slot.release.load(Ordering::Acquire));
-        }
-        ready.is_some()
-    }
-
-    /// At trace level (`RUST_LOG=climbsim::virtual_time=trace`): a jump of simulated time to
-    /// `to`, with every followed thread's state, to find which wait a run that does not repeat
-    /// waited on.
-    fn trace_jump(&self, to: u64) {
-        if !tracing::enabled!(tracing::Level::TRACE) {
-            return;
-        }
-        let threads: Vec<String> = self
-            .shared()
-            .live_slots()
-            .iter()
-            .enumerate()
-            .filter(|(_, s)| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
-            .map(|(i, s)| {
-                let deadline = s.deadline_ns.load(Ordering::Relaxed);
-                format!("#{i} tid {} state {} waits {:#x} until {} last {}", s.tid.load(Ordering::Relaxed), s.state.load(Ordering::Acquire), s.waits.load(Ordering::Relaxed), if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) }, abi::call::name(s.last_call.load(Ordering::Relaxed)))
-            })
-            .collect();
-        tracing::trace!(from_s = self.now_ns() as f64 / 1e9, to_s = to as f64 / 1e9, "jump; {}", threads.join("; "));
-    }
-
-    fn any_running(&self) -> bool {
-        let slots = self.shared().live_slots();
-        slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
-            state::RUNNING | state::RESERVED => true,
-            // In waitpid: blocked only while a followed child it waits for lives; else the
-            // kernel is about to return it (its child has just ended).
-            state::BLOCKED if s.waits.load(Ordering::Relaxed) == waits::CHILD => !waits_on_live_child(slots, s) && !watchdog::has_unfollowed_child(slots, s),
-            _ => false,
-        })
-    }
-
     fn last_poll_long_ago(&self) -> bool {
         lock(&self.last_poll).elapsed() > UNFOLLOWED_CLIENTS_EVERY
     }
@@ -609,16 +565,6 @@ impl VirtualTime {
     }
 }
 
-/// `parent`, in waitpid, has a followed child that can end (and so wake it).
-fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
-    let pid = parent.pid.load(Ordering::Relaxed);
-    let awaited = parent.conn_mask.load(Ordering::Relaxed) as i64;
-    slots.iter().any(|child| {
-        let live = matches!(child.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY);
-        live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
-    })
-}
-
 /// What [`VirtualTime::let_go_at`] did.
 struct LetGo {
     /// Some thread was let go.
@@ -634,21 +580,6 @@ impl Drop for EndOnDrop {
     fn drop(&mut self) {
         self.0.end();
     }
-}
-
-/// Let a parked thread go, saying why.
-/// Let a parked thread go at its instant: ready, to run in its turn (see [`VirtualTime::give_turn`]).
-fn release_slot(slot: &Slot, why: u32) {
-    slot.release.store(why, Ordering::Relaxed);
-    slot.state.store(state::READY, Ordering::Release);
-}
-
-/// Let a thread run now (its turn, or every thread once the run is over).
-fn let_run(slot: &Slot, why: u32) {
-    slot.release.store(why, Ordering::Relaxed);
-    slot.state.store(state::RUNNING, Ordering::Release);
-    slot.wake_word.fetch_add(1, Ordering::AcqRel);
-    futex_wake(&slot.wake_word);
 }
 
 fn futex_wait(word: &AtomicU32, expected: u32, timeout: Duration) {

@@ -1,0 +1,82 @@
+//! Whose turn it is: one followed thread runs at a time, the ready one in the lowest slot
+//! first (a thread that gave up its quantum after the others), so that the interleaving of a
+//! controller's threads never depends on the host's scheduling.
+
+use std::sync::atomic::Ordering;
+
+use super::abi::{self, NEVER, Slot, state, waits};
+use super::{VirtualTime, futex_wake, lock, watchdog};
+
+impl VirtualTime {
+    /// Give the turn to the ready thread in the lowest slot, if there is one (and no thread
+    /// runs): the order does not depend on which the host happened to schedule first. A
+    /// thread that gave its turn up after a quantum comes after every other ready one.
+    pub(super) fn give_turn(&self) -> bool {
+        let slots = self.shared().live_slots();
+        let ready = |s: &&Slot| s.state.load(Ordering::Acquire) == state::READY;
+        let ready = slots.iter().filter(ready).find(|s| s.waits.load(Ordering::Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready));
+        if let Some(slot) = ready {
+            lock(&self.stats).turns += 1;
+            let_run(slot, slot.release.load(Ordering::Acquire));
+        }
+        ready.is_some()
+    }
+
+    /// At trace level (`RUST_LOG=climbsim::virtual_time=trace`): a jump of simulated time to
+    /// `to`, with every followed thread's state, to find which wait a run that does not repeat
+    /// waited on.
+    pub(super) fn trace_jump(&self, to: u64) {
+        if !tracing::enabled!(tracing::Level::TRACE) {
+            return;
+        }
+        let threads: Vec<String> = self
+            .shared()
+            .live_slots()
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+            .map(|(i, s)| {
+                let deadline = s.deadline_ns.load(Ordering::Relaxed);
+                format!("#{i} tid {} state {} waits {:#x} until {} last {}", s.tid.load(Ordering::Relaxed), s.state.load(Ordering::Acquire), s.waits.load(Ordering::Relaxed), if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) }, abi::call::name(s.last_call.load(Ordering::Relaxed)))
+            })
+            .collect();
+        tracing::trace!(from_s = self.now_ns() as f64 / 1e9, to_s = to as f64 / 1e9, "jump; {}", threads.join("; "));
+    }
+
+    pub(super) fn any_running(&self) -> bool {
+        let slots = self.shared().live_slots();
+        slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
+            state::RUNNING | state::RESERVED => true,
+            // In waitpid: blocked only while a followed child it waits for lives; else the
+            // kernel is about to return it (its child has just ended).
+            state::BLOCKED if s.waits.load(Ordering::Relaxed) == waits::CHILD => !waits_on_live_child(slots, s) && !watchdog::has_unfollowed_child(slots, s),
+            _ => false,
+        })
+    }
+
+}
+
+/// `parent`, in waitpid, has a followed child that can end (and so wake it).
+pub(super) fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
+    let pid = parent.pid.load(Ordering::Relaxed);
+    let awaited = parent.conn_mask.load(Ordering::Relaxed) as i64;
+    slots.iter().any(|child| {
+        let live = matches!(child.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY);
+        live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
+    })
+}
+
+/// Let a parked thread go, saying why.
+/// Let a parked thread go at its instant: ready, to run in its turn (see [`VirtualTime::give_turn`]).
+pub(super) fn release_slot(slot: &Slot, why: u32) {
+    slot.release.store(why, Ordering::Relaxed);
+    slot.state.store(state::READY, Ordering::Release);
+}
+
+/// Let a thread run now (its turn, or every thread once the run is over).
+pub(super) fn let_run(slot: &Slot, why: u32) {
+    slot.release.store(why, Ordering::Relaxed);
+    slot.state.store(state::RUNNING, Ordering::Release);
+    slot.wake_word.fetch_add(1, Ordering::AcqRel);
+    futex_wake(&slot.wake_word);
+}
