@@ -381,6 +381,17 @@ fn pipes_subprocesses_and_multiprocessing_follow_simulated_time() {
 }
 
 #[test]
+fn a_forked_child_runs_in_its_turn_after_its_parent_parks() {
+    let dir = support::scratch_dir("vt-fork");
+    let path = scenario(&dir, "fork", 2.0, &["tests/vt/fork_print.py"], true);
+    let log = &controller_log_repeated(&path, &dir);
+    // Their lines interleaved as the host scheduled the two processes (4 different logs in 6
+    // loaded runs before): now the parent's all come first, then the child's.
+    let order: Vec<&str> = log.lines().map(|line| line.split(" at ").next().unwrap_or(line)).collect();
+    assert_eq!(order, ["parent 0", "parent 1", "parent 2", "parent 3", "parent 4", "child 0", "child 1", "child 2", "child 3", "child 4", "both done"], "{log}");
+}
+
+#[test]
 fn asyncio_sleeps_and_timeouts_follow_simulated_time() {
     let dir = support::scratch_dir("vt-asyncio");
     let path = scenario(&dir, "asyncio", 3.0, &["tests/vt/asyncio_sleeps.py"], true);

@@ -449,12 +449,17 @@ fn exit_slot(slot: &Slot) {
     }
 }
 
-/// A forked child is a new process: its threads claim slots of their own.
+/// A forked child is a new process: its threads claim slots of their own. It starts in its
+/// turn, as a new thread does: its parent runs on until it parks, so that what the two do
+/// (print to one log, say) does not interleave as the host scheduled them.
 unsafe extern "C" fn forked_child() {
     PID.store(sys::getpid(), Ordering::Relaxed);
     SLOT.with(|s| s.set(NO_SLOT));
     UNAPPLIED.with(|u| u.set(0));
-    my_slot();
+    if let (Some(slot), Some(shared)) = (my_slot(), active()) {
+        slot.state.store(state::READY, Ordering::Release);
+        await_turn(shared, slot);
+    }
 }
 
 fn pid() -> i32 {
