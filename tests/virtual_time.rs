@@ -618,6 +618,15 @@ fn tokio_multi_thread_runtime_on_dynamixel2_repeats_exactly() {
     assert!(log.contains("longest period 20."), "{log}");
 }
 
+#[test]
+fn asyncio_on_pyserial_with_a_statistics_task_repeats_exactly() {
+    let dir = support::scratch_dir("vt-asyncio-port");
+    // The port watched with loop.add_reader (epoll), replies awaited with wait_for's timeout, a
+    // task fed through an asyncio.Queue: it gave 4 different time series in 20 runs once.
+    let log = wheel_controller_repeated(&dir, "asyncio-port", &["tests/vt/asyncio_controller.py"]);
+    assert!(log.contains("loop: 100 cycles in 2000."), "{log}");
+}
+
 /// `program`'s path on PATH (the machine's own runtimes), or a failure saying which test needs it.
 fn on_path(program: &str, needed_by: &str) -> String {
     let found = Command::new("sh").args(["-c", &format!("command -v {program}")]).output().expect("sh");
