@@ -442,6 +442,34 @@ unsafe extern "C" fn process_exiting(_: *mut c_void) {
     }
 }
 
+/// `_exit` (and C's `_Exit`): the process ends without its atexit handlers, so it says first
+/// that its threads are gone. Otherwise climbsim finds out only from `/proc` (every 50 ms), and
+/// each such child cost its parent's waitpid that much wall time.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn _exit(status: c_int) -> ! {
+    leaving_without_atexit();
+    let next = real!(_exit: fn(c_int) -> !);
+    // SAFETY: libc's _exit with the caller's status.
+    unsafe { next(status) }
+}
+
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn _Exit(status: c_int) -> ! {
+    leaving_without_atexit();
+    let next = real!(_Exit: fn(c_int) -> !);
+    // SAFETY: libc's _Exit with the caller's status.
+    unsafe { next(status) }
+}
+
+fn leaving_without_atexit() {
+    // A vfork child shares its parent's memory (this thread's slot is its parent's): it says
+    // nothing, and its parent goes on as the kernel resumes it.
+    if pid() == sys::getpid() {
+        // SAFETY: the same callback atexit would have run.
+        unsafe { process_exiting(core::ptr::null_mut()) };
+    }
+}
+
 fn exit_slot(slot: &Slot) {
     slot.state.store(state::EXITED, Ordering::Release);
     if let Some(shared) = shared() {
