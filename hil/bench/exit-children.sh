@@ -9,30 +9,9 @@ climbsim="$(realpath "${CLIMBSIM:-target/release/climbsim}")"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 cc hil/bench/exit_children.c -o "$work/exit_children"
-scenario() { # NAME N
-    cat > "$work/$1.toml" <<TOML
-[world]
-seed = 1
-duration_s = 1.0
-
-[terrain]
-kind = "flat"
-size_m = 4.0
-
-[line]
-points = [[-0.5, 0.0], [1.5, 0.0]]
-
-[start]
-x_m = 0.5
-
-[controller]
-kind = "external"
-command = ["$work/exit_children", "$2"]
-ends_by_itself = true
-TOML
-}
-scenario many "$children"
-scenario none 0
+source hil/bench/controller-scenario.sh
+controller_scenario "$work/many.toml" 1.0 "$work/exit_children" "$children"
+controller_scenario "$work/none.toml" 1.0 "$work/exit_children" 0
 farm-bench -n 7 --vs "$climbsim run $work/none.toml --clock virtual --set capture.mcap=false --out $work/none" -- \
     "$climbsim" run "$work/many.toml" --clock virtual --set capture.mcap=false --out "$work/many"
 "$climbsim" run "$work/many.toml" --clock virtual --set capture.mcap=false --out "$work/check" > /dev/null

@@ -8,21 +8,7 @@ climbsim="${1:-$repo/target/release/climbsim}"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 cc -O2 -o "$work/trap_cost" "$repo/hil/bench/trap_cost.c"
-cat > "$work/trap-cost.toml" <<TOML
-[world]
-seed = 1
-duration_s = 60.0
-[terrain]
-kind = "flat"
-size_m = 4.0
-[line]
-points = [[-0.5, 0.0], [1.5, 0.0]]
-[start]
-x_m = 0.5
-[controller]
-kind = "external"
-command = ["$work/trap_cost"]
-ends_by_itself = true
-TOML
+source "$repo/hil/bench/controller-scenario.sh"
+controller_scenario "$work/trap-cost.toml" 60.0 "$work/trap_cost"
 (cd "$repo" && "$climbsim" run "$work/trap-cost.toml" --clock virtual --out "$work/out" > "$work/run.log" 2>&1) || { cat "$work/run.log"; exit 1; }
 cat "$work/out/controller.log"
