@@ -151,8 +151,16 @@ fn a_statically_linked_controller_is_refused() {
     assert!(output_text(&output).contains("statically linked"), "{}", output_text(&output));
 }
 
-/// Run `path` on virtual time twice: both succeed and the controller prints the same; what it
-/// printed.
+/// A controller `command` (relative to the repository, or absolute) that ends by itself, run
+/// twice for `duration_s` in a scratch folder `vt-NAME` with identical outputs; its log.
+fn command_log_repeated(name: &str, duration_s: f64, command: &[&str]) -> String {
+    let dir = support::scratch_dir(&format!("vt-{name}"));
+    let path = scenario(&dir, name, duration_s, command, true);
+    controller_log_repeated(&path, &dir)
+}
+
+/// Run `path` on virtual time twice: both succeed, and the controller prints the same and the
+/// world's series are the same; what it printed.
 fn controller_log_repeated(path: &Path, dir: &Path) -> String {
     let mut logs = Vec::new();
     let mut series = Vec::new();
@@ -354,9 +362,7 @@ fn serve_with_virtual_time_waits_for_a_controller_started_by_hand() {
 
 #[test]
 fn threads_wait_on_each_other_in_simulated_time() {
-    let dir = support::scratch_dir("vt-threads");
-    let path = scenario(&dir, "threads", 3.0, &["tests/vt/threads.py"], true);
-    let log = &controller_log_repeated(&path, &dir);
+    let log = &command_log_repeated("threads", 3.0, &["tests/vt/threads.py"]);
     // A worker's 0.3 s sleep ends the main thread's event wait; an unset event times out.
     assert!(log.contains("event after 0.300 s: True"), "{log}");
     assert!(log.contains("timeout after 0.550 s: False"), "{log}");
@@ -366,9 +372,7 @@ fn threads_wait_on_each_other_in_simulated_time() {
 
 #[test]
 fn pipes_subprocesses_and_multiprocessing_follow_simulated_time() {
-    let dir = support::scratch_dir("vt-pipes");
-    let path = scenario(&dir, "pipes", 5.0, &["tests/vt/pipes.py"], true);
-    let log = &controller_log_repeated(&path, &dir);
+    let log = &command_log_repeated("pipes", 5.0, &["tests/vt/pipes.py"]);
     // Each reader blocks on a pipe (a read, or a poll) until the followed process that writes
     // it does, at that instant: never refused as "blocked in read", never woken late.
     assert!(log.contains("check_output b'hi\\n' after 0.500 s"), "{log}");
@@ -382,9 +386,7 @@ fn pipes_subprocesses_and_multiprocessing_follow_simulated_time() {
 
 #[test]
 fn a_forked_child_runs_in_its_turn_after_its_parent_parks() {
-    let dir = support::scratch_dir("vt-fork");
-    let path = scenario(&dir, "fork", 2.0, &["tests/vt/fork_print.py"], true);
-    let log = &controller_log_repeated(&path, &dir);
+    let log = &command_log_repeated("fork", 2.0, &["tests/vt/fork_print.py"]);
     // Their lines interleaved as the host scheduled the two processes (4 different logs in 6
     // loaded runs before): now the parent's all come first, then the child's.
     let order: Vec<&str> = log.lines().map(|line| line.split(" at ").next().unwrap_or(line)).collect();

@@ -137,6 +137,7 @@ fn collect_more(shared: &crate::abi::Shared, call: EpollCall, first: c_int, port
         let data = event_data(event);
         // SAFETY: as above; the flags are the event's first 4 bytes.
         let flags = unsafe { event.cast::<u32>().read_unaligned() };
+        // SAFETY: each within the first events of the caller's array.
         let same = (0..first as usize).map(|i| unsafe { base.add(i * EVENT.0) }).find(|&e| event_data(e) == data);
         match same {
             // SAFETY: one of the first events.

@@ -431,13 +431,13 @@ unsafe extern "C" fn process_exiting(_: *mut c_void) {
     children::wake_waiting_parent(shared, pid, sys::getppid());
     // This thread's own slot last: until then it runs, so climbsim decides nothing on a
     // process half marked (it would move time to the deadline of a thread not yet marked).
-    let own = my_slot().map(|slot| slot as *const Slot);
+    let own = my_slot();
     for slot in shared.live_slots() {
-        if slot.pid.load(Ordering::Relaxed) == pid && slot.state.load(Ordering::Acquire) != state::FREE && Some(slot as *const Slot) != own {
+        if slot.pid.load(Ordering::Relaxed) == pid && slot.state.load(Ordering::Acquire) != state::FREE && !own.is_some_and(|own| core::ptr::eq(own, slot)) {
             exit_slot(slot);
         }
     }
-    if let Some(own) = my_slot() {
+    if let Some(own) = own {
         exit_slot(own);
     }
 }
@@ -570,12 +570,29 @@ fn expect_look(shared: &Shared, slot: &Slot) {
     slot.checked_epoch.store(shared.header.check_epoch.load(Ordering::Acquire).wrapping_sub(1), Ordering::Relaxed);
 }
 
-/// The thread looked at what it waits on, as climbsim asked at `epoch`, and found nothing.
-fn answer_look(shared: &Shared, slot: &Slot, epoch: u32) {
-    if slot.checked_epoch.swap(epoch, Ordering::AcqRel) != epoch {
-        shared.header.checks_word.fetch_add(1, Ordering::AcqRel);
-        sys::futex_wake(&shared.header.checks_word);
+/// Publish this thread as blocked on what the kernel wakes until `deadline` (simulated ns),
+/// waiting on `waits`, and tell climbsim, which first waits for its look (see [`expect_look`]).
+fn publish_waiting_on_kernel(shared: &Shared, slot: &Slot, deadline: u64, waits: u32, conn_mask: u64) {
+    expect_look(shared, slot);
+    publish_state(slot, state::BLOCKED, deadline, waits, conn_mask);
+    notify_scheduler(shared);
+}
+
+/// One look at what the kernel wakes (`look`: Some once something is ready), as climbsim asks:
+/// if nothing is ready, say so for the epoch the look was made in, and sleep until climbsim
+/// asks again (it bumps the wake word) or for `slice_ns` of wall time.
+fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, look: impl FnOnce() -> Option<T>) -> Option<T> {
+    let epoch = shared.header.check_epoch.load(Ordering::Acquire);
+    let seen = slot.wake_word.load(Ordering::Acquire);
+    let found = look();
+    if found.is_none() {
+        if slot.checked_epoch.swap(epoch, Ordering::AcqRel) != epoch {
+            shared.header.checks_word.fetch_add(1, Ordering::AcqRel);
+            sys::futex_wake(&shared.header.checks_word);
+        }
+        sys::futex_wait(&slot.wake_word, seen, slice_ns);
     }
+    found
 }
 
 /// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on
@@ -592,6 +609,11 @@ fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64)
 /// told yet (see [`park`]). Its unapplied charges are dropped: a blocked thread costs nothing.
 fn publish_parked(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask: u64) {
     UNAPPLIED.with(|u| u.set(0));
+    publish_state(slot, parked, deadline, waits, conn_mask);
+}
+
+/// The slot's wait (until `deadline`, on `waits`), then its state, which makes it seen.
+fn publish_state(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask: u64) {
     slot.deadline_ns.store(deadline, Ordering::Relaxed);
     slot.waits.store(waits, Ordering::Relaxed);
     slot.conn_mask.store(conn_mask, Ordering::Relaxed);

@@ -14,7 +14,7 @@ use core::sync::atomic::Ordering;
 use crate::abi::{NEVER, Shared, call, release, state, waits};
 use crate::sys::{self, clockid_t, real, timespec};
 use crate::time::sim_now;
-use crate::{active, my_slot, note_call, notify_scheduler, pid, reset_computation};
+use crate::{active, my_slot, note_call, pid, reset_computation};
 
 /// One slice of a real wait (wall time).
 const SLICE_NS: u64 = 200_000;
@@ -38,15 +38,7 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         let rc = slice(&real_deadline_after(0));
         return if rc == 0 { 0 } else { ETIMEDOUT };
     }
-    let publish = || {
-        slot.deadline_ns.store(deadline, Ordering::Relaxed);
-        slot.waits.store(waits::PEER, Ordering::Relaxed);
-        slot.conn_mask.store(addr as u64, Ordering::Relaxed);
-        slot.release.store(0, Ordering::Relaxed);
-        crate::expect_look(shared, slot);
-        slot.state.store(state::BLOCKED, Ordering::Release);
-        notify_scheduler(shared);
-    };
+    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::PEER, addr as u64);
     shared.header.peer_waiters.fetch_add(1, Ordering::AcqRel);
     publish();
     let result = loop {
@@ -72,15 +64,14 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         }
         // A look whenever climbsim asks (threads ran: the one joined may have ended), and one
         // every slice of wall time.
-        let epoch = shared.header.check_epoch.load(Ordering::Acquire);
-        let seen = slot.wake_word.load(Ordering::Acquire);
-        let rc = slice(&real_deadline_after(0));
-        if rc != ETIMEDOUT {
+        let look = crate::look_at_kernel(shared, slot, SLICE_NS, || {
+            let rc = slice(&real_deadline_after(0));
+            (rc != ETIMEDOUT).then_some(rc)
+        });
+        if let Some(rc) = look {
             crate::resume_after_kernel_wake(shared, slot);
             break rc;
         }
-        crate::answer_look(shared, slot, epoch);
-        sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
     };
     slot.waits.store(0, Ordering::Relaxed);
     shared.header.peer_waiters.fetch_sub(1, Ordering::AcqRel);

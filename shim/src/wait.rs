@@ -188,13 +188,8 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
 fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
     const SLICE_NS: u64 = 1_000_000;
     let Some(slot) = my_slot() else { return real_wait(Some(deadline.saturating_sub(sim_now(shared)))) };
-    slot.deadline_ns.store(deadline, Ordering::Relaxed);
-    slot.waits.store(waits::OTHER | interest.waits(), Ordering::Relaxed);
-    slot.conn_mask.store(interest.conns, Ordering::Relaxed);
-    slot.release.store(0, Ordering::Relaxed);
-    crate::expect_look(shared, slot);
-    slot.state.store(state::BLOCKED, Ordering::Release);
-    crate::notify_scheduler(shared);
+    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER | interest.waits(), interest.conns);
+    publish();
     let mut slices = 0u32;
     loop {
         slices = slices.wrapping_add(1);
@@ -208,17 +203,14 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             slot.state.store(state::RUNNING, Ordering::Release);
             return real_wait(Some(deadline.saturating_sub(sim_now(shared))));
         }
-        let epoch = shared.header.check_epoch.load(Ordering::Acquire);
-        let seen = slot.wake_word.load(Ordering::Acquire);
-        let ready = real_wait(Some(0));
-        // The port masked as empty (bytes not visible yet) costs nothing here: the kernel is
-        // never waited in.
-        crate::held::take_masked();
-        if ready == 0 {
-            crate::answer_look(shared, slot, epoch);
-            sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
-            continue;
-        }
+        let look = crate::look_at_kernel(shared, slot, SLICE_NS, || {
+            let ready = real_wait(Some(0));
+            // The port masked as empty (bytes not visible yet) costs nothing here: the kernel
+            // is never waited in.
+            crate::held::take_masked();
+            (ready != 0).then_some(ready)
+        });
+        let Some(ready) = look else { continue };
         // Woken by the real world: we run again in our turn, and only then say what is ready.
         // This look may have come while another thread ran (and moved the clock), and what it
         // found then depends on the host; in our turn everything else is parked. An epoll
@@ -234,10 +226,7 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             return ready;
         }
         // Taken by a thread that ran first: wait on.
-        crate::expect_look(shared, slot);
-        slot.release.store(0, Ordering::Relaxed);
-        slot.state.store(state::BLOCKED, Ordering::Release);
-        crate::notify_scheduler(shared);
+        publish();
     }
 }
 

@@ -117,11 +117,7 @@ impl RealWorld {
 
 /// The slot's thread exists and is not a zombie.
 fn alive(slot: &Slot) -> bool {
-    let (pid, tid) = (slot.pid.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
-    if pid <= 0 || tid <= 0 {
-        return false;
-    }
-    super::watchdog::lives(&format!("/proc/{pid}/task/{tid}/stat"))
+    super::watchdog::stat_path(slot).is_some_and(|task| super::watchdog::lives(&format!("{task}/stat")))
 }
 
 /// The thread also holds another slot that is in use (one it moved to, as a thread created

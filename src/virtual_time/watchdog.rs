@@ -85,7 +85,8 @@ enum TaskState {
     Unknown,
 }
 
-fn stat_path(slot: &Slot) -> Option<String> {
+/// The slot's thread's folder in /proc, if the slot names one.
+pub(super) fn stat_path(slot: &Slot) -> Option<String> {
     let (pid, tid) = (slot.pid.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
     (pid > 0 && tid > 0).then(|| format!("/proc/{pid}/task/{tid}"))
 }
