@@ -4,53 +4,12 @@
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 mod support;
 
+use support::vt::{command_log_repeated, compiled_c, compiled_cpp, controller_log_repeated, on_path, repeatable, run_virtual, scenario, scenario_1mbps, summary};
 use support::{climbsim_with_sdk_python, output_text, repo, sdk_python};
-
-/// A flat world `duration_s` long driven by `command` (paths relative to the repository, or
-/// absolute), with `extra` TOML after it.
-fn scenario(dir: &Path, name: &str, duration_s: f64, command: &[&str], ends_by_itself: bool) -> PathBuf {
-    scenario_with(dir, name, duration_s, command, ends_by_itself, "")
-}
-
-/// [`scenario`] on a 1 Mbps bus.
-fn scenario_1mbps(dir: &Path, name: &str, duration_s: f64, command: &[&str]) -> PathBuf {
-    scenario_with(dir, name, duration_s, command, true, "\n[bus]\nbaud_bps = 1000000\n")
-}
-
-fn scenario_with(dir: &Path, name: &str, duration_s: f64, command: &[&str], ends_by_itself: bool, extra: &str) -> PathBuf {
-    // The program relative to the repository (or absolute); its arguments as they are.
-    let command: Vec<String> = command.iter().enumerate().map(|(i, part)| if i == 0 { format!("\"{}\"", repo().join(part).display()) } else { format!("\"{part}\"") }).collect();
-    let text = format!(
-        "[world]\nseed = 1\nduration_s = {duration_s}\n\n[terrain]\nkind = \"flat\"\nsize_m = 4.0\n\n[line]\npoints = [[-0.5, 0.0], [1.5, 0.0]]\n\n[start]\nx_m = 0.5\n\n\
-         [controller]\nkind = \"external\"\ncommand = [{}]\nends_by_itself = {ends_by_itself}\n{extra}",
-        command.join(", ")
-    );
-    let path = dir.join(format!("{name}.toml"));
-    std::fs::write(&path, text).expect("write scenario");
-    path
-}
-
-fn run_virtual(scenario: &Path, out: &Path) -> (std::process::Output, Duration) {
-    let started = Instant::now();
-    let output = climbsim_with_sdk_python(&["run", &scenario.display().to_string(), "--clock", "virtual", "--out", &out.display().to_string()]);
-    (output, started.elapsed())
-}
-
-fn summary(out: &Path) -> serde_json::Map<String, serde_json::Value> {
-    let text = std::fs::read_to_string(out.join("summary.json")).unwrap_or_else(|e| panic!("{}: {e}", out.display()));
-    serde_json::from_str(&text).expect("summary.json")
-}
-
-/// The summary without what measures the host (wall time): what must repeat exactly.
-fn repeatable(out: &Path) -> serde_json::Map<String, serde_json::Value> {
-    let mut summary = summary(out);
-    summary.remove("realtime_factor");
-    summary
-}
 
 #[test]
 fn a_dormant_shim_leaves_a_program_on_the_wall_clock() {
@@ -112,68 +71,6 @@ fn a_shell_and_its_children_sleep_ten_simulated_seconds_in_well_under_ten() {
     let monotonic: f64 = lines[2].parse().expect("monotonic");
     assert!((monotonic - 1010.0).abs() < 0.001, "{log}");
     assert!(wall < Duration::from_secs(5), "{wall:?}");
-}
-
-#[test]
-fn a_busy_loop_fails_the_run_naming_the_thread_within_seconds() {
-    let dir = support::scratch_dir("vt-busy");
-    let path = scenario(&dir, "busy", 10.0, &["tests/vt/busy.py"], false);
-    let (output, wall) = run_virtual(&path, &dir.join("out"));
-    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
-    let failures = summary(&dir.join("out"))["failures"].to_string();
-    assert!(failures.contains("has computed for 2 s of wall time without a call climbsim follows"), "{failures}");
-    assert!(failures.contains("busy.py") || failures.contains("python"), "{failures}");
-    assert!(wall < Duration::from_secs(20), "{wall:?}");
-}
-
-#[test]
-fn a_stopped_controller_stops_the_world_and_is_no_failure() {
-    let dir = support::scratch_dir("vt-stopped");
-    let path = scenario(&dir, "stopped", 5.0, &["tests/vt/stopped.py"], true);
-    let (output, wall) = run_virtual(&path, &dir.join("out"));
-    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
-    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
-    let stopped: f64 = log.split("stopped for ").nth(1).and_then(|rest| rest.split(' ').next()).and_then(|s| s.parse().ok()).unwrap_or_else(|| panic!("{log}"));
-    // About 3 s of wall time stopped; the world's clock did not move meanwhile.
-    assert!(stopped < 0.01, "{log}");
-    assert!(wall >= Duration::from_secs(3), "the helper did not keep it stopped: {wall:?}");
-}
-
-#[test]
-fn a_statically_linked_controller_is_refused() {
-    let Some(ldconfig) = ["/sbin/ldconfig", "/usr/sbin/ldconfig"].into_iter().find(|p| Path::new(p).exists()) else {
-        panic!("this test needs Debian's static /sbin/ldconfig");
-    };
-    let dir = support::scratch_dir("vt-static");
-    let path = scenario(&dir, "static", 2.0, &[ldconfig, "-p"], true);
-    let (output, _) = run_virtual(&path, &dir.join("out"));
-    assert_eq!(output.status.code(), Some(2), "{}", output_text(&output));
-    assert!(output_text(&output).contains("statically linked"), "{}", output_text(&output));
-}
-
-/// A controller `command` (relative to the repository, or absolute) that ends by itself, run
-/// twice for `duration_s` in a scratch folder `vt-NAME` with identical outputs; its log.
-fn command_log_repeated(name: &str, duration_s: f64, command: &[&str]) -> String {
-    let dir = support::scratch_dir(&format!("vt-{name}"));
-    let path = scenario(&dir, name, duration_s, command, true);
-    controller_log_repeated(&path, &dir)
-}
-
-/// Run `path` on virtual time twice: both succeed, and the controller prints the same and the
-/// world's series are the same; what it printed.
-fn controller_log_repeated(path: &Path, dir: &Path) -> String {
-    let mut logs = Vec::new();
-    let mut series = Vec::new();
-    for run in ["a", "b"] {
-        let (output, _) = run_virtual(path, &dir.join(run));
-        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
-        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
-        series.push(std::fs::read(dir.join(run).join("timeseries.csv")).expect("timeseries.csv"));
-    }
-    assert_eq!(logs[0], logs[1], "the controller's own timings differ between runs");
-    // The world too: a run that ends at another instant (a thread's end seen late) differs here.
-    assert!(series[0] == series[1], "timeseries.csv differs between runs (in {})", dir.display());
-    logs.swap_remove(0)
 }
 
 /// The SDK's printed latencies, one line each (see tests/vt/sdk_ping.py).
@@ -271,21 +168,6 @@ fn a_dynamixel2_controller_sees_exact_latencies_and_its_own_timeout() {
     assert_latencies(log, "ping 1 ", 3, PING_AT_1MBPS_US);
     assert!(log.contains("sync read 8 (8 answered)"), "{log}");
     assert_latencies(log, "ping 42 (no reply)", 1, 30_000.0..60_000.0);
-}
-
-#[test]
-fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
-    let dir = support::scratch_dir("vt-pause");
-    let script = dir.join("pause.py");
-    std::fs::write(&script, "#!/usr/bin/env python3\nimport signal, time\ntime.sleep(0.1)\nsignal.pause()\n").expect("write");
-    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
-    let path = scenario(&dir, "pause", 10.0, &[script.to_str().expect("utf-8 path")], false);
-    let (output, wall) = run_virtual(&path, &dir.join("out"));
-    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
-    let failures = summary(&dir.join("out"))["failures"].to_string();
-    assert!(failures.contains("blocked for 2 s of wall time in system call 34 (pause)"), "{failures}");
-    assert!(failures.contains("last followed call: "), "{failures}");
-    assert!(wall < Duration::from_secs(20), "{wall:?}");
 }
 
 #[test]
@@ -403,24 +285,6 @@ fn asyncio_sleeps_and_timeouts_follow_simulated_time() {
     // asyncio waits in epoll_wait: 0.5 s, two concurrent sleeps (0.3 s), a 0.25 s timeout.
     assert!(log.contains("asyncio: 0.500 then 0.800 then 1.050"), "{log}");
     assert!(wall < Duration::from_secs(5), "{wall:?}");
-}
-
-/// `tests/vt/NAME.c` compiled into `dir` with the system's C compiler (Rust links with it, so
-/// it is there wherever these tests build).
-fn compiled_c(dir: &Path, name: &str) -> PathBuf {
-    let program = dir.join(name);
-    let compiled = Command::new("cc").arg(repo().join(format!("tests/vt/{name}.c"))).arg("-o").arg(&program).output().expect("run cc");
-    assert!(compiled.status.success(), "{}", output_text(&compiled));
-    program
-}
-
-/// `tests/vt/NAME.cpp` compiled into `dir` with the system's C++ compiler (threads and C++17).
-fn compiled_cpp(dir: &Path, name: &str) -> PathBuf {
-    let program = dir.join(name);
-    let source = repo().join(format!("tests/vt/{name}.cpp"));
-    let compiled = Command::new("c++").args(["-O1", "-std=c++17", "-pthread"]).arg(&source).arg("-o").arg(&program).output().expect("run c++");
-    assert!(compiled.status.success(), "{}", output_text(&compiled));
-    program
 }
 
 #[test]
@@ -627,14 +491,6 @@ fn asyncio_on_pyserial_with_a_statistics_task_repeats_exactly() {
     // task fed through an asyncio.Queue: it gave 4 different time series in 20 runs once.
     let log = wheel_controller_repeated(&dir, "asyncio-port", &["tests/vt/asyncio_controller.py"]);
     assert!(log.contains("loop: 100 cycles in 2000."), "{log}");
-}
-
-/// `program`'s path on PATH (the machine's own runtimes), or a failure saying which test needs it.
-fn on_path(program: &str, needed_by: &str) -> String {
-    let found = Command::new("sh").args(["-c", &format!("command -v {program}")]).output().expect("sh");
-    let path = String::from_utf8_lossy(&found.stdout).trim().to_owned();
-    assert!(!path.is_empty(), "{program} is not on PATH: {needed_by} needs it");
-    path
 }
 
 /// Node.js (scripts/test.sh installs npm's serialport for it).

@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 6;
+pub const ABI: u32 = 7;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -42,17 +42,18 @@ pub mod mode {
     pub const ENDING: u32 = 2;
 }
 
-/// `Header::tables_full`: a table of the block or of a shim that had no room left, so that
-/// something was not followed (the run fails naming it).
-pub mod full {
+/// `Header::refused`: something the controller did that virtual time cannot follow (a table
+/// of the block or of a shim had no room left, an io_uring); the run fails naming it.
+pub mod refused {
     pub const SLOTS: u32 = 1;
     pub const EPOLL: u32 = 2;
     pub const TIMERFDS: u32 = 4;
     pub const CONNS: u32 = 8;
+    pub const IO_URING: u32 = 16;
 
-    /// What ran out, in words, and its limit, for the run's failure.
-    pub fn describe(bits: u32) -> Option<(&'static str, usize)> {
-        Some(if bits & SLOTS != 0 {
+    /// The run's failure, in words.
+    pub fn describe(bits: u32) -> Option<String> {
+        let (what, limit) = if bits & SLOTS != 0 {
             ("threads at once (all the controller's processes together)", super::SLOTS - 1)
         } else if bits & EPOLL != 0 {
             ("epoll registrations in one process", super::EPOLL_ENTRIES)
@@ -60,9 +61,17 @@ pub mod full {
             ("timerfds in one process", super::TIMERFDS)
         } else if bits & CONNS != 0 {
             ("connections to the sensor server at once", super::CONNS)
+        } else if bits & IO_URING != 0 {
+            return Some(
+                "virtual time cannot follow io_uring (the controller and the kernel share its rings, with no system call to see): \
+                 the controller's io_uring_setup was refused (ENOSYS, which most libraries take for an old kernel and fall back from); \
+                 run it with --clock wall"
+                    .to_owned(),
+            );
         } else {
             return None;
-        })
+        };
+        Some(format!("virtual time follows at most {limit} {what}, and the controller needed more: the one past them could not be followed (run it with --clock wall)"))
     }
 }
 
@@ -128,6 +137,7 @@ pub mod call {
     pub const WAIT_CHILD: u32 = 8;
     pub const PEER: u32 = 9;
     pub const FUTEX: u32 = 10;
+    pub const YIELD: u32 = 11;
 
     pub fn name(call: u32) -> &'static str {
         match call {
@@ -141,6 +151,7 @@ pub mod call {
             WAIT_CHILD => "waitpid",
             PEER => "a wait for another thread",
             FUTEX => "futex",
+            YIELD => "sched_yield",
             _ => "nothing yet",
         }
     }
@@ -214,8 +225,11 @@ pub struct Header {
     /// S (and C for slot 0): one past the highest slot ever taken; raised before a slot is, so
     /// that a scan up to it never misses a thread.
     pub slots_high: AtomicU32,
-    /// S: see [`full`].
-    pub tables_full: AtomicU32,
+    /// S: see [`refused`].
+    pub refused: AtomicU32,
+    /// C: bumped each time climbsim gives a thread its turn: a parked thread stops spinning
+    /// once another has it (it would take the CPU that thread needs).
+    pub turns_given: AtomicU32,
     /// C: replies written ahead of their time: the bytes from `HeldRun::start` on become visible
     /// at `HeldRun::due_ns` (and not before the runs ahead of them in the stream). The shim hides
     /// what is not visible yet from reads, polls and FIONREAD, so that a Sync Read's eight

@@ -69,7 +69,7 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
                     entry.events.store(events, Ordering::Relaxed);
                     entry.data.store(data, Ordering::Relaxed);
                 }
-                None => crate::table_full(crate::abi::full::EPOLL),
+                None => crate::refuse(crate::abi::refused::EPOLL),
             }
         }
         EPOLL_CTL_DEL => {

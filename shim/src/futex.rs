@@ -132,16 +132,20 @@ fn word_holds(uaddr: usize, val: u32, private: bool) -> c_long {
 fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, deadline: u64, bitset: u32) -> c_long {
     note_call(shared, call::FUTEX);
     let header = &shared.header;
+    // A wait costs what a call does, whether it blocks or not, and before it blocks: so that
+    // threads that only hand a lock or a condition back and forth move the clock (a charge is
+    // applied in whole batches, and a parking thread's remainder is dropped), while a waiter is
+    // still woken at its waker's very instant. The charge may yield (past the horizon) before
+    // the word is checked, as a thread preempted on its way into the kernel would.
+    charge(shared, header.syscall_ns.load(Ordering::Relaxed));
     lock(shared);
     let holds = word_holds(args.uaddr, args.val, args.op & FUTEX_PRIVATE_FLAG != 0);
     if holds != 0 {
         unlock(shared);
-        charge(shared, header.syscall_ns.load(Ordering::Relaxed));
         return holds;
     }
     if deadline <= sim_now(shared) {
         unlock(shared);
-        charge(shared, header.syscall_ns.load(Ordering::Relaxed));
         return -ETIMEDOUT;
     }
     slot.futex_addr.store(key.offset, Ordering::Relaxed);

@@ -280,10 +280,11 @@ fn take_unused(slot: &Slot, to: u32) -> bool {
     [state::FREE, state::EXITED].into_iter().any(|from| slot.state.compare_exchange(from, to, Ordering::AcqRel, Ordering::Relaxed).is_ok())
 }
 
-/// A table had no room for something to follow (`abi::full`): the run fails naming it.
-fn table_full(which: u32) {
+/// Something the controller did cannot be followed (`abi::refused`: a table had no room, an
+/// io_uring): the run fails naming it.
+fn refuse(which: u32) {
     if let Some(shared) = shared() {
-        shared.header.tables_full.fetch_or(which, Ordering::AcqRel);
+        shared.header.refused.fetch_or(which, Ordering::AcqRel);
         notify_scheduler(shared);
     }
 }
@@ -302,7 +303,7 @@ fn take_free_slot(shared: &Shared, to: u32) -> Option<(usize, &Slot)> {
             return Some((index, slot));
         }
     }
-    table_full(abi::full::SLOTS);
+    refuse(abi::refused::SLOTS);
     None
 }
 
@@ -391,10 +392,13 @@ fn took_turn(shared: &Shared) {
 
 /// climbsim usually lets a parked (or ready) thread run within a few hundred microseconds: a
 /// spin saves the futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs tens of
-/// them. How long is climbsim's call (none on one CPU, nor where the machine is busy).
+/// them. How long is climbsim's call (none on one CPU, nor where the machine is busy); not
+/// once climbsim has given another thread the turn (this one's CPU is that thread's then).
 fn spin_while_not_running(shared: &Shared, slot: &Slot) {
-    let spin_until = time::real_monotonic_ns().saturating_add(shared.header.park_spin_ns.load(Ordering::Relaxed));
-    while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until {
+    let header = &shared.header;
+    let spin_until = time::real_monotonic_ns().saturating_add(header.park_spin_ns.load(Ordering::Relaxed));
+    let turns = header.turns_given.load(Ordering::Acquire);
+    while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
         core::hint::spin_loop();
     }
 }
@@ -553,6 +557,17 @@ fn charge(shared: &Shared, ns: u64) {
             park(shared, state::YIELDED, target, 0, 0);
             return;
         }
+    }
+}
+
+/// sched_yield on simulated time: it costs what a call does, and the threads ready at this
+/// instant run first, as the kernel's run queue would have them (a loop that yields while it
+/// waits for a lock's holder then lets the holder run, and moves the clock meanwhile).
+fn yield_turn(shared: &Shared) {
+    note_call(shared, abi::call::YIELD);
+    charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+    if shared.live_slots().iter().any(|slot| slot.state.load(Ordering::Acquire) == state::READY) {
+        park(shared, state::YIELDED, time::sim_now(shared), abi::waits::TURN, 0);
     }
 }
 

@@ -63,7 +63,7 @@ fn follow_connection(shared: &'static Shared, fd: c_int, to: *const SockaddrIn) 
             return;
         }
     }
-    crate::table_full(crate::abi::full::CONNS);
+    crate::refuse(crate::abi::refused::CONNS);
 }
 
 /// The descriptor is closed (or reused): its connection is no longer followed.

@@ -23,11 +23,12 @@ use crate::sys::{self, nr};
 
 /// The system calls the filter traps (x86_64).
 #[cfg(target_arch = "x86_64")]
-const TRAPPED: &[i64] = &[nr::RT_SIGACTION, nr::RT_SIGPROCMASK, nr::NANOSLEEP, nr::EXECVE, nr::GETTIMEOFDAY, nr::TIME, nr::FUTEX, nr::CLOCK_GETTIME, nr::CLOCK_NANOSLEEP, nr::EXECVEAT];
+const TRAPPED: &[i64] = &[nr::RT_SIGACTION, nr::RT_SIGPROCMASK, nr::NANOSLEEP, nr::EXECVE, nr::GETTIMEOFDAY, nr::TIME, nr::FUTEX, nr::CLOCK_GETTIME, nr::CLOCK_NANOSLEEP, nr::EXECVEAT, nr::SCHED_YIELD, nr::IO_URING_SETUP];
 
 const SIGSYS: c_int = 31;
 const SIGSYS_BIT: u64 = 1 << (SIGSYS - 1);
 const EINVAL: c_long = 22;
+const ENOSYS: c_long = 38;
 const SIG_SETMASK: i64 = 2;
 
 /// The program's own wish for SIGSYS (a `KernelSigaction`'s handler, flags, restorer, mask),
@@ -263,6 +264,16 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         }),
         nr::NANOSLEEP => crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec).map(|e| -c_long::from(e)),
         nr::CLOCK_NANOSLEEP => crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec).map(|e| -c_long::from(e)),
+        nr::SCHED_YIELD => crate::active().map(|shared| {
+            crate::yield_turn(shared);
+            0
+        }),
+        // Its rings are shared memory that the kernel reads and writes with no system call to
+        // follow: refused (the run fails saying so) before any I/O goes through it.
+        nr::IO_URING_SETUP => crate::active().map(|_| {
+            crate::refuse(crate::abi::refused::IO_URING);
+            -ENOSYS
+        }),
         _ => None,
     };
     handled.unwrap_or_else(|| native_as_program(number, a, sigmask))

@@ -79,6 +79,7 @@ pub mod nr {
     pub const MMAP: i64 = 9;
     pub const RT_SIGACTION: i64 = 13;
     pub const RT_SIGPROCMASK: i64 = 14;
+    pub const SCHED_YIELD: i64 = 24;
     pub const NANOSLEEP: i64 = 35;
     pub const GETPID: i64 = 39;
     pub const EXECVE: i64 = 59;
@@ -93,6 +94,7 @@ pub mod nr {
     pub const OPENAT: i64 = 257;
     pub const SECCOMP: i64 = 317;
     pub const EXECVEAT: i64 = 322;
+    pub const IO_URING_SETUP: i64 = 425;
     /// struct stat: st_mode's and st_rdev's offsets.
     pub const ST_MODE: usize = 24;
     pub const ST_RDEV: usize = 40;
@@ -107,6 +109,7 @@ pub mod nr {
     pub const FSTAT: i64 = 80;
     pub const FUTEX: i64 = 98;
     pub const NANOSLEEP: i64 = 101;
+    pub const SCHED_YIELD: i64 = 124;
     pub const CLOCK_GETTIME: i64 = 113;
     pub const CLOCK_NANOSLEEP: i64 = 115;
     pub const RT_SIGACTION: i64 = 134;
@@ -120,6 +123,7 @@ pub mod nr {
     pub const MMAP: i64 = 222;
     pub const SECCOMP: i64 = 277;
     pub const EXECVEAT: i64 = 281;
+    pub const IO_URING_SETUP: i64 = 425;
     pub const ST_MODE: usize = 16;
     pub const ST_RDEV: usize = 32;
 }

@@ -96,7 +96,7 @@ pub unsafe extern "C" fn timerfd_create(clock: c_int, flags: c_int) -> c_int {
                 timer.shown.store(false, Ordering::Relaxed);
                 timer.fd.store(fd, Ordering::Release);
             }
-            None => crate::table_full(crate::abi::full::TIMERFDS),
+            None => crate::refuse(crate::abi::refused::TIMERFDS),
         }
     }
     fd

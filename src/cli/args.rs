@@ -50,6 +50,11 @@ pub struct PaceArgs {
     /// for its period shows its overruns. The run is then no longer exactly repeatable.
     #[arg(long, value_name = "F", value_parser = parse_controller_cpu)]
     pub controller_cpu: Option<f64>,
+    /// Under --clock virtual, how long (wall-clock seconds) a controller thread may compute
+    /// without a call climbsim follows (loading a model at start, say) before the run fails: a
+    /// loop that neither reads a clock nor waits would hold simulated time for ever. Default 60.
+    #[arg(long, value_name = "S", value_parser = parse_compute_limit_s)]
+    pub compute_limit_s: Option<f64>,
     /// Virtual time: simulated nanoseconds an intercepted call that does not block costs.
     #[arg(long, value_name = "NS", default_value = "1000", hide = true)]
     pub vt_syscall_ns: u64,
@@ -77,13 +82,23 @@ impl PaceArgs {
         if self.controller_cpu.is_some() && clock != ClockArg::Virtual {
             bail!("--controller-cpu applies to --clock virtual (on the wall clock the controller's computation takes its own time)");
         }
+        if self.compute_limit_s.is_some() && clock != ClockArg::Virtual {
+            bail!("--compute-limit-s applies to --clock virtual (on the wall clock a computing controller holds nothing up)");
+        }
         let time = match clock {
             ClockArg::Wall => TimeBase::Wall,
             ClockArg::Virtual => {
                 if self.speed != 1.0 {
                     bail!("--speed {} applies to --clock wall: under --clock virtual a run goes as fast as the CPU allows", self.speed);
                 }
-                TimeBase::Virtual(VtSettings { syscall_ns: self.vt_syscall_ns, spin_cap_ns: self.vt_spin_cap_us.saturating_mul(1000), controller_cpu: self.controller_cpu.unwrap_or(0.0), ..VtSettings::default() })
+                let defaults = VtSettings::default();
+                TimeBase::Virtual(VtSettings {
+                    syscall_ns: self.vt_syscall_ns,
+                    spin_cap_ns: self.vt_spin_cap_us.saturating_mul(1000),
+                    controller_cpu: self.controller_cpu.unwrap_or(0.0),
+                    compute_limit: self.compute_limit_s.map_or(defaults.compute_limit, Duration::from_secs_f64),
+                    ..defaults
+                })
             }
         };
         Ok(Pace { speed: self.speed, tolerance: Duration::from_secs_f64(self.pace_tolerance_ms / 1e3), time })
@@ -124,6 +139,14 @@ pub fn parse_controller_cpu(text: &str) -> Result<f64, String> {
         return Err(format!("{text} is outside (0, 1000] (times this machine's CPU time)"));
     }
     Ok(factor)
+}
+
+pub fn parse_compute_limit_s(text: &str) -> Result<f64, String> {
+    let seconds: f64 = text.trim().parse().map_err(|_| format!("`{text}` is not a number of seconds (wall clock)"))?;
+    if !(seconds.is_finite() && (1.0..=86_400.0).contains(&seconds)) {
+        return Err(format!("{text} is outside 1-86400 (seconds of wall-clock time)"));
+    }
+    Ok(seconds)
 }
 
 pub fn parse_tolerance_ms(text: &str) -> Result<f64, String> {

@@ -61,8 +61,12 @@ pub struct VtSettings {
     pub syscall_ns: u64,
     /// The longest jump of a zero-timeout poll of the port when nothing is due on it.
     pub spin_cap_ns: u64,
-    /// Wall time without an intercepted call after which a running controller is stuck.
+    /// Wall time without an intercepted call after which a running controller thread that is
+    /// not computing (blocked in a call the shim does not see) is stuck.
     pub stuck_after: Duration,
+    /// Wall time a controller thread may compute without an intercepted call (`--compute-limit-s`:
+    /// a model loaded at start) before the run fails.
+    pub compute_limit: Duration,
     /// CLOCK_REALTIME at simulated time 0 (Unix seconds): fixed, so that runs repeat exactly.
     pub epoch_unix_s: u64,
     /// Each controller thread's CPU time is charged × this (`--controller-cpu F`); 0: the
@@ -72,9 +76,13 @@ pub struct VtSettings {
 
 impl Default for VtSettings {
     fn default() -> Self {
-        Self { clock_read_ns: 25, syscall_ns: 1_000, spin_cap_ns: 100_000, stuck_after: Duration::from_secs(2), epoch_unix_s: 1_704_067_200, controller_cpu: 0.0 }
+        Self { clock_read_ns: 25, syscall_ns: 1_000, spin_cap_ns: 100_000, stuck_after: Duration::from_secs(2), compute_limit: Duration::from_secs(60), epoch_unix_s: 1_704_067_200, controller_cpu: 0.0 }
     }
 }
+
+/// Wall time that simulated time may stand still while controller threads run (and none of
+/// them computes) before the run fails as a livelock.
+const LIVELOCK_AFTER: Duration = Duration::from_secs(5);
 
 /// CLOCK_MONOTONIC at simulated time 0: not zero, which some programs take for "unset".
 const MONOTONIC_BASE_NS: u64 = 1_000_000_000_000;
@@ -343,7 +351,7 @@ impl VirtualTime {
     pub fn advance_to(&self, due: Duration, stop: &AtomicBool) -> Result<(), VtError> {
         let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
         let header = &self.shared().header;
-        let mut watchdog = watchdog::Watchdog::new(self.settings.stuck_after);
+        let mut watchdog = watchdog::Watchdog::new(watchdog::Limits { stuck_after: self.settings.stuck_after, compute_limit: self.settings.compute_limit, livelock_after: LIVELOCK_AFTER });
         // (Not while the world still catches up with where a controller that has gone left it.)
         while self.waits_for_controller.load(Ordering::Relaxed) && self.now_ns() < due && !self.controller_attached() {
             if stop.load(Ordering::Relaxed) {
@@ -357,8 +365,8 @@ impl VirtualTime {
             }
         }
         loop {
-            if let Some((what, limit)) = abi::full::describe(header.tables_full.load(Ordering::Acquire)) {
-                return Err(VtError::Stuck(format!("virtual time follows at most {limit} {what}, and the controller needed more: the one past them could not be followed (run it with --clock wall)")));
+            if let Some(refusal) = abi::refused::describe(header.refused.load(Ordering::Acquire)) {
+                return Err(VtError::Stuck(refusal));
             }
             // The world catches up with the controller before climbsim looks at anything the
             // controller sent: ticks may run while it runs, since it can see the world only
@@ -476,6 +484,10 @@ impl VirtualTime {
     fn settle(&self, watchdog: &mut watchdog::Watchdog, stop: &AtomicBool, due: u64) -> Result<(), VtError> {
         let header = &self.shared().header;
         loop {
+            // However busy the threads keep the loop below, each is judged every few ms.
+            if watchdog.due() {
+                watchdog.check(self.shared())?;
+            }
             let seen = header.sched_word.load(Ordering::Acquire);
             if !self.any_running() {
                 // What the threads that ran wrote may have woken threads waiting on the real

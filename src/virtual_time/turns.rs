@@ -17,6 +17,7 @@ impl VirtualTime {
         let ready = slots.iter().filter(ready).find(|s| s.waits.load(Ordering::Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready));
         if let Some(slot) = ready {
             lock(&self.stats).turns += 1;
+            self.shared().header.turns_given.fetch_add(1, Ordering::Release);
             let_run(slot, slot.release.load(Ordering::Acquire));
         }
         ready.is_some()

@@ -1,8 +1,12 @@
-//! What virtual time cannot follow is a clear error, never a hang: a controller thread that
-//! makes no intercepted call for a while (wall time) is looked up in /proc. Stopped (SIGSTOP, a
-//! debugger): the world waits. Computing, or blocked in a call the shim does not see: the run
-//! fails naming the thread and the last call seen. Gone: its slot is freed.
+//! What virtual time cannot follow is a clear error, never a hang. Each running controller
+//! thread is judged on its own, from what it does, whatever the others do: one that makes no
+//! followed call for a while (wall time) is looked up in /proc. Stopped (SIGSTOP, a debugger):
+//! the world waits. Computing (its CPU time grows): allowed up to a generous limit (a model
+//! loaded at start). Blocked in a call the shim does not see: the run fails naming it. Gone:
+//! its slot is freed. And whatever the threads do, simulated time that stands still while they
+//! run (a livelock) fails the run naming every thread.
 
+use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -11,20 +15,55 @@ use super::abi::{Shared, Slot, call, state};
 
 /// How often running slots are checked for threads that died without saying so (killed).
 const LIVENESS_EVERY: Duration = Duration::from_millis(50);
+/// Over how long (wall time) a quiet thread's CPU time is compared: longer than the kernel's
+/// tick (10 ms), short against the limits.
+const CPU_WINDOW: Duration = Duration::from_millis(250);
+/// How often (wall time) the running threads are judged at least.
+const CHECK_EVERY: Duration = Duration::from_millis(10);
+
+/// The watchdog's limits, in wall time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Limits {
+    /// A thread blocked in a call the shim does not see, or bytes the controller sent that do
+    /// not arrive, or a process that does not load the shim.
+    pub stuck_after: Duration,
+    /// A thread that computes without a followed call (`--compute-limit-s`).
+    pub compute_limit: Duration,
+    /// Simulated time standing still while threads run.
+    pub livelock_after: Duration,
+}
+
+/// What the watchdog knows of one running thread.
+struct Quiet {
+    tid: i32,
+    calls: u64,
+    /// The watchdog's check in which it was last seen running (one not seen in the check
+    /// before has parked meanwhile: its quiet starts again).
+    round: u64,
+    /// Since when it has made no followed call.
+    since: Instant,
+    /// Its CPU time (ns) when last sampled, and when.
+    cpu: Option<(u64, Instant)>,
+    /// Its CPU time grew while it made no call.
+    computing: bool,
+}
 
 pub struct Watchdog {
-    stuck_after: Duration,
-    calls: u64,
-    progress: Instant,
+    limits: Limits,
+    threads: HashMap<usize, Quiet>,
+    round: u64,
+    /// Simulated time as last seen, and since when (wall time) it has not moved.
+    time: (u64, Instant),
     liveness: Instant,
+    checked: Instant,
     /// Since when bytes the controller sent have not reached climbsim.
     held_since: Option<Instant>,
 }
 
 impl Watchdog {
-    pub fn new(stuck_after: Duration) -> Self {
+    pub fn new(limits: Limits) -> Self {
         let now = Instant::now();
-        Self { stuck_after, calls: u64::MAX, progress: now, liveness: now, held_since: None }
+        Self { limits, threads: HashMap::new(), round: 0, time: (u64::MAX, now), liveness: now, checked: now, held_since: None }
     }
 
     /// Called while climbsim waits for bytes the shim counted as sent (on the port, on a
@@ -33,48 +72,117 @@ impl Watchdog {
     /// had closed).
     pub fn check_held(&mut self, (port, sensors): (bool, bool)) -> Result<(), VtError> {
         let since = *self.held_since.get_or_insert_with(Instant::now);
-        if since.elapsed() < self.stuck_after {
+        if since.elapsed() < self.limits.stuck_after {
             return Ok(());
         }
         let place = if port { "the servo port" } else if sensors { "a sensor-server connection" } else { return Ok(()) };
         Err(VtError::Stuck(format!(
             "virtual time: bytes the controller sent on {place} did not reach climbsim within {} s of wall time (written by a process without the shim, or on a connection already closed); simulated time cannot go on",
-            self.stuck_after.as_secs_f64()
+            self.limits.stuck_after.as_secs_f64()
         )))
     }
 
-    /// Called while climbsim waits for running controller threads.
+    /// Whether a check is due (climbsim's loop calls [`Self::check`] at least this often).
+    pub fn due(&self) -> bool {
+        self.checked.elapsed() >= CHECK_EVERY
+    }
+
+    /// Called while climbsim waits for running controller threads (or for their looks).
     pub fn check(&mut self, shared: &Shared) -> Result<(), VtError> {
-        self.held_since = None;
-        let calls = shared.header.calls.load(Ordering::Relaxed);
-        if calls != self.calls {
-            self.calls = calls;
-            self.progress = Instant::now();
+        self.checked = Instant::now();
+        if running(shared).next().is_some() {
+            // Threads run: whatever was held is theirs to send on (a wait for it starts anew).
+            self.held_since = None;
+        }
+        let now = shared.header.now_ns.load(Ordering::Acquire);
+        if now != self.time.0 {
+            self.time = (now, Instant::now());
         }
         if self.liveness.elapsed() >= LIVENESS_EVERY {
             self.liveness = Instant::now();
-            for slot in running(shared) {
+            for (_, slot) in running(shared) {
                 if matches!(task_state(slot), TaskState::Gone) {
                     slot.state.store(state::EXITED, Ordering::Release);
                 }
             }
         }
-        if self.progress.elapsed() < self.stuck_after {
-            return Ok(());
+        let mut computing = false;
+        self.round += 1;
+        let round = self.round;
+        for (index, slot) in running(shared) {
+            let (calls, tid) = (slot.calls.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
+            let fresh = || Quiet { tid, calls, round, since: Instant::now(), cpu: None, computing: false };
+            let thread = self.threads.entry(index).or_insert_with(fresh);
+            let seen_before = std::mem::replace(&mut thread.round, round) + 1 == round;
+            if thread.tid != tid || thread.calls != calls || !seen_before {
+                *thread = fresh();
+                continue;
+            }
+            let quiet = thread.since.elapsed();
+            if quiet < self.limits.stuck_after {
+                computing |= thread.computing;
+                continue;
+            }
+            if slot.state.load(Ordering::Acquire) == state::RESERVED {
+                return Err(VtError::Stuck(describe(slot, Judged::NoShim, quiet)));
+            }
+            match task_state(slot) {
+                // A debugger or SIGSTOP: the world waits for it, however long.
+                TaskState::Stopped => {
+                    self.waited_for_stopped();
+                    return Ok(());
+                }
+                TaskState::Gone => continue,
+                state => {
+                    let Some(cpu) = cpu_ns(slot) else {
+                        // No CPU time to read: judged as before, quiet means stuck.
+                        return Err(VtError::Stuck(describe(slot, Judged::Blocked, quiet)));
+                    };
+                    let Some((before, sampled)) = thread.cpu else {
+                        thread.cpu = Some((cpu, Instant::now()));
+                        continue;
+                    };
+                    if sampled.elapsed() < CPU_WINDOW {
+                        computing |= thread.computing;
+                        continue;
+                    }
+                    // Computing (its CPU time grew), runnable but waiting for a CPU (a loaded
+                    // machine), or reading a disk (a large file at start): working.
+                    let working = cpu > before || matches!(state, TaskState::Other('R' | 'D'));
+                    if !working {
+                        return Err(VtError::Stuck(describe(slot, Judged::Blocked, quiet)));
+                    }
+                    if quiet >= self.limits.compute_limit {
+                        return Err(VtError::Stuck(describe(slot, Judged::Computing(self.limits.compute_limit), quiet)));
+                    }
+                    thread.computing = true;
+                    thread.cpu = Some((cpu, Instant::now()));
+                    computing = true;
+                }
+            }
         }
-        let stuck: Vec<&Slot> = running(shared).collect();
-        if stuck.iter().any(|slot| matches!(task_state(slot), TaskState::Stopped)) {
-            // A debugger or SIGSTOP: the world waits for it, however long.
-            self.progress = Instant::now();
-            return Ok(());
+        if computing {
+            // A computing thread holds simulated time where it is, rightly.
+            self.time.1 = Instant::now();
+        } else if self.time.1.elapsed() >= self.limits.livelock_after {
+            return Err(VtError::Stuck(livelock(shared, self.limits.livelock_after, now)));
         }
-        let Some(slot) = stuck.first() else { return Ok(()) };
-        Err(VtError::Stuck(describe(slot, self.stuck_after)))
+        Ok(())
+    }
+
+    /// A stopped thread: nothing is judged while the world waits for it.
+    fn waited_for_stopped(&mut self) {
+        let now = Instant::now();
+        self.time.1 = now;
+        for thread in self.threads.values_mut() {
+            thread.since = now;
+            thread.cpu = None;
+        }
     }
 }
 
-fn running(shared: &Shared) -> impl Iterator<Item = &Slot> {
-    shared.live_slots().iter().filter(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED))
+fn running(shared: &Shared) -> impl Iterator<Item = (usize, &Slot)> {
+    shared.live_slots().iter().enumerate().filter(|(_, s)| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED))
 }
 
 enum TaskState {
@@ -115,34 +223,117 @@ fn task_state(slot: &Slot) -> TaskState {
     }
 }
 
-fn describe(slot: &Slot, after: Duration) -> String {
+/// What the watchdog found a quiet thread doing.
+enum Judged {
+    /// A process that never loaded the shim.
+    NoShim,
+    /// Computing past the limit.
+    Computing(Duration),
+    /// Blocked in a call the shim does not see.
+    Blocked,
+}
+
+/// `controller thread `comm` (pid P, tid T)`, and its /proc folder.
+fn thread_name(slot: &Slot) -> (String, String) {
     let (pid, tid) = (slot.pid.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
     let task = stat_path(slot).unwrap_or_default();
     let comm = std::fs::read_to_string(format!("{task}/comm")).map(|c| c.trim().to_owned()).unwrap_or_else(|_| "?".to_owned());
-    let secs = after.as_secs_f64();
-    if slot.state.load(Ordering::Acquire) == state::RESERVED {
-        return format!(
-            "virtual time: the controller process `{comm}` (pid {pid}) did not load climbsim's shim within {secs} s of wall time: \
-             a statically linked program, or one that drops LD_PRELOAD, cannot run on virtual time (run it with --clock wall)"
-        );
-    }
+    (format!("controller thread `{comm}` (pid {pid}, tid {tid})"), task)
+}
+
+/// The slot's last followed call and its simulated time.
+fn last_call(slot: &Slot) -> String {
     let last = call::name(slot.last_call.load(Ordering::Relaxed));
     let at = slot.last_call_ns.load(Ordering::Relaxed) as f64 / 1e9;
-    let thread = format!("controller thread `{comm}` (pid {pid}, tid {tid})");
-    match task_state(slot) {
-        TaskState::Other('R') => format!(
-            "virtual time: {thread} has computed for {secs} s of wall time without a call climbsim follows (last: {last} at t = {at:.6} s): \
-             a loop that neither reads a clock nor waits cannot run on virtual time"
+    format!("{last} at t = {at:.6} s")
+}
+
+fn describe(slot: &Slot, judged: Judged, quiet: Duration) -> String {
+    let (thread, task) = thread_name(slot);
+    let secs = quiet.as_secs_f64().round();
+    let last = last_call(slot);
+    match judged {
+        Judged::NoShim => {
+            let (pid, comm) = (slot.pid.load(Ordering::Relaxed), std::fs::read_to_string(format!("{task}/comm")).map(|c| c.trim().to_owned()).unwrap_or_else(|_| "?".to_owned()));
+            format!(
+                "virtual time: the controller process `{comm}` (pid {pid}) did not load climbsim's shim within {secs} s of wall time: \
+                 a statically linked program, or one that drops LD_PRELOAD, cannot run on virtual time (run it with --clock wall)"
+            )
+        }
+        Judged::Computing(limit) => format!(
+            "virtual time: {thread} has computed for {secs} s of wall time without a call climbsim follows (last: {last}), past --compute-limit-s {}: \
+             a loop that neither reads a clock nor waits cannot run on virtual time (a longer computation, such as loading a model, needs a higher limit)",
+            limit.as_secs_f64()
         ),
-        _ => {
-            let syscall = std::fs::read_to_string(format!("{task}/syscall")).ok().and_then(|s| s.split_whitespace().next().and_then(|n| n.parse::<i64>().ok()));
-            let inside = syscall.map_or_else(|| "a system call".to_owned(), |n| format!("system call {n}{}", syscall_name(n).map(|s| format!(" ({s})")).unwrap_or_default()));
+        Judged::Blocked => {
+            let inside = syscall_inside(&task);
             format!(
                 "virtual time: {thread} has been blocked for {secs} s of wall time in {inside}, which climbsim does not follow \
-                 (last followed call: {last} at t = {at:.6} s); nothing can wake it on virtual time"
+                 (last followed call: {last}); nothing can wake it on virtual time"
             )
         }
     }
+}
+
+/// The system call a task is in, from /proc/…/syscall, in words.
+fn syscall_inside(task: &str) -> String {
+    let syscall = std::fs::read_to_string(format!("{task}/syscall")).ok();
+    match syscall.as_deref().map(str::trim) {
+        Some("running") => "no system call (running)".to_owned(),
+        Some(text) => match text.split_whitespace().next().and_then(|n| n.parse::<i64>().ok()) {
+            Some(n) => format!("system call {n}{}", syscall_name(n).map(|s| format!(" ({s})")).unwrap_or_default()),
+            None => "a system call".to_owned(),
+        },
+        None => "a system call".to_owned(),
+    }
+}
+
+/// Simulated time stood still at `now` for `after` of wall time while threads ran: every
+/// thread that is not parked on a deadline, with what it was doing.
+fn livelock(shared: &Shared, after: Duration, now: u64) -> String {
+    let threads: Vec<String> = shared
+        .live_slots()
+        .iter()
+        .filter(|s| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+        .map(|slot| {
+            let (thread, task) = thread_name(slot);
+            let followed = match slot.state.load(Ordering::Acquire) {
+                state::RUNNING => "running",
+                state::READY => "ready",
+                state::BLOCKED => "blocked",
+                state::YIELDED => "yielded",
+                state::RESERVED => "starting",
+                _ => "?",
+            };
+            let kernel = match task_state(slot) {
+                TaskState::Other(letter) => format!("{letter}, in {}", syscall_inside(&task)),
+                TaskState::Stopped => "stopped".to_owned(),
+                TaskState::Gone => "gone".to_owned(),
+                TaskState::Unknown => "unknown".to_owned(),
+            };
+            format!("{thread}: {followed} (kernel: {kernel}), {} calls, last {}", slot.calls.load(Ordering::Relaxed), last_call(slot))
+        })
+        .collect();
+    format!(
+        "virtual time: simulated time has stood still at t = {:.6} s for {} s of wall time while the controller ran: \
+         its threads make calls that do not move time, or wait on each other in a way climbsim cannot end (a livelock). Threads: {}",
+        now as f64 / 1e9,
+        after.as_secs_f64(),
+        threads.join("; ")
+    )
+}
+
+/// The task's CPU time so far (ns): /proc's schedstat, else stat's utime and stime (in the
+/// kernel's 100 Hz ticks).
+fn cpu_ns(slot: &Slot) -> Option<u64> {
+    let task = stat_path(slot)?;
+    if let Some(ns) = std::fs::read_to_string(format!("{task}/schedstat")).ok().and_then(|s| s.split_whitespace().next()?.parse().ok()) {
+        return Some(ns);
+    }
+    let stat = std::fs::read_to_string(format!("{task}/stat")).ok()?;
+    let fields: Vec<&str> = stat[stat.rfind(')')? + 1..].split_whitespace().collect();
+    let ticks = fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
+    Some(ticks * 10_000_000)
 }
 
 /// The slot's process has a child that is not followed (it dropped the shim) and has not

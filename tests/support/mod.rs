@@ -390,6 +390,8 @@ pub mod history;
 /// measurements the physics tests and the solver-fidelity bench share.
 pub mod physics;
 
+pub mod vt;
+
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
 /// controller (`command = ["python", ...]`) runs in the venv.
 pub fn climbsim_with_sdk_python(args: &[&str]) -> std::process::Output {

@@ -1,0 +1,110 @@
+//! What the virtual-time tests share (`tests/virtual_time*.rs`): a bare scenario around an
+//! external controller, runs on virtual time, their outputs, controllers compiled for a test.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use super::{climbsim_with_sdk_python, output_text, repo, scratch_dir};
+
+/// A flat world `duration_s` long driven by `command` (paths relative to the repository, or
+/// absolute), with `extra` TOML after it.
+pub fn scenario(dir: &Path, name: &str, duration_s: f64, command: &[&str], ends_by_itself: bool) -> PathBuf {
+    scenario_with(dir, name, duration_s, command, ends_by_itself, "")
+}
+
+/// [`scenario`] on a 1 Mbps bus.
+pub fn scenario_1mbps(dir: &Path, name: &str, duration_s: f64, command: &[&str]) -> PathBuf {
+    scenario_with(dir, name, duration_s, command, true, "\n[bus]\nbaud_bps = 1000000\n")
+}
+
+pub fn scenario_with(dir: &Path, name: &str, duration_s: f64, command: &[&str], ends_by_itself: bool, extra: &str) -> PathBuf {
+    // The program relative to the repository (or absolute); its arguments as they are.
+    let command: Vec<String> = command.iter().enumerate().map(|(i, part)| if i == 0 { format!("\"{}\"", repo().join(part).display()) } else { format!("\"{part}\"") }).collect();
+    let text = format!(
+        "[world]\nseed = 1\nduration_s = {duration_s}\n\n[terrain]\nkind = \"flat\"\nsize_m = 4.0\n\n[line]\npoints = [[-0.5, 0.0], [1.5, 0.0]]\n\n[start]\nx_m = 0.5\n\n\
+         [controller]\nkind = \"external\"\ncommand = [{}]\nends_by_itself = {ends_by_itself}\n{extra}",
+        command.join(", ")
+    );
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, text).expect("write scenario");
+    path
+}
+
+/// `climbsim run SCENARIO --clock virtual --out OUT`: its output and wall time.
+pub fn run_virtual(scenario: &Path, out: &Path) -> (std::process::Output, Duration) {
+    run_virtual_with(scenario, out, &[])
+}
+
+/// [`run_virtual`] with more arguments.
+pub fn run_virtual_with(scenario: &Path, out: &Path, more: &[&str]) -> (std::process::Output, Duration) {
+    let started = Instant::now();
+    let (scenario, out) = (scenario.display().to_string(), out.display().to_string());
+    let mut args = vec!["run", &scenario, "--clock", "virtual", "--out", &out];
+    args.extend_from_slice(more);
+    let output = climbsim_with_sdk_python(&args);
+    (output, started.elapsed())
+}
+
+pub fn summary(out: &Path) -> serde_json::Map<String, serde_json::Value> {
+    let text = std::fs::read_to_string(out.join("summary.json")).unwrap_or_else(|e| panic!("{}: {e}", out.display()));
+    serde_json::from_str(&text).expect("summary.json")
+}
+
+/// The summary without what measures the host (wall time): what must repeat exactly.
+pub fn repeatable(out: &Path) -> serde_json::Map<String, serde_json::Value> {
+    let mut summary = summary(out);
+    summary.remove("realtime_factor");
+    summary
+}
+
+/// A controller `command` (relative to the repository, or absolute) that ends by itself, run
+/// twice for `duration_s` in a scratch folder `vt-NAME` with identical outputs; its log.
+pub fn command_log_repeated(name: &str, duration_s: f64, command: &[&str]) -> String {
+    let dir = scratch_dir(&format!("vt-{name}"));
+    let path = scenario(&dir, name, duration_s, command, true);
+    controller_log_repeated(&path, &dir)
+}
+
+/// Run `path` on virtual time twice: both succeed, and the controller prints the same and the
+/// world's series are the same; what it printed.
+pub fn controller_log_repeated(path: &Path, dir: &Path) -> String {
+    let mut logs = Vec::new();
+    let mut series = Vec::new();
+    for run in ["a", "b"] {
+        let (output, _) = run_virtual(path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
+        series.push(std::fs::read(dir.join(run).join("timeseries.csv")).expect("timeseries.csv"));
+    }
+    assert_eq!(logs[0], logs[1], "the controller's own timings differ between runs");
+    // The world too: a run that ends at another instant (a thread's end seen late) differs here.
+    assert!(series[0] == series[1], "timeseries.csv differs between runs (in {})", dir.display());
+    logs.swap_remove(0)
+}
+
+/// `tests/vt/NAME.c` compiled into `dir` with the system's C compiler (Rust links with it, so
+/// it is there wherever these tests build).
+pub fn compiled_c(dir: &Path, name: &str) -> PathBuf {
+    let program = dir.join(name);
+    let compiled = Command::new("cc").arg(repo().join(format!("tests/vt/{name}.c"))).arg("-o").arg(&program).output().expect("run cc");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    program
+}
+
+/// `tests/vt/NAME.cpp` compiled into `dir` with the system's C++ compiler (threads and C++17).
+pub fn compiled_cpp(dir: &Path, name: &str) -> PathBuf {
+    let program = dir.join(name);
+    let source = repo().join(format!("tests/vt/{name}.cpp"));
+    let compiled = Command::new("c++").args(["-O1", "-std=c++17", "-pthread"]).arg(&source).arg("-o").arg(&program).output().expect("run c++");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    program
+}
+
+/// `program`'s path on PATH (the machine's own runtimes), or a failure saying which test needs it.
+pub fn on_path(program: &str, needed_by: &str) -> String {
+    let found = Command::new("sh").args(["-c", &format!("command -v {program}")]).output().expect("sh");
+    let path = String::from_utf8_lossy(&found.stdout).trim().to_owned();
+    assert!(!path.is_empty(), "{program} is not on PATH: {needed_by} needs it");
+    path
+}

@@ -1,0 +1,127 @@
+//! `--clock virtual`'s limits: what it waits for (a computation at start, a stopped process),
+//! what it refuses (a static program, io_uring) and what fails the run naming the thread
+//! (computing past the limit, blocked in a call it does not follow, a livelock). Each is a
+//! real process; none may hang.
+
+use std::path::Path;
+use std::time::Duration;
+
+mod support;
+
+use support::output_text;
+use support::vt::{compiled_c, controller_log_repeated, run_virtual, run_virtual_with, scenario, summary};
+
+#[test]
+fn a_busy_loop_fails_the_run_naming_the_thread_past_the_compute_limit() {
+    let dir = support::scratch_dir("vt-busy");
+    let path = scenario(&dir, "busy", 10.0, &["tests/vt/busy.py"], false);
+    let (output, wall) = run_virtual_with(&path, &dir.join("out"), &["--compute-limit-s", "3"]);
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("has computed for 3 s of wall time without a call climbsim follows"), "{failures}");
+    assert!(failures.contains("past --compute-limit-s 3"), "{failures}");
+    assert!(failures.contains("busy.py") || failures.contains("python"), "{failures}");
+    assert!(wall < Duration::from_secs(20), "{wall:?}");
+}
+
+#[test]
+fn a_stopped_controller_stops_the_world_and_is_no_failure() {
+    let dir = support::scratch_dir("vt-stopped");
+    let path = scenario(&dir, "stopped", 5.0, &["tests/vt/stopped.py"], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
+    let stopped: f64 = log.split("stopped for ").nth(1).and_then(|rest| rest.split(' ').next()).and_then(|s| s.parse().ok()).unwrap_or_else(|| panic!("{log}"));
+    // About 3 s of wall time stopped; the world's clock did not move meanwhile.
+    assert!(stopped < 0.01, "{log}");
+    assert!(wall >= Duration::from_secs(3), "the helper did not keep it stopped: {wall:?}");
+}
+
+#[test]
+fn a_statically_linked_controller_is_refused() {
+    let Some(ldconfig) = ["/sbin/ldconfig", "/usr/sbin/ldconfig"].into_iter().find(|p| Path::new(p).exists()) else {
+        panic!("this test needs Debian's static /sbin/ldconfig");
+    };
+    let dir = support::scratch_dir("vt-static");
+    let path = scenario(&dir, "static", 2.0, &[ldconfig, "-p"], true);
+    let (output, _) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(2), "{}", output_text(&output));
+    assert!(output_text(&output).contains("statically linked"), "{}", output_text(&output));
+}
+
+#[test]
+fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
+    let dir = support::scratch_dir("vt-pause");
+    let script = dir.join("pause.py");
+    std::fs::write(&script, "#!/usr/bin/env python3\nimport signal, time\ntime.sleep(0.1)\nsignal.pause()\n").expect("write");
+    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
+    let path = scenario(&dir, "pause", 10.0, &[script.to_str().expect("utf-8 path")], false);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("blocked for 2 s of wall time in system call 34 (pause)"), "{failures}");
+    assert!(failures.contains("last followed call: "), "{failures}");
+    assert!(wall < Duration::from_secs(20), "{wall:?}");
+}
+
+#[test]
+fn a_controller_that_computes_for_seconds_at_start_is_waited_for() {
+    let dir = support::scratch_dir("vt-compute");
+    let path = scenario(&dir, "compute", 5.0, &["tests/vt/compute_at_start.py"], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    // Longer than the 2 s after which a thread blocked in a call climbsim does not follow fails.
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
+    assert!(log.contains("slept 1.0000"), "{log}");
+    assert!(wall >= Duration::from_secs(3), "{wall:?}");
+}
+
+#[test]
+fn threads_that_only_hand_a_lock_back_and_forth_move_the_clock() {
+    let dir = support::scratch_dir("vt-handoffs");
+    let program = compiled_c(&dir, "handoffs");
+    let path = scenario(&dir, "handoffs", 2.0, &[program.to_str().expect("utf-8 path"), "2000"], true);
+    let log = controller_log_repeated(&path, &dir);
+    // Each of the 4000 hand-overs costs a call (1 µs): the clock moved about 4 ms.
+    let simulated: f64 = log.split(" in ").nth(1).and_then(|rest| rest.split(' ').next()).and_then(|s| s.parse().ok()).unwrap_or_else(|| panic!("{log}"));
+    assert!((0.0039..0.0041).contains(&simulated), "{log}");
+}
+
+#[test]
+fn a_sched_yield_loop_lets_the_thread_it_waits_for_run_and_moves_the_clock() {
+    let dir = support::scratch_dir("vt-yield");
+    let program = compiled_c(&dir, "yield_wait");
+    let path = scenario(&dir, "yield", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    // It spun from 0 to the setter's 300 ms, each yield a call's 1 µs.
+    assert!(log.contains(" yields, 0.3000"), "{log}");
+}
+
+#[test]
+fn io_uring_is_refused_naming_it() {
+    let dir = support::scratch_dir("vt-io-uring");
+    let program = compiled_c(&dir, "io_uring");
+    let path = scenario(&dir, "ring", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let (output, _) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    assert!(output_text(&output).contains("virtual time cannot follow io_uring"), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
+    assert!(log.contains("io_uring_setup: Function not implemented"), "{log}");
+}
+
+#[test]
+fn a_livelock_fails_within_seconds_naming_each_thread() {
+    // With calls made free (a hidden knob), two threads handing a lock back and forth never
+    // move the clock: the livelock the watchdog must catch, whatever the threads do.
+    let dir = support::scratch_dir("vt-livelock");
+    let program = compiled_c(&dir, "handoffs");
+    let path = scenario(&dir, "livelock", 2.0, &[program.to_str().expect("utf-8 path"), "1000000000"], true);
+    let (output, wall) = run_virtual_with(&path, &dir.join("out"), &["--vt-syscall-ns", "0"]);
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("simulated time has stood still at t = "), "{failures}");
+    assert!(failures.contains("for 5 s of wall time"), "{failures}");
+    assert_eq!(failures.matches("controller thread `handoffs`").count(), 2, "{failures}");
+    assert!(failures.contains("last futex at t = "), "{failures}");
+    assert!(wall < Duration::from_secs(30), "{wall:?}");
+}
