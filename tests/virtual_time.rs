@@ -501,7 +501,6 @@ fn node() -> PathBuf {
 }
 
 #[test]
-#[ignore = "about 1 loaded run in 12 loses one Sync Read's replies (the pty's hand-over of climbsim's write takes 0.4-2 s there; cause not found yet), and CI must not be flaky: cargo test --test virtual_time -- --ignored nodejs"]
 fn nodejs_with_npms_serialport_and_a_worker_thread_repeats_exactly() {
     let dir = support::scratch_dir("vt-node");
     let node = node();

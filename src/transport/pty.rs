@@ -155,11 +155,14 @@ pub struct VirtualTimeStream {
     virtual_time: Arc<VirtualTime>,
 }
 
-/// How long a written reply may take to reach the controller's side before climbsim goes on
-/// without it (a controller that never reads fills the terminal's buffer). The kernel's pty
-/// worker usually hands bytes over within microseconds, but on a loaded machine it was seen to
-/// take more than 100 ms (the replies were then lost to a controller let go at their instant).
-const VISIBLE_WITHIN: Duration = Duration::from_secs(2);
+/// How long a written reply may take to reach the controller's side (see there why so long).
+const VISIBLE_WITHIN: Duration = crate::virtual_time::PTY_HAND_OVER_WITHIN;
+
+/// The longest pause between two looks at a hand-over in progress.
+const HAND_OVER_LOOK_AT_MOST_EVERY: Duration = Duration::from_millis(2);
+
+/// A hand-over slower than this is reported (with what it waited for).
+const SLOW_HAND_OVER: Duration = Duration::from_millis(100);
 
 /// How long the terminal's buffer may stay full before what does not fit is lost (a controller
 /// that does not read the port).
@@ -187,6 +190,7 @@ impl AsyncWrite for VirtualTimeStream {
     fn poll_write(self: Pin<&mut Self>, _cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
         let slave = self.port.slave.as_raw_fd();
         let before = queued_bytes(slave).unwrap_or(0);
+        let taken_before = self.virtual_time.port_taken_total();
         let mut fds = [PollFd::new(self.port.master_fd(), PollFlags::POLLOUT)];
         let deadline = Instant::now() + FULL_FOR;
         let written = loop {
@@ -206,18 +210,35 @@ impl AsyncWrite for VirtualTimeStream {
         };
         let handing_over = Instant::now();
         let deadline = handing_over + VISIBLE_WITHIN;
-        while queued_bytes(slave).unwrap_or(0) < before + written {
+        // What the controller took meanwhile (a read or a flush the shim counted) was handed over.
+        let handed_over = || queued_bytes(slave).unwrap_or(0) as u64 + (self.virtual_time.port_taken_total() - taken_before);
+        let mut pause = Duration::from_micros(20);
+        while handed_over() < (before + written) as u64 {
             if Instant::now() > deadline {
-                warn!(bytes = written, "reply bytes not visible to the controller after {VISIBLE_WITHIN:?} (is it reading the port?)");
+                warn!(
+                    bytes = written,
+                    before,
+                    queued = queued_bytes(slave).unwrap_or(0),
+                    taken_meanwhile = self.virtual_time.port_taken_total() - taken_before,
+                    threads = self.virtual_time.threads_now(),
+                    "reply bytes not visible to the controller after {VISIBLE_WITHIN:?} (is it reading the port?)"
+                );
                 break;
             }
             if handing_over.elapsed() < HAND_OVER_SPIN {
                 std::thread::yield_now();
             } else {
-                std::thread::sleep(Duration::from_micros(20));
+                // Backing off: each look (FIONREAD) takes the terminal's termios lock for
+                // writing, which the kernel's pty worker needs (for reading) to hand the bytes
+                // over; looks every 20 µs on a loaded machine were seen to keep it out for
+                // seconds, once for more than 30 s.
+                std::thread::sleep(pause);
+                pause = (pause * 2).min(HAND_OVER_LOOK_AT_MOST_EVERY);
             }
         }
-        if handing_over.elapsed() > Duration::from_millis(5) {
+        if handing_over.elapsed() > SLOW_HAND_OVER {
+            warn!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the kernel took this long to hand reply bytes over to the controller's side of the pty (a loaded machine)");
+        } else if handing_over.elapsed() > Duration::from_millis(5) {
             debug!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the pty's hand-over was slow");
         }
         self.virtual_time.port_written(&data[..written]);

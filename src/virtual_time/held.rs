@@ -40,10 +40,23 @@ fn queued(fd: i32) -> usize {
 /// The most of the stream climbsim keeps a copy of.
 const COPY_LIMIT: usize = 64 * 1024;
 
-/// How long a rewritten reply may take to reach the controller's side.
-const VISIBLE_WITHIN: Duration = Duration::from_millis(100);
+/// How long bytes climbsim writes to the pty may take to reach the controller's side before it
+/// goes on without them. The kernel's pty worker usually hands them over within microseconds.
+/// On a loaded machine it was seen to take seconds (once more than 30 s), with every controller
+/// thread parked and nothing read meanwhile (about one run in 70 of a Java controller beside two
+/// busy loops): climbsim's own looks (FIONREAD every 20 µs) kept the worker out, since each takes
+/// the terminal's termios lock for writing. With growing pauses between looks, the slowest of
+/// 100 such runs took 0.12 s. A controller let go before the bytes are there loses the replies
+/// and the run no longer repeats, so the wait is long: it costs only wall time. A controller
+/// that does not read the port fills the terminal's buffer instead, which is handled apart.
+pub const PTY_HAND_OVER_WITHIN: Duration = Duration::from_secs(30);
 
 impl VirtualTime {
+    /// Bytes of the port's stream the controller has taken (read or flushed), as the shim counts.
+    pub fn port_taken_total(&self) -> u64 {
+        self.shared().header.port_rx_taken.load(Ordering::Acquire)
+    }
+
     /// Bytes written to the port so far (the stream offset of the next byte).
     pub fn port_written_total(&self) -> u64 {
         self.shared().header.port_rx_written.load(Ordering::Acquire)
@@ -166,7 +179,7 @@ impl VirtualTime {
         // SAFETY: tcflush of climbsim's own slave descriptor.
         unsafe { libc::tcflush(port.slave, libc::TCIFLUSH) };
         let mut written = 0;
-        let deadline = Instant::now() + VISIBLE_WITHIN;
+        let deadline = Instant::now() + PTY_HAND_OVER_WITHIN;
         while written < rest.len() && Instant::now() < deadline {
             // SAFETY: a write of our own buffer to climbsim's master descriptor.
             let n = unsafe { libc::write(port.master, rest[written..].as_ptr().cast(), rest.len() - written) };
@@ -176,8 +189,16 @@ impl VirtualTime {
                 std::thread::yield_now();
             }
         }
+        // Looked at with growing pauses: each FIONREAD takes the terminal's termios lock for
+        // writing, which the kernel's pty worker needs to hand the bytes over (see
+        // `PTY_HAND_OVER_WITHIN`).
+        let mut pause = Duration::from_micros(20);
         while queued(port.slave) < written && Instant::now() < deadline {
-            std::thread::yield_now();
+            std::thread::sleep(pause);
+            pause = (pause * 2).min(Duration::from_millis(2));
+        }
+        if queued(port.slave) < written {
+            warn!(written, queued = queued(port.slave), "rewritten reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?}");
         }
     }
 }

@@ -36,6 +36,7 @@ use thiserror::Error;
 use abi::{NEVER, mode, release, state, waits};
 use turns::{let_run, release_slot};
 use block::Block;
+pub use held::PTY_HAND_OVER_WITHIN;
 pub use shim_file::{shim_bytes, shim_path};
 pub use timer::Timer;
 

@@ -44,6 +44,20 @@ impl VirtualTime {
         tracing::trace!(from_s = self.now_ns() as f64 / 1e9, to_s = to as f64 / 1e9, "jump; {}", threads.join("; "));
     }
 
+    /// What the followed threads are doing now, for a diagnostic: `tid:state` for each that is
+    /// not parked on a deadline or free.
+    pub fn threads_now(&self) -> String {
+        let names = ["free", "reserved", "running", "blocked", "yielded", "exited", "ready"];
+        self.shared()
+            .live_slots()
+            .iter()
+            .map(|s| (s.tid.load(Ordering::Relaxed), s.state.load(Ordering::Acquire), s.waits.load(Ordering::Relaxed), abi::call::name(s.last_call.load(Ordering::Relaxed))))
+            .filter(|&(_, st, _, _)| st != state::FREE && st != state::EXITED)
+            .map(|(tid, st, w, last)| format!("{tid}:{}/{w:#x}/{last}", names.get(st as usize).copied().unwrap_or("?")))
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+
     pub(super) fn any_running(&self) -> bool {
         let slots = self.shared().live_slots();
         slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
