@@ -26,6 +26,7 @@ mod io;
 mod maps;
 mod native;
 mod net;
+mod park;
 mod seccomp;
 mod spawn;
 mod sync;
@@ -38,8 +39,12 @@ use core::cell::Cell;
 use core::ffi::{c_char, c_int, c_void};
 use core::sync::atomic::{AtomicPtr, AtomicU32, Ordering};
 
-use abi::{Shared, Slot, mode, release, state};
+use abi::{Shared, Slot, mode, state};
 use sys::real;
+use park::{
+    advance_within_horizon, await_release, await_turn, charge, look_at_kernel, note_call, notify_scheduler, park, publish_parked, publish_waiting_on_kernel,
+    reset_computation, resume_after_kernel_wake, took_turn, yield_turn,
+};
 
 /// The block, once mapped.
 static SHARED: AtomicPtr<Shared> = AtomicPtr::new(core::ptr::null_mut());
@@ -49,19 +54,10 @@ static PID: core::sync::atomic::AtomicI32 = core::sync::atomic::AtomicI32::new(0
 static EXIT_KEY: AtomicU32 = AtomicU32::new(u32::MAX);
 
 const NO_SLOT: u32 = u32::MAX;
-/// Charges a thread may run up while climbsim has not read its bytes yet, before it yields.
-const HELD_CHARGE_LIMIT_NS: u64 = 50_000;
 
 thread_local! {
     /// This thread's slot in the block (NO_SLOT until its first intercepted call).
     static SLOT: Cell<u32> = const { Cell::new(NO_SLOT) };
-    /// Simulated time charged to this thread and not yet applied (ns).
-    static UNAPPLIED: Cell<u64> = const { Cell::new(0) };
-    /// This thread's CPU time (real, ns) when its computation was last charged
-    /// (`--controller-cpu`); 0: not yet read.
-    static CPU_SEEN: Cell<u64> = const { Cell::new(0) };
-    /// Simulated time when this thread last got the turn (see [`charge`]).
-    static TURN_FROM: Cell<u64> = const { Cell::new(0) };
     /// Non-zero while the shim itself is at work in this thread (in the trap handler, or
     /// calling libc for a thread): its system calls go to the kernel as they are.
     static OWN_CALLS: Cell<u32> = const { Cell::new(0) };
@@ -85,28 +81,6 @@ impl OwnCalls {
 impl Drop for OwnCalls {
     fn drop(&mut self) {
         OWN_CALLS.with(|c| c.set(c.get().saturating_sub(1)));
-    }
-}
-
-/// With `--controller-cpu F`: the CPU time this thread used since it was last charged, × F.
-/// Time spent parked (spinning for climbsim) is not the controller's and is skipped.
-fn charge_computation(shared: &Shared) {
-    let factor = shared.header.cpu_factor_ppm.load(Ordering::Relaxed);
-    if factor == 0 {
-        return;
-    }
-    let now = time::thread_cpu_ns();
-    let seen = CPU_SEEN.with(|c| c.replace(now));
-    if seen != 0 && now > seen {
-        let ns = u128::from(now - seen) * u128::from(factor) / 1_000_000;
-        charge(shared, u64::try_from(ns).unwrap_or(u64::MAX));
-    }
-}
-
-/// Forget the CPU time used until now (after a park: the spin was not the controller's work).
-fn reset_computation(shared: &Shared) {
-    if shared.header.cpu_factor_ppm.load(Ordering::Relaxed) != 0 {
-        CPU_SEEN.with(|c| c.set(time::thread_cpu_ns()));
     }
 }
 
@@ -350,7 +324,7 @@ fn claim_reserved(index: usize) {
     slot.tid.store(tid, Ordering::Relaxed);
     slot.parent.store(sys::getppid(), Ordering::Relaxed);
     SLOT.with(|s| s.set(index as u32));
-    UNAPPLIED.with(|u| u.set(0));
+    park::forget_charges();
     let key = EXIT_KEY.load(Ordering::Relaxed);
     if key != u32::MAX {
         // SAFETY: a key from pthread_key_create; the value only has to be non-null.
@@ -364,68 +338,6 @@ fn claim_reserved(index: usize) {
         }
         None => slot.state.store(state::RUNNING, Ordering::Release),
     }
-}
-
-/// Wait, ready to run, until climbsim gives this thread the turn (it marks it running). After
-/// the run's end (or without climbsim) every thread simply runs.
-fn await_turn(shared: &Shared, slot: &Slot) {
-    notify_scheduler(shared);
-    spin_while_not_running(shared, slot);
-    loop {
-        let seen = slot.wake_word.load(Ordering::Acquire);
-        if slot.state.load(Ordering::Acquire) != state::READY {
-            took_turn(shared);
-            return;
-        }
-        if run_over(shared) {
-            slot.state.store(state::RUNNING, Ordering::Release);
-            return;
-        }
-        sleep_on_wake_word(shared, slot, seen);
-    }
-}
-
-/// This thread runs from now: its quantum starts (see [`charge`]).
-fn took_turn(shared: &Shared) {
-    TURN_FROM.with(|t| t.set(time::sim_now(shared)));
-}
-
-/// climbsim usually lets a parked (or ready) thread run within a few hundred microseconds: a
-/// spin saves the futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs tens of
-/// them. How long is climbsim's call (none on one CPU, nor where the machine is busy); not
-/// once climbsim has given another thread the turn (this one's CPU is that thread's then).
-fn spin_while_not_running(shared: &Shared, slot: &Slot) {
-    let header = &shared.header;
-    let spin_until = time::real_monotonic_ns().saturating_add(header.park_spin_ns.load(Ordering::Relaxed));
-    let turns = header.turns_given.load(Ordering::Acquire);
-    while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
-        core::hint::spin_loop();
-    }
-}
-
-/// Sleep until climbsim bumps the slot's wake word past `seen`; the timeout only notices a
-/// climbsim that went away without waking us.
-fn sleep_on_wake_word(shared: &Shared, slot: &Slot, seen: u32) {
-    sys::futex_wait(&slot.wake_word, seen, 100_000_000);
-    if slot.wake_word.load(Ordering::Acquire) == seen {
-        climbsim_gone(shared);
-    }
-}
-
-/// The run has ended, or climbsim is gone: nobody gives turns or releases any more.
-fn run_over(shared: &Shared) -> bool {
-    shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed)
-}
-
-/// This thread, which the kernel woke (a descriptor, a child's end, a join), runs again: in its
-/// turn, unless climbsim or a waker let it go already.
-fn resume_after_kernel_wake(shared: &Shared, slot: &Slot) {
-    if active().is_none() {
-        slot.state.store(state::RUNNING, Ordering::Release);
-        return;
-    }
-    let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
-    await_turn(shared, slot);
 }
 
 /// The process is ending (exit or return from main): every thread of it stops with it.
@@ -487,7 +399,7 @@ fn exit_slot(slot: &Slot) {
 unsafe extern "C" fn forked_child() {
     PID.store(sys::getpid(), Ordering::Relaxed);
     SLOT.with(|s| s.set(NO_SLOT));
-    UNAPPLIED.with(|u| u.set(0));
+    park::forget_charges();
     if let (Some(slot), Some(shared)) = (my_slot(), active()) {
         slot.state.store(state::READY, Ordering::Release);
         await_turn(shared, slot);
@@ -498,168 +410,3 @@ fn pid() -> i32 {
     PID.load(Ordering::Relaxed)
 }
 
-fn notify_scheduler(shared: &Shared) {
-    shared.header.sched_word.fetch_add(1, Ordering::AcqRel);
-    sys::futex_wake(&shared.header.sched_word);
-}
-
-/// Count an intercepted call (the watchdog's sign of life) and remember what it was.
-fn note_call(shared: &Shared, call: u32) {
-    shared.header.calls.fetch_add(1, Ordering::Relaxed);
-    charge_computation(shared);
-    if let Some(slot) = my_slot() {
-        slot.calls.fetch_add(1, Ordering::Relaxed);
-        slot.last_call.store(call, Ordering::Relaxed);
-        slot.last_call_ns.store(shared.header.now_ns.load(Ordering::Relaxed), Ordering::Relaxed);
-    }
-}
-
-/// Bytes the controller sent that climbsim has not time-stamped yet: simulated time must not
-/// move until it has, or their arrival would be stamped late.
-fn held(shared: &Shared) -> bool {
-    let header = &shared.header;
-    header.port_tx_total.load(Ordering::Acquire) != header.port_tx_read.load(Ordering::Acquire)
-        || shared.conns.iter().any(|c| c.client_port.load(Ordering::Relaxed) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire))
-}
-
-/// Charge `ns` of simulated time to this thread; once the charges reach a batch they move the
-/// clock: by the thread itself up to climbsim's horizon, else by yielding to climbsim.
-fn charge(shared: &Shared, ns: u64) {
-    let total = UNAPPLIED.with(|u| {
-        let total = u.get().saturating_add(ns);
-        u.set(total);
-        total
-    });
-    if total < shared.header.batch_ns.load(Ordering::Relaxed) {
-        return;
-    }
-    // Bytes in flight: the clock cannot move until climbsim has them, but yielding for a
-    // microsecond's charge would cost a round trip per write; the thread's next wait yields anyway.
-    if total < HELD_CHARGE_LIMIT_NS && held(shared) {
-        return;
-    }
-    UNAPPLIED.with(|u| u.set(0));
-    let header = &shared.header;
-    loop {
-        let now = header.now_ns.load(Ordering::Acquire);
-        let target = now.saturating_add(total);
-        // A thread that keeps the turn (a loop that polls what is already ready, a spin on the
-        // clock) gives it up after a quantum, as the kernel's scheduler would: the threads
-        // ready meanwhile run first (climbsim puts it after them), whoever they are.
-        if target.saturating_sub(TURN_FROM.with(Cell::get)) >= abi::TURN_QUANTUM_NS {
-            park(shared, state::YIELDED, target, abi::waits::TURN, 0);
-            return;
-        }
-        if advance_within_horizon(shared, now, target) {
-            return;
-        }
-        if header.now_ns.load(Ordering::Acquire) == now {
-            park(shared, state::YIELDED, target, 0, 0);
-            return;
-        }
-    }
-}
-
-/// sched_yield on simulated time: it costs what a call does, and the threads ready at this
-/// instant run first, as the kernel's run queue would have them (a loop that yields while it
-/// waits for a lock's holder then lets the holder run, and moves the clock meanwhile).
-fn yield_turn(shared: &Shared) {
-    note_call(shared, abi::call::YIELD);
-    charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
-    if shared.live_slots().iter().any(|slot| slot.state.load(Ordering::Acquire) == state::READY) {
-        park(shared, state::YIELDED, time::sim_now(shared), abi::waits::TURN, 0);
-    }
-}
-
-/// Move the clock from `now` to `target` without climbsim, if that passes nothing climbsim
-/// has due (the horizon) and climbsim has every byte the controller sent; whether it did.
-fn advance_within_horizon(shared: &Shared, now: u64, target: u64) -> bool {
-    let header = &shared.header;
-    target <= header.horizon_ns.load(Ordering::Acquire) && !held(shared) && header.now_ns.compare_exchange(now, target, Ordering::AcqRel, Ordering::Acquire).is_ok()
-}
-
-/// A thread about to wait on what the kernel wakes (a descriptor climbsim does not model, a
-/// thread's end): climbsim waits for its first look before it decides anything (see
-/// `wait::wait_on_real_world`).
-fn expect_look(shared: &Shared, slot: &Slot) {
-    slot.checked_epoch.store(shared.header.check_epoch.load(Ordering::Acquire).wrapping_sub(1), Ordering::Relaxed);
-}
-
-/// Publish this thread as blocked on what the kernel wakes until `deadline` (simulated ns),
-/// waiting on `waits`, and tell climbsim, which first waits for its look (see [`expect_look`]).
-fn publish_waiting_on_kernel(shared: &Shared, slot: &Slot, deadline: u64, waits: u32, conn_mask: u64) {
-    expect_look(shared, slot);
-    publish_state(slot, state::BLOCKED, deadline, waits, conn_mask);
-    notify_scheduler(shared);
-}
-
-/// One look at what the kernel wakes (`look`: Some once something is ready), as climbsim asks:
-/// if nothing is ready, say so for the epoch the look was made in, and sleep until climbsim
-/// asks again (it bumps the wake word) or for `slice_ns` of wall time.
-fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, look: impl FnOnce() -> Option<T>) -> Option<T> {
-    let epoch = shared.header.check_epoch.load(Ordering::Acquire);
-    let seen = slot.wake_word.load(Ordering::Acquire);
-    let found = look();
-    if found.is_none() {
-        if slot.checked_epoch.swap(epoch, Ordering::AcqRel) != epoch {
-            shared.header.checks_word.fetch_add(1, Ordering::AcqRel);
-            sys::futex_wake(&shared.header.checks_word);
-        }
-        sys::futex_wait(&slot.wake_word, seen, slice_ns);
-    }
-    found
-}
-
-/// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on
-/// `waits`, and sleep until climbsim releases it; why it did (`abi::release`). A thread without
-/// a slot cannot be followed: it returns at once, as if its deadline had come.
-fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
-    let Some(slot) = my_slot() else { return release::DEADLINE };
-    publish_parked(slot, parked, deadline, waits, conn_mask);
-    notify_scheduler(shared);
-    await_release(shared, slot, parked, deadline)
-}
-
-/// Publish this thread (whose slot is `slot`) as parked until `deadline` on `waits`; nobody is
-/// told yet (see [`park`]). Its unapplied charges are dropped: a blocked thread costs nothing.
-fn publish_parked(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask: u64) {
-    UNAPPLIED.with(|u| u.set(0));
-    publish_state(slot, parked, deadline, waits, conn_mask);
-}
-
-/// The slot's wait (until `deadline`, on `waits`), then its state, which makes it seen.
-fn publish_state(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask: u64) {
-    slot.deadline_ns.store(deadline, Ordering::Relaxed);
-    slot.waits.store(waits, Ordering::Relaxed);
-    slot.conn_mask.store(conn_mask, Ordering::Relaxed);
-    slot.release.store(0, Ordering::Relaxed);
-    slot.state.store(parked, Ordering::Release);
-}
-
-/// Sleep, parked as [`publish_parked`] published, until climbsim (or a waker) lets this thread
-/// go; why (`abi::release`).
-fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline: u64) -> u32 {
-    spin_while_not_running(shared, slot);
-    loop {
-        let seen = slot.wake_word.load(Ordering::Acquire);
-        if slot.state.load(Ordering::Acquire) == state::RUNNING {
-            let why = slot.release.load(Ordering::Acquire);
-            // A release meant for an earlier wait of this thread (it had woken by itself, from
-            // a real descriptor or a peer, before climbsim's decision landed): wait on.
-            if why != release::DATA && why != release::ENDING && deadline != abi::NEVER && time::sim_now(shared) < deadline {
-                slot.release.store(0, Ordering::Relaxed);
-                slot.state.store(parked, Ordering::Release);
-                notify_scheduler(shared);
-                continue;
-            }
-            reset_computation(shared);
-            took_turn(shared);
-            return why;
-        }
-        if run_over(shared) {
-            slot.state.store(state::RUNNING, Ordering::Release);
-            return release::ENDING;
-        }
-        sleep_on_wake_word(shared, slot, seen);
-    }
-}
