@@ -26,6 +26,7 @@ mod io;
 mod maps;
 mod native;
 mod net;
+mod now;
 mod park;
 mod seccomp;
 mod spawn;

@@ -7,7 +7,8 @@ use core::cell::Cell;
 use core::sync::atomic::Ordering;
 
 use crate::abi::{self, Shared, Slot, mode, release, state};
-use crate::{ORPHANED, active, climbsim_gone, my_slot, sys, time};
+use crate::now::{real_monotonic_ns, sim_now, thread_cpu_ns};
+use crate::{ORPHANED, active, climbsim_gone, my_slot, sys};
 
 /// Charges a thread may run up while climbsim has not read its bytes yet, before it yields.
 const HELD_CHARGE_LIMIT_NS: u64 = 50_000;
@@ -34,7 +35,7 @@ pub(crate) fn charge_computation(shared: &Shared) {
     if factor == 0 {
         return;
     }
-    let now = time::thread_cpu_ns();
+    let now = thread_cpu_ns();
     let seen = CPU_SEEN.with(|c| c.replace(now));
     if seen != 0 && now > seen {
         let ns = u128::from(now - seen) * u128::from(factor) / 1_000_000;
@@ -45,7 +46,7 @@ pub(crate) fn charge_computation(shared: &Shared) {
 /// Forget the CPU time used until now (after a park: the spin was not the controller's work).
 pub(crate) fn reset_computation(shared: &Shared) {
     if shared.header.cpu_factor_ppm.load(Ordering::Relaxed) != 0 {
-        CPU_SEEN.with(|c| c.set(time::thread_cpu_ns()));
+        CPU_SEEN.with(|c| c.set(thread_cpu_ns()));
     }
 }
 
@@ -70,7 +71,7 @@ pub(crate) fn await_turn(shared: &Shared, slot: &Slot) {
 
 /// This thread runs from now: its quantum starts (see [`charge`]).
 pub(crate) fn took_turn(shared: &Shared) {
-    TURN_FROM.with(|t| t.set(time::sim_now(shared)));
+    TURN_FROM.with(|t| t.set(sim_now(shared)));
 }
 
 /// climbsim usually lets a parked (or ready) thread run within a few hundred microseconds: a
@@ -79,9 +80,9 @@ pub(crate) fn took_turn(shared: &Shared) {
 /// once climbsim has given another thread the turn (this one's CPU is that thread's then).
 pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
     let header = &shared.header;
-    let spin_until = time::real_monotonic_ns().saturating_add(header.park_spin_ns.load(Ordering::Relaxed));
+    let spin_until = real_monotonic_ns().saturating_add(header.park_spin_ns.load(Ordering::Relaxed));
     let turns = header.turns_given.load(Ordering::Acquire);
-    while slot.state.load(Ordering::Acquire) != state::RUNNING && time::real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
+    while slot.state.load(Ordering::Acquire) != state::RUNNING && real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
         core::hint::spin_loop();
     }
 }
@@ -180,7 +181,7 @@ pub(crate) fn yield_turn(shared: &Shared) {
     note_call(shared, abi::call::YIELD);
     charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
     if shared.live_slots().iter().any(|slot| slot.state.load(Ordering::Acquire) == state::READY) {
-        park(shared, state::YIELDED, time::sim_now(shared), abi::waits::TURN, 0);
+        park(shared, state::YIELDED, sim_now(shared), abi::waits::TURN, 0);
     }
 }
 
@@ -259,7 +260,7 @@ pub(crate) fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline:
             let why = slot.release.load(Ordering::Acquire);
             // A release meant for an earlier wait of this thread (it had woken by itself, from
             // a real descriptor or a peer, before climbsim's decision landed): wait on.
-            if why != release::DATA && why != release::ENDING && deadline != abi::NEVER && time::sim_now(shared) < deadline {
+            if why != release::DATA && why != release::ENDING && deadline != abi::NEVER && sim_now(shared) < deadline {
                 slot.release.store(0, Ordering::Relaxed);
                 slot.state.store(parked, Ordering::Release);
                 notify_scheduler(shared);

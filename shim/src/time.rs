@@ -7,47 +7,13 @@
 use core::ffi::{c_int, c_uint, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{Shared, call, mode, release, state};
+use crate::abi::{Shared, call, release, state};
 use crate::sys::{self, clockid_t, real, time_t, timespec, timeval};
 use crate::{active, charge, note_call, park, shared};
+pub(crate) use crate::now::{from_ns, real_monotonic_ns, sim_now, to_ns};
 
 /// TAI runs 37 s ahead of UTC (since 2017).
 const TAI_OFFSET_NS: u64 = 37_000_000_000;
-
-/// Simulated time now (ns since the run's start). After the run's end it goes on at the wall
-/// clock's rate from where it stopped.
-pub(crate) fn sim_now(shared: &Shared) -> u64 {
-    let header = &shared.header;
-    let now = header.now_ns.load(Ordering::Acquire);
-    let ended_at = match crate::orphaned_at() {
-        Some(at) => at,
-        None if header.mode.load(Ordering::Acquire) == mode::VIRTUAL => return now,
-        None => header.ending_wall_ns.load(Ordering::Acquire),
-    };
-    now.saturating_add(real_monotonic_ns().saturating_sub(ended_at))
-}
-
-pub(crate) fn real_monotonic_ns() -> u64 {
-    // The shim's own: should libc fall back to the system call, it goes to the kernel.
-    let _own = crate::OwnCalls::enter();
-    let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
-    let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
-    // SAFETY: a valid timespec for the call.
-    unsafe { clock_gettime(sys::CLOCK_MONOTONIC, &mut ts) };
-    to_ns(&ts)
-}
-
-/// This thread's CPU time (the kernel's, ns).
-pub(crate) fn thread_cpu_ns() -> u64 {
-    const CLOCK_THREAD_CPUTIME_ID: clockid_t = 3;
-    // The vDSO falls back to the system call for this clock: the shim's own, not trapped.
-    let _own = crate::OwnCalls::enter();
-    let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
-    let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
-    // SAFETY: a valid timespec for the call.
-    unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    to_ns(&ts)
-}
 
 /// What `clock` reads at simulated time `now`, if it is one the shim answers.
 pub(crate) fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
@@ -76,14 +42,6 @@ pub(crate) fn read_clock(clock: clockid_t) -> Option<u64> {
     }
     let shared = shared()?;
     clock_at(shared, clock, sim_now(shared))
-}
-
-pub(crate) fn to_ns(ts: &timespec) -> u64 {
-    (ts.tv_sec.max(0) as u64).saturating_mul(1_000_000_000).saturating_add(ts.tv_nsec.max(0) as u64)
-}
-
-pub(crate) fn from_ns(ns: u64) -> timespec {
-    timespec { tv_sec: (ns / 1_000_000_000) as time_t, tv_nsec: (ns % 1_000_000_000) as i64 }
 }
 
 #[unsafe(no_mangle)]

@@ -1,0 +1,52 @@
+//! The time now, as the shim itself reads it: simulated time from the block, and the host's
+//! monotonic and CPU-time clocks through libc (never through the shim's own interposers).
+//! Below every other module that parks or charges, which read these.
+
+use core::ffi::c_int;
+use core::sync::atomic::Ordering;
+
+use crate::abi::{Shared, mode};
+use crate::sys::{self, clockid_t, real, time_t, timespec};
+
+/// Simulated time now (ns since the run's start). After the run's end it goes on at the wall
+/// clock's rate from where it stopped.
+pub(crate) fn sim_now(shared: &Shared) -> u64 {
+    let header = &shared.header;
+    let now = header.now_ns.load(Ordering::Acquire);
+    let ended_at = match crate::orphaned_at() {
+        Some(at) => at,
+        None if header.mode.load(Ordering::Acquire) == mode::VIRTUAL => return now,
+        None => header.ending_wall_ns.load(Ordering::Acquire),
+    };
+    now.saturating_add(real_monotonic_ns().saturating_sub(ended_at))
+}
+
+/// The host's monotonic clock (ns).
+pub(crate) fn real_monotonic_ns() -> u64 {
+    host_clock_ns(sys::CLOCK_MONOTONIC)
+}
+
+/// This thread's CPU time (the kernel's, ns).
+pub(crate) fn thread_cpu_ns() -> u64 {
+    const CLOCK_THREAD_CPUTIME_ID: clockid_t = 3;
+    host_clock_ns(CLOCK_THREAD_CPUTIME_ID)
+}
+
+/// The host's `clock`, read as the shim's own call: should libc fall back to the system call
+/// (the vDSO does for the CPU-time clocks), it goes to the kernel, not to the trap.
+fn host_clock_ns(clock: clockid_t) -> u64 {
+    let _own = crate::OwnCalls::enter();
+    let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
+    let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
+    // SAFETY: a valid timespec for the call.
+    unsafe { clock_gettime(clock, &mut ts) };
+    to_ns(&ts)
+}
+
+pub(crate) fn to_ns(ts: &timespec) -> u64 {
+    (ts.tv_sec.max(0) as u64).saturating_mul(1_000_000_000).saturating_add(ts.tv_nsec.max(0) as u64)
+}
+
+pub(crate) fn from_ns(ns: u64) -> timespec {
+    timespec { tv_sec: (ns / 1_000_000_000) as time_t, tv_nsec: (ns % 1_000_000_000) as i64 }
+}
