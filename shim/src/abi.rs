@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 7;
+pub const ABI: u32 = 8;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -90,6 +90,19 @@ pub mod state {
     /// when climbsim gives it the turn. One followed thread runs at a time, in an order that
     /// does not depend on the host's scheduling, so that runs repeat exactly.
     pub const READY: u32 = 6;
+
+    pub fn name(state: u32) -> &'static str {
+        match state {
+            FREE => "free",
+            RESERVED => "starting",
+            RUNNING => "running",
+            BLOCKED => "blocked",
+            YIELDED => "yielded",
+            EXITED => "exited",
+            READY => "ready",
+            _ => "?",
+        }
+    }
 }
 
 /// `Slot::waits`: what a blocked or yielded thread waits on.

@@ -27,9 +27,14 @@ impl VirtualTime {
     /// `to`, with every followed thread's state, to find which wait a run that does not repeat
     /// waited on.
     pub(super) fn trace_jump(&self, to: u64) {
-        if !tracing::enabled!(tracing::Level::TRACE) {
-            return;
+        if tracing::enabled!(tracing::Level::TRACE) {
+            tracing::trace!(from_s = self.now_ns() as f64 / 1e9, to_s = to as f64 / 1e9, "jump; {}", self.threads_now());
         }
+    }
+
+    /// What each followed thread (not free nor exited) is doing now, for a diagnostic: its
+    /// slot, thread id, state, what it waits on and until when, and its last call.
+    pub fn threads_now(&self) -> String {
         let threads: Vec<String> = self
             .shared()
             .live_slots()
@@ -38,24 +43,12 @@ impl VirtualTime {
             .filter(|(_, s)| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
             .map(|(i, s)| {
                 let deadline = s.deadline_ns.load(Ordering::Relaxed);
-                format!("#{i} tid {} state {} waits {:#x} until {} last {}", s.tid.load(Ordering::Relaxed), s.state.load(Ordering::Acquire), s.waits.load(Ordering::Relaxed), if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) }, abi::call::name(s.last_call.load(Ordering::Relaxed)))
+                let until = if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) };
+                let (tid, waits, last) = (s.tid.load(Ordering::Relaxed), s.waits.load(Ordering::Relaxed), abi::call::name(s.last_call.load(Ordering::Relaxed)));
+                format!("#{i} tid {tid} {} waits {waits:#x} until {until} last {last}", state::name(s.state.load(Ordering::Acquire)))
             })
             .collect();
-        tracing::trace!(from_s = self.now_ns() as f64 / 1e9, to_s = to as f64 / 1e9, "jump; {}", threads.join("; "));
-    }
-
-    /// What the followed threads are doing now, for a diagnostic: `tid:state` for each that is
-    /// not parked on a deadline or free.
-    pub fn threads_now(&self) -> String {
-        let names = ["free", "reserved", "running", "blocked", "yielded", "exited", "ready"];
-        self.shared()
-            .live_slots()
-            .iter()
-            .map(|s| (s.tid.load(Ordering::Relaxed), s.state.load(Ordering::Acquire), s.waits.load(Ordering::Relaxed), abi::call::name(s.last_call.load(Ordering::Relaxed))))
-            .filter(|&(_, st, _, _)| st != state::FREE && st != state::EXITED)
-            .map(|(tid, st, w, last)| format!("{tid}:{}/{w:#x}/{last}", names.get(st as usize).copied().unwrap_or("?")))
-            .collect::<Vec<_>>()
-            .join(" ")
+        threads.join("; ")
     }
 
     pub(super) fn any_running(&self) -> bool {

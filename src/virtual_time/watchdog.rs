@@ -237,8 +237,12 @@ enum Judged {
 fn thread_name(slot: &Slot) -> (String, String) {
     let (pid, tid) = (slot.pid.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
     let task = stat_path(slot).unwrap_or_default();
-    let comm = std::fs::read_to_string(format!("{task}/comm")).map(|c| c.trim().to_owned()).unwrap_or_else(|_| "?".to_owned());
-    (format!("controller thread `{comm}` (pid {pid}, tid {tid})"), task)
+    (format!("controller thread `{}` (pid {pid}, tid {tid})", comm(&task)), task)
+}
+
+/// The command name of the task whose /proc folder is `task` ("?" if it cannot be read).
+fn comm(task: &str) -> String {
+    std::fs::read_to_string(format!("{task}/comm")).map(|c| c.trim().to_owned()).unwrap_or_else(|_| "?".to_owned())
 }
 
 /// The slot's last followed call and its simulated time.
@@ -254,7 +258,7 @@ fn describe(slot: &Slot, judged: Judged, quiet: Duration) -> String {
     let last = last_call(slot);
     match judged {
         Judged::NoShim => {
-            let (pid, comm) = (slot.pid.load(Ordering::Relaxed), std::fs::read_to_string(format!("{task}/comm")).map(|c| c.trim().to_owned()).unwrap_or_else(|_| "?".to_owned()));
+            let (pid, comm) = (slot.pid.load(Ordering::Relaxed), comm(&task));
             format!(
                 "virtual time: the controller process `{comm}` (pid {pid}) did not load climbsim's shim within {secs} s of wall time: \
                  a statically linked program, or one that drops LD_PRELOAD, cannot run on virtual time (run it with --clock wall)"
@@ -297,14 +301,7 @@ fn livelock(shared: &Shared, after: Duration, now: u64) -> String {
         .filter(|s| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
         .map(|slot| {
             let (thread, task) = thread_name(slot);
-            let followed = match slot.state.load(Ordering::Acquire) {
-                state::RUNNING => "running",
-                state::READY => "ready",
-                state::BLOCKED => "blocked",
-                state::YIELDED => "yielded",
-                state::RESERVED => "starting",
-                _ => "?",
-            };
+            let followed = state::name(slot.state.load(Ordering::Acquire));
             let kernel = match task_state(slot) {
                 TaskState::Other(letter) => format!("{letter}, in {}", syscall_inside(&task)),
                 TaskState::Stopped => "stopped".to_owned(),
