@@ -24,7 +24,7 @@ use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
 use tracing::{debug, info, warn};
 
 use super::busy_poll::BusyPoll;
-use crate::virtual_time::VirtualTime;
+use crate::virtual_time::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, VirtualTime, await_pty_hand_over};
 use super::{LineSettings, queued_bytes};
 
 /// How long a read waits in poll(2) before parking on the reactor.
@@ -155,22 +155,8 @@ pub struct VirtualTimeStream {
     virtual_time: Arc<VirtualTime>,
 }
 
-/// How long a written reply may take to reach the controller's side (see there why so long).
-const VISIBLE_WITHIN: Duration = crate::virtual_time::PTY_HAND_OVER_WITHIN;
-
-/// The longest pause between two looks at a hand-over in progress.
-const HAND_OVER_LOOK_AT_MOST_EVERY: Duration = Duration::from_millis(2);
-
 /// A hand-over slower than this is reported (with what it waited for).
 const SLOW_HAND_OVER: Duration = Duration::from_millis(100);
-
-/// How long the terminal's buffer may stay full before what does not fit is lost (a controller
-/// that does not read the port).
-const FULL_FOR: Duration = Duration::from_millis(100);
-
-/// How long climbsim spins for the hand-over before it sleeps between looks (a spin takes the
-/// CPU from the kernel's worker on a loaded machine).
-const HAND_OVER_SPIN: Duration = Duration::from_micros(50);
 
 impl AsyncRead for VirtualTimeStream {
     fn poll_read(self: Pin<&mut Self>, _cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
@@ -192,7 +178,7 @@ impl AsyncWrite for VirtualTimeStream {
         let before = queued_bytes(slave).unwrap_or(0);
         let taken_before = self.virtual_time.port_taken_total();
         let mut fds = [PollFd::new(self.port.master_fd(), PollFlags::POLLOUT)];
-        let deadline = Instant::now() + FULL_FOR;
+        let deadline = Instant::now() + PTY_FULL_FOR;
         let written = loop {
             match nix::unistd::write(self.port.master_fd(), data) {
                 Ok(n) => break n,
@@ -209,32 +195,17 @@ impl AsyncWrite for VirtualTimeStream {
             }
         };
         let handing_over = Instant::now();
-        let deadline = handing_over + VISIBLE_WITHIN;
         // What the controller took meanwhile (a read or a flush the shim counted) was handed over.
         let handed_over = || queued_bytes(slave).unwrap_or(0) as u64 + (self.virtual_time.port_taken_total() - taken_before);
-        let mut pause = Duration::from_micros(20);
-        while handed_over() < (before + written) as u64 {
-            if Instant::now() > deadline {
-                warn!(
-                    bytes = written,
-                    before,
-                    queued = queued_bytes(slave).unwrap_or(0),
-                    taken_meanwhile = self.virtual_time.port_taken_total() - taken_before,
-                    threads = self.virtual_time.threads_now(),
-                    "reply bytes not visible to the controller after {VISIBLE_WITHIN:?} (is it reading the port?)"
-                );
-                break;
-            }
-            if handing_over.elapsed() < HAND_OVER_SPIN {
-                std::thread::yield_now();
-            } else {
-                // Backing off: each look (FIONREAD) takes the terminal's termios lock for
-                // writing, which the kernel's pty worker needs (for reading) to hand the bytes
-                // over; looks every 20 µs on a loaded machine were seen to keep it out for
-                // seconds, once for more than 30 s.
-                std::thread::sleep(pause);
-                pause = (pause * 2).min(HAND_OVER_LOOK_AT_MOST_EVERY);
-            }
+        if !await_pty_hand_over(|| handed_over() >= (before + written) as u64) {
+            warn!(
+                bytes = written,
+                before,
+                queued = queued_bytes(slave).unwrap_or(0),
+                taken_meanwhile = self.virtual_time.port_taken_total() - taken_before,
+                threads = self.virtual_time.threads_now(),
+                "reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?} (is it reading the port?)"
+            );
         }
         if handing_over.elapsed() > SLOW_HAND_OVER {
             warn!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the kernel took this long to hand reply bytes over to the controller's side of the pty (a loaded machine)");

@@ -51,6 +51,38 @@ const COPY_LIMIT: usize = 64 * 1024;
 /// that does not read the port fills the terminal's buffer instead, which is handled apart.
 pub const PTY_HAND_OVER_WITHIN: Duration = Duration::from_secs(30);
 
+/// How long the terminal's buffer may stay full before what does not fit is lost (a controller
+/// that does not read the port), as an adapter's buffer would lose it.
+pub const PTY_FULL_FOR: Duration = Duration::from_millis(100);
+
+/// How long a hand-over is first waited for with yields only (it usually takes microseconds).
+const HAND_OVER_SPIN: Duration = Duration::from_micros(50);
+
+/// The longest pause between two looks at a hand-over in progress.
+const HAND_OVER_LOOK_AT_MOST_EVERY: Duration = Duration::from_millis(2);
+
+/// Wait until `handed_over` says the kernel's pty worker has handed bytes climbsim wrote over
+/// to the controller's side, up to [`PTY_HAND_OVER_WITHIN`]; whether it did. After a short spin
+/// the looks come with growing pauses (20 µs doubling to 2 ms): each look (FIONREAD) takes the
+/// terminal's termios lock for writing, which the worker needs to hand the bytes over, and
+/// looks every 20 µs on a loaded machine were seen to keep it out for seconds.
+pub fn await_pty_hand_over(mut handed_over: impl FnMut() -> bool) -> bool {
+    let started = Instant::now();
+    let mut pause = Duration::from_micros(20);
+    while !handed_over() {
+        if started.elapsed() > PTY_HAND_OVER_WITHIN {
+            return false;
+        }
+        if started.elapsed() < HAND_OVER_SPIN {
+            std::thread::yield_now();
+        } else {
+            std::thread::sleep(pause);
+            pause = (pause * 2).min(HAND_OVER_LOOK_AT_MOST_EVERY);
+        }
+    }
+    true
+}
+
 impl VirtualTime {
     /// Bytes of the port's stream the controller has taken (read or flushed), as the shim counts.
     pub fn port_taken_total(&self) -> u64 {
@@ -179,7 +211,7 @@ impl VirtualTime {
         // SAFETY: tcflush of climbsim's own slave descriptor.
         unsafe { libc::tcflush(port.slave, libc::TCIFLUSH) };
         let mut written = 0;
-        let deadline = Instant::now() + PTY_HAND_OVER_WITHIN;
+        let deadline = Instant::now() + PTY_FULL_FOR;
         while written < rest.len() && Instant::now() < deadline {
             // SAFETY: a write of our own buffer to climbsim's master descriptor.
             let n = unsafe { libc::write(port.master, rest[written..].as_ptr().cast(), rest.len() - written) };
@@ -189,15 +221,7 @@ impl VirtualTime {
                 std::thread::yield_now();
             }
         }
-        // Looked at with growing pauses: each FIONREAD takes the terminal's termios lock for
-        // writing, which the kernel's pty worker needs to hand the bytes over (see
-        // `PTY_HAND_OVER_WITHIN`).
-        let mut pause = Duration::from_micros(20);
-        while queued(port.slave) < written && Instant::now() < deadline {
-            std::thread::sleep(pause);
-            pause = (pause * 2).min(Duration::from_millis(2));
-        }
-        if queued(port.slave) < written {
+        if !await_pty_hand_over(|| queued(port.slave) >= written) {
             warn!(written, queued = queued(port.slave), "rewritten reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?}");
         }
     }

@@ -36,7 +36,7 @@ use thiserror::Error;
 use abi::{NEVER, mode, release, state, waits};
 use turns::{let_run, release_slot};
 use block::Block;
-pub use held::PTY_HAND_OVER_WITHIN;
+pub use held::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, await_pty_hand_over};
 pub use shim_file::{shim_bytes, shim_path};
 pub use timer::Timer;
 
