@@ -204,6 +204,20 @@ fn build_workbook(
     Ok(workbook)
 }
 
+/// The most characters an Excel cell holds.
+const CELL_CHARS: usize = 32_767;
+
+/// `text` as a cell can hold it: cut to Excel's limit, saying so (a failure that names 4000
+/// threads is longer; the whole text stays in summary.json). Writing it whole fails the workbook.
+fn cell_text(text: &str) -> std::borrow::Cow<'_, str> {
+    const CUT: &str = " … (cut to Excel's cell limit: the whole text is in summary.json)";
+    if text.chars().count() <= CELL_CHARS {
+        return text.into();
+    }
+    let kept: String = text.chars().take(CELL_CHARS - CUT.chars().count()).collect();
+    (kept + CUT).into()
+}
+
 fn write_key_values<'a>(
     sheet: &mut Worksheet,
     headings: [&str; 2],
@@ -228,11 +242,11 @@ fn write_key_values<'a>(
                 }
             },
             Value::String(text) => {
-                sheet.write_string(row, 1, text)?;
+                sheet.write_string(row, 1, cell_text(text))?;
             }
             // flatten_json leaves no containers; a summary could hold one, so show it as JSON.
             Value::Array(_) | Value::Object(_) => {
-                sheet.write_string(row, 1, value.to_string())?;
+                sheet.write_string(row, 1, cell_text(&value.to_string()))?;
             }
         }
     }
@@ -309,6 +323,20 @@ mod tests {
             flatten_json(&json!(3)),
             vec![("value".to_owned(), json!(3))]
         );
+    }
+
+    #[test]
+    fn a_text_past_excels_cell_limit_is_cut_and_says_so() {
+        let long = "é".repeat(CELL_CHARS + 10);
+        let cut = cell_text(&long);
+        assert_eq!(cut.chars().count(), CELL_CHARS);
+        assert!(cut.ends_with("the whole text is in summary.json)"), "{}", &cut[cut.len() - 80..]);
+        assert_eq!(cell_text("short"), "short");
+        // And the workbook takes it (rust_xlsxwriter refuses a longer string).
+        let mut workbook = Workbook::new();
+        let sheet = workbook.add_worksheet();
+        assert!(sheet.write_string(0, 0, cut).is_ok());
+        assert!(sheet.write_string(1, 0, long.as_str()).is_err());
     }
 
     #[test]
