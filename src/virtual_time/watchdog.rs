@@ -107,11 +107,16 @@ impl Watchdog {
             }
         }
         let mut computing = false;
+        // A thread that started since the last round: the controller is creating threads (4000
+        // of them take seconds on a loaded machine before the first one's sleep can move time),
+        // which is progress, not a livelock.
+        let mut started = false;
         self.round += 1;
         let round = self.round;
         for (index, slot) in running(shared) {
             let (calls, tid) = (slot.calls.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
             let fresh = || Quiet { tid, calls, round, since: Instant::now(), cpu: None, computing: false };
+            started |= self.threads.get(&index).is_none_or(|known| known.tid != tid);
             let thread = self.threads.entry(index).or_insert_with(fresh);
             let seen_before = std::mem::replace(&mut thread.round, round) + 1 == round;
             if thread.tid != tid || thread.calls != calls || !seen_before {
@@ -161,7 +166,7 @@ impl Watchdog {
                 }
             }
         }
-        if computing {
+        if computing || started {
             // A computing thread holds simulated time where it is, rightly.
             self.time.1 = Instant::now();
         } else if self.time.1.elapsed() >= self.limits.livelock_after {
