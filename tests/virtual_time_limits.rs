@@ -51,15 +51,16 @@ fn a_statically_linked_controller_is_refused() {
 
 #[test]
 fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
-    let dir = support::scratch_dir("vt-pause");
-    let script = dir.join("pause.py");
-    std::fs::write(&script, "#!/usr/bin/env python3\nimport signal, time\ntime.sleep(0.1)\nsignal.pause()\n").expect("write");
+    let dir = support::scratch_dir("vt-full-pipe");
+    // A write to a pipe nobody reads, larger than the pipe holds: blocked in the kernel.
+    let script = dir.join("full_pipe.py");
+    std::fs::write(&script, "#!/usr/bin/env python3\nimport os, time\ntime.sleep(0.1)\nr, w = os.pipe()\nos.write(w, b'x' * 1000000)\n").expect("write");
     std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
-    let path = scenario(&dir, "pause", 10.0, &[script.to_str().expect("utf-8 path")], false);
+    let path = scenario(&dir, "full-pipe", 10.0, &[script.to_str().expect("utf-8 path")], false);
     let (output, wall) = run_virtual(&path, &dir.join("out"));
     assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
     let failures = summary(&dir.join("out"))["failures"].to_string();
-    assert!(failures.contains("blocked for 2 s of wall time in system call 34 (pause)"), "{failures}");
+    assert!(failures.contains("blocked for 2 s of wall time in system call 1 (write)"), "{failures}");
     assert!(failures.contains("last followed call: "), "{failures}");
     assert!(wall < Duration::from_secs(20), "{wall:?}");
 }

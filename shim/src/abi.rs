@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 8;
+pub const ABI: u32 = 9;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -23,10 +23,17 @@ pub const EPOLL_ENTRIES: usize = 1024;
 pub const TIMERFDS: usize = 64;
 /// Sensor-server connections followed at once.
 pub const CONNS: usize = 64;
+/// Signal timers (`alarm`, `setitimer`, `timer_create`) followed at once, all processes
+/// together.
+pub const SIG_TIMERS: usize = 256;
 /// Simulated time a thread may run (charged calls, its CPU time with `--controller-cpu`)
 /// before it gives up its turn, as a kernel's time slice: a loop that polls what is ready and
 /// never blocks would otherwise keep every other thread from running.
 pub const TURN_QUANTUM_NS: u64 = 1_000_000;
+/// `Slot::tid` of a slot reserved for a thread that a trapped clone creates (libc's own thread
+/// creation, a runtime's raw clone): the thread claims it at its first followed call, finding
+/// it by its TLS pointer (`Slot::conn_mask` meanwhile; 0: any such thread of the process).
+pub const RAW_CLONE_TID: i32 = -2;
 /// "No deadline" / "nothing due".
 pub const NEVER: u64 = u64::MAX;
 /// Reply bytes written to the port ahead of their time, in at most this many runs (each
@@ -50,6 +57,7 @@ pub mod refused {
     pub const TIMERFDS: u32 = 4;
     pub const CONNS: u32 = 8;
     pub const IO_URING: u32 = 16;
+    pub const SIG_TIMERS: u32 = 32;
 
     /// The run's failure, in words.
     pub fn describe(bits: u32) -> Option<String> {
@@ -61,6 +69,8 @@ pub mod refused {
             ("timerfds in one process", super::TIMERFDS)
         } else if bits & CONNS != 0 {
             ("connections to the sensor server at once", super::CONNS)
+        } else if bits & SIG_TIMERS != 0 {
+            ("signal timers at once (alarm, setitimer, timer_create; all the controller's processes together)", super::SIG_TIMERS)
         } else if bits & IO_URING != 0 {
             return Some(
                 "virtual time cannot follow io_uring (the controller and the kernel share its rings, with no system call to see): \
@@ -135,6 +145,9 @@ pub mod release {
     pub const DEADLINE: u32 = 1;
     pub const DATA: u32 = 2;
     pub const ENDING: u32 = 3;
+    /// A signal timer fired for this thread (`Slot::signals_due`): it sends itself the signal,
+    /// and its wait ends with EINTR if the signal interrupts it.
+    pub const SIGNAL: u32 = 4;
 }
 
 /// `Slot::last_call`: the intercepted call a thread made last (for the watchdog's report).
@@ -151,6 +164,8 @@ pub mod call {
     pub const PEER: u32 = 9;
     pub const FUTEX: u32 = 10;
     pub const YIELD: u32 = 11;
+    pub const SIGNAL_WAIT: u32 = 12;
+    pub const TIMER: u32 = 13;
 
     pub fn name(call: u32) -> &'static str {
         match call {
@@ -165,6 +180,8 @@ pub mod call {
             PEER => "a wait for another thread",
             FUTEX => "futex",
             YIELD => "sched_yield",
+            SIGNAL_WAIT => "a wait for a signal",
+            TIMER => "a signal timer's call",
             _ => "nothing yet",
         }
     }
@@ -243,6 +260,11 @@ pub struct Header {
     /// C: bumped each time climbsim gives a thread its turn: a parked thread stops spinning
     /// once another has it (it would take the CPU that thread needs).
     pub turns_given: AtomicU32,
+    /// S: one past the highest signal timer used so far (scans stop there).
+    pub sig_timers_high: AtomicU32,
+    /// S: slots reserved for threads created by a trapped clone and not claimed yet (see
+    /// [`RAW_CLONE_TID`]).
+    pub raw_clones: AtomicU32,
     /// C: replies written ahead of their time: the bytes from `HeldRun::start` on become visible
     /// at `HeldRun::due_ns` (and not before the runs ahead of them in the stream). The shim hides
     /// what is not visible yet from reads, polls and FIONREAD, so that a Sync Read's eight
@@ -315,7 +337,66 @@ pub struct Slot {
     /// S: the last `Header::check_epoch` at which this thread, waiting on descriptors climbsim
     /// does not model, found none of them ready.
     pub checked_epoch: AtomicU32,
+    /// C: signal timers fired for this thread that it has not sent itself yet (see
+    /// `SigTimer::fired`); it looks whenever it parks or is let go.
+    pub signals_due: AtomicU32,
+    /// S: the program's signal mask for this thread (bit n-1: signal n), as its last
+    /// sigprocmask left it (during sigsuspend: the mask it suspends with).
+    pub sig_blocked: AtomicU64,
+    /// S: the signals a sigtimedwait of this thread waits for (0: none).
+    pub sig_waiting: AtomicU64,
+}
+
+/// `SigTimer::state`.
+pub mod timer_state {
+    pub const FREE: u32 = 0;
+    /// Created (timer_create) and not armed.
+    pub const DISARMED: u32 = 1;
+    pub const ARMED: u32 = 2;
+    /// S: being changed by its process (climbsim leaves it alone).
+    pub const BUSY: u32 = 3;
+}
+
+/// `SigTimer::kind`.
+pub mod timer_kind {
+    /// The process's ITIMER_REAL (`alarm`, `setitimer`): SIGALRM, sent as the kernel sends it.
+    pub const ITIMER_REAL: u32 = 1;
+    /// A POSIX timer (`timer_create`): its signal carries SI_TIMER, the timer's id and value.
+    pub const POSIX: u32 = 2;
+}
+
+/// A signal timer on simulated time. The shim of its process creates and arms it; climbsim
+/// fires it at its instant: it picks the thread that takes the signal, counts the expiration in
+/// `fired` and lets that thread go (`release::SIGNAL`); the thread sends itself the signal, so
+/// that it arrives in its turn, at a point of its run that does not depend on the host.
+#[repr(C)]
+pub struct SigTimer {
+    /// See [`timer_state`].
+    pub state: AtomicU32,
+    /// See [`timer_kind`].
+    pub kind: AtomicU32,
+    /// S: the process.
+    pub pid: AtomicI32,
+    /// S: the thread the signal goes to (SIGEV_THREAD_ID); 0: the process (climbsim picks).
+    pub tid: AtomicI32,
+    /// S: the signal; 0 (SIGEV_NONE): none is sent.
+    pub signo: AtomicU32,
+    /// S: the clock it was created on (an absolute setting is read on it).
+    pub clock: AtomicI32,
     pub _pad0: AtomicU32,
+    /// C: the thread climbsim picked for the expirations in `fired`.
+    pub deliver_tid: AtomicI32,
+    /// S (arming), C (firing): the next expiration, simulated ns.
+    pub deadline_ns: AtomicU64,
+    /// S: the period (0: one shot).
+    pub interval_ns: AtomicU64,
+    /// S: sigev_value, handed to the signal (si_value).
+    pub value: AtomicU64,
+    /// C adds expirations, the delivering thread takes them (the expirations past the first
+    /// are the signal's overrun).
+    pub fired: AtomicU32,
+    /// S: the overrun of the last signal sent (timer_getoverrun).
+    pub overrun: AtomicU32,
 }
 
 /// One connection from the controller to the sensor server, seen from both ends.
@@ -342,6 +423,7 @@ pub struct Shared {
     pub header: Header,
     pub slots: [Slot; SLOTS],
     pub conns: [Conn; CONNS],
+    pub sig_timers: [SigTimer; SIG_TIMERS],
 }
 
 impl Shared {
@@ -349,6 +431,12 @@ impl Shared {
     pub fn live_slots(&self) -> &[Slot] {
         let high = self.header.slots_high.load(core::sync::atomic::Ordering::Acquire) as usize;
         &self.slots[..high.clamp(1, SLOTS)]
+    }
+
+    /// The signal timers that have ever been taken (those past them are free).
+    pub fn live_sig_timers(&self) -> &[SigTimer] {
+        let high = self.header.sig_timers_high.load(core::sync::atomic::Ordering::Acquire) as usize;
+        &self.sig_timers[..high.min(SIG_TIMERS)]
     }
 }
 

@@ -37,6 +37,7 @@ const FUTEX_CLOCK_REALTIME: i32 = 256;
 const FUTEX_BITSET_MATCH_ANY: u32 = u32::MAX;
 
 const EINVAL: c_long = 22;
+const EINTR: c_long = 4;
 const ETIMEDOUT: c_long = 110;
 
 /// Where a futex lives: in this process's memory (`space` = its pid, `offset` = the address),
@@ -168,6 +169,8 @@ fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, dea
     }
     match why {
         release::DEADLINE => -ETIMEDOUT,
+        // Its handler runs as the trap returns.
+        release::SIGNAL => -EINTR,
         // The run ended (or climbsim is gone): a spurious wake-up, which every futex user
         // handles; its next wait goes to the kernel.
         _ => 0,

@@ -118,7 +118,9 @@ fn wait_for_port_bytes(shared: &'static crate::abi::Shared, fd: c_int, len: usiz
             return if available > 0 { PortRead::Now(len.min(available)) } else { PortRead::Return(0) };
         }
         match park_blocked(shared, deadline, waits::PORT, 0) {
-            release::DATA => {}
+            // A signal's handler has run (the thread sent it to itself): the read goes on, as
+            // with SA_RESTART.
+            release::DATA | release::SIGNAL => {}
             release::ENDING => return PortRead::Now(len),
             _ => return PortRead::Return(0),
         }

@@ -29,6 +29,16 @@ mod net;
 mod now;
 mod park;
 mod seccomp;
+#[cfg(target_arch = "x86_64")]
+mod signals;
+/// Signals are followed with the system calls, on x86_64 only.
+#[cfg(not(target_arch = "x86_64"))]
+mod signals {
+    pub(crate) fn take_due(_: &crate::abi::Slot) -> bool {
+        false
+    }
+    pub(crate) fn slot_claimed(_: &crate::abi::Slot) {}
+}
 mod spawn;
 mod sync;
 mod timerfd;
@@ -62,6 +72,8 @@ thread_local! {
     /// Non-zero while the shim itself is at work in this thread (in the trap handler, or
     /// calling libc for a thread): its system calls go to the kernel as they are.
     static OWN_CALLS: Cell<u32> = const { Cell::new(0) };
+    /// Set while the shim's pthread_create creates a thread (it reserved its slot already).
+    static CREATING_THREAD: Cell<bool> = const { Cell::new(false) };
 }
 
 /// Whether the shim is at work in this thread (see `OWN_CALLS`).
@@ -202,6 +214,15 @@ fn map(path: *const c_char) -> Result<(), &'static [u8]> {
     Ok(())
 }
 
+/// This thread's slot if it has claimed one (never claims).
+fn claimed_slot() -> Option<&'static Slot> {
+    let index = SLOT.with(Cell::get);
+    if index == NO_SLOT {
+        return None;
+    }
+    shared()?.slots.get(index as usize)
+}
+
 /// This thread's slot, claimed at its first intercepted call: the slot of a program this
 /// thread was before an exec, the one climbsim reserved for the process it starts, or a free
 /// one. None if all are taken (the thread then runs unfollowed).
@@ -217,6 +238,7 @@ fn my_slot() -> Option<&'static Slot> {
         slot.pid.store(pid, Ordering::Relaxed);
         slot.tid.store(tid, Ordering::Relaxed);
         slot.parent.store(sys::getppid(), Ordering::Relaxed);
+        signals::slot_claimed(slot);
         slot.state.store(state::RUNNING, Ordering::Release);
         SLOT.with(|s| s.set(index as u32));
         took_turn(shared);
@@ -239,6 +261,19 @@ fn my_slot() -> Option<&'static Slot> {
             return claim(index, slot);
         }
     }
+    if tid != pid
+        && shared.header.raw_clones.load(Ordering::Acquire) > 0
+        && let Some((index, slot)) = raw_clone_reservation(shared, pid)
+    {
+        shared.header.raw_clones.fetch_sub(1, Ordering::AcqRel);
+        let claimed = claim(index, slot);
+        // It starts in its turn, as a thread from the shim's pthread_create does.
+        if let Some(shared) = active() {
+            slot.state.store(state::READY, Ordering::Release);
+            await_turn(shared, slot);
+        }
+        return claimed;
+    }
     let first = &shared.slots[0];
     if tid == pid && first.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
         return claim(0, first);
@@ -247,7 +282,62 @@ fn my_slot() -> Option<&'static Slot> {
     let (index, slot) = take_free_slot(shared, state::RUNNING)?;
     let claimed = claim(index, slot);
     notify_scheduler(shared);
+    // A thread whose creation the shim did not see (libc's own thread creation, such as the
+    // thread glibc starts for a SIGEV_THREAD timer's callback; a runtime's raw clone) starts in
+    // its turn, as one it saw does: its creator runs on until it parks. Otherwise the two ran
+    // at once, and the callback's instant differed from run to run.
+    if tid != pid
+        && let Some(shared) = active()
+    {
+        slot.state.store(state::READY, Ordering::Release);
+        await_turn(shared, slot);
+    }
     claimed
+}
+
+/// A trapped clone is about to create a thread whose TLS pointer is `tls` (0: none given): a
+/// slot is reserved for it, so that climbsim counts it as running, and decides nothing, until
+/// the thread has claimed it (at its first followed call) and waits for its turn. Not for a
+/// thread the shim's pthread_create creates, which reserved its own.
+pub(crate) fn reserve_raw_clone(tls: u64) {
+    if CREATING_THREAD.with(Cell::get) {
+        return;
+    }
+    let Some(shared) = active() else { return };
+    let Some((_, slot)) = take_free_slot(shared, state::RESERVED) else { return };
+    slot.pid.store(pid(), Ordering::Relaxed);
+    slot.conn_mask.store(tls, Ordering::Relaxed);
+    slot.tid.store(abi::RAW_CLONE_TID, Ordering::Release);
+    shared.header.raw_clones.fetch_add(1, Ordering::AcqRel);
+}
+
+/// The slot a trapped clone reserved for this thread (found by its TLS pointer), taken.
+fn raw_clone_reservation(shared: &Shared, pid: i32) -> Option<(usize, &Slot)> {
+    const ARCH_GET_FS: i64 = 0x1003;
+    let mut fs: u64 = 0;
+    native::call2(sys::nr::ARCH_PRCTL, ARCH_GET_FS, &mut fs as *mut u64 as i64);
+    let reserved = |slot: &Slot, key: u64| {
+        slot.state.load(Ordering::Acquire) == state::RESERVED
+            && slot.tid.load(Ordering::Acquire) == abi::RAW_CLONE_TID
+            && slot.pid.load(Ordering::Relaxed) == pid
+            && slot.conn_mask.load(Ordering::Relaxed) == key
+    };
+    for key in [fs, 0] {
+        for (index, slot) in shared.live_slots().iter().enumerate() {
+            if reserved(slot, key) && slot.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+                return Some((index, slot));
+            }
+        }
+    }
+    None
+}
+
+/// While the shim's pthread_create creates a thread (see `reserve_raw_clone`).
+pub(crate) fn creating_thread<T>(create: impl FnOnce() -> T) -> T {
+    CREATING_THREAD.with(|c| c.set(true));
+    let result = create();
+    CREATING_THREAD.with(|c| c.set(false));
+    result
 }
 
 /// Take `slot` if nobody uses it (free, or its thread ended), putting it in state `to`.
@@ -284,7 +374,7 @@ fn take_free_slot(shared: &Shared, to: u32) -> Option<(usize, &Slot)> {
 
 unsafe extern "C" fn thread_exited(_: *mut c_void) {
     sync::thread_ending();
-    if let Some(slot) = my_slot() {
+    if let Some(slot) = claimed_slot() {
         exit_slot(slot);
     }
 }
@@ -324,6 +414,7 @@ fn claim_reserved(index: usize) {
     slot.pid.store(pid(), Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
     slot.parent.store(sys::getppid(), Ordering::Relaxed);
+    signals::slot_claimed(slot);
     SLOT.with(|s| s.set(index as u32));
     park::forget_charges();
     let key = EXIT_KEY.load(Ordering::Relaxed);

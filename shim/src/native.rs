@@ -44,6 +44,27 @@ pub const RESTORER_OFFSET: usize = 32;
 #[cfg(target_arch = "x86_64")]
 const RESTORER: [u8; 7] = [0xb8, 0x0f, 0x00, 0x00, 0x00, 0x0f, 0x05];
 
+/// Where on the page a trapped thread creation (clone with CLONE_THREAD) is made again, from
+/// the page, once the trap handler has returned: the new thread cannot come back through the
+/// handler (its stack is another), so both threads go back to the program from here.
+///
+/// ```text
+/// 0f 05        syscall          (clone, on the registers the handler left)
+/// 48 85 c0     test rax, rax
+/// 74 08        je child
+/// 59           pop rcx          (the parent: the return address and its stack pointer,
+/// 41 5b        pop r11           which the handler put where the signal's siginfo was)
+/// 4c 89 dc     mov rsp, r11
+/// ff e1        jmp rcx
+/// c3           child: ret       (the return address the handler put on the new stack)
+/// ```
+///
+/// rcx and r11 are what `syscall` clobbers anyway.
+#[cfg(target_arch = "x86_64")]
+pub const CLONE_OFFSET: usize = 48;
+#[cfg(target_arch = "x86_64")]
+const CLONE: [u8; 16] = [0x0f, 0x05, 0x48, 0x85, 0xc0, 0x74, 0x08, 0x59, 0x41, 0x5b, 0x4c, 0x89, 0xdc, 0xff, 0xe1, 0xc3];
+
 /// Set once the page holds the code (in this process image).
 static READY: AtomicBool = AtomicBool::new(false);
 
@@ -87,6 +108,7 @@ pub fn map_page() -> bool {
         core::ptr::write_bytes(page.cast::<u8>(), 0xcc, PAGE_BYTES);
         core::ptr::copy_nonoverlapping(CODE.as_ptr(), page.cast::<u8>(), CODE.len());
         core::ptr::copy_nonoverlapping(RESTORER.as_ptr(), page.cast::<u8>().add(RESTORER_OFFSET), RESTORER.len());
+        core::ptr::copy_nonoverlapping(CLONE.as_ptr(), page.cast::<u8>().add(CLONE_OFFSET), CLONE.len());
         if mprotect(page, PAGE_BYTES, PROT_READ | PROT_EXEC) != 0 {
             munmap(page, PAGE_BYTES);
             return false;

@@ -229,6 +229,10 @@ pub(crate) fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, loo
 /// a slot cannot be followed: it returns at once, as if its deadline had come.
 pub(crate) fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
     let Some(slot) = my_slot() else { return release::DEADLINE };
+    // A signal fired for this thread while it ran: taken before it waits.
+    if slot.signals_due.load(Ordering::Acquire) != 0 && crate::signals::take_due(slot) {
+        return release::SIGNAL;
+    }
     publish_parked(slot, parked, deadline, waits, conn_mask);
     notify_scheduler(shared);
     await_release(shared, slot, parked, deadline)
@@ -258,9 +262,17 @@ pub(crate) fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline:
         let seen = slot.wake_word.load(Ordering::Acquire);
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
             let why = slot.release.load(Ordering::Acquire);
+            // A signal timer fired for this thread: it sends itself the signal, and waits on
+            // unless the signal interrupts the wait.
+            if why == release::SIGNAL && !crate::signals::take_due(slot) {
+                slot.release.store(0, Ordering::Relaxed);
+                slot.state.store(parked, Ordering::Release);
+                notify_scheduler(shared);
+                continue;
+            }
             // A release meant for an earlier wait of this thread (it had woken by itself, from
             // a real descriptor or a peer, before climbsim's decision landed): wait on.
-            if why != release::DATA && why != release::ENDING && deadline != abi::NEVER && sim_now(shared) < deadline {
+            if why != release::DATA && why != release::ENDING && why != release::SIGNAL && deadline != abi::NEVER && sim_now(shared) < deadline {
                 slot.release.store(0, Ordering::Relaxed);
                 slot.state.store(parked, Ordering::Release);
                 notify_scheduler(shared);

@@ -23,7 +23,36 @@ use crate::sys::{self, nr};
 
 /// The system calls the filter traps (x86_64).
 #[cfg(target_arch = "x86_64")]
-const TRAPPED: &[i64] = &[nr::RT_SIGACTION, nr::RT_SIGPROCMASK, nr::NANOSLEEP, nr::EXECVE, nr::GETTIMEOFDAY, nr::TIME, nr::FUTEX, nr::CLOCK_GETTIME, nr::CLOCK_NANOSLEEP, nr::EXECVEAT, nr::SCHED_YIELD, nr::IO_URING_SETUP];
+const TRAPPED: &[i64] = &[
+    nr::RT_SIGACTION,
+    nr::RT_SIGPROCMASK,
+    nr::NANOSLEEP,
+    nr::EXECVE,
+    nr::GETTIMEOFDAY,
+    nr::TIME,
+    nr::FUTEX,
+    nr::CLOCK_GETTIME,
+    nr::CLOCK_NANOSLEEP,
+    nr::EXECVEAT,
+    nr::SCHED_YIELD,
+    nr::IO_URING_SETUP,
+    nr::ALARM,
+    nr::SETITIMER,
+    nr::GETITIMER,
+    nr::TIMER_CREATE,
+    nr::TIMER_SETTIME,
+    nr::TIMER_GETTIME,
+    nr::TIMER_GETOVERRUN,
+    nr::TIMER_DELETE,
+    nr::PAUSE,
+    nr::RT_SIGSUSPEND,
+    nr::RT_SIGTIMEDWAIT,
+    nr::CLONE3,
+];
+
+/// clone's flag for a thread of the same process: only those clones trap (see `clone_thread`).
+const CLONE_THREAD: u32 = 0x0001_0000;
+const CLONE_SETTLS: i64 = 0x0008_0000;
 
 const SIGSYS: c_int = 31;
 const SIGSYS_BIT: u64 = 1 << (SIGSYS - 1);
@@ -130,7 +159,7 @@ fn install_filter() -> Result<(), &'static [u8]> {
     let insn = |code, jt, jf, k| Insn { code, jt, jf, k };
     let page = native::PAGE_ADDRESS as u64;
     let (page_high, page_low) = ((page >> 32) as u32, page as u32);
-    let mut program = [insn(0, 0, 0, 0); 32];
+    let mut program = [insn(0, 0, 0, 0); 64];
     let mut n = 0;
     let mut push = |i: Insn| {
         program[n] = i;
@@ -149,8 +178,14 @@ fn install_filter() -> Result<(), &'static [u8]> {
     push(insn(JGE_K, 0, 2, page_low));
     push(insn(JGE_K, 1, 0, page_low + native::PAGE_BYTES as u32));
     push(insn(RET_K, 0, 0, RET_ALLOW));
-    // 9: the followed calls trap; everything else goes through.
+    // 9: a clone that makes a thread traps (a fork's goes through).
+    const JSET_K: u16 = 0x45;
     push(insn(LD_W_ABS, 0, 0, 0));
+    push(insn(JEQ_K, 0, 3, nr::CLONE as u32));
+    push(insn(LD_W_ABS, 0, 0, 16));
+    push(insn(JSET_K, count + 2, 0, CLONE_THREAD));
+    push(insn(RET_K, 0, 0, RET_ALLOW));
+    // 14: the followed calls trap; everything else goes through.
     for (index, &number) in trapped.iter().enumerate() {
         // Jump to the RET_TRAP after the list when equal.
         let to_trap = count - index as u8;
@@ -189,6 +224,8 @@ mod context {
     pub const RSI: usize = 9;
     pub const RDX: usize = 12;
     pub const RAX: usize = 13;
+    pub const RSP: usize = 15;
+    pub const RIP: usize = 16;
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -208,10 +245,56 @@ unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut 
     let reg = |index: usize| unsafe { *gregs.add(index) };
     let number = reg(context::RAX);
     let args = [reg(context::RDI), reg(context::RSI), reg(context::RDX), reg(context::R10), reg(context::R8), reg(context::R9)];
+    if number == nr::CLONE {
+        // SAFETY: the kernel's ucontext and siginfo for this signal.
+        unsafe { clone_thread(gregs, info, args) };
+        sys::set_errno(saved_errno);
+        return;
+    }
+    // A thread a trapped clone created claims its slot at its first trapped call.
+    if !crate::in_shim() && crate::claimed_slot().is_none() && crate::shared().is_some_and(|s| s.header.raw_clones.load(Ordering::Acquire) > 0) {
+        crate::my_slot();
+    }
+    let outer = crate::signals::entered_trap(*sigmask);
     let result = dispatch(number, args, sigmask);
+    crate::signals::left_trap(outer);
     // SAFETY: the return value goes where the caller's `syscall` leaves it.
     unsafe { *gregs.add(context::RAX) = result };
     sys::set_errno(saved_errno);
+}
+
+/// A clone that creates a thread: the handler cannot make it (the new thread, on its own
+/// stack, could not return through this handler's frame), so it reserves the thread's slot and
+/// has the call made again, from the shim's page, once the handler has returned (see
+/// `native::CLONE_OFFSET`). The new thread goes back to the program with a `ret` from its new
+/// stack; the parent from the words put where this signal's siginfo lies, which the kernel's
+/// sigreturn does not read (unlike the rest of the frame, and unlike the red zone above it).
+#[cfg(target_arch = "x86_64")]
+unsafe fn clone_thread(gregs: *mut i64, info: *mut c_void, a: [i64; 6]) {
+    let (flags, stack, tls) = (a[0], a[1], a[4]);
+    // SAFETY: reading and writing saved registers within the ucontext.
+    let (rip, rsp) = unsafe { (*gregs.add(context::RIP), *gregs.add(context::RSP)) };
+    if stack == 0 {
+        // No stack of its own (never so from libc or a runtime): made here, where the new
+        // thread shares this frame, as the kernel would have it.
+        // SAFETY: the return value goes where the caller's `syscall` leaves it.
+        unsafe { *gregs.add(context::RAX) = native_call(nr::CLONE, a) };
+        return;
+    }
+    crate::reserve_raw_clone(if flags & CLONE_SETTLS != 0 { tls as u64 } else { 0 });
+    let child_stack = (stack - 8) as *mut i64;
+    let parent_words = info.cast::<i64>();
+    // SAFETY: the caller's new stack (the word below its top is free: the stack grows down) and
+    // this signal's siginfo (128 bytes, ours to use).
+    unsafe {
+        *child_stack = rip;
+        *parent_words = rip;
+        *parent_words.add(1) = rsp;
+        *gregs.add(context::RSI) = child_stack as i64;
+        *gregs.add(context::RSP) = parent_words as i64;
+        *gregs.add(context::RAX) = nr::CLONE;
+        *gregs.add(context::RIP) = (native::PAGE_ADDRESS + native::CLONE_OFFSET) as i64;
+    }
 }
 
 #[cfg(not(target_arch = "x86_64"))]
@@ -235,8 +318,31 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
                 _ => crate::spawn::exec_trapped(a[1] as usize, a[2] as usize, a[3] as usize, Some((a[0], a[4]))),
             };
         }
-        nr::RT_SIGPROCMASK => return sigprocmask(a, sigmask),
+        // glibc falls back to clone when clone3 is missing (kernels before 5.3), and clone's
+        // flags, unlike clone3's, are in a register the filter can read.
+        nr::CLONE3 => return -ENOSYS,
+        nr::RT_SIGPROCMASK => {
+            let result = sigprocmask(a, sigmask);
+            crate::signals::mask_changed(*sigmask);
+            return result;
+        }
         nr::RT_SIGACTION => return sigaction_call(a),
+        // Not under the own-calls mark either: a handler that sigsuspend runs is the program's.
+        nr::ALARM
+        | nr::SETITIMER
+        | nr::GETITIMER
+        | nr::TIMER_CREATE
+        | nr::TIMER_SETTIME
+        | nr::TIMER_GETTIME
+        | nr::TIMER_GETOVERRUN
+        | nr::TIMER_DELETE
+        | nr::PAUSE
+        | nr::RT_SIGSUSPEND
+        | nr::RT_SIGTIMEDWAIT
+            if !crate::in_shim() =>
+        {
+            return crate::signals::trapped(number, a, *sigmask).unwrap_or_else(|| native_as_program(number, a, sigmask));
+        }
         _ => {}
     }
     if crate::in_shim() {
@@ -262,8 +368,8 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
             }
             seconds
         }),
-        nr::NANOSLEEP => crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec).map(|e| -c_long::from(e)),
-        nr::CLOCK_NANOSLEEP => crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec).map(|e| -c_long::from(e)),
+        nr::NANOSLEEP => crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec, a[1] as *mut sys::timespec).map(|e| -c_long::from(e)),
+        nr::CLOCK_NANOSLEEP => crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec, a[3] as *mut sys::timespec).map(|e| -c_long::from(e)),
         nr::SCHED_YIELD => crate::active().map(|shared| {
             crate::yield_turn(shared);
             0

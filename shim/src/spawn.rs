@@ -330,6 +330,8 @@ fn fresh_pages(bytes: usize) -> Option<*mut u8> {
 /// in its environment, and a slot for the program to come; what the system call returns.
 pub(crate) fn exec_trapped(path: usize, argv: usize, envp: usize, at: Option<(i64, i64)>) -> i64 {
     let envp = with_shim(envp as *const *const c_char);
+    #[cfg(target_arch = "x86_64")]
+    crate::signals::exec_deletes_posix_timers();
     let mut result = 0;
     exec_with(envp, || {
         result = match at {

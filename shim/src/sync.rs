@@ -46,6 +46,12 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
             match slot.release.load(Ordering::Acquire) {
                 release::DEADLINE => break ETIMEDOUT,
                 release::ENDING => break slice_until(shared, deadline, slice),
+                // A signal's handler runs (the thread sends it to itself); the wait goes on.
+                release::SIGNAL => {
+                    crate::signals::take_due(slot);
+                    publish();
+                    continue;
+                }
                 // Marked running by a thread about to wake it: take the wake-up (or, if it
                 // went to another waiter, wait on).
                 _ => {
@@ -162,7 +168,7 @@ pub unsafe extern "C" fn pthread_create(thread: *mut usize, attr: *const c_void,
     };
     let start = Box::into_raw(Box::new(Start { slot, routine, arg }));
     // SAFETY: our trampoline, with the start it frees.
-    let rc = unsafe { next(thread, attr, trampoline, start.cast()) };
+    let rc = crate::creating_thread(|| unsafe { next(thread, attr, trampoline, start.cast()) });
     if rc != 0 {
         // SAFETY: not handed to any thread.
         drop(unsafe { Box::from_raw(start) });

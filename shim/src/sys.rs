@@ -66,6 +66,7 @@ pub const CLOCK_TAI: clockid_t = 11;
 pub const TIMER_ABSTIME: c_int = 1;
 
 pub const EINVAL: c_int = 22;
+pub const EINTR: c_int = 4;
 
 const RTLD_NEXT: *mut c_void = -1isize as *mut c_void;
 
@@ -80,21 +81,40 @@ pub mod nr {
     pub const RT_SIGACTION: i64 = 13;
     pub const RT_SIGPROCMASK: i64 = 14;
     pub const SCHED_YIELD: i64 = 24;
+    pub const PAUSE: i64 = 34;
     pub const NANOSLEEP: i64 = 35;
+    pub const GETITIMER: i64 = 36;
+    pub const ALARM: i64 = 37;
+    pub const SETITIMER: i64 = 38;
     pub const GETPID: i64 = 39;
+    pub const CLONE: i64 = 56;
     pub const EXECVE: i64 = 59;
+    pub const KILL: i64 = 62;
     pub const GETTIMEOFDAY: i64 = 96;
     pub const GETPPID: i64 = 110;
+    pub const RT_SIGPENDING: i64 = 127;
+    pub const RT_SIGTIMEDWAIT: i64 = 128;
+    pub const RT_SIGQUEUEINFO: i64 = 129;
+    pub const RT_SIGSUSPEND: i64 = 130;
     pub const PRCTL: i64 = 157;
+    pub const ARCH_PRCTL: i64 = 158;
     pub const GETTID: i64 = 186;
     pub const TIME: i64 = 201;
     pub const FUTEX: i64 = 202;
+    pub const TIMER_CREATE: i64 = 222;
+    pub const TIMER_SETTIME: i64 = 223;
+    pub const TIMER_GETTIME: i64 = 224;
+    pub const TIMER_GETOVERRUN: i64 = 225;
+    pub const TIMER_DELETE: i64 = 226;
     pub const CLOCK_GETTIME: i64 = 228;
     pub const CLOCK_NANOSLEEP: i64 = 230;
+    pub const TGKILL: i64 = 234;
     pub const OPENAT: i64 = 257;
+    pub const RT_TGSIGQUEUEINFO: i64 = 297;
     pub const SECCOMP: i64 = 317;
     pub const EXECVEAT: i64 = 322;
     pub const IO_URING_SETUP: i64 = 425;
+    pub const CLONE3: i64 = 435;
     /// struct stat: st_mode's and st_rdev's offsets.
     pub const ST_MODE: usize = 24;
     pub const ST_RDEV: usize = 40;

@@ -88,16 +88,19 @@ pub unsafe extern "C" fn time(out: *mut time_t) -> time_t {
 }
 
 /// Sleep until simulated time `deadline`: blocked until climbsim's clock gets there. After the
-/// run's end, the rest is slept on the wall clock.
-pub(crate) fn sleep_until(shared: &Shared, deadline: u64) {
+/// run's end, the rest is slept on the wall clock. What was left if a signal interrupted it.
+pub(crate) fn sleep_until(shared: &Shared, deadline: u64) -> Option<u64> {
     note_call(shared, call::SLEEP);
     if deadline <= sim_now(shared) {
         charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
-        return;
+        return None;
     }
-    if park(shared, state::BLOCKED, deadline, 0, 0) == release::ENDING {
-        real_sleep_ns(deadline.saturating_sub(sim_now(shared)));
+    match park(shared, state::BLOCKED, deadline, 0, 0) {
+        release::ENDING => real_sleep_ns(deadline.saturating_sub(sim_now(shared))),
+        release::SIGNAL => return Some(deadline.saturating_sub(sim_now(shared))),
+        _ => {}
     }
+    None
 }
 
 /// Sleep `ns` of wall time.
@@ -112,7 +115,8 @@ pub(crate) fn real_sleep_ns(ns: u64) {
 
 /// clock_nanosleep on simulated time, for the interposer and the trap alike: the error number
 /// (0 for done), or None where the kernel's clock answers (a CPU-time clock, or no run).
-pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *const timespec) -> Option<c_int> {
+/// Interrupted by a signal: EINTR, and what was left of a relative sleep in `remain`.
+pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec) -> Option<c_int> {
     let shared = active()?;
     if request.is_null() || clock_at(shared, clock, 0).is_none() {
         return None;
@@ -124,13 +128,17 @@ pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *
     }
     let asked = to_ns(request);
     let deadline = if flags & sys::TIMER_ABSTIME != 0 { sim_time_of(shared, clock, asked).unwrap_or(0) } else { sim_now(shared).saturating_add(asked) };
-    sleep_until(shared, deadline);
-    Some(0)
+    let Some(left) = sleep_until(shared, deadline) else { return Some(0) };
+    if flags & sys::TIMER_ABSTIME == 0 && !remain.is_null() {
+        // SAFETY: the caller's timespec.
+        unsafe { *remain = from_ns(left) };
+    }
+    Some(sys::EINTR)
 }
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn clock_nanosleep(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec) -> c_int {
-    if let Some(error) = clock_nanosleep_virtual(clock, flags, request) {
+    if let Some(error) = clock_nanosleep_virtual(clock, flags, request, remain) {
         return error;
     }
     let next = real!(clock_nanosleep: fn(clockid_t, c_int, *const timespec, *mut timespec) -> c_int);
@@ -140,7 +148,7 @@ pub unsafe extern "C" fn clock_nanosleep(clock: clockid_t, flags: c_int, request
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn nanosleep(request: *const timespec, remain: *mut timespec) -> c_int {
-    match clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, request) {
+    match clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, request, remain) {
         Some(0) => return 0,
         Some(error) => {
             sys::set_errno(error);
@@ -156,7 +164,10 @@ pub unsafe extern "C" fn nanosleep(request: *const timespec, remain: *mut timesp
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn usleep(micros: c_uint) -> c_int {
     if let Some(shared) = active() {
-        sleep_until(shared, sim_now(shared).saturating_add(u64::from(micros) * 1000));
+        if sleep_until(shared, sim_now(shared).saturating_add(u64::from(micros) * 1000)).is_some() {
+            sys::set_errno(sys::EINTR);
+            return -1;
+        }
         return 0;
     }
     let next = real!(usleep: fn(c_uint) -> c_int);
@@ -167,8 +178,8 @@ pub unsafe extern "C" fn usleep(micros: c_uint) -> c_int {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn sleep(seconds: c_uint) -> c_uint {
     if let Some(shared) = active() {
-        sleep_until(shared, sim_now(shared).saturating_add(u64::from(seconds) * 1_000_000_000));
-        return 0;
+        // Interrupted: the seconds left, rounded up.
+        return sleep_until(shared, sim_now(shared).saturating_add(u64::from(seconds) * 1_000_000_000)).map_or(0, |left| left.div_ceil(1_000_000_000) as c_uint);
     }
     let next = real!(sleep: fn(c_uint) -> c_uint);
     // SAFETY: passing the caller's argument through.

@@ -127,8 +127,12 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
             if rc != 0 {
                 return rc;
             }
-        } else if park_blocked(shared, deadline, parked_on, interest.conns) != release::DEADLINE {
-            return real_wait(Some(1_000_000_000));
+        } else {
+            match park_blocked(shared, deadline, parked_on, interest.conns) {
+                release::DEADLINE => {}
+                release::SIGNAL => return interrupted(),
+                _ => return real_wait(Some(1_000_000_000)),
+            }
         }
         return real_wait(look(interest.show_expired_timers(shared)));
     }
@@ -148,8 +152,16 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
         // that is slow to show them.
         release::DATA => real_wait(Some(1_000_000_000)),
         release::ENDING => real_wait(Some(deadline.saturating_sub(sim_now(shared)))),
+        release::SIGNAL => interrupted(),
         _ => real_wait(Some(0)),
     }
+}
+
+/// A wait of the poll family that a signal interrupted (its handler has run): EINTR, as the
+/// kernel answers whatever SA_RESTART says.
+fn interrupted() -> c_int {
+    sys::set_errno(sys::EINTR);
+    -1
 }
 
 /// Block until `deadline` or data on what `waits` names (see `park`).
@@ -197,7 +209,15 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             crate::climbsim_gone(shared);
         }
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
-            return real_wait(Some(if slot.release.load(Ordering::Acquire) == release::DATA { 1_000_000_000 } else { 0 }));
+            let why = slot.release.load(Ordering::Acquire);
+            if why == release::SIGNAL {
+                if crate::signals::take_due(slot) {
+                    return interrupted();
+                }
+                publish();
+                continue;
+            }
+            return real_wait(Some(if why == release::DATA { 1_000_000_000 } else { 0 }));
         }
         if crate::active().is_none() {
             slot.state.store(state::RUNNING, Ordering::Release);

@@ -19,6 +19,7 @@ mod held;
 mod quiet;
 mod real_world;
 mod shim_file;
+mod signals;
 mod timer;
 mod turns;
 mod watchdog;
@@ -135,6 +136,8 @@ pub struct VtStats {
     pub jumps: u64,
     /// Turns given: a ready thread let run while no other did.
     pub turns: u64,
+    /// Signal timers (alarm, setitimer, timer_create) fired at a controller thread.
+    pub signals_fired: u64,
 }
 
 /// climbsim's side of virtual time for one run.
@@ -382,9 +385,9 @@ impl VirtualTime {
             }
             // A thread may have moved the clock onto a timer's time (the horizon includes it):
             // that timer goes first.
-            let next_timer = self.next_timer();
+            let next_timer = self.next_timer().min(self.next_signal_timer());
             if next_timer <= now {
-                self.fire_timers(now);
+                self.fire_all(now);
                 continue;
             }
             // Replies written ahead show at their instants: a thread waiting on the port is let
@@ -414,7 +417,16 @@ impl VirtualTime {
             lock(&self.stats).jumps += 1;
             self.trace_jump(plan.next);
             let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
-            self.fire_timers(now);
+            self.fire_all(now);
+        }
+    }
+
+    /// Fire the port session's timers and the controller's signal timers due by `now`; a thread
+    /// let go for a signal takes the turn.
+    fn fire_all(&self, now: u64) {
+        self.fire_timers(now);
+        if self.fire_signal_timers(now) {
+            self.give_turn();
         }
     }
 

@@ -360,14 +360,18 @@ fn syscall_name(number: i64) -> Option<&'static str> {
     #[cfg(target_arch = "x86_64")]
     return Some(match number {
         0 => "read",
+        1 => "write",
         7 => "poll",
         23 => "select",
         34 => "pause",
         35 => "nanosleep",
         43 => "accept",
+        44 => "sendto",
         45 => "recvfrom",
+        46 => "sendmsg",
         47 => "recvmsg",
         61 => "wait4",
+        73 => "flock",
         128 => "rt_sigtimedwait",
         202 => "futex",
         230 => "clock_nanosleep",
