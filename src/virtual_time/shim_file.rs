@@ -18,10 +18,11 @@ pub fn shim_bytes() -> &'static [u8] {
     SHIM
 }
 
-/// The shim to preload: `$CLIMBSIM_SHIM` if set, else the embedded one, written (once per
+/// The shim to preload: `$CLIMBSIM_SHIM` if set (and not empty: an empty one preloaded
+/// nothing, and the controller ran unfollowed), else the embedded one, written (once per
 /// content) to `$XDG_CACHE_HOME/climbsim/` or `~/.cache/climbsim/`.
 pub fn shim_path() -> Result<PathBuf, VtError> {
-    if let Some(path) = std::env::var_os("CLIMBSIM_SHIM") {
+    if let Some(path) = std::env::var_os("CLIMBSIM_SHIM").filter(|p| !p.is_empty()) {
         return Ok(PathBuf::from(path));
     }
     let cache = std::env::var_os("XDG_CACHE_HOME")
