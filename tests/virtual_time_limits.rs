@@ -126,3 +126,16 @@ fn a_livelock_fails_within_seconds_naming_each_thread() {
     assert!(failures.contains("last futex at t = "), "{failures}");
     assert!(wall < Duration::from_secs(30), "{wall:?}");
 }
+
+#[test]
+fn a_controller_that_traces_its_own_child_fails_naming_the_tracer_instead_of_hanging() {
+    let dir = support::scratch_dir("vt-tracer");
+    let program = compiled_c(&dir, "tracer");
+    let path = scenario(&dir, "tracer", 5.0, &[program.to_str().expect("utf-8 path")], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("is stopped by its tracer, pid"), "{failures}");
+    assert!(failures.contains("one of the controller's own processes"), "{failures}");
+    assert!(wall < Duration::from_secs(20), "{wall:?}");
+}

@@ -132,8 +132,16 @@ impl Watchdog {
                 return Err(VtError::Stuck(describe(slot, Judged::NoShim, quiet)));
             }
             match task_state(slot) {
-                // A debugger or SIGSTOP: the world waits for it, however long.
+                // A debugger or SIGSTOP: the world waits for it, however long. Unless its
+                // tracer is one of the controller's own processes (strace as its command): that
+                // one waits for its turn, which the stopped thread holds, for ever.
                 TaskState::Stopped => {
+                    if let Some(tracer) = followed_tracer(shared, slot) {
+                        return Err(VtError::Stuck(format!(
+                            "virtual time: {} is stopped by its tracer, pid {tracer}, which is one of the controller's own processes (strace or a debugger started as the controller's command): the tracer cannot run while the thread it stopped holds the turn. Trace the controller from outside instead (strace -f -p PID; gdb with `set environment`, see docs/virtual-time.md)",
+                            thread_name(slot).0
+                        )));
+                    }
                     self.waited_for_stopped();
                     return Ok(());
                 }
@@ -215,6 +223,15 @@ fn state_letter(path: &str) -> Result<Option<char>, std::io::Error> {
 /// The task whose `stat` file is at `path` exists and is neither a zombie nor dead.
 pub(super) fn lives(path: &str) -> bool {
     state_letter(path).is_ok_and(|letter| letter.is_some_and(|state| state != 'Z' && state != 'X'))
+}
+
+/// The pid of the process tracing the slot's thread, if it is a followed one (it has a live
+/// slot).
+fn followed_tracer(shared: &Shared, slot: &Slot) -> Option<i32> {
+    let status = std::fs::read_to_string(format!("{}/status", stat_path(slot)?)).ok()?;
+    let tracer: i32 = status.lines().find_map(|line| line.strip_prefix("TracerPid:"))?.trim().parse().ok()?;
+    let followed = shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == tracer && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED));
+    (tracer > 0 && followed).then_some(tracer)
 }
 
 fn task_state(slot: &Slot) -> TaskState {
