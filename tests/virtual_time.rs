@@ -447,6 +447,9 @@ fn a_posix_spawned_child_gets_one_slot_and_sleeps_in_simulated_time() {
     // reserved, not a second one (which would hold time still until the watchdog fired).
     assert!(log.contains("spawned sleep 0.2 ended after 200.0"), "{log}");
     assert!(log.contains("status 0"), "{log}");
+    // Each child runs once its parent has parked: its line after the parent's, in every run
+    // (they came in either order before).
+    assert!(log.contains("parent 0\nchild\nparent 1\nchild\nparent 2\nchild\n"), "{log}");
 }
 
 /// A wheel controller of one runtime (`command`, in `dir`), run twice at 1 Mbps for 3 s with

@@ -258,7 +258,13 @@ fn my_slot() -> Option<&'static Slot> {
         let mine = matches!(held, state::RUNNING | state::RESERVED) && slot_tid == tid;
         let spawned_for_me = held == state::RESERVED && slot_tid == 0 && slot.pid.load(Ordering::Relaxed) == parent;
         if (mine || spawned_for_me) && (held == state::RUNNING || slot.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
-            return claim(index, slot);
+            let claimed = claim(index, slot);
+            // A program a followed process started (posix_spawn, fork, a vfork child's exec)
+            // starts in its turn, as a thread does (below).
+            if held == state::RESERVED && followed(shared, parent) {
+                start_in_turn(slot);
+            }
+            return claimed;
         }
     }
     if tid != pid
@@ -268,10 +274,7 @@ fn my_slot() -> Option<&'static Slot> {
         shared.header.raw_clones.fetch_sub(1, Ordering::AcqRel);
         let claimed = claim(index, slot);
         // It starts in its turn, as a thread from the shim's pthread_create does.
-        if let Some(shared) = active() {
-            slot.state.store(state::READY, Ordering::Release);
-            await_turn(shared, slot);
-        }
+        start_in_turn(slot);
         return claimed;
     }
     let first = &shared.slots[0];
@@ -283,16 +286,28 @@ fn my_slot() -> Option<&'static Slot> {
     let claimed = claim(index, slot);
     notify_scheduler(shared);
     // A thread whose creation the shim did not see (libc's own thread creation, such as the
-    // thread glibc starts for a SIGEV_THREAD timer's callback; a runtime's raw clone) starts in
-    // its turn, as one it saw does: its creator runs on until it parks. Otherwise the two ran
-    // at once, and the callback's instant differed from run to run.
-    if tid != pid
-        && let Some(shared) = active()
-    {
+    // thread glibc starts for a SIGEV_THREAD timer's callback; a runtime's raw clone), and a
+    // process a followed one started (a forked child, a vfork child's exec), start in their
+    // turn: their creator runs on until it parks. Otherwise the two ran at once: the callback's
+    // instant, and the order of a parent's and a spawned child's lines, differed from run to
+    // run.
+    if tid != pid || followed(shared, parent) {
+        start_in_turn(slot);
+    }
+    claimed
+}
+
+/// Whether process `pid` is followed (one of its threads has a slot).
+fn followed(shared: &Shared, pid: i32) -> bool {
+    shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == pid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+}
+
+/// A thread that has just claimed `slot` waits, ready, for its turn.
+fn start_in_turn(slot: &Slot) {
+    if let Some(shared) = active() {
         slot.state.store(state::READY, Ordering::Release);
         await_turn(shared, slot);
     }
-    claimed
 }
 
 /// A trapped clone is about to create a thread whose TLS pointer is `tls` (0: none given): a
@@ -492,10 +507,8 @@ unsafe extern "C" fn forked_child() {
     PID.store(sys::getpid(), Ordering::Relaxed);
     SLOT.with(|s| s.set(NO_SLOT));
     park::forget_charges();
-    if let (Some(slot), Some(shared)) = (my_slot(), active()) {
-        slot.state.store(state::READY, Ordering::Release);
-        await_turn(shared, slot);
-    }
+    // Its slot, claimed now, waits for its turn there.
+    my_slot();
 }
 
 fn pid() -> i32 {

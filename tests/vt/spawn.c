@@ -1,7 +1,7 @@
 // posix_spawn, as Rust's std::process::Command and C programs start children: glibc's child
 // makes its exec inside libc (only the seccomp trap sees it), while the parent has reserved a
-// slot for it. A child that sleeps 200 ms, waited for; then a pipe read from a child (the
-// parent blocked in a real read while the child sleeps).
+// slot for it. A child that sleeps 200 ms, waited for; then children that print while their
+// parent prints before it waits.
 #include <spawn.h>
 #include <stdio.h>
 #include <sys/wait.h>
@@ -21,5 +21,14 @@ int main(void) {
     int status = 0;
     waitpid(child, &status, 0);
     printf("spawned sleep 0.2 ended after %.3f ms, status %d\n", (now_us(CLOCK_MONOTONIC) - started) / 1e3, WEXITSTATUS(status));
+    // A spawned child starts in its turn, once its parent parks (here in waitpid): the two
+    // print in the same order in every run.
+    setvbuf(stdout, NULL, _IONBF, 0);
+    for (int i = 0; i < 3; i++) {
+        char *echo[] = {"echo", "child", NULL};
+        if (posix_spawnp(&child, "echo", NULL, NULL, echo, environ) != 0) return 1;
+        printf("parent %d\n", i);
+        waitpid(child, NULL, 0);
+    }
     return 0;
 }
