@@ -90,9 +90,9 @@ fn main() {
 
     let mut buf = [0u8; 64];
     // Check every path answers what it should before timing anything.
-    support::round_trip(&echo_client, &request, request.len(), &mut buf);
+    support::round_trip(echo_client, &request, request.len(), &mut buf);
     assert_eq!(&buf[..request.len()], &request[..], "echo returned other bytes");
-    let mut paths: Vec<TimedPath> = vec![TimedPath::echo(&echo_client), TimedPath::climbsim(&sim_client)];
+    let mut paths: Vec<TimedPath> = vec![TimedPath::echo(echo_client), TimedPath::climbsim(&sim_client)];
     if let Some(client) = &baseline_client {
         paths.push(TimedPath::climbsim(client));
     }

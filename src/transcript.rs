@@ -167,7 +167,7 @@ pub fn to_hex(bytes: &[u8]) -> String {
 /// Contiguous hex (either case, spaces allowed) back to bytes.
 pub fn from_hex(text: &str) -> Result<Vec<u8>, String> {
     let digits: Vec<u8> = text.bytes().filter(|b| !b.is_ascii_whitespace()).collect();
-    if digits.len() % 2 != 0 {
+    if !digits.len().is_multiple_of(2) {
         return Err(format!("odd number of hex digits ({})", digits.len()));
     }
     digits

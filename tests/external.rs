@@ -2,7 +2,6 @@
 //! one that cannot start is one clear line, `--speed N` scales its clocks through libfaketime,
 //! a run the machine cannot pace fails, and sweep values reach the program.
 
-use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 
 mod support;
@@ -19,9 +18,7 @@ fn world(duration_s: f64) -> String {
 /// The flat world, `duration_s` long, driven by `controller` (a script written beside it,
 /// started through /bin/sh).
 fn scenario(dir: &Path, name: &str, duration_s: f64, controller: &str, extra: &str) -> PathBuf {
-    let script = dir.join(format!("{name}.sh"));
-    std::fs::write(&script, format!("#!/bin/sh\n{controller}\n")).expect("write script");
-    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).expect("chmod");
+    support::executable_script(dir, &format!("{name}.sh"), &format!("#!/bin/sh\n{controller}\n"));
     let path = dir.join(format!("{name}.toml"));
     let text = format!(
         "{}\n[controller]\nkind = \"external\"\ncommand = [\"./{name}.sh\"]\n{extra}\n",

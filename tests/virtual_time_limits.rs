@@ -53,9 +53,7 @@ fn a_statically_linked_controller_is_refused() {
 fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
     let dir = support::scratch_dir("vt-full-pipe");
     // A write to a pipe nobody reads, larger than the pipe holds: blocked in the kernel.
-    let script = dir.join("full_pipe.py");
-    std::fs::write(&script, "#!/usr/bin/env python3\nimport os, time\ntime.sleep(0.1)\nr, w = os.pipe()\nos.write(w, b'x' * 1000000)\n").expect("write");
-    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
+    let script = support::executable_script(&dir, "full_pipe.py", "#!/usr/bin/env python3\nimport os, time\ntime.sleep(0.1)\nr, w = os.pipe()\nos.write(w, b'x' * 1000000)\n");
     let path = scenario(&dir, "full-pipe", 10.0, &[script.to_str().expect("utf-8 path")], false);
     let (output, wall) = run_virtual(&path, &dir.join("out"));
     assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));

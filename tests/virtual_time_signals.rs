@@ -53,9 +53,7 @@ fn python_signal_timers_interrupt_sleeps_pause_and_sigtimedwait_at_their_instant
 #[test]
 fn an_alarm_nobody_handles_kills_the_controller_at_its_instant_and_fails_the_run() {
     let dir = support::scratch_dir("vt-alarm-kill");
-    let script = dir.join("unhandled_alarm.py");
-    std::fs::write(&script, "#!/usr/bin/env python3\nimport signal, time\nsignal.alarm(1)\ntime.sleep(5)\nprint('not reached')\n").expect("write");
-    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("chmod");
+    let script = support::executable_script(&dir, "unhandled_alarm.py", "#!/usr/bin/env python3\nimport signal, time\nsignal.alarm(1)\ntime.sleep(5)\nprint('not reached')\n");
     let path = scenario(&dir, "unhandled", 3.0, &[script.to_str().expect("utf-8 path")], true);
     let (output, _) = run_virtual(&path, &dir.join("out"));
     assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));

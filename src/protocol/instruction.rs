@@ -140,7 +140,7 @@ impl Instruction {
                 let length = u16_at(params, 2);
                 let stride = 1 + usize::from(length);
                 let body = &params[4..];
-                if length == 0 || body.is_empty() || body.len() % stride != 0 {
+                if length == 0 || body.is_empty() || !body.len().is_multiple_of(stride) {
                     return Err(wrong("4 + (1 + length) per ID"));
                 }
                 let entries = body
@@ -150,7 +150,7 @@ impl Instruction {
                 Self::SyncWrite { address, length, entries }
             }
             opcode::BULK_READ | opcode::FAST_BULK_READ => {
-                if params.is_empty() || params.len() % 5 != 0 {
+                if params.is_empty() || !params.len().is_multiple_of(5) {
                     return Err(wrong("5 per ID"));
                 }
                 let entries = params

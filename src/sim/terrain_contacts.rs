@@ -70,7 +70,7 @@ type Manifold = ContactManifold<ContactManifoldData, ContactData>;
 /// `pos12` places the ball in the heightfield's frame; `flipped` when the ball is the pair's
 /// first shape (the manifolds then name the ball first, as parry's do).
 fn ball_on_heightfield(pos12: &Pose, field: &HeightField, ball: &Ball, prediction: Real, manifolds: &mut Vec<Manifold>, workspace: &mut Option<ContactManifoldsWorkspace>, flipped: bool) {
-    if !workspace.as_ref().is_some_and(|w| w.0.downcast_ref::<Workspace>().is_some()) {
+    if workspace.as_ref().is_none_or(|w| w.0.downcast_ref::<Workspace>().is_none()) {
         *workspace = Some(ContactManifoldsWorkspace(Box::new(Workspace::default())));
     }
     let Some(workspace) = workspace.as_mut().and_then(|w| w.0.downcast_mut::<Workspace>()) else { return };

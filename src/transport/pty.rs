@@ -237,10 +237,10 @@ impl AsRawFd for MasterFd {
 impl PortStream {
     fn poll_read_master(&mut self, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
         let read = self.read_master(cx, buf);
-        if matches!(read, Poll::Ready(Ok(()))) {
-            if let Some(busy_poll) = &mut self.busy_poll {
-                busy_poll.request_read(Instant::now());
-            }
+        if matches!(read, Poll::Ready(Ok(())))
+            && let Some(busy_poll) = &mut self.busy_poll
+        {
+            busy_poll.request_read(Instant::now());
         }
         read
     }
@@ -301,10 +301,10 @@ impl PortStream {
 
     fn poll_write_master(&mut self, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
         let written = self.write_master(cx, data);
-        if matches!(written, Poll::Ready(Ok(_))) {
-            if let Some(busy_poll) = &mut self.busy_poll {
-                busy_poll.reply_written(Instant::now());
-            }
+        if matches!(written, Poll::Ready(Ok(_)))
+            && let Some(busy_poll) = &mut self.busy_poll
+        {
+            busy_poll.reply_written(Instant::now());
         }
         written
     }

@@ -290,6 +290,15 @@ pub fn sdk_python() -> PathBuf {
 }
 
 /// A fresh, empty folder under the target directory for one test's outputs.
+/// An executable script `name` in `dir` holding `text` (with its `#!` line); its path.
+pub fn executable_script(dir: &Path, name: &str, text: &str) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let script = dir.join(name);
+    std::fs::write(&script, text).expect("write script");
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).expect("chmod");
+    script
+}
+
 pub fn scratch_dir(name: &str) -> PathBuf {
     let dir = results_dir().join("scratch").join(format!("{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);

@@ -168,7 +168,7 @@ fn goal_pwm_limits_the_output_in_position_mode() {
     let (mut s, mut load) = positioned(&[(112, 100i32.to_le_bytes().to_vec()), (100, 45i16.to_le_bytes().to_vec())]);
     let pwm = sample_move(&mut s, &mut load, 1500, 124, 2, 1.0);
     let largest = pwm.iter().map(|p| p.abs()).max().unwrap();
-    assert!(largest <= 45 && largest >= 40, "Present PWM up to {largest} with Goal PWM 45");
+    assert!((40..=45).contains(&largest), "Present PWM up to {largest} with Goal PWM 45");
 }
 
 /// e-manual, Velocity Limit(44): it bounds Profile Velocity; the move cruises at the limit (it

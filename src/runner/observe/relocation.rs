@@ -144,7 +144,7 @@ impl RelocationTrack {
             (None, Some(_)) => {
                 let clearance = self.truth.clearance_m(sample.position[0], sample.position[1], CLEARANCE_SEARCH_M);
                 let (left_at_s, from) = self.last_on;
-                let moving = self.moving.get_or_insert_with(|| Move { left_at_s, from, driven_m: 0.0, min_clearance_m: CLEARANCE_SEARCH_M });
+                let moving = self.moving.get_or_insert(Move { left_at_s, from, driven_m: 0.0, min_clearance_m: CLEARANCE_SEARCH_M });
                 moving.driven_m += step;
                 moving.min_clearance_m = moving.min_clearance_m.min(clearance);
             }

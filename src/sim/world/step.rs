@@ -47,11 +47,11 @@ impl RobotWorld {
             body.add_torque(torque, true);
         }
         for parts in self.wheels {
-            if let Some(joint) = self.physics.impulse_joints.get_mut(parts.drive_joint, true) {
-                if let Some(motor) = joint.data.motor(JointAxis::AngX).copied() {
-                    joint.data.set_motor_velocity(JointAxis::AngX, motor.target_vel, motor.damping);
-                    joint.data.set_motor_max_force(JointAxis::AngX, motor.max_force);
-                }
+            if let Some(joint) = self.physics.impulse_joints.get_mut(parts.drive_joint, true)
+                && let Some(motor) = joint.data.motor(JointAxis::AngX).copied()
+            {
+                joint.data.set_motor_velocity(JointAxis::AngX, motor.target_vel, motor.damping);
+                joint.data.set_motor_max_force(JointAxis::AngX, motor.max_force);
             }
         }
         self.step_physics_only();

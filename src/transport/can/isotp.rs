@@ -104,10 +104,10 @@ impl StMin {
     /// 100–900 µs in steps of 100 µs.
     pub fn from_duration(duration: Duration) -> Option<Self> {
         let micros = duration.as_micros();
-        if micros % 1000 == 0 && micros / 1000 <= 0x7F {
+        if micros.is_multiple_of(1000) && micros / 1000 <= 0x7F {
             return Some(Self((micros / 1000) as u8));
         }
-        if micros % 100 == 0 && (100..=900).contains(&micros) {
+        if micros.is_multiple_of(100) && (100..=900).contains(&micros) {
             return Some(Self(0xF0 + (micros / 100) as u8));
         }
         None
