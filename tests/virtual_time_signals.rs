@@ -1,5 +1,6 @@
 //! Signals on `--clock virtual`: alarm, setitimer and POSIX timers fire at their simulated
-//! instants, and the waits for a signal (pause, sigsuspend, sigtimedwait, a sleep a signal
+//! instants, a signal one controller process or thread sends another arrives at the sender's
+//! instant, and the waits for a signal (pause, sigsuspend, sigtimedwait, a sleep a signal
 //! interrupts) end there, in C and in Python, the same in every run. Each is a real process.
 
 mod support;
@@ -45,6 +46,26 @@ fn python_signal_timers_interrupt_sleeps_pause_and_sigtimedwait_at_their_instant
         "alarm: pause returned after 1000.001 ms, the handler ran at +1000.001 ms",
         "sigtimedwait: signal SIGALRM after 30.001 ms",
         "sigtimedwait: None after a 10 ms timeout, at +40.001 ms",
+        // A signal the kernel raises (not a timer's) ends pause() too, at its instant.
+        "SIGCHLD: pause ended by the child's exit at +50.000 ms",
+    ] {
+        assert!(log.contains(expected), "missing {expected:?} in:\n{log}");
+    }
+}
+
+#[test]
+fn a_signal_one_controller_process_or_thread_sends_another_arrives_at_the_senders_instant() {
+    let dir = support::scratch_dir("vt-kill");
+    let program = compiled_c(&dir, "kill");
+    let path = scenario(&dir, "kill", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    for expected in [
+        "parent: sent SIGUSR1 at 35.001 ms",
+        "child: SIGUSR1 at 35.001 ms, after 4 naps",
+        "parent: pthread_kill at 70.001 ms",
+        // A thread in pause() (followed on simulated time) is let go by the signal: before
+        // kill was followed it waited for ever, the signal blocked inside the shim's wait.
+        "thread: pause ended at 70.002 ms, the handler ran at 70.002 ms",
     ] {
         assert!(log.contains(expected), "missing {expected:?} in:\n{log}");
     }

@@ -363,6 +363,10 @@ pub mod timer_kind {
     pub const ITIMER_REAL: u32 = 1;
     /// A POSIX timer (`timer_create`): its signal carries SI_TIMER, the timer's id and value.
     pub const POSIX: u32 = 2;
+    /// Not a timer: a signal one followed thread sent another (`kill`, `tgkill`, `tkill`),
+    /// waiting for its taker to send it to itself in its turn (`value`: the sender's pid, and
+    /// its uid in the upper half). Freed once sent.
+    pub const SENT: u32 = 3;
 }
 
 /// A signal timer on simulated time. The shim of its process creates and arms it; climbsim
@@ -431,6 +435,34 @@ impl Shared {
     pub fn live_slots(&self) -> &[Slot] {
         let high = self.header.slots_high.load(core::sync::atomic::Ordering::Acquire) as usize;
         &self.slots[..high.clamp(1, SLOTS)]
+    }
+
+    /// The thread of process `pid` that takes signal `signo` (`tid`: the one named, as a
+    /// `SIGEV_THREAD_ID` timer or `tgkill` names it), as the kernel would pick it: one waiting
+    /// for it in sigtimedwait, else the main thread unless it blocks it, else the first that
+    /// does not; if all block it, the main thread (the shim then leaves it pending on the
+    /// process). A thread parked where the shim waits comes before one blocked in the kernel's
+    /// waitpid, which would take it only when it returns.
+    pub fn signal_taker(&self, pid: i32, tid: i32, signo: u32) -> Option<&Slot> {
+        use core::sync::atomic::Ordering::{Acquire, Relaxed};
+        let live = |s: &&Slot| !matches!(s.state.load(Acquire), state::FREE | state::EXITED) && s.tid.load(Relaxed) > 0;
+        let threads = || self.live_slots().iter().filter(move |s| s.pid.load(Relaxed) == pid).filter(live);
+        if tid != 0 {
+            return threads().find(|s| s.tid.load(Relaxed) == tid);
+        }
+        let bit = 1u64.checked_shl(signo.saturating_sub(1)).unwrap_or(0);
+        let in_kernel = |s: &&Slot| s.waits.load(Relaxed) & waits::CHILD != 0;
+        let waits_for = |s: &&Slot| s.sig_waiting.load(Relaxed) & bit != 0;
+        let lets_through = |s: &&Slot| s.sig_blocked.load(Relaxed) & bit == 0;
+        let main = |s: &&Slot| s.tid.load(Relaxed) == pid;
+        threads()
+            .find(waits_for)
+            .or_else(|| threads().filter(|s| !in_kernel(s)).find(|s| main(s) && lets_through(s)))
+            .or_else(|| threads().filter(|s| !in_kernel(s)).find(lets_through))
+            .or_else(|| threads().find(|s| main(s) && lets_through(s)))
+            .or_else(|| threads().find(lets_through))
+            .or_else(|| threads().find(main))
+            .or_else(|| threads().next())
     }
 
     /// The signal timers that have ever been taken (those past them are free).

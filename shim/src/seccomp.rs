@@ -47,6 +47,9 @@ const TRAPPED: &[i64] = &[
     nr::PAUSE,
     nr::RT_SIGSUSPEND,
     nr::RT_SIGTIMEDWAIT,
+    nr::KILL,
+    nr::TGKILL,
+    nr::TKILL,
     nr::CLONE3,
 ];
 
@@ -339,6 +342,9 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         | nr::PAUSE
         | nr::RT_SIGSUSPEND
         | nr::RT_SIGTIMEDWAIT
+        | nr::KILL
+        | nr::TGKILL
+        | nr::TKILL
             if !crate::in_shim() =>
         {
             return crate::signals::trapped(number, a, *sigmask).unwrap_or_else(|| native_as_program(number, a, sigmask));

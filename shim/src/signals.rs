@@ -15,7 +15,7 @@ use core::cell::Cell;
 use core::ffi::{c_int, c_long};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, SIG_TIMERS, Shared, SigTimer, Slot, call, release, state, timer_kind, timer_state};
+use crate::abi::{NEVER, SIG_TIMERS, Shared, SigTimer, Slot, call, release, state, timer_kind, timer_state, waits};
 use crate::native;
 use crate::now::{from_ns, sim_now, to_ns};
 use crate::sys::{self, nr, timespec, timeval};
@@ -96,6 +96,9 @@ pub(crate) fn trapped(number: i64, a: [i64; 6], program_mask: u64) -> Option<c_l
             t.state.store(timer_state::FREE, Ordering::Release);
             0
         }),
+        nr::KILL if a[0] > 0 => send_followed(shared, a[0] as i32, 0, a[1] as c_int),
+        nr::TGKILL if a[0] > 0 => send_followed(shared, a[0] as i32, a[1] as i32, a[2] as c_int),
+        nr::TKILL => pid_of_thread(shared, a[0] as i32).and_then(|pid| send_followed(shared, pid, a[0] as i32, a[1] as c_int)),
         nr::PAUSE => pause(shared),
         nr::RT_SIGSUSPEND => sigsuspend(shared, a[0] as *const u64, a[1], program_mask),
         nr::RT_SIGTIMEDWAIT => sigtimedwait(shared, a[0] as *const u64, a[1], a[2] as *const timespec, a[3]),
@@ -331,6 +334,56 @@ fn timer_gettime(shared: &Shared, timer: &SigTimer, out: *mut [timespec; 2]) -> 
     0
 }
 
+/// The signals whose sending goes to the kernel as it is: 0 (a check that the target lives),
+/// and those nobody can catch or block (SIGKILL, SIGSTOP) or that resume a stopped one
+/// (SIGCONT).
+const SENT_AS_THEY_ARE: [c_int; 4] = [0, 9, 18, 19];
+
+/// The process a followed thread `tid` belongs to.
+fn pid_of_thread(shared: &Shared, tid: i32) -> Option<i32> {
+    shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED)).map(|s| s.pid.load(Ordering::Relaxed))
+}
+
+/// `kill`, `tgkill` or `tkill` of a followed process or thread (`tid` 0: the process) by
+/// another followed thread: the signal waits in the block for the thread that takes it, which
+/// is let go and sends it to itself in its turn, once the sender parks (a kernel would deliver
+/// it whenever the host scheduled the two). None: sent by the kernel as it is (the target is
+/// not followed, is this very thread, or the signal is one of `SENT_AS_THEY_ARE`).
+fn send_followed(shared: &Shared, pid: i32, tid: i32, signo: c_int) -> Option<c_long> {
+    if !(1..=64).contains(&signo) || SENT_AS_THEY_ARE.contains(&signo) {
+        return None;
+    }
+    let taker = shared.signal_taker(pid, tid, signo as u32)?;
+    let taker_tid = taker.tid.load(Ordering::Relaxed);
+    if taker_tid == sys::gettid() {
+        return None;
+    }
+    charged_call(shared, call::TIMER);
+    let (_, sent) = take_timer(shared)?;
+    let sender = (crate::pid() as u32 as u64) | (native::call0(nr::GETUID) as u32 as u64) << 32;
+    sent.kind.store(timer_kind::SENT, Ordering::Relaxed);
+    sent.pid.store(pid, Ordering::Relaxed);
+    sent.tid.store(tid, Ordering::Relaxed);
+    sent.signo.store(signo as u32, Ordering::Relaxed);
+    sent.value.store(sender, Ordering::Relaxed);
+    sent.deliver_tid.store(taker_tid, Ordering::Relaxed);
+    sent.fired.store(1, Ordering::Relaxed);
+    sent.state.store(timer_state::DISARMED, Ordering::Release);
+    taker.signals_due.fetch_add(1, Ordering::AcqRel);
+    // Parked where the shim waits: ready, with the signal for its reason (a thread in the
+    // kernel's waitpid takes it when it parks next).
+    if taker.waits.load(Ordering::Relaxed) & waits::CHILD == 0 {
+        taker.release.store(release::SIGNAL, Ordering::Release);
+        for parked in [state::BLOCKED, state::YIELDED] {
+            if taker.state.compare_exchange(parked, state::READY, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+                crate::notify_scheduler(shared);
+                break;
+            }
+        }
+    }
+    Some(0)
+}
+
 /// Signals climbsim fired for this thread (`Slot::signals_due`), sent to itself now; whether
 /// one of them interrupts the wait it was let go from.
 pub(crate) fn take_due(slot: &Slot) -> bool {
@@ -366,7 +419,24 @@ pub(crate) fn take_due(slot: &Slot) -> bool {
 /// SI_TIMER, its id, overrun and value (glibc's SIGEV_THREAD helper needs them).
 fn send(timer: &SigTimer, index: usize, signo: c_int, overrun: u32, (pid, tid): (i32, i32), whole_process: bool) {
     let (pid, tid, signo) = (pid as c_long, tid as c_long, signo as c_long);
-    if timer.kind.load(Ordering::Relaxed) == timer_kind::ITIMER_REAL {
+    let kind = timer.kind.load(Ordering::Relaxed);
+    if kind == timer_kind::SENT {
+        // siginfo_t of a kill: SI_USER, the sender's pid and uid.
+        let sender = timer.value.load(Ordering::Relaxed);
+        let mut info = [0i32; 32];
+        info[0] = signo as i32;
+        info[4] = sender as u32 as i32;
+        info[5] = (sender >> 32) as u32 as i32;
+        timer.state.store(timer_state::FREE, Ordering::Release);
+        let info = info.as_ptr() as c_long;
+        if whole_process {
+            native::call3(nr::RT_SIGQUEUEINFO, pid, signo, info);
+        } else {
+            native::call4(nr::RT_TGSIGQUEUEINFO, pid, tid, signo, info);
+        }
+        return;
+    }
+    if kind == timer_kind::ITIMER_REAL {
         if whole_process {
             native::call2(nr::KILL, pid, signo);
         } else {
@@ -402,19 +472,46 @@ fn ignored(signo: c_int) -> bool {
     }
 }
 
-/// Park until a signal interrupts this thread (or `deadline`); why it was let go.
-fn park_for_signal(shared: &Shared, deadline: u64) -> u32 {
+/// Wait until a signal ends this wait, or `deadline`; why it ended (`release::SIGNAL`: a
+/// signal is pending for it). Signals come two ways: climbsim lets this thread go for a timer's
+/// or a followed thread's signal (which it then sends itself), and the kernel raises others (a
+/// child's SIGCHLD, a `kill` from a process climbsim does not follow), which wait pending while
+/// the trap handler blocks them. For those it waits as a thread on a pipe does: looking at what
+/// is pending (`ends`) whenever climbsim asks, and every millisecond of wall time.
+fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -> u32 {
+    const SLICE_NS: u64 = 1_000_000;
+    let Some(slot) = crate::my_slot() else { return release::ENDING };
+    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER, 0);
+    publish();
     loop {
-        let why = crate::park(shared, state::BLOCKED, deadline, 0, 0);
-        if why == release::SIGNAL || why == release::ENDING || (why == release::DEADLINE && sim_now(shared) >= deadline) {
+        if slot.state.load(Ordering::Acquire) == state::RUNNING {
+            let why = slot.release.load(Ordering::Acquire);
+            if why == release::SIGNAL && !take_due(slot) {
+                publish();
+                continue;
+            }
+            if why == release::DEADLINE && sim_now(shared) < deadline {
+                publish();
+                continue;
+            }
             return why;
+        }
+        if crate::active().is_none() {
+            slot.state.store(state::RUNNING, Ordering::Release);
+            return release::ENDING;
+        }
+        if crate::look_at_kernel(shared, slot, SLICE_NS, || ends(pending()).then_some(())).is_some() {
+            // Raised by the kernel: this thread runs again in its turn.
+            crate::resume_after_kernel_wake(shared, slot);
+            return release::SIGNAL;
         }
     }
 }
 
 fn pause(shared: &Shared) -> Option<c_long> {
     crate::note_call(shared, call::SIGNAL_WAIT);
-    match park_for_signal(shared, NEVER) {
+    let program_mask = program_mask();
+    match wait_for_signal(shared, NEVER, |pending| pending & !program_mask != 0) {
         release::SIGNAL => Some(-EINTR),
         _ => None,
     }
@@ -438,7 +535,7 @@ fn sigsuspend(shared: &Shared, mask: *const u64, size: i64, program_mask: u64) -
     if let Some(slot) = slot {
         slot.sig_blocked.store(suspended, Ordering::Relaxed);
     }
-    let why = if pending() & !suspended != 0 { release::SIGNAL } else { park_for_signal(shared, NEVER) };
+    let why = if pending() & !suspended != 0 { release::SIGNAL } else { wait_for_signal(shared, NEVER, |pending| pending & !suspended != 0) };
     if let Some(slot) = slot {
         slot.sig_blocked.store(program_mask, Ordering::Relaxed);
     }
@@ -478,7 +575,7 @@ fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout: *const tim
     };
     let Some(slot) = crate::my_slot() else { return None };
     slot.sig_waiting.store(set_bits, Ordering::Relaxed);
-    let why = park_for_signal(shared, deadline);
+    let why = wait_for_signal(shared, deadline, |pending| pending & set_bits != 0);
     slot.sig_waiting.store(0, Ordering::Relaxed);
     match why {
         // One of the set, or another signal whose handler runs when this call returns.

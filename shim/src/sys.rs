@@ -92,6 +92,7 @@ pub mod nr {
     pub const KILL: i64 = 62;
     pub const GETTIMEOFDAY: i64 = 96;
     pub const GETPPID: i64 = 110;
+    pub const GETUID: i64 = 102;
     pub const RT_SIGPENDING: i64 = 127;
     pub const RT_SIGTIMEDWAIT: i64 = 128;
     pub const RT_SIGQUEUEINFO: i64 = 129;
@@ -99,6 +100,7 @@ pub mod nr {
     pub const PRCTL: i64 = 157;
     pub const ARCH_PRCTL: i64 = 158;
     pub const GETTID: i64 = 186;
+    pub const TKILL: i64 = 200;
     pub const TIME: i64 = 201;
     pub const FUTEX: i64 = 202;
     pub const TIMER_CREATE: i64 = 222;

@@ -10,7 +10,7 @@ use std::sync::atomic::Ordering;
 
 use tracing::debug;
 
-use super::abi::{NEVER, Shared, Slot, release, state, timer_state, waits};
+use super::abi::{NEVER, release, state, timer_state, waits};
 use super::turns::release_slot;
 use super::{VirtualTime, lock};
 
@@ -42,7 +42,7 @@ impl VirtualTime {
             let next = if interval == 0 { NEVER } else { deadline.saturating_add(interval.saturating_mul(expirations)) };
             timer.deadline_ns.store(next, Ordering::Relaxed);
             let (pid, tid, signo) = (timer.pid.load(Ordering::Relaxed), timer.tid.load(Ordering::Relaxed), timer.signo.load(Ordering::Relaxed));
-            let target = if signo == 0 { None } else { taker(shared, pid, tid, signo) };
+            let target = if signo == 0 { None } else { shared.signal_taker(pid, tid, signo) };
             if let Some(slot) = target {
                 timer.deliver_tid.store(slot.tid.load(Ordering::Relaxed), Ordering::Relaxed);
                 let added = u32::try_from(expirations).unwrap_or(u32::MAX);
@@ -55,7 +55,7 @@ impl VirtualTime {
                     released = true;
                 }
             }
-            let gone = signo != 0 && target.is_none() && !shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == pid && is_live(s));
+            let gone = signo != 0 && target.is_none() && shared.signal_taker(pid, 0, signo).is_none();
             let after = if gone {
                 timer_state::FREE
             } else if next == NEVER {
@@ -67,32 +67,4 @@ impl VirtualTime {
         }
         released
     }
-}
-
-fn is_live(slot: &Slot) -> bool {
-    !matches!(slot.state.load(Ordering::Acquire), state::FREE | state::EXITED) && slot.tid.load(Ordering::Relaxed) > 0
-}
-
-/// The thread of process `pid` that takes signal `signo` (`tid`: the one a SIGEV_THREAD_ID
-/// timer names). A thread parked where the shim waits comes before one blocked in the kernel
-/// (waitpid), which would take it only when it returns.
-fn taker(shared: &Shared, pid: i32, tid: i32, signo: u32) -> Option<&Slot> {
-    let threads = || shared.live_slots().iter().filter(move |s| s.pid.load(Ordering::Relaxed) == pid && is_live(s));
-    if tid != 0 {
-        return threads().find(|s| s.tid.load(Ordering::Relaxed) == tid);
-    }
-    let bit = 1u64.checked_shl(signo.saturating_sub(1)).unwrap_or(0);
-    let in_kernel = |s: &Slot| s.waits.load(Ordering::Relaxed) & waits::CHILD != 0;
-    let waits_for = |s: &&Slot| s.sig_waiting.load(Ordering::Relaxed) & bit != 0;
-    let lets_through = |s: &&Slot| s.sig_blocked.load(Ordering::Relaxed) & bit == 0;
-    let main = |s: &&Slot| s.tid.load(Ordering::Relaxed) == pid;
-    threads()
-        .find(waits_for)
-        .or_else(|| threads().filter(|s| !in_kernel(s)).find(|s| main(s) && lets_through(s)))
-        .or_else(|| threads().filter(|s| !in_kernel(s)).find(lets_through))
-        .or_else(|| threads().find(|s| main(s) && lets_through(s)))
-        .or_else(|| threads().find(lets_through))
-        // Blocked everywhere: pending on the process (the shim sends it so).
-        .or_else(|| threads().find(main))
-        .or_else(|| threads().next())
 }

@@ -3,6 +3,7 @@
 sleep that goes on to its end (PEP 475), while another thread sleeps too; alarm and pause; and
 sigtimedwait for a blocked SIGALRM. Every instant is printed in ms from the start."""
 import signal
+import subprocess
 import threading
 import time
 
@@ -40,3 +41,12 @@ info = signal.sigtimedwait({signal.SIGALRM}, 5.0)
 print(f"sigtimedwait: signal {signal.Signals(info.si_signo).name} after {ms() - start:.3f} ms", flush=True)
 none = signal.sigtimedwait({signal.SIGALRM}, 0.01)
 print(f"sigtimedwait: {none} after a 10 ms timeout, at +{ms() - start:.3f} ms", flush=True)
+
+# pause() ended by a signal the kernel raises: a child's SIGCHLD when it exits.
+start = ms()
+ended = []
+signal.signal(signal.SIGCHLD, lambda signo, frame: ended.append(ms()))
+child = subprocess.Popen(["sleep", "0.05"])
+signal.pause()
+child.wait()
+print(f"SIGCHLD: pause ended by the child's exit at +{ended[0] - start:.3f} ms", flush=True)
