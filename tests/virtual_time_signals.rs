@@ -6,7 +6,7 @@
 mod support;
 
 use support::output_text;
-use support::vt::{compiled_c, controller_log_repeated, run_virtual, scenario, summary};
+use support::vt::{assert_log_has, compiled_c, controller_log_repeated, run_virtual, scenario, summary};
 
 #[test]
 fn c_signal_timers_and_the_waits_for_them_keep_simulated_time_exactly() {
@@ -15,23 +15,24 @@ fn c_signal_timers_and_the_waits_for_them_keep_simulated_time_exactly() {
     let path = scenario(&dir, "alarm", 3.0, &[program.to_str().expect("utf-8 path")], true);
     let log = controller_log_repeated(&path, &dir);
     // Each wait ends 1 µs (the call's charge) after its instant at most.
-    for expected in [
-        "alarm: pause returned -1 (Interrupted system call) at 1000.001 ms, handler at 1000.001 ms",
-        "setitimer: 10 expirations of 20 ms in 200.002 ms",
-        "nanosleep: returned -1 (Interrupted system call) after 50.001 ms, 950.000 ms left",
-        "getitimer: 0.000000 s left",
-        "timer_create: signal SIGRTMIN, value 42, code SI_TIMER, at +5.001 ms",
-        "timer_create: signal SIGRTMIN, value 42, code SI_TIMER, at +20.001 ms",
-        // glibc's own helper thread takes the signal and starts the callback's thread: both are
-        // followed from their creation (a clone the shim traps).
-        "SIGEV_THREAD: callback with value 7 at +12.001 ms",
-        "sigsuspend: returned -1 (Interrupted system call) after 30.001 ms, 1 alarm",
-        "sigtimedwait: returned -1 (Resource temporarily unavailable) after 10.000 ms",
-        // A loop that only reads the clock gets the signal when its clock passes the instant.
-        "spin: the handler ran at +7.001 ms, after many clock reads",
-    ] {
-        assert!(log.contains(expected), "missing {expected:?} in:\n{log}");
-    }
+    assert_log_has(
+        &log,
+        &[
+            "alarm: pause returned -1 (Interrupted system call) at 1000.001 ms, handler at 1000.001 ms",
+            "setitimer: 10 expirations of 20 ms in 200.002 ms",
+            "nanosleep: returned -1 (Interrupted system call) after 50.001 ms, 950.000 ms left",
+            "getitimer: 0.000000 s left",
+            "timer_create: signal SIGRTMIN, value 42, code SI_TIMER, at +5.001 ms",
+            "timer_create: signal SIGRTMIN, value 42, code SI_TIMER, at +20.001 ms",
+            // glibc's own helper thread takes the signal and starts the callback's thread: both are
+            // followed from their creation (a clone the shim traps).
+            "SIGEV_THREAD: callback with value 7 at +12.001 ms",
+            "sigsuspend: returned -1 (Interrupted system call) after 30.001 ms, 1 alarm",
+            "sigtimedwait: returned -1 (Resource temporarily unavailable) after 10.000 ms",
+            // A loop that only reads the clock gets the signal when its clock passes the instant.
+            "spin: the handler ran at +7.001 ms, after many clock reads",
+        ],
+    );
 }
 
 #[test]
@@ -39,18 +40,19 @@ fn python_signal_timers_interrupt_sleeps_pause_and_sigtimedwait_at_their_instant
     let dir = support::scratch_dir("vt-alarm-py");
     let path = scenario(&dir, "alarm", 3.0, &["tests/vt/alarm.py"], true);
     let log = controller_log_repeated(&path, &dir);
-    for expected in [
-        // The handler runs during the sleep, which goes on to its end (PEP 475); the other
-        // thread's sleep is not disturbed.
-        "setitimer: ticks at 20.003, 40.003, 60.003, 80.003, 100.003 ms; the main thread slept until 100.005 ms, the other until 50.002 ms",
-        "alarm: pause returned after 1000.001 ms, the handler ran at +1000.001 ms",
-        "sigtimedwait: signal SIGALRM after 30.001 ms",
-        "sigtimedwait: None after a 10 ms timeout, at +40.001 ms",
-        // A signal the kernel raises (not a timer's) ends pause() too, at its instant.
-        "SIGCHLD: pause ended by the child's exit at +50.000 ms",
-    ] {
-        assert!(log.contains(expected), "missing {expected:?} in:\n{log}");
-    }
+    assert_log_has(
+        &log,
+        &[
+            // The handler runs during the sleep, which goes on to its end (PEP 475); the other
+            // thread's sleep is not disturbed.
+            "setitimer: ticks at 20.003, 40.003, 60.003, 80.003, 100.003 ms; the main thread slept until 100.005 ms, the other until 50.002 ms",
+            "alarm: pause returned after 1000.001 ms, the handler ran at +1000.001 ms",
+            "sigtimedwait: signal SIGALRM after 30.001 ms",
+            "sigtimedwait: None after a 10 ms timeout, at +40.001 ms",
+            // A signal the kernel raises (not a timer's) ends pause() too, at its instant.
+            "SIGCHLD: pause ended by the child's exit at +50.000 ms",
+        ],
+    );
 }
 
 #[test]
@@ -59,16 +61,17 @@ fn a_signal_one_controller_process_or_thread_sends_another_arrives_at_the_sender
     let program = compiled_c(&dir, "kill");
     let path = scenario(&dir, "kill", 2.0, &[program.to_str().expect("utf-8 path")], true);
     let log = controller_log_repeated(&path, &dir);
-    for expected in [
-        "parent: sent SIGUSR1 at 35.001 ms",
-        "child: SIGUSR1 at 35.001 ms, after 4 naps",
-        "parent: pthread_kill at 70.001 ms",
-        // A thread in pause() (followed on simulated time) is let go by the signal: before
-        // kill was followed it waited for ever, the signal blocked inside the shim's wait.
-        "thread: pause ended at 70.002 ms, the handler ran at 70.002 ms",
-    ] {
-        assert!(log.contains(expected), "missing {expected:?} in:\n{log}");
-    }
+    assert_log_has(
+        &log,
+        &[
+            "parent: sent SIGUSR1 at 35.001 ms",
+            "child: SIGUSR1 at 35.001 ms, after 4 naps",
+            "parent: pthread_kill at 70.001 ms",
+            // A thread in pause() (followed on simulated time) is let go by the signal: before
+            // kill was followed it waited for ever, the signal blocked inside the shim's wait.
+            "thread: pause ended at 70.002 ms, the handler ran at 70.002 ms",
+        ],
+    );
 }
 
 #[test]

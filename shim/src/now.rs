@@ -1,5 +1,6 @@
-//! The time now, as the shim itself reads it: simulated time from the block, and the host's
-//! monotonic and CPU-time clocks through libc (never through the shim's own interposers).
+//! The time now, as the shim itself reads it: simulated time from the block (and what each
+//! clock id reads at a simulated instant), and the host's monotonic and CPU-time clocks
+//! through libc (never through the shim's own interposers).
 //! Below every other module that parks or charges, which read these.
 
 use core::ffi::c_int;
@@ -7,6 +8,28 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, mode};
 use crate::sys::{self, clockid_t, real, time_t, timespec};
+
+/// TAI runs 37 s ahead of UTC (since 2017).
+const TAI_OFFSET_NS: u64 = 37_000_000_000;
+
+/// What `clock` reads at simulated time `now`, if it is one the shim answers.
+pub(crate) fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
+    let header = &shared.header;
+    let epoch = header.realtime_epoch_ns.load(Ordering::Relaxed);
+    let base = header.monotonic_base_ns.load(Ordering::Relaxed);
+    match clock {
+        sys::CLOCK_REALTIME | sys::CLOCK_REALTIME_COARSE | sys::CLOCK_REALTIME_ALARM => Some(epoch + now),
+        sys::CLOCK_TAI => Some(epoch + TAI_OFFSET_NS + now),
+        sys::CLOCK_MONOTONIC | sys::CLOCK_MONOTONIC_RAW | sys::CLOCK_MONOTONIC_COARSE | sys::CLOCK_BOOTTIME | sys::CLOCK_BOOTTIME_ALARM => Some(base + now),
+        _ => None,
+    }
+}
+
+/// Simulated time (ns since the run's start) at which `clock` reads `reading`.
+pub(crate) fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Option<u64> {
+    let zero = clock_at(shared, clock, 0)?;
+    Some(reading.saturating_sub(zero))
+}
 
 /// Simulated time now (ns since the run's start). After the run's end it goes on at the wall
 /// clock's rate from where it stopped.

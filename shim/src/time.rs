@@ -10,29 +10,7 @@ use core::sync::atomic::Ordering;
 use crate::abi::{Shared, call, release, state};
 use crate::sys::{self, clockid_t, real, time_t, timespec, timeval};
 use crate::{active, charge, note_call, park, shared};
-pub(crate) use crate::now::{from_ns, real_monotonic_ns, sim_now, to_ns};
-
-/// TAI runs 37 s ahead of UTC (since 2017).
-const TAI_OFFSET_NS: u64 = 37_000_000_000;
-
-/// What `clock` reads at simulated time `now`, if it is one the shim answers.
-pub(crate) fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
-    let header = &shared.header;
-    let epoch = header.realtime_epoch_ns.load(Ordering::Relaxed);
-    let base = header.monotonic_base_ns.load(Ordering::Relaxed);
-    match clock {
-        sys::CLOCK_REALTIME | sys::CLOCK_REALTIME_COARSE | sys::CLOCK_REALTIME_ALARM => Some(epoch + now),
-        sys::CLOCK_TAI => Some(epoch + TAI_OFFSET_NS + now),
-        sys::CLOCK_MONOTONIC | sys::CLOCK_MONOTONIC_RAW | sys::CLOCK_MONOTONIC_COARSE | sys::CLOCK_BOOTTIME | sys::CLOCK_BOOTTIME_ALARM => Some(base + now),
-        _ => None,
-    }
-}
-
-/// Simulated time (ns since the run's start) at which `clock` reads `reading`.
-pub(crate) fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Option<u64> {
-    let zero = clock_at(shared, clock, 0)?;
-    Some(reading.saturating_sub(zero))
-}
+pub(crate) use crate::now::{clock_at, from_ns, real_monotonic_ns, sim_now, sim_time_of, to_ns};
 
 /// A clock read: charged, then answered from the block (when the shim answers this clock).
 pub(crate) fn read_clock(clock: clockid_t) -> Option<u64> {

@@ -108,3 +108,10 @@ pub fn on_path(program: &str, needed_by: &str) -> String {
     assert!(!path.is_empty(), "{program} is not on PATH: {needed_by} needs it");
     path
 }
+
+/// Every one of `expected` is in the controller's `log`.
+pub fn assert_log_has(log: &str, expected: &[&str]) {
+    for line in expected {
+        assert!(log.contains(line), "missing {line:?} in:\n{log}");
+    }
+}

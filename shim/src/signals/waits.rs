@@ -1,0 +1,129 @@
+//! The waits for a signal: `pause`, `sigsuspend`, `sigtimedwait`, on simulated time.
+
+use core::ffi::c_long;
+use core::sync::atomic::Ordering;
+
+use crate::abi::{NEVER, Shared, call, release, state, waits};
+use crate::native;
+use crate::now::sim_now;
+use crate::sys::{nr, timespec};
+
+use super::timers::timespec_ns;
+use super::{EAGAIN, EINTR, EINVAL, SIGSYS_BIT, program_mask, take_due};
+
+/// Wait until a signal ends this wait, or `deadline`; why it ended (`release::SIGNAL`: a
+/// signal is pending for it). Signals come two ways: climbsim lets this thread go for a timer's
+/// or a followed thread's signal (which it then sends itself), and the kernel raises others (a
+/// child's SIGCHLD, a `kill` from a process climbsim does not follow), which wait pending while
+/// the trap handler blocks them. For those it waits as a thread on a pipe does: looking at what
+/// is pending (`ends`) whenever climbsim asks, and every millisecond of wall time.
+fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -> u32 {
+    const SLICE_NS: u64 = 1_000_000;
+    let Some(slot) = crate::my_slot() else { return release::ENDING };
+    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER, 0);
+    publish();
+    loop {
+        if slot.state.load(Ordering::Acquire) == state::RUNNING {
+            let why = slot.release.load(Ordering::Acquire);
+            if why == release::SIGNAL && !take_due(slot) {
+                publish();
+                continue;
+            }
+            if why == release::DEADLINE && sim_now(shared) < deadline {
+                publish();
+                continue;
+            }
+            return why;
+        }
+        if crate::active().is_none() {
+            slot.state.store(state::RUNNING, Ordering::Release);
+            return release::ENDING;
+        }
+        if crate::look_at_kernel(shared, slot, SLICE_NS, || ends(pending()).then_some(())).is_some() {
+            // Raised by the kernel: this thread runs again in its turn.
+            crate::resume_after_kernel_wake(shared, slot);
+            return release::SIGNAL;
+        }
+    }
+}
+
+pub(super) fn pause(shared: &Shared) -> Option<c_long> {
+    crate::note_call(shared, call::SIGNAL_WAIT);
+    let program_mask = program_mask();
+    match wait_for_signal(shared, NEVER, |pending| pending & !program_mask != 0) {
+        release::SIGNAL => Some(-EINTR),
+        _ => None,
+    }
+}
+
+/// Signals pending for this thread or its process.
+fn pending() -> u64 {
+    let mut set = 0u64;
+    native::call2(nr::RT_SIGPENDING, &mut set as *mut u64 as c_long, 8);
+    set
+}
+
+pub(super) fn sigsuspend(shared: &Shared, mask: *const u64, size: i64, program_mask: u64) -> Option<c_long> {
+    if mask.is_null() || size != 8 {
+        return Some(-EINVAL);
+    }
+    crate::note_call(shared, call::SIGNAL_WAIT);
+    // SAFETY: the caller's sigset (8 bytes, as size says).
+    let suspended = unsafe { *mask } & !SIGSYS_BIT;
+    let slot = crate::my_slot();
+    if let Some(slot) = slot {
+        slot.sig_blocked.store(suspended, Ordering::Relaxed);
+    }
+    let why = if pending() & !suspended != 0 { release::SIGNAL } else { wait_for_signal(shared, NEVER, |pending| pending & !suspended != 0) };
+    if let Some(slot) = slot {
+        slot.sig_blocked.store(program_mask, Ordering::Relaxed);
+    }
+    if why != release::SIGNAL {
+        return None;
+    }
+    // The signal is pending and the suspended mask lets it through: the kernel's own
+    // sigsuspend runs its handler with that mask, puts the program's back and returns EINTR
+    // at once.
+    let suspended = suspended as c_long;
+    Some(native::call2(nr::RT_SIGSUSPEND, &suspended as *const c_long as c_long, 8))
+}
+
+pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout: *const timespec, size: i64) -> Option<c_long> {
+    if set.is_null() || size != 8 {
+        return Some(-EINVAL);
+    }
+    crate::note_call(shared, call::SIGNAL_WAIT);
+    // SAFETY: the caller's sigset.
+    let set_bits = unsafe { *set };
+    let zero = timespec { tv_sec: 0, tv_nsec: 0 };
+    let take = || native::call4(nr::RT_SIGTIMEDWAIT, set as c_long, info as c_long, &zero as *const timespec as c_long, 8);
+    let taken = take();
+    if taken != -EAGAIN {
+        return Some(taken);
+    }
+    let deadline = if timeout.is_null() {
+        NEVER
+    } else {
+        // SAFETY: the caller's timespec.
+        let Some(ns) = timespec_ns(unsafe { &*timeout }) else { return Some(-EINVAL) };
+        if ns == 0 {
+            crate::charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+            return Some(-EAGAIN);
+        }
+        sim_now(shared).saturating_add(ns)
+    };
+    let Some(slot) = crate::my_slot() else { return None };
+    slot.sig_waiting.store(set_bits, Ordering::Relaxed);
+    let why = wait_for_signal(shared, deadline, |pending| pending & set_bits != 0);
+    slot.sig_waiting.store(0, Ordering::Relaxed);
+    match why {
+        // One of the set, or another signal whose handler runs when this call returns.
+        release::SIGNAL => Some(match take() {
+            taken if taken > 0 => taken,
+            _ => -EINTR,
+        }),
+        release::DEADLINE => Some(-EAGAIN),
+        _ => None,
+    }
+}
+
