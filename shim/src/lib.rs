@@ -53,8 +53,8 @@ use core::sync::atomic::{AtomicPtr, AtomicU32, Ordering};
 use abi::{Shared, Slot, mode, state};
 use sys::real;
 use park::{
-    advance_within_horizon, await_release, await_turn, charge, look_at_kernel, note_call, notify_scheduler, park, publish_parked, publish_waiting_on_kernel,
-    reset_computation, resume_after_kernel_wake, took_turn, yield_turn,
+    Looked, advance_within_horizon, await_release, await_turn, charge, look_at_kernel, note_call, notify_scheduler, park, publish_parked, publish_waiting_on_kernel,
+    reset_computation, resume_after_kernel_wake, took_turn, wait_looking, yield_turn,
 };
 
 /// The block, once mapped.
@@ -110,11 +110,7 @@ fn active() -> Option<&'static Shared> {
 /// threads go, so they stop waiting for it.
 fn climbsim_gone(shared: &Shared) -> bool {
     let pid = shared.header.climbsim_pid.load(Ordering::Relaxed);
-    const ESRCH: c_int = 3;
-    let saved = sys::errno();
-    // SAFETY: kill with signal 0 only checks that the process exists.
-    let gone = pid > 0 && unsafe { sys::kill(pid, 0) } != 0 && sys::errno() == ESRCH;
-    sys::set_errno(saved);
+    let gone = pid > 0 && !sys::process_lives(pid);
     if gone && !ORPHANED.swap(true, Ordering::AcqRel) {
         // Clocks go on from here at the wall clock's rate, as after a run's end.
         ORPHANED_AT.store(time::real_monotonic_ns(), Ordering::Relaxed);
@@ -302,11 +298,15 @@ fn followed(shared: &Shared, pid: i32) -> bool {
     shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == pid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
 }
 
-/// A thread that has just claimed `slot` waits, ready, for its turn.
+/// A thread that has just claimed `slot` waits, ready, for its turn (without climbsim, or
+/// after the run's end, it simply runs).
 fn start_in_turn(slot: &Slot) {
-    if let Some(shared) = active() {
-        slot.state.store(state::READY, Ordering::Release);
-        await_turn(shared, slot);
+    match active() {
+        Some(shared) => {
+            slot.state.store(state::READY, Ordering::Release);
+            await_turn(shared, slot);
+        }
+        None => slot.state.store(state::RUNNING, Ordering::Release),
     }
 }
 
@@ -438,13 +438,7 @@ fn claim_reserved(index: usize) {
         unsafe { sys::pthread_setspecific(key, 1 as *const c_void) };
     }
     // It starts in its turn: its creator runs on until it parks.
-    match active() {
-        Some(shared) => {
-            slot.state.store(state::READY, Ordering::Release);
-            await_turn(shared, slot);
-        }
-        None => slot.state.store(state::RUNNING, Ordering::Release),
-    }
+    start_in_turn(slot);
 }
 
 /// The process is ending (exit or return from main): every thread of it stops with it.

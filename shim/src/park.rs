@@ -224,6 +224,49 @@ pub(crate) fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, loo
     found
 }
 
+/// How a wait on what the kernel wakes ended (see [`wait_looking`]).
+pub(crate) enum Looked<T> {
+    /// climbsim (or a waker) let the thread go, for this reason (`abi::release`).
+    Released(u32),
+    /// The run is over, or climbsim is gone: the thread runs on the wall clock.
+    Ended,
+    /// A look found this; the thread has its turn again.
+    Found(T),
+}
+
+/// Blocked, as [`publish_waiting_on_kernel`] published it (`publish` does it again), until
+/// climbsim lets this thread go, or a look (`look`, made whenever climbsim asks and every
+/// millisecond of wall time, see [`look_at_kernel`]) finds what the kernel has woken: a pipe,
+/// an eventfd, a signal. A signal climbsim let it go for that interrupts nothing is sent, and
+/// the wait goes on.
+pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), mut look: impl FnMut() -> Option<T>) -> Looked<T> {
+    const SLICE_NS: u64 = 1_000_000;
+    let mut slices = 0u32;
+    loop {
+        slices = slices.wrapping_add(1);
+        if slices % 100 == 0 {
+            climbsim_gone(shared);
+        }
+        if slot.state.load(Ordering::Acquire) == state::RUNNING {
+            let why = slot.release.load(Ordering::Acquire);
+            if why == release::SIGNAL && !crate::signals::take_due(slot) {
+                publish();
+                continue;
+            }
+            return Looked::Released(why);
+        }
+        if active().is_none() {
+            slot.state.store(state::RUNNING, Ordering::Release);
+            return Looked::Ended;
+        }
+        if let Some(found) = look_at_kernel(shared, slot, SLICE_NS, &mut look) {
+            // Woken by the kernel: this thread runs again in its turn.
+            resume_after_kernel_wake(shared, slot);
+            return Looked::Found(found);
+        }
+    }
+}
+
 /// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on
 /// `waits`, and sleep until climbsim releases it; why it did (`abi::release`). A thread without
 /// a slot cannot be followed: it returns at once, as if its deadline had come.

@@ -154,7 +154,6 @@ unsafe extern "C" {
     pub fn fcntl(fd: c_int, command: c_int, ...) -> c_int;
     pub fn dlsym(handle: *mut c_void, symbol: *const c_char) -> *mut c_void;
     pub fn getenv(name: *const c_char) -> *mut c_char;
-    pub fn kill(pid: c_int, signal: c_int) -> c_int;
     pub fn open(path: *const c_char, flags: c_int, ...) -> c_int;
     pub fn mmap(addr: *mut c_void, len: usize, prot: c_int, flags: c_int, fd: c_int, offset: i64) -> *mut c_void;
     pub fn __cxa_atexit(func: unsafe extern "C" fn(*mut c_void), arg: *mut c_void, dso: *mut c_void) -> c_int;
@@ -208,6 +207,12 @@ pub fn getppid() -> i32 {
 
 pub fn getpid() -> i32 {
     native::call0(nr::GETPID) as i32
+}
+
+/// Whether process `pid` exists (kill with signal 0, made natively: libc's kill traps).
+pub fn process_lives(pid: i32) -> bool {
+    const ESRCH: c_long = 3;
+    pid > 0 && native::call2(nr::KILL, pid as c_long, 0) != -ESRCH
 }
 
 const FUTEX_WAIT: c_long = 0;

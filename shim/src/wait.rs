@@ -15,6 +15,7 @@ use core::sync::atomic::Ordering;
 use crate::abi::{Shared, call, release, state, waits};
 use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
 use crate::time::{from_ns, sim_now, to_ns};
+use crate::Looked;
 use crate::{active, charge, my_slot, note_call, park};
 
 /// How long a timer set to fire at once may take to show on its descriptor (wall time).
@@ -198,45 +199,28 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
 /// another followed thread (tokio's eventfd, asyncio's self-pipe, a child's output) wakes this
 /// one at the instant it was made, not whenever the host got round to it.
 fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
-    const SLICE_NS: u64 = 1_000_000;
     let Some(slot) = my_slot() else { return real_wait(Some(deadline.saturating_sub(sim_now(shared)))) };
     let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER | interest.waits(), interest.conns);
     publish();
-    let mut slices = 0u32;
     loop {
-        slices = slices.wrapping_add(1);
-        if slices % 100 == 0 {
-            crate::climbsim_gone(shared);
-        }
-        if slot.state.load(Ordering::Acquire) == state::RUNNING {
-            let why = slot.release.load(Ordering::Acquire);
-            if why == release::SIGNAL {
-                if crate::signals::take_due(slot) {
-                    return interrupted();
-                }
-                publish();
-                continue;
-            }
-            return real_wait(Some(if why == release::DATA { 1_000_000_000 } else { 0 }));
-        }
-        if crate::active().is_none() {
-            slot.state.store(state::RUNNING, Ordering::Release);
-            return real_wait(Some(deadline.saturating_sub(sim_now(shared))));
-        }
-        let look = crate::look_at_kernel(shared, slot, SLICE_NS, || {
+        let looked = crate::wait_looking(shared, slot, &publish, || {
             let ready = real_wait(Some(0));
             // The port masked as empty (bytes not visible yet) costs nothing here: the kernel
             // is never waited in.
             crate::held::take_masked();
             (ready != 0).then_some(ready)
         });
-        let Some(ready) = look else { continue };
-        // Woken by the real world: we run again in our turn, and only then say what is ready.
-        // This look may have come while another thread ran (and moved the clock), and what it
-        // found then depends on the host; in our turn everything else is parked. An epoll
-        // wait's look took its events (edge-triggered ones are not reported twice): what is
-        // ready now is added to them.
-        crate::resume_after_kernel_wake(shared, slot);
+        let ready = match looked {
+            Looked::Released(release::SIGNAL) => return interrupted(),
+            Looked::Released(why) => return real_wait(Some(if why == release::DATA { 1_000_000_000 } else { 0 })),
+            Looked::Ended => return real_wait(Some(deadline.saturating_sub(sim_now(shared)))),
+            Looked::Found(ready) => ready,
+        };
+        // Woken by the real world, and only now, in our turn, saying what is ready. The look
+        // may have come while another thread ran (and moved the clock), and what it found then
+        // depends on the host; in our turn everything else is parked. An epoll wait's look took
+        // its events (edge-triggered ones are not reported twice): what is ready now is added
+        // to them.
         let ready = match interest.epoll {
             Some(call) if ready > 0 => (call.collect_more)(shared, call, ready, interest.port_fd),
             _ => real_wait(Some(0)),

@@ -113,7 +113,7 @@ fn charged_call(shared: &Shared, what: u32) {
 fn take_timer(shared: &Shared) -> Option<(usize, &SigTimer)> {
     for (index, timer) in shared.sig_timers.iter().enumerate() {
         let held = timer.state.load(Ordering::Acquire);
-        let gone = held != timer_state::FREE && held != timer_state::BUSY && !process_lives(timer.pid.load(Ordering::Relaxed));
+        let gone = held != timer_state::FREE && held != timer_state::BUSY && !sys::process_lives(timer.pid.load(Ordering::Relaxed));
         if (held == timer_state::FREE || gone) && timer.state.compare_exchange(held, timer_state::BUSY, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
             shared.header.sig_timers_high.fetch_max(index as u32 + 1, Ordering::AcqRel);
             timer.fired.store(0, Ordering::Relaxed);
@@ -127,11 +127,6 @@ fn take_timer(shared: &Shared) -> Option<(usize, &SigTimer)> {
     }
     crate::refuse(crate::abi::refused::SIG_TIMERS);
     None
-}
-
-fn process_lives(pid: i32) -> bool {
-    const ESRCH: c_long = 3;
-    pid > 0 && native::call2(nr::KILL, pid as c_long, 0) != -ESRCH
 }
 
 /// The signals whose sending goes to the kernel as it is: 0 (a check that the target lives),
@@ -215,27 +210,12 @@ pub(crate) fn take_due(slot: &Slot) -> bool {
     interrupts
 }
 
-/// Send the timer's signal: ITIMER_REAL's as the kernel sends SIGALRM, a POSIX timer's with
-/// SI_TIMER, its id, overrun and value (glibc's SIGEV_THREAD helper needs them).
+/// Send the entry's signal: ITIMER_REAL's as the kernel sends SIGALRM; a POSIX timer's with
+/// SI_TIMER, its id, overrun and value (glibc's SIGEV_THREAD helper needs them); a followed
+/// thread's `kill` with SI_USER and the sender's pid and uid (the entry is then freed).
 fn send(timer: &SigTimer, index: usize, signo: c_int, overrun: u32, (pid, tid): (i32, i32), whole_process: bool) {
     let (pid, tid, signo) = (pid as c_long, tid as c_long, signo as c_long);
     let kind = timer.kind.load(Ordering::Relaxed);
-    if kind == timer_kind::SENT {
-        // siginfo_t of a kill: SI_USER, the sender's pid and uid.
-        let sender = timer.value.load(Ordering::Relaxed);
-        let mut info = [0i32; 32];
-        info[0] = signo as i32;
-        info[4] = sender as u32 as i32;
-        info[5] = (sender >> 32) as u32 as i32;
-        timer.state.store(timer_state::FREE, Ordering::Release);
-        let info = info.as_ptr() as c_long;
-        if whole_process {
-            native::call3(nr::RT_SIGQUEUEINFO, pid, signo, info);
-        } else {
-            native::call4(nr::RT_TGSIGQUEUEINFO, pid, tid, signo, info);
-        }
-        return;
-    }
     if kind == timer_kind::ITIMER_REAL {
         if whole_process {
             native::call2(nr::KILL, pid, signo);
@@ -244,15 +224,22 @@ fn send(timer: &SigTimer, index: usize, signo: c_int, overrun: u32, (pid, tid): 
         }
         return;
     }
-    // siginfo_t (128 bytes): signo, errno, code, then the timer's id, overrun and value.
+    // siginfo_t (128 bytes): signo, errno, code, then (at byte 16) the sender's pid and uid, or
+    // the timer's id, overrun and value.
+    let value = timer.value.load(Ordering::Relaxed);
     let mut info = [0i32; 32];
     info[0] = signo as i32;
-    info[2] = SI_TIMER;
-    info[4] = (timers::ID_BASE + index as i64) as i32;
-    info[5] = overrun.min(i32::MAX as u32) as i32;
-    let value = timer.value.load(Ordering::Relaxed);
-    info[6] = value as u32 as i32;
-    info[7] = (value >> 32) as u32 as i32;
+    if kind == timer_kind::SENT {
+        info[4] = value as u32 as i32;
+        info[5] = (value >> 32) as u32 as i32;
+        timer.state.store(timer_state::FREE, Ordering::Release);
+    } else {
+        info[2] = SI_TIMER;
+        info[4] = (timers::ID_BASE + index as i64) as i32;
+        info[5] = overrun.min(i32::MAX as u32) as i32;
+        info[6] = value as u32 as i32;
+        info[7] = (value >> 32) as u32 as i32;
+    }
     let info = info.as_ptr() as c_long;
     if whole_process {
         native::call3(nr::RT_SIGQUEUEINFO, pid, signo, info);

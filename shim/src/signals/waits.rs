@@ -3,13 +3,14 @@
 use core::ffi::c_long;
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, Shared, call, release, state, waits};
+use crate::abi::{NEVER, Shared, call, release, waits};
 use crate::native;
 use crate::now::sim_now;
+use crate::Looked;
 use crate::sys::{nr, timespec};
 
 use super::timers::timespec_ns;
-use super::{EAGAIN, EINTR, EINVAL, SIGSYS_BIT, program_mask, take_due};
+use super::{EAGAIN, EINTR, EINVAL, SIGSYS_BIT, program_mask};
 
 /// Wait until a signal ends this wait, or `deadline`; why it ended (`release::SIGNAL`: a
 /// signal is pending for it). Signals come two ways: climbsim lets this thread go for a timer's
@@ -18,31 +19,17 @@ use super::{EAGAIN, EINTR, EINVAL, SIGSYS_BIT, program_mask, take_due};
 /// the trap handler blocks them. For those it waits as a thread on a pipe does: looking at what
 /// is pending (`ends`) whenever climbsim asks, and every millisecond of wall time.
 fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -> u32 {
-    const SLICE_NS: u64 = 1_000_000;
     let Some(slot) = crate::my_slot() else { return release::ENDING };
     let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER, 0);
     publish();
     loop {
-        if slot.state.load(Ordering::Acquire) == state::RUNNING {
-            let why = slot.release.load(Ordering::Acquire);
-            if why == release::SIGNAL && !take_due(slot) {
-                publish();
-                continue;
-            }
-            if why == release::DEADLINE && sim_now(shared) < deadline {
-                publish();
-                continue;
-            }
-            return why;
-        }
-        if crate::active().is_none() {
-            slot.state.store(state::RUNNING, Ordering::Release);
-            return release::ENDING;
-        }
-        if crate::look_at_kernel(shared, slot, SLICE_NS, || ends(pending()).then_some(())).is_some() {
-            // Raised by the kernel: this thread runs again in its turn.
-            crate::resume_after_kernel_wake(shared, slot);
-            return release::SIGNAL;
+        match crate::wait_looking(shared, slot, &publish, || ends(pending()).then_some(())) {
+            // Let go before its deadline for a wait it had ended itself: it waits on.
+            Looked::Released(release::DEADLINE) if sim_now(shared) < deadline => publish(),
+            Looked::Released(why) => return why,
+            Looked::Ended => return release::ENDING,
+            // Raised by the kernel.
+            Looked::Found(()) => return release::SIGNAL,
         }
     }
 }
