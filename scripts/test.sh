@@ -59,6 +59,8 @@ if [[ -z "${CLIMBSIM_LIBFAKETIME:-}" ]]; then
 fi
 # The Java controller of the virtual-time tests runs on jSSC.
 need_debian_package libjssc-java "/usr/share/java/jssc.jar" "the Java controller of the virtual-time tests"
+# The Go controller of the virtual-time tests (built with and without cgo).
+need_debian_package golang-go "/usr/bin/go" "the Go controller of the virtual-time tests"
 stage_done "Debian packages"
 echo "==> cargo test"
 cargo test --locked --no-run "$@"

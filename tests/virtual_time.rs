@@ -8,7 +8,7 @@ use std::time::Duration;
 
 mod support;
 
-use support::vt::{command_log_repeated, compiled_c, compiled_cpp, controller_log_repeated, on_path, repeatable, run_virtual, scenario, scenario_1mbps, summary};
+use support::vt::{command_log_repeated, compiled_c, compiled_cpp, compiled_go, controller_log_repeated, on_path, repeatable, run_virtual, scenario, scenario_1mbps, summary};
 use support::{climbsim_with_sdk_python, output_text, repo, sdk_python};
 
 #[test]
@@ -541,4 +541,17 @@ fn cpp_threads_and_a_condition_variable_on_the_cpp_sdks_pattern_repeat_exactly()
     // thread needs: both are followed (the clock read, the futex waits), never a hang.
     assert!(log.contains("stats: 100 cycles, 400 replies, 200 timeouts"), "{log}");
     assert!(log.contains("loop: 100 cycles in 2000.000 ms, longest period 20.000 ms"), "{log}");
+}
+
+#[test]
+fn go_built_with_cgo_with_goroutines_and_a_channel_repeats_exactly() {
+    let dir = support::scratch_dir("vt-go");
+    let program = compiled_go(&dir, true);
+    // Go's runtime makes its own system calls from its own code (the port's reads and writes,
+    // the netpoller's epoll waits, its futexes and sleeps) and looks the vDSO up itself, and its
+    // scheduler picks at random from rdtsc and the kernel's random bytes: all followed.
+    let log = wheel_controller_repeated(&dir, "go", &[program.to_str().expect("utf-8 path")]);
+    assert!(log.contains("go with cgo: true"), "{log}");
+    // Go's timers wake from epoll waits whose timeouts are whole milliseconds.
+    assert!(log.contains("loop: 100 cycles in 2000."), "{log}");
 }

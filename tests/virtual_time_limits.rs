@@ -50,6 +50,16 @@ fn a_statically_linked_controller_is_refused() {
 }
 
 #[test]
+fn a_static_go_controller_is_refused_before_it_runs() {
+    let dir = support::scratch_dir("vt-go-static");
+    let program = support::vt::compiled_go(&dir, false);
+    let path = scenario(&dir, "go-static", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let (output, _) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(2), "{}", output_text(&output));
+    assert!(output_text(&output).contains("is statically linked"), "{}", output_text(&output));
+}
+
+#[test]
 fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
     let dir = support::scratch_dir("vt-full-pipe");
     // A write to a pipe nobody reads, larger than the pipe holds: blocked in the kernel.

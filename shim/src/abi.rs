@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 9;
+pub const ABI: u32 = 10;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -345,6 +345,9 @@ pub struct Slot {
     pub sig_blocked: AtomicU64,
     /// S: the signals a sigtimedwait of this thread waits for (0: none).
     pub sig_waiting: AtomicU64,
+    /// S: a wait on the port is for bytes past this offset of its stream only (an
+    /// edge-triggered epoll registration has reported those before; 0: any unread byte).
+    pub port_seen: AtomicU64,
 }
 
 /// `SigTimer::state`.

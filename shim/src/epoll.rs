@@ -4,7 +4,7 @@
 //! the poll family's (wait.rs).
 
 use core::ffi::{c_int, c_void};
-use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU64, Ordering};
 
 use crate::abi::call;
 use crate::sys::{real, timespec};
@@ -22,10 +22,15 @@ struct Entry {
     events: AtomicU32,
     /// The registration's user data, which is all a reported event carries.
     data: AtomicU64,
+    /// For an edge-triggered registration of the port: how far into the port's stream bytes
+    /// were visible when it was last reported readable (see `port_edge`).
+    edge_at: AtomicU64,
+    /// For an edge-triggered registration of the port: a writable edge is due.
+    writable_edge: AtomicBool,
 }
 
 #[allow(clippy::declare_interior_mutable_const)]
-const FREE: Entry = Entry { epfd: AtomicI32::new(-1), fd: AtomicI32::new(-1), events: AtomicU32::new(0), data: AtomicU64::new(0) };
+const FREE: Entry = Entry { epfd: AtomicI32::new(-1), fd: AtomicI32::new(-1), events: AtomicU32::new(0), data: AtomicU64::new(0), edge_at: AtomicU64::new(0), writable_edge: AtomicBool::new(false) };
 static ENTRIES_TABLE: [Entry; ENTRIES] = [FREE; ENTRIES];
 
 const EPOLL_CTL_ADD: c_int = 1;
@@ -35,6 +40,8 @@ const EPOLLIN: u32 = 0x1;
 const EPOLLPRI: u32 = 0x2;
 const EPOLLOUT: u32 = 0x4;
 const EPOLLRDNORM: u32 = 0x40;
+const EPOLLWRNORM: u32 = 0x100;
+const EPOLLET: u32 = 1 << 31;
 
 /// struct epoll_event: packed on x86-64 (4 + 8 bytes), padded elsewhere (4 + 4 + 8).
 #[cfg(target_arch = "x86_64")]
@@ -61,6 +68,8 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
             if let Some(entry) = find(epfd, fd) {
                 entry.events.store(events, Ordering::Relaxed);
                 entry.data.store(data, Ordering::Relaxed);
+                entry.edge_at.store(0, Ordering::Relaxed);
+                entry.writable_edge.store(true, Ordering::Relaxed);
                 return;
             }
             match ENTRIES_TABLE.iter().find(|e| e.epfd.compare_exchange(-1, epfd, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
@@ -68,6 +77,8 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
                     entry.fd.store(fd, Ordering::Relaxed);
                     entry.events.store(events, Ordering::Relaxed);
                     entry.data.store(data, Ordering::Relaxed);
+                    entry.edge_at.store(0, Ordering::Relaxed);
+                    entry.writable_edge.store(true, Ordering::Relaxed);
                 }
                 None => crate::refuse(crate::abi::refused::EPOLL),
             }
@@ -128,7 +139,7 @@ fn collect_more(shared: &crate::abi::Shared, call: EpollCall, first: c_int, port
     let tail = unsafe { base.add(first as usize * EVENT.0) };
     let saved = crate::sys::errno();
     // SAFETY: the caller's epoll instance and the free part of its array; no wait.
-    let more = mask_events(shared, call.epfd, tail.cast(), unsafe { next(call.epfd, tail.cast(), room, 0) }, port_fd);
+    let more = mask_events(shared, call.epfd, tail.cast(), room, unsafe { next(call.epfd, tail.cast(), room, 0) }, port_fd);
     crate::sys::set_errno(saved);
     let mut total = first as usize;
     for index in 0..more.max(0) as usize {
@@ -152,26 +163,33 @@ fn collect_more(shared: &crate::abi::Shared, call: EpollCall, first: c_int, port
     total as c_int
 }
 
-/// The events an epoll wait reported, without the port's readiness where nothing visible is
-/// there to read (held.rs): an event for the port's registration loses EPOLLIN, and is dropped
-/// if nothing else is left in it.
-fn mask_events(shared: &crate::abi::Shared, epfd: c_int, events: *mut c_void, ready: c_int, port_fd: Option<c_int>) -> c_int {
-    let Some(entry) = port_fd.filter(|_| ready > 0).and_then(|fd| find(epfd, fd)) else { return ready };
+/// The events an epoll wait reported (`ready` of them, in an array of `room`), without the
+/// port's readiness where nothing visible is there to read (held.rs): an event for the port's
+/// registration loses EPOLLIN, and is dropped if nothing else is left in it. An edge-triggered
+/// registration of the port gets its edges from the shim alone (`port_edge`).
+fn mask_events(shared: &crate::abi::Shared, epfd: c_int, events: *mut c_void, room: c_int, ready: c_int, port_fd: Option<c_int>) -> c_int {
+    let Some(entry) = port_fd.filter(|_| ready >= 0).and_then(|fd| find(epfd, fd)) else { return ready };
     let port_data = entry.data.load(Ordering::Relaxed);
+    let edges = port_edges(epfd, port_fd).is_some();
     let base = events.cast::<u8>();
     let mut kept = 0;
+    let mut port_event = None;
     for index in 0..ready as usize {
         // SAFETY: the kernel filled `ready` events of the caller's array.
         let event = unsafe { base.add(index * EVENT.0) };
         // SAFETY: as above.
         let mut flags = unsafe { event.cast::<u32>().read_unaligned() };
-        if event_data(event) == port_data && crate::held::hide(shared, flags & (EPOLLIN | EPOLLRDNORM) != 0) {
-            flags &= !(EPOLLIN | EPOLLRDNORM);
-            // SAFETY: as above.
-            unsafe { event.cast::<u32>().write_unaligned(flags) };
-            if flags == 0 {
-                continue;
+        if event_data(event) == port_data {
+            let hidden = if edges { EPOLLIN | EPOLLRDNORM | EPOLLOUT | EPOLLWRNORM } else { EPOLLIN | EPOLLRDNORM };
+            if edges || crate::held::hide(shared, flags & (EPOLLIN | EPOLLRDNORM) != 0) {
+                flags &= !hidden;
+                // SAFETY: as above.
+                unsafe { event.cast::<u32>().write_unaligned(flags) };
+                if flags == 0 {
+                    continue;
+                }
             }
+            port_event = Some(kept);
         }
         if kept != index {
             // SAFETY: both within the reported events; `kept` < `index`.
@@ -179,7 +197,77 @@ fn mask_events(shared: &crate::abi::Shared, epfd: c_int, events: *mut c_void, re
         }
         kept += 1;
     }
+    let added = if edges { port_edge(shared, entry) } else { 0 };
+    if added != 0 {
+        let at = match port_event {
+            Some(at) => Some(at),
+            None if kept < room as usize => {
+                kept += 1;
+                Some(kept - 1)
+            }
+            None => None,
+        };
+        if let Some(at) = at {
+            // SAFETY: within the caller's array (`at` < `room`); packed on x86-64.
+            unsafe {
+                let event = base.add(at * EVENT.0);
+                let flags = if Some(at) == port_event { event.cast::<u32>().read_unaligned() } else { 0 };
+                event.cast::<u32>().write_unaligned(flags | added);
+                event.add(EVENT.1).cast::<u64>().write_unaligned(port_data);
+            }
+        }
+    }
     kept as c_int
+}
+
+/// An edge-triggered registration of the port (Go's netpoller registers every descriptor so).
+/// The kernel's edges for it come whenever the host moves bytes: it reports the port readable
+/// once, when climbsim writes a reply ahead of its time (and not again when the bytes become
+/// visible), and writable whenever climbsim has drained what the controller wrote, at no
+/// simulated instant. So the shim gives the registration its edges itself, and takes them:
+/// readable whenever more bytes have become visible since it last said so and some are unread;
+/// writable once after it is registered, and again after a write to the port found it full.
+/// The events due now (0: none).
+fn port_edge(shared: &crate::abi::Shared, entry: &'static Entry) -> u32 {
+    let stream = crate::held::stream_now(shared);
+    let wanted = entry.events.load(Ordering::Relaxed);
+    let mut events = 0;
+    if wanted & EPOLLIN != 0 && stream.visible > entry.edge_at.load(Ordering::Relaxed) && stream.unread() > 0 {
+        entry.edge_at.store(stream.visible, Ordering::Relaxed);
+        events |= EPOLLIN;
+    }
+    if wanted & EPOLLOUT != 0 && entry.writable_edge.swap(false, Ordering::Relaxed) {
+        events |= EPOLLOUT;
+    }
+    events
+}
+
+/// A write to the port found it full (EAGAIN): its edge-triggered registrations are told when
+/// it is writable again (at once: climbsim drains the port at every instant).
+pub(crate) fn port_was_full(shared: &crate::abi::Shared) {
+    for entry in &ENTRIES_TABLE {
+        let fd = entry.fd.load(Ordering::Relaxed);
+        if entry.epfd.load(Ordering::Acquire) >= 0 && entry.events.load(Ordering::Relaxed) & EPOLLET != 0 && crate::wait::is_port(shared, fd) {
+            entry.writable_edge.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
+/// The edge-triggered registration of the port in `epfd`'s, if any: where it has seen the
+/// port's stream to (its waits are for bytes past there; see `port_edge`).
+fn port_edges(epfd: c_int, port_fd: Option<c_int>) -> Option<&'static AtomicU64> {
+    let entry = port_fd.and_then(|fd| find(epfd, fd))?;
+    (entry.events.load(Ordering::Relaxed) & EPOLLET != 0).then_some(&entry.edge_at)
+}
+
+/// The wall-clock timeout of the kernel wait for an epoll wait: none when the port's edge is
+/// due (the kernel would not report it).
+fn kernel_timeout_ms(shared: &crate::abi::Shared, epfd: c_int, port_fd: Option<c_int>, wall: Option<u64>) -> c_int {
+    let edge_due = port_edges(epfd, port_fd).is_some_and(|seen| {
+        let stream = crate::held::stream_now(shared);
+        stream.visible > seen.load(Ordering::Relaxed) && stream.unread() > 0
+    }) || port_fd.and_then(|fd| find(epfd, fd)).is_some_and(|entry| entry.writable_edge.load(Ordering::Relaxed));
+    if edge_due { 0 } else { wall_ms(wall) }
 }
 
 #[unsafe(no_mangle)]
@@ -201,8 +289,12 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
         return unsafe { next(epfd, events, max, timeout_ms) };
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
-    // SAFETY: the caller's arguments, with our timeout.
-    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| mask_events(shared, epfd, events, unsafe { next(epfd, events, max, wall_ms(wall)) }, interest.port_fd))
+    let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
+    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
+        let wall_ms = kernel_timeout_ms(shared, epfd, interest.port_fd, wall);
+        // SAFETY: the caller's arguments, with our timeout.
+        mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms) }, interest.port_fd)
+    })
 }
 
 #[unsafe(no_mangle)]
@@ -213,8 +305,12 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
         return unsafe { next(epfd, events, max, timeout_ms, sigmask) };
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
-    // SAFETY: the caller's arguments, with our timeout.
-    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| mask_events(shared, epfd, events, unsafe { next(epfd, events, max, wall_ms(wall), sigmask) }, interest.port_fd))
+    let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
+    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
+        let wall_ms = kernel_timeout_ms(shared, epfd, interest.port_fd, wall);
+        // SAFETY: the caller's arguments, with our timeout.
+        mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms, sigmask) }, interest.port_fd)
+    })
 }
 
 #[unsafe(no_mangle)]
@@ -227,10 +323,12 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
     // SAFETY: the caller's timespec, if any.
     let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
     let interest = interest(EpollCall { epfd, events, max, collect_more });
+    let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     wait(shared, call::POLL, interest, asked, &mut |wall| {
+        let wall = if kernel_timeout_ms(shared, epfd, interest.port_fd, wall) == 0 { Some(0) } else { wall };
         let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
         // SAFETY: the caller's arguments, with our timeout.
-        mask_events(shared, epfd, events, unsafe { next(epfd, events, max, limit_ptr, sigmask) }, interest.port_fd)
+        mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, limit_ptr, sigmask) }, interest.port_fd)
     })
 }

@@ -18,6 +18,13 @@ use crate::{active, charge, note_call};
 
 fn count_written(fd: c_int, written: isize) {
     if written <= 0 {
+        let errno = crate::sys::errno();
+        if written < 0 && errno == EAGAIN {
+            if let Some(shared) = active().filter(|shared| is_port(shared, fd)) {
+                crate::epoll::port_was_full(shared);
+            }
+            crate::sys::set_errno(errno);
+        }
         return;
     }
     let Some(shared) = active() else { return };

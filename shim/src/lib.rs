@@ -21,6 +21,7 @@ pub mod abi;
 mod children;
 mod epoll;
 mod futex;
+mod handlers;
 mod held;
 mod io;
 mod maps;
@@ -28,6 +29,7 @@ mod native;
 mod net;
 mod now;
 mod park;
+mod program;
 mod seccomp;
 #[cfg(target_arch = "x86_64")]
 mod signals;
@@ -44,6 +46,18 @@ mod sync;
 mod timerfd;
 mod sys;
 mod time;
+#[cfg(target_arch = "x86_64")]
+mod tsc;
+/// rdtsc is answered on x86_64 only.
+#[cfg(not(target_arch = "x86_64"))]
+mod tsc {
+    pub(crate) const SIGSEGV: core::ffi::c_int = 11;
+    pub(crate) const SIGSEGV_BIT: u64 = 1 << 10;
+    pub(crate) fn trapped() -> bool {
+        false
+    }
+    pub(crate) fn around_exec(_: bool) {}
+}
 mod wait;
 
 use core::cell::Cell;
@@ -134,8 +148,8 @@ fn shared() -> Option<&'static Shared> {
 }
 
 /// Map the block named by `CLIMBSIM_VT`. Runs before `main` in every process that preloads the
-/// shim.
-extern "C" fn init() {
+/// shim, with the arguments glibc's loader gives every `.init_array` entry.
+extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *const c_char) {
     // SAFETY: getenv with a NUL-terminated name; the result is a C string or null.
     let path = unsafe { sys::getenv(c"CLIMBSIM_VT".as_ptr()) };
     if path.is_null() {
@@ -169,10 +183,17 @@ extern "C" fn init() {
     }
     spawn::resolve_exec_functions();
     spawn::remember_shim_environment();
+    program::inspect(envp);
     if let Err(why) = seccomp::install() {
         sys::say(b"climbsim shim: ");
         sys::say(why);
         sys::say(b"; only calls through libc's symbols are followed\n");
+    }
+    #[cfg(target_arch = "x86_64")]
+    if let Err(why) = tsc::install() {
+        sys::say(b"climbsim shim: ");
+        sys::say(why);
+        sys::say(b"; the time-stamp counter is the host's\n");
     }
     // The main thread is followed from the start: before its first call it is already running.
     my_slot();
@@ -180,7 +201,7 @@ extern "C" fn init() {
 
 #[used]
 #[unsafe(link_section = ".init_array")]
-static INIT: extern "C" fn() = init;
+static INIT: extern "C" fn(c_int, *const *const c_char, *const *const c_char) = init;
 
 fn map(path: *const c_char) -> Result<(), &'static [u8]> {
     const O_RDWR: c_int = 2;

@@ -4,7 +4,7 @@
 //! parked and sleeps until climbsim (or a waker) lets it go.
 
 use core::cell::Cell;
-use core::sync::atomic::Ordering;
+use core::sync::atomic::{AtomicU64, Ordering};
 
 use crate::abi::{self, Shared, Slot, mode, release, state};
 use crate::now::{real_monotonic_ns, sim_now, thread_cpu_ns};
@@ -288,8 +288,33 @@ pub(crate) fn publish_parked(slot: &Slot, parked: u32, deadline: u64, waits: u32
     publish_state(slot, parked, deadline, waits, conn_mask);
 }
 
+thread_local! {
+    /// While an epoll wait over an edge-triggered registration of the port runs: where that
+    /// registration has seen the port's stream to (epoll.rs).
+    static PORT_SEEN: Cell<*const AtomicU64> = const { Cell::new(core::ptr::null()) };
+}
+
+/// Marks this thread's waits on the port, while it lives, as for bytes past `seen` only.
+pub(crate) struct PortSeen;
+
+impl PortSeen {
+    pub(crate) fn watch(seen: Option<&'static AtomicU64>) -> Self {
+        PORT_SEEN.with(|p| p.set(seen.map_or(core::ptr::null(), |s| s as *const AtomicU64)));
+        PortSeen
+    }
+}
+
+impl Drop for PortSeen {
+    fn drop(&mut self) {
+        PORT_SEEN.with(|p| p.set(core::ptr::null()));
+    }
+}
+
 /// The slot's wait (until `deadline`, on `waits`), then its state, which makes it seen.
 pub(crate) fn publish_state(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask: u64) {
+    let seen = PORT_SEEN.with(Cell::get);
+    // SAFETY: a registration's entry in epoll.rs's static table.
+    slot.port_seen.store(if seen.is_null() { 0 } else { unsafe { (*seen).load(Ordering::Relaxed) } }, Ordering::Relaxed);
     slot.deadline_ns.store(deadline, Ordering::Relaxed);
     slot.waits.store(waits, Ordering::Relaxed);
     slot.conn_mask.store(conn_mask, Ordering::Relaxed);

@@ -16,8 +16,9 @@
 //! and nobody can replace the handler (its wish is remembered and reported back to it).
 
 use core::ffi::{c_int, c_long, c_void};
-use core::sync::atomic::{AtomicUsize, Ordering};
+use core::sync::atomic::Ordering;
 
+use crate::handlers::{self, SIG_SETMASK};
 use crate::native;
 use crate::sys::{self, nr};
 
@@ -53,29 +54,15 @@ const TRAPPED: &[i64] = &[
     nr::CLONE3,
 ];
 
+/// What a Go program's own code traps for besides (see `install_go_filter`).
+#[cfg(target_arch = "x86_64")]
+const GO_OWN_CALLS: &[i64] = &[nr::READ, nr::WRITE, nr::CLOSE, nr::IOCTL, nr::POLL, nr::SELECT, nr::EPOLL_WAIT, nr::EPOLL_CTL, nr::EPOLL_PWAIT];
+
 /// clone's flag for a thread of the same process: only those clones trap (see `clone_thread`).
 const CLONE_THREAD: u32 = 0x0001_0000;
 const CLONE_SETTLS: i64 = 0x0008_0000;
 
-const SIGSYS: c_int = 31;
-const SIGSYS_BIT: u64 = 1 << (SIGSYS - 1);
-const EINVAL: c_long = 22;
 const ENOSYS: c_long = 38;
-const SIG_SETMASK: i64 = 2;
-
-/// The program's own wish for SIGSYS (a `KernelSigaction`'s handler, flags, restorer, mask),
-/// reported back to it by sigaction; the shim's handler stays.
-static PROGRAM_SIGSYS: [AtomicUsize; 4] = [AtomicUsize::new(0), AtomicUsize::new(0), AtomicUsize::new(0), AtomicUsize::new(0)];
-
-/// struct sigaction as the kernel takes it (rt_sigaction, x86_64).
-#[repr(C)]
-#[derive(Clone, Copy)]
-struct KernelSigaction {
-    handler: usize,
-    flags: u64,
-    restorer: usize,
-    mask: u64,
-}
 
 /// Install the SIGSYS handler and the filter; whether system calls are now followed. Called from
 /// the constructor, single-threaded, once the block is mapped.
@@ -84,7 +71,7 @@ pub(crate) fn install() -> Result<(), &'static [u8]> {
     if !native::map_page() {
         return Err(b"cannot map the shim's system-call page");
     }
-    install_handler()?;
+    handlers::install_sigsys(on_sigsys as *const () as usize)?;
     install_filter()
 }
 
@@ -103,7 +90,7 @@ pub(crate) fn install_passthrough() -> Result<(), &'static [u8]> {
     if !native::map_page() {
         return Err(b"cannot map the shim's system-call page under an inherited filter");
     }
-    install_handler()
+    handlers::install_sigsys(on_sigsys as *const () as usize)
 }
 
 #[cfg(not(target_arch = "x86_64"))]
@@ -111,113 +98,147 @@ pub(crate) fn install_passthrough() -> Result<(), &'static [u8]> {
     Ok(())
 }
 
-
-
 #[cfg(not(target_arch = "x86_64"))]
 pub(crate) fn install() -> Result<(), &'static [u8]> {
     Err(b"system calls are followed on x86_64 only")
 }
 
-#[cfg(target_arch = "x86_64")]
-fn install_handler() -> Result<(), &'static [u8]> {
-    const SA_SIGINFO: u64 = 4;
-    const SA_RESTORER: u64 = 0x0400_0000;
-    const SA_NODEFER: u64 = 0x4000_0000;
-    // The kernel's rt_sigaction from the page, not libc's: after an exec the inherited filter
-    // traps sigaction, and there is no handler yet to take the trap.
-    // While the handler runs every other signal waits: a wake-up or a wait in a signal handler
-    // that interrupted the shim's own queue work would meet its lock. SIGSYS itself stays
-    // deliverable (NODEFER), so that what the handler calls may trap again.
-    let action = KernelSigaction {
-        handler: on_sigsys as *const () as usize,
-        flags: SA_SIGINFO | SA_NODEFER | SA_RESTORER,
-        restorer: native::PAGE_ADDRESS + native::RESTORER_OFFSET,
-        mask: !SIGSYS_BIT,
-    };
-    if native::call4(nr::RT_SIGACTION, SIGSYS as c_long, &action as *const KernelSigaction as c_long, 0, 8) != 0 {
-        return Err(b"cannot install the SIGSYS handler");
-    }
-    Ok(())
+const LD_W_ABS: u16 = 0x20;
+const JEQ_K: u16 = 0x15;
+const JGE_K: u16 = 0x35;
+const JSET_K: u16 = 0x45;
+const RET_K: u16 = 0x06;
+const AUDIT_ARCH_X86_64: u32 = 0xc000_003e;
+const RET_ALLOW: u32 = 0x7fff_0000;
+const RET_TRAP: u32 = 0x0003_0000;
+/// Offsets into `struct seccomp_data`: the call's number, its ABI, the instruction pointer's
+/// low and high words, the first argument's low word.
+const NR: u32 = 0;
+const ARCH: u32 = 4;
+const IP_LOW: u32 = 8;
+const IP_HIGH: u32 = 12;
+const ARG0_LOW: u32 = 16;
+
+/// One classic BPF instruction.
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct Insn {
+    code: u16,
+    jt: u8,
+    jf: u8,
+    k: u32,
 }
 
-/// The filter: a classic BPF program over `struct seccomp_data` (nr at 0, arch at 4, the
-/// instruction pointer at 8).
+/// A filter program being written, then installed (the kernel copies it).
+struct Filter {
+    program: [Insn; 64],
+    len: usize,
+}
+
+impl Filter {
+    fn new() -> Self {
+        Filter { program: [Insn { code: 0, jt: 0, jf: 0, k: 0 }; 64], len: 0 }
+    }
+
+    fn push(&mut self, code: u16, jt: u8, jf: u8, k: u32) {
+        self.program[self.len] = Insn { code, jt, jf, k };
+        self.len += 1;
+    }
+
+    /// Calls of other ABIs (32-bit) are not followed: allowed.
+    fn allow_other_abis(&mut self) {
+        self.push(LD_W_ABS, 0, 0, ARCH);
+        self.push(JEQ_K, 1, 0, AUDIT_ARCH_X86_64);
+        self.push(RET_K, 0, 0, RET_ALLOW);
+    }
+
+    /// Five instructions: on to `inside` instructions past them when the call was made from
+    /// [start, end) (one 4 GiB range), else `outside` past them.
+    fn if_made_from(&mut self, start: u64, end: u64, inside: u8, outside: u8) {
+        self.push(LD_W_ABS, 0, 0, IP_HIGH);
+        self.push(JEQ_K, 0, 3 + outside, (start >> 32) as u32);
+        self.push(LD_W_ABS, 0, 0, IP_LOW);
+        self.push(JGE_K, 0, 1 + outside, start as u32);
+        self.push(JGE_K, outside, inside, end as u32);
+    }
+
+    /// The listed calls trap, everything else is allowed: ends the program.
+    fn trap_listed(&mut self, calls: &[i64]) {
+        let count = calls.len() as u8;
+        self.push(LD_W_ABS, 0, 0, NR);
+        for (index, &number) in calls.iter().enumerate() {
+            // Jump to the RET_TRAP after the list when equal.
+            self.push(JEQ_K, count - index as u8, 0, number as u32);
+        }
+        self.push(RET_K, 0, 0, RET_ALLOW);
+        self.push(RET_K, 0, 0, RET_TRAP);
+    }
+
+    fn install(&self) -> Result<(), &'static [u8]> {
+        #[repr(C)]
+        struct Program {
+            len: u16,
+            filter: *const Insn,
+        }
+        let filter = Program { len: self.len as u16, filter: self.program.as_ptr() };
+        const PR_SET_NO_NEW_PRIVS: c_long = 38;
+        const SECCOMP_SET_MODE_FILTER: c_long = 1;
+        const SECCOMP_FILTER_FLAG_TSYNC: c_long = 1;
+        if native::call2(nr::PRCTL, PR_SET_NO_NEW_PRIVS, 1) != 0 {
+            return Err(b"cannot set no_new_privs for the seccomp filter");
+        }
+        if native::call3(nr::SECCOMP, SECCOMP_SET_MODE_FILTER, SECCOMP_FILTER_FLAG_TSYNC, &filter as *const Program as c_long) != 0 {
+            return Err(b"the kernel refused the seccomp filter");
+        }
+        Ok(())
+    }
+}
+
+/// The filter: a classic BPF program over `struct seccomp_data`.
 #[cfg(target_arch = "x86_64")]
 fn install_filter() -> Result<(), &'static [u8]> {
-    const LD_W_ABS: u16 = 0x20;
-    const JEQ_K: u16 = 0x15;
-    const JGE_K: u16 = 0x35;
-    const RET_K: u16 = 0x06;
-    const AUDIT_ARCH_X86_64: u32 = 0xc000_003e;
-    const RET_ALLOW: u32 = 0x7fff_0000;
-    const RET_TRAP: u32 = 0x0003_0000;
-    #[repr(C)]
-    #[derive(Clone, Copy)]
-    struct Insn {
-        code: u16,
-        jt: u8,
-        jf: u8,
-        k: u32,
-    }
-    let insn = |code, jt, jf, k| Insn { code, jt, jf, k };
-    let page = native::PAGE_ADDRESS as u64;
-    let (page_high, page_low) = ((page >> 32) as u32, page as u32);
-    let mut program = [insn(0, 0, 0, 0); 64];
-    let mut n = 0;
-    let mut push = |i: Insn| {
-        program[n] = i;
-        n += 1;
-    };
-    let trapped = TRAPPED;
-    let count = trapped.len() as u8;
-    // 0: other ABIs (32-bit calls) are not followed.
-    push(insn(LD_W_ABS, 0, 0, 4));
-    push(insn(JEQ_K, 1, 0, AUDIT_ARCH_X86_64));
-    push(insn(RET_K, 0, 0, RET_ALLOW));
+    let mut filter = Filter::new();
+    filter.allow_other_abis();
     // 3: calls from the shim's page go through.
-    push(insn(LD_W_ABS, 0, 0, 12));
-    push(insn(JEQ_K, 0, 4, page_high));
-    push(insn(LD_W_ABS, 0, 0, 8));
-    push(insn(JGE_K, 0, 2, page_low));
-    push(insn(JGE_K, 1, 0, page_low + native::PAGE_BYTES as u32));
-    push(insn(RET_K, 0, 0, RET_ALLOW));
+    let page = native::PAGE_ADDRESS as u64;
+    filter.if_made_from(page, page + native::PAGE_BYTES as u64, 0, 1);
+    filter.push(RET_K, 0, 0, RET_ALLOW);
     // 9: a clone that makes a thread traps (a fork's goes through).
-    const JSET_K: u16 = 0x45;
-    push(insn(LD_W_ABS, 0, 0, 0));
-    push(insn(JEQ_K, 0, 3, nr::CLONE as u32));
-    push(insn(LD_W_ABS, 0, 0, 16));
-    push(insn(JSET_K, count + 2, 0, CLONE_THREAD));
-    push(insn(RET_K, 0, 0, RET_ALLOW));
+    filter.push(LD_W_ABS, 0, 0, NR);
+    filter.push(JEQ_K, 0, 3, nr::CLONE as u32);
+    filter.push(LD_W_ABS, 0, 0, ARG0_LOW);
+    filter.push(JSET_K, 0, 1, CLONE_THREAD);
+    filter.push(RET_K, 0, 0, RET_TRAP);
     // 14: the followed calls trap; everything else goes through.
-    for (index, &number) in trapped.iter().enumerate() {
-        // Jump to the RET_TRAP after the list when equal.
-        let to_trap = count - index as u8;
-        push(insn(JEQ_K, to_trap, 0, number as u32));
+    filter.trap_listed(TRAPPED);
+    filter.install()?;
+    match crate::program::go_text() {
+        Some((start, end)) => install_go_filter(start, end),
+        None => Ok(()),
     }
-    push(insn(RET_K, 0, 0, RET_ALLOW));
-    push(insn(RET_K, 0, 0, RET_TRAP));
-    #[repr(C)]
-    struct Program {
-        len: u16,
-        filter: *const Insn,
+}
+
+/// A Go program's own reads, writes, closes, ioctls and waits (made with its own `syscall`
+/// instructions, from its text) trap too; the same calls made anywhere else (libc's, the
+/// loader's after an exec) do not. A second filter: the kernel runs both, and a trap wins over
+/// an allow.
+#[cfg(target_arch = "x86_64")]
+fn install_go_filter(start: u64, end: u64) -> Result<(), &'static [u8]> {
+    if start >> 32 != (end - 1) >> 32 {
+        return Err(b"a Go program's text spans a 4 GiB boundary");
     }
-    let filter = Program { len: n as u16, filter: program.as_ptr() };
-    const PR_SET_NO_NEW_PRIVS: c_long = 38;
-    const SECCOMP_SET_MODE_FILTER: c_long = 1;
-    const SECCOMP_FILTER_FLAG_TSYNC: c_long = 1;
-    if native::call2(nr::PRCTL, PR_SET_NO_NEW_PRIVS, 1) != 0 {
-        return Err(b"cannot set no_new_privs for the seccomp filter");
-    }
-    if native::call3(nr::SECCOMP, SECCOMP_SET_MODE_FILTER, SECCOMP_FILTER_FLAG_TSYNC, &filter as *const Program as c_long) != 0 {
-        return Err(b"the kernel refused the seccomp filter");
-    }
-    Ok(())
+    let mut filter = Filter::new();
+    filter.allow_other_abis();
+    filter.if_made_from(start, end, 1, 0);
+    filter.push(RET_K, 0, 0, RET_ALLOW);
+    filter.trap_listed(GO_OWN_CALLS);
+    filter.install()
 }
 
 /// Offsets into the x86_64 `ucontext_t` the kernel passes: the general registers, and the
 /// signal mask restored when the handler returns.
 #[cfg(target_arch = "x86_64")]
-mod context {
+pub(crate) mod context {
     pub const GREGS: usize = 40;
     pub const SIGMASK: usize = 296;
     pub const R8: usize = 0;
@@ -227,6 +248,7 @@ mod context {
     pub const RSI: usize = 9;
     pub const RDX: usize = 12;
     pub const RAX: usize = 13;
+    pub const RCX: usize = 14;
     pub const RSP: usize = 15;
     pub const RIP: usize = 16;
 }
@@ -303,7 +325,7 @@ unsafe fn clone_thread(gregs: *mut i64, info: *mut c_void, a: [i64; 6]) {
 #[cfg(not(target_arch = "x86_64"))]
 unsafe extern "C" fn on_sigsys(_signal: c_int, _info: *mut c_void, _context: *mut c_void) {}
 
-fn native_call(number: i64, a: [i64; 6]) -> c_long {
+pub(crate) fn native_call(number: i64, a: [i64; 6]) -> c_long {
     native::call6(number, a[0], a[1], a[2], a[3], a[4], a[5])
 }
 
@@ -325,11 +347,16 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         // flags, unlike clone3's, are in a register the filter can read.
         nr::CLONE3 => return -ENOSYS,
         nr::RT_SIGPROCMASK => {
-            let result = sigprocmask(a, sigmask);
+            let result = handlers::sigprocmask(a, sigmask);
             crate::signals::mask_changed(*sigmask);
             return result;
         }
-        nr::RT_SIGACTION => return sigaction_call(a),
+        nr::RT_SIGACTION => return handlers::sigaction_call(a),
+        // A Go program's own reads, writes and waits (only those trap: see GO_OWN_CALLS).
+        // Its other signals wait meanwhile, as in a trapped futex wait.
+        nr::READ | nr::WRITE | nr::CLOSE | nr::IOCTL | nr::POLL | nr::SELECT | nr::EPOLL_WAIT | nr::EPOLL_CTL | nr::EPOLL_PWAIT if !crate::in_shim() => {
+            return own_io_call(number, a);
+        }
         // Not under the own-calls mark either: a handler that sigsuspend runs is the program's.
         nr::ALARM
         | nr::SETITIMER
@@ -391,6 +418,30 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
     handled.unwrap_or_else(|| native_as_program(number, a, sigmask))
 }
 
+/// A call a Go program made itself: what its libc symbol does in the shim, as if the program had
+/// called libc, and the result in the kernel's convention (a negative errno).
+#[cfg(target_arch = "x86_64")]
+fn own_io_call(number: i64, a: [i64; 6]) -> c_long {
+    let fd = a[0] as c_int;
+    // SAFETY: each the shim's own libc-compatible symbol, with the caller's arguments.
+    let result = unsafe {
+        match number {
+            nr::READ => crate::io::read(fd, a[1] as *mut c_void, a[2] as usize) as c_long,
+            nr::WRITE => crate::io::write(fd, a[1] as *const u8, a[2] as usize) as c_long,
+            nr::CLOSE => c_long::from(crate::io::close(fd)),
+            nr::IOCTL => c_long::from(crate::io::ioctl(fd, a[1] as u64, a[2] as *mut c_void)),
+            nr::POLL => c_long::from(crate::wait::poll(a[0] as *mut sys::pollfd, a[1] as sys::nfds_t, a[2] as c_int)),
+            nr::SELECT => c_long::from(crate::wait::select(fd, a[1] as *mut sys::fd_set, a[2] as *mut sys::fd_set, a[3] as *mut sys::fd_set, a[4] as *mut sys::timeval)),
+            nr::EPOLL_WAIT => c_long::from(crate::epoll::epoll_wait(fd, a[1] as *mut c_void, a[2] as c_int, a[3] as c_int)),
+            nr::EPOLL_CTL => c_long::from(crate::epoll::epoll_ctl(fd, a[1] as c_int, a[2] as c_int, a[3] as *mut c_void)),
+            // The kernel's sigset size (the sixth argument) is what libc passes for itself.
+            nr::EPOLL_PWAIT => c_long::from(crate::epoll::epoll_pwait(fd, a[1] as *mut c_void, a[2] as c_int, a[3] as c_int, a[4] as *const c_void)),
+            _ => return native_call(number, a),
+        }
+    };
+    if result == -1 { -c_long::from(sys::errno()) } else { result }
+}
+
 /// A trapped call that goes to the kernel as it is (a clock climbsim does not answer, after the
 /// run's end, a dormant shim's): made with the program's own signal mask, not the handler's, so
 /// that a signal interrupts it (EINTR) and its handler runs as it would have without the shim.
@@ -429,67 +480,3 @@ fn gettimeofday(tv: *mut sys::timeval) -> Option<c_long> {
     Some(0)
 }
 
-/// rt_sigprocmask inside the handler: the mask in force after the call is the one the kernel
-/// restores from the ucontext when the handler returns, so that is the one changed (never with
-/// SIGSYS in it).
-fn sigprocmask(a: [i64; 6], current: &mut u64) -> c_long {
-    const SIG_BLOCK: i64 = 0;
-    const SIG_UNBLOCK: i64 = 1;
-    let (how, set, old, size) = (a[0], a[1] as *const u64, a[2] as *mut u64, a[3]);
-    if size != 8 {
-        return -EINVAL;
-    }
-    let before = *current;
-    if !set.is_null() {
-        // SAFETY: the caller's sigset (8 bytes, as size says).
-        let set = unsafe { *set };
-        let after = match how {
-            SIG_BLOCK => before | set,
-            SIG_UNBLOCK => before & !set,
-            SIG_SETMASK => set,
-            _ => return -EINVAL,
-        };
-        // SIGKILL and SIGSTOP cannot be blocked either (the kernel drops them silently).
-        *current = after & !(SIGSYS_BIT | 1 << 8 | 1 << 18);
-    }
-    if !old.is_null() {
-        // SAFETY: the caller's sigset.
-        unsafe { *old = before };
-    }
-    0
-}
-
-/// rt_sigaction: SIGSYS stays the shim's; other handlers run with SIGSYS deliverable.
-fn sigaction_call(a: [i64; 6]) -> c_long {
-    let (signal, action, old, size) = (a[0] as c_int, a[1] as *const KernelSigaction, a[2] as *mut KernelSigaction, a[3]);
-    if size != 8 {
-        return -EINVAL;
-    }
-    if signal == SIGSYS {
-        let previous = KernelSigaction {
-            handler: PROGRAM_SIGSYS[0].load(Ordering::Relaxed),
-            flags: PROGRAM_SIGSYS[1].load(Ordering::Relaxed) as u64,
-            restorer: PROGRAM_SIGSYS[2].load(Ordering::Relaxed),
-            mask: PROGRAM_SIGSYS[3].load(Ordering::Relaxed) as u64,
-        };
-        if !action.is_null() {
-            // SAFETY: the caller's sigaction.
-            let wanted = unsafe { *action };
-            for (slot, value) in PROGRAM_SIGSYS.iter().zip([wanted.handler, wanted.flags as usize, wanted.restorer, wanted.mask as usize]) {
-                slot.store(value, Ordering::Relaxed);
-            }
-        }
-        if !old.is_null() {
-            // SAFETY: the caller's sigaction.
-            unsafe { *old = previous };
-        }
-        return 0;
-    }
-    if action.is_null() {
-        return native_call(nr::RT_SIGACTION, a);
-    }
-    // SAFETY: the caller's sigaction.
-    let mut cleaned = unsafe { *action };
-    cleaned.mask &= !SIGSYS_BIT;
-    native::call4(nr::RT_SIGACTION, signal as c_long, &cleaned as *const KernelSigaction as c_long, old as c_long, size)
-}

@@ -333,6 +333,7 @@ pub(crate) fn exec_trapped(path: usize, argv: usize, envp: usize, at: Option<(i6
     #[cfg(target_arch = "x86_64")]
     crate::signals::exec_deletes_posix_timers();
     let mut result = 0;
+    crate::tsc::around_exec(true);
     exec_with(envp, || {
         result = match at {
             Some((dirfd, flags)) => crate::native::call6(sys::nr::EXECVEAT, dirfd, path as i64, argv as i64, envp as i64, flags, 0),
@@ -340,5 +341,6 @@ pub(crate) fn exec_trapped(path: usize, argv: usize, envp: usize, at: Option<(i6
         };
         if result < 0 { -1 } else { 0 }
     });
+    crate::tsc::around_exec(false);
     result
 }

@@ -77,9 +77,12 @@ pub mod nr {
     pub const WRITE: i64 = 1;
     pub const CLOSE: i64 = 3;
     pub const FSTAT: i64 = 5;
+    pub const POLL: i64 = 7;
     pub const MMAP: i64 = 9;
     pub const RT_SIGACTION: i64 = 13;
     pub const RT_SIGPROCMASK: i64 = 14;
+    pub const IOCTL: i64 = 16;
+    pub const SELECT: i64 = 23;
     pub const SCHED_YIELD: i64 = 24;
     pub const PAUSE: i64 = 34;
     pub const NANOSLEEP: i64 = 35;
@@ -110,8 +113,11 @@ pub mod nr {
     pub const TIMER_DELETE: i64 = 226;
     pub const CLOCK_GETTIME: i64 = 228;
     pub const CLOCK_NANOSLEEP: i64 = 230;
+    pub const EPOLL_WAIT: i64 = 232;
+    pub const EPOLL_CTL: i64 = 233;
     pub const TGKILL: i64 = 234;
     pub const OPENAT: i64 = 257;
+    pub const EPOLL_PWAIT: i64 = 281;
     pub const RT_TGSIGQUEUEINFO: i64 = 297;
     pub const SECCOMP: i64 = 317;
     pub const EXECVEAT: i64 = 322;

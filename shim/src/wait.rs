@@ -49,10 +49,14 @@ impl Interest {
                 return;
             }
         }
+        // Writability is the kernel's to say: a wait for it looks at the real world.
         if write_or_error || !read {
             self.other = true;
-            return;
+            if !read {
+                return;
+            }
         }
+        // Go's netpoller registers the port for both: its reads are still the port's.
         if is_port(shared, fd) {
             self.port = true;
             self.port_fd = Some(fd);

@@ -181,16 +181,22 @@ impl VirtualTime {
     /// count caps it, for a controller that reads the port in a way the shim does not see): what
     /// a thread waiting on the port is let go for, and what a new request finds unread.
     pub fn port_unread_visible(&self) -> usize {
+        self.port_unread_and_visible().0
+    }
+
+    /// [`Self::port_unread_visible`], and how far into the port's stream bytes are visible.
+    pub(super) fn port_unread_and_visible(&self) -> (usize, u64) {
         let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
         let (visible, _) = self.shared().header.port_visible_at(self.port_written_total(), self.now_ns());
         if visible <= taken {
-            return 0;
+            return (0, visible);
         }
         let counted = usize::try_from(visible - taken).unwrap_or(usize::MAX);
-        match *lock(&self.port) {
+        let unread = match *lock(&self.port) {
             Some(port) => counted.min(queued(port.slave)),
             None => 0,
-        }
+        };
+        (unread, visible)
     }
 
     /// Replace held bytes from stream offset `start` with `bytes` (a reply corrupted on its

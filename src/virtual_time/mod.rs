@@ -450,7 +450,12 @@ impl VirtualTime {
             let waits_on = slot.waits.load(Ordering::Relaxed);
             let response = waits_on & waits::CONN != 0 && self.response_waiting(slot.conn_mask.load(Ordering::Relaxed));
             let on_port = waits_on & waits::PORT != 0;
-            if (on_port && *unread.get_or_insert_with(|| self.port_unread_visible()) > 0) || response {
+            // An edge-triggered epoll registration waits for bytes past those it has reported.
+            let port_ready = on_port && {
+                let (unread, visible) = *unread.get_or_insert_with(|| self.port_unread_and_visible());
+                unread > 0 && visible > slot.port_seen.load(Ordering::Relaxed)
+            };
+            if port_ready || response {
                 due_now.push((slot, release::DATA));
                 continue;
             }

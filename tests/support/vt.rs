@@ -101,6 +101,28 @@ pub fn compiled_cpp(dir: &Path, name: &str) -> PathBuf {
     program
 }
 
+/// tests/vt/go's controller built into `dir` with Debian's Go (scripts/test.sh installs
+/// golang-go): with cgo (dynamically linked) or without (static). Go's build cache lives in the
+/// target directory, so that a second build is quick and no home directory is needed.
+pub fn compiled_go(dir: &Path, cgo: bool) -> PathBuf {
+    let go = on_path("go", "the Go controller's tests (apt-get install golang-go; scripts/test.sh does)");
+    let program = dir.join(if cgo { "go-controller" } else { "go-controller-static" });
+    let cache = repo().join("target/go-cache");
+    let compiled = Command::new(go)
+        .args(["build", "-o"])
+        .arg(&program)
+        .arg(".")
+        .current_dir(repo().join("tests/vt/go"))
+        .env("CGO_ENABLED", if cgo { "1" } else { "0" })
+        .env("GOCACHE", cache.join("build"))
+        .env("GOPATH", cache.join("path"))
+        .env("GOTOOLCHAIN", "local")
+        .output()
+        .expect("run go build");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    program
+}
+
 /// `program`'s path on PATH (the machine's own runtimes), or a failure saying which test needs it.
 pub fn on_path(program: &str, needed_by: &str) -> String {
     let found = Command::new("sh").args(["-c", &format!("command -v {program}")]).output().expect("sh");

@@ -25,7 +25,6 @@ mod waits;
 
 pub(crate) use timers::exec_deletes_posix_timers;
 
-const SIGSYS_BIT: u64 = 1 << 30;
 const ITIMER_REAL: i64 = 0;
 /// The signals whose default action is to do nothing.
 const IGNORED_BY_DEFAULT: [c_int; 4] = [17, 18, 23, 28];

@@ -10,7 +10,7 @@ use crate::Looked;
 use crate::sys::{nr, timespec};
 
 use super::timers::timespec_ns;
-use super::{EAGAIN, EINTR, EINVAL, SIGSYS_BIT, program_mask};
+use super::{EAGAIN, EINTR, EINVAL, program_mask};
 
 /// Wait until a signal ends this wait, or `deadline`; why it ended (`release::SIGNAL`: a
 /// signal is pending for it). Signals come two ways: climbsim lets this thread go for a timer's
@@ -56,7 +56,7 @@ pub(super) fn sigsuspend(shared: &Shared, mask: *const u64, size: i64, program_m
     }
     crate::note_call(shared, call::SIGNAL_WAIT);
     // SAFETY: the caller's sigset (8 bytes, as size says).
-    let suspended = unsafe { *mask } & !SIGSYS_BIT;
+    let suspended = unsafe { *mask } & !crate::handlers::kept_signals();
     let slot = crate::my_slot();
     if let Some(slot) = slot {
         slot.sig_blocked.store(suspended, Ordering::Relaxed);

@@ -1,0 +1,198 @@
+//! The shim's own signal handlers and the program's view of them. SIGSYS (every trapped system
+//! call, seccomp.rs) and, in a Go program, SIGSEGV (its `rdtsc`, tsc.rs) stay the shim's:
+//! - nobody replaces them: the program's wish is remembered and reported back to it by
+//!   sigaction, and a fault that is not the shim's goes to the handler the program wished for;
+//! - they stay deliverable: a trapped call (or an `rdtsc`) while its signal is blocked would be
+//!   fatal, so the program's signal masks (sigprocmask, sigaction's masks) never include them.
+
+use core::ffi::{c_int, c_long, c_void};
+use core::sync::atomic::{AtomicUsize, Ordering};
+
+use crate::native;
+use crate::sys::nr;
+
+pub(crate) const SIGSYS: c_int = 31;
+pub(crate) const SIGSYS_BIT: u64 = 1 << (SIGSYS - 1);
+pub(crate) const SIG_SETMASK: i64 = 2;
+const EINVAL: c_long = 22;
+const SA_SIGINFO: u64 = 4;
+const SIG_DFL: usize = 0;
+const SIG_IGN: usize = 1;
+
+/// struct sigaction as the kernel takes it (rt_sigaction, x86_64).
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct KernelSigaction {
+    handler: usize,
+    flags: u64,
+    restorer: usize,
+    mask: u64,
+}
+
+/// The program's own wish for one of the shim's signals (a `KernelSigaction`'s handler, flags,
+/// restorer, mask).
+struct Wish([AtomicUsize; 4]);
+
+impl Wish {
+    const fn new() -> Self {
+        Wish([AtomicUsize::new(0), AtomicUsize::new(0), AtomicUsize::new(0), AtomicUsize::new(0)])
+    }
+
+    fn load(&self) -> KernelSigaction {
+        let [handler, flags, restorer, mask] = &self.0;
+        KernelSigaction {
+            handler: handler.load(Ordering::Relaxed),
+            flags: flags.load(Ordering::Relaxed) as u64,
+            restorer: restorer.load(Ordering::Relaxed),
+            mask: mask.load(Ordering::Relaxed) as u64,
+        }
+    }
+
+    fn store(&self, wanted: KernelSigaction) {
+        for (slot, value) in self.0.iter().zip([wanted.handler, wanted.flags as usize, wanted.restorer, wanted.mask as usize]) {
+            slot.store(value, Ordering::Relaxed);
+        }
+    }
+}
+
+static PROGRAM_SIGSYS: Wish = Wish::new();
+static PROGRAM_SIGSEGV: Wish = Wish::new();
+
+/// The program's wish for `signal`, if the shim keeps that signal.
+fn wish_for(signal: c_int) -> Option<&'static Wish> {
+    match signal {
+        SIGSYS => Some(&PROGRAM_SIGSYS),
+        crate::tsc::SIGSEGV if crate::tsc::trapped() => Some(&PROGRAM_SIGSEGV),
+        _ => None,
+    }
+}
+
+/// The signals the program may never block.
+pub(crate) fn kept_signals() -> u64 {
+    SIGSYS_BIT | if crate::tsc::trapped() { crate::tsc::SIGSEGV_BIT } else { 0 }
+}
+
+/// The SIGSYS handler.
+///
+/// The kernel's rt_sigaction from the page, not libc's: after an exec the inherited filter
+/// traps sigaction, and there is no handler yet to take the trap. While the handler runs every
+/// other signal waits: a wake-up or a wait in a signal handler that interrupted the shim's own
+/// queue work would meet its lock. SIGSYS itself stays deliverable (NODEFER), so that what the
+/// handler calls may trap again.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn install_sigsys(handler: usize) -> Result<(), &'static [u8]> {
+    install_own_handler(SIGSYS, handler).map_err(|_| b"cannot install the SIGSYS handler".as_slice())
+}
+
+/// One of the shim's handlers (SA_SIGINFO), with every signal but the shim's own blocked while it
+/// runs.
+///
+/// A Go program's own calls trap on a goroutine's stack, which may have 2 KiB left and which the
+/// handler's frames must not overrun: there the handlers run on the signal stack Go gives each
+/// of its threads (32 KiB). Elsewhere on the thread's own stack, as a C program's handlers do
+/// (Rust's std sets a small signal stack of its own for its overflow report).
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn install_own_handler(signal: c_int, handler: usize) -> Result<(), ()> {
+    const SA_RESTORER: u64 = 0x0400_0000;
+    const SA_NODEFER: u64 = 0x4000_0000;
+    const SA_ONSTACK: u64 = 0x0800_0000;
+    let on_stack = if crate::program::go_text().is_some() { SA_ONSTACK } else { 0 };
+    let action = KernelSigaction {
+        handler,
+        flags: SA_SIGINFO | SA_NODEFER | SA_RESTORER | on_stack,
+        restorer: native::PAGE_ADDRESS + native::RESTORER_OFFSET,
+        mask: !(SIGSYS_BIT | crate::tsc::SIGSEGV_BIT),
+    };
+    match native::call4(nr::RT_SIGACTION, signal as c_long, &action as *const KernelSigaction as c_long, 0, 8) {
+        0 => Ok(()),
+        _ => Err(()),
+    }
+}
+
+/// A fault the shim does not answer goes where the program asked: its handler, called as the
+/// kernel would have called it (the context it changes is the one the kernel resumes from); or,
+/// by default, the kernel's action (the faulting instruction runs again without the shim's
+/// handler, and the kernel ends the process as it would have).
+///
+/// # Safety
+/// The kernel's arguments of a signal being handled.
+#[cfg(target_arch = "x86_64")]
+pub(crate) unsafe fn forward_to_program(signal: c_int, info: *mut c_void, context: *mut c_void) {
+    let Some(wish) = wish_for(signal) else { return };
+    let wanted = wish.load();
+    match wanted.handler {
+        SIG_DFL | SIG_IGN => {
+            let default = KernelSigaction { handler: SIG_DFL, flags: 0, restorer: 0, mask: 0 };
+            native::call4(nr::RT_SIGACTION, signal as c_long, &default as *const KernelSigaction as c_long, 0, 8);
+        }
+        handler if wanted.flags & SA_SIGINFO != 0 => {
+            // SAFETY: the program's own three-argument handler.
+            let handler = unsafe { core::mem::transmute::<usize, unsafe extern "C" fn(c_int, *mut c_void, *mut c_void)>(handler) };
+            // SAFETY: the kernel's arguments, as the kernel would have passed them.
+            unsafe { handler(signal, info, context) };
+        }
+        handler => {
+            // SAFETY: the program's own one-argument handler.
+            let handler = unsafe { core::mem::transmute::<usize, unsafe extern "C" fn(c_int)>(handler) };
+            // SAFETY: as the kernel would have called it.
+            unsafe { handler(signal) };
+        }
+    }
+}
+
+/// rt_sigprocmask inside the SIGSYS handler: the mask in force after the call is the one the
+/// kernel restores from the ucontext when the handler returns, so that is the one changed
+/// (never with the shim's signals in it).
+pub(crate) fn sigprocmask(a: [i64; 6], current: &mut u64) -> c_long {
+    const SIG_BLOCK: i64 = 0;
+    const SIG_UNBLOCK: i64 = 1;
+    let (how, set, old, size) = (a[0], a[1] as *const u64, a[2] as *mut u64, a[3]);
+    if size != 8 {
+        return -EINVAL;
+    }
+    let before = *current;
+    if !set.is_null() {
+        // SAFETY: the caller's sigset (8 bytes, as size says).
+        let set = unsafe { *set };
+        let after = match how {
+            SIG_BLOCK => before | set,
+            SIG_UNBLOCK => before & !set,
+            SIG_SETMASK => set,
+            _ => return -EINVAL,
+        };
+        // SIGKILL and SIGSTOP cannot be blocked either (the kernel drops them silently).
+        *current = after & !(kept_signals() | 1 << 8 | 1 << 18);
+    }
+    if !old.is_null() {
+        // SAFETY: the caller's sigset.
+        unsafe { *old = before };
+    }
+    0
+}
+
+/// rt_sigaction: the shim's signals stay the shim's; other handlers run with them deliverable.
+pub(crate) fn sigaction_call(a: [i64; 6]) -> c_long {
+    let (signal, action, old, size) = (a[0] as c_int, a[1] as *const KernelSigaction, a[2] as *mut KernelSigaction, a[3]);
+    if size != 8 {
+        return -EINVAL;
+    }
+    if let Some(wish) = wish_for(signal) {
+        let previous = wish.load();
+        if !action.is_null() {
+            // SAFETY: the caller's sigaction.
+            wish.store(unsafe { *action });
+        }
+        if !old.is_null() {
+            // SAFETY: the caller's sigaction.
+            unsafe { *old = previous };
+        }
+        return 0;
+    }
+    if action.is_null() {
+        return crate::seccomp::native_call(nr::RT_SIGACTION, a);
+    }
+    // SAFETY: the caller's sigaction.
+    let mut cleaned = unsafe { *action };
+    cleaned.mask &= !kept_signals();
+    native::call4(nr::RT_SIGACTION, signal as c_long, &cleaned as *const KernelSigaction as c_long, old as c_long, size)
+}

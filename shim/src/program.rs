@@ -1,0 +1,172 @@
+//! The program this process runs, as the kernel and the loader left it: the auxiliary vector
+//! (above the environment on the initial stack) and the main executable's program headers.
+//!
+//! Three things come of it, all for runtimes that bypass libc:
+//! - The vDSO is hidden: its entry in the auxiliary vector becomes AT_IGNORE before the
+//!   program's own start code runs. libc found it long before (its clock reads are the shim's
+//!   symbols anyway); a runtime that looks it up itself (Go's `runtime.sysargs`) finds none and
+//!   reads the clock with the `clock_gettime` system call, which traps. Patching the vDSO's code
+//!   (Shadow's way) would keep those reads cheaper, but needs the vDSO's pages made writable and
+//!   its ELF symbols parsed; one word of the stack does the same here.
+//! - A Go program's own code range: Go makes its reads, writes, closes and waits with its own
+//!   `syscall` instructions, from its text. The seccomp layer traps those calls made from there
+//!   (and only there: after an exec the inherited filter must not trap a new program's loader).
+//! - The kernel's 16 random bytes for the program (AT_RANDOM) are the same in every run. libc
+//!   took its stack guard and pointer guard from them before; Go seeds its hash functions and
+//!   its scheduler's random choices from them (with `rdtsc`, tsc.rs), and a run must repeat.
+
+use core::ffi::c_char;
+use core::sync::atomic::{AtomicU64, Ordering};
+
+const AT_NULL: u64 = 0;
+const AT_IGNORE: u64 = 1;
+const AT_PHDR: u64 = 3;
+const AT_PHNUM: u64 = 5;
+const AT_RANDOM: u64 = 25;
+const AT_SYSINFO_EHDR: u64 = 33;
+/// What the kernel's 16 random bytes for the program become (see `inspect`).
+const SAME_RANDOM_BYTES: &[u8; 16] = b"climbsim virtual";
+
+const PT_LOAD: u32 = 1;
+const PT_NOTE: u32 = 4;
+const PT_PHDR: u32 = 6;
+const PF_X: u32 = 1;
+/// The Go linker's build-id note (`.note.go.buildid`): owner "Go", type 4.
+const NT_GO_BUILDID: u32 = 4;
+
+/// The executable range of a Go main program (start, end), or (0, 0).
+static GO_TEXT: [AtomicU64; 2] = [AtomicU64::new(0), AtomicU64::new(0)];
+
+/// The main program's text if it is a Go program: its own system calls are followed there.
+pub(crate) fn go_text() -> Option<(u64, u64)> {
+    let (start, end) = (GO_TEXT[0].load(Ordering::Relaxed), GO_TEXT[1].load(Ordering::Relaxed));
+    (end > start).then_some((start, end))
+}
+
+/// Look at the program (from the constructor, with the environment pointer the loader passed):
+/// hide the vDSO and note a Go program's text.
+pub(crate) fn inspect(envp: *const *const c_char) {
+    let Some(auxv) = auxiliary_vector(envp) else { return };
+    let (mut phdr, mut phnum) = (0u64, 0u64);
+    let mut index = 0;
+    loop {
+        // SAFETY: the vector's pairs up to its AT_NULL, which `auxiliary_vector` checked is there.
+        let (kind, value) = unsafe { (*auxv.add(2 * index), *auxv.add(2 * index + 1)) };
+        match kind {
+            AT_NULL => break,
+            AT_PHDR => phdr = value,
+            AT_PHNUM => phnum = value,
+            AT_RANDOM if value != 0 => {
+                // SAFETY: the kernel's 16 bytes on the writable initial stack.
+                unsafe { core::ptr::copy_nonoverlapping(SAME_RANDOM_BYTES.as_ptr(), value as *mut u8, 16) };
+            }
+            AT_SYSINFO_EHDR => {
+                // SAFETY: the entry's own type word, on the writable initial stack.
+                unsafe { *auxv.add(2 * index) = AT_IGNORE };
+            }
+            _ => {}
+        }
+        index += 1;
+    }
+    if phdr != 0 && phnum > 0 && phnum < 256 {
+        if let Some((start, end)) = go_program_text(phdr, phnum as usize) {
+            GO_TEXT[0].store(start, Ordering::Relaxed);
+            GO_TEXT[1].store(end, Ordering::Relaxed);
+        }
+    }
+}
+
+/// The auxiliary vector: after the environment's terminating null on the initial stack. Checked
+/// against libc's own copy of two of its values, so that an environment moved by an earlier
+/// constructor is never mistaken for it.
+fn auxiliary_vector(envp: *const *const c_char) -> Option<*mut u64> {
+    unsafe extern "C" {
+        fn getauxval(kind: u64) -> u64;
+    }
+    if envp.is_null() {
+        return None;
+    }
+    let mut at = envp;
+    // SAFETY: the environment the loader passed is null-terminated.
+    while !unsafe { *at }.is_null() {
+        // SAFETY: as above, not past the terminator.
+        at = unsafe { at.add(1) };
+    }
+    // SAFETY: one past the terminator: the vector, if this is the initial stack.
+    let auxv = unsafe { at.add(1) }.cast::<u64>().cast_mut();
+    // SAFETY: plain libc lookups.
+    let (want_phdr, want_phnum) = unsafe { (getauxval(AT_PHDR), getauxval(AT_PHNUM)) };
+    let (mut phdr_seen, mut phnum_seen) = (false, false);
+    for index in 0..64 {
+        // SAFETY: reading pairs until AT_NULL; the kernel's vector has a few dozen at most, and
+        // a mismatch below (not the initial stack) stops at the first pair.
+        let (kind, value) = unsafe { (*auxv.add(2 * index), *auxv.add(2 * index + 1)) };
+        match kind {
+            AT_NULL => return (phdr_seen && phnum_seen).then_some(auxv),
+            AT_PHDR if value == want_phdr => phdr_seen = true,
+            AT_PHNUM if value == want_phnum => phnum_seen = true,
+            AT_PHDR | AT_PHNUM => return None,
+            _ => {}
+        }
+        if index == 0 && kind > 64 {
+            return None;
+        }
+    }
+    None
+}
+
+/// struct Elf64_Phdr.
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct ProgramHeader {
+    kind: u32,
+    flags: u32,
+    offset: u64,
+    vaddr: u64,
+    paddr: u64,
+    filesz: u64,
+    memsz: u64,
+    align: u64,
+}
+
+/// If the main program carries Go's build-id note: its executable segment's range in memory.
+fn go_program_text(phdr: u64, count: usize) -> Option<(u64, u64)> {
+    // SAFETY: the loader's program headers of the main program, `count` of them, mapped.
+    let headers = unsafe { core::slice::from_raw_parts(phdr as *const ProgramHeader, count) };
+    // A position-independent program is loaded at a bias: where its headers are, less where
+    // they say they are.
+    let bias = headers.iter().find(|h| h.kind == PT_PHDR).map_or(0, |h| phdr.wrapping_sub(h.vaddr));
+    let is_go = headers.iter().filter(|h| h.kind == PT_NOTE).any(|h| has_go_note(bias.wrapping_add(h.vaddr), h.memsz));
+    if !is_go {
+        return None;
+    }
+    let text = headers.iter().find(|h| h.kind == PT_LOAD && h.flags & PF_X != 0)?;
+    let start = bias.wrapping_add(text.vaddr);
+    Some((start, start.checked_add(text.memsz)?))
+}
+
+/// Whether the notes at `address` (`size` bytes, mapped: notes lie in a loaded segment)
+/// include Go's build id.
+fn has_go_note(address: u64, size: u64) -> bool {
+    let align4 = |n: u64| n.div_ceil(4) * 4;
+    let mut at = 0u64;
+    while at + 12 <= size {
+        // SAFETY: within the note segment (checked above and below).
+        let word = |offset: u64| unsafe { ((address + at + offset) as *const u32).read_unaligned() };
+        let (name_size, desc_size, kind) = (u64::from(word(0)), u64::from(word(4)), word(8));
+        let name_end = 12 + align4(name_size);
+        if at + name_end > size {
+            return false;
+        }
+        // Go writes its owner as "Go\0\0" (4 bytes).
+        if kind == NT_GO_BUILDID && (3..=4).contains(&name_size) {
+            // SAFETY: the note's name, within the segment.
+            let name = unsafe { core::slice::from_raw_parts((address + at + 12) as *const u8, 3) };
+            if name == b"Go\0" {
+                return true;
+            }
+        }
+        at += name_end + align4(desc_size);
+    }
+    false
+}

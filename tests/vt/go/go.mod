@@ -1,0 +1,3 @@
+module climbsim/vt-go
+
+go 1.19
