@@ -6,18 +6,38 @@
 //!   fatal, so the program's signal masks (sigprocmask, sigaction's masks) never include them.
 
 use core::ffi::{c_int, c_long, c_void};
-use core::sync::atomic::{AtomicUsize, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use crate::native;
 use crate::sys::nr;
 
 pub(crate) const SIGSYS: c_int = 31;
 pub(crate) const SIGSYS_BIT: u64 = 1 << (SIGSYS - 1);
+pub(crate) const SIGSEGV: c_int = 11;
+const SIGSEGV_BIT: u64 = 1 << (SIGSEGV - 1);
 pub(crate) const SIG_SETMASK: i64 = 2;
 const EINVAL: c_long = 22;
 const SA_SIGINFO: u64 = 4;
 const SIG_DFL: usize = 0;
 const SIG_IGN: usize = 1;
+
+/// Offsets into the x86_64 `ucontext_t` the kernel passes: the general registers, and the
+/// signal mask restored when the handler returns.
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod context {
+    pub const GREGS: usize = 40;
+    pub const SIGMASK: usize = 296;
+    pub const R8: usize = 0;
+    pub const R9: usize = 1;
+    pub const R10: usize = 2;
+    pub const RDI: usize = 8;
+    pub const RSI: usize = 9;
+    pub const RDX: usize = 12;
+    pub const RAX: usize = 13;
+    pub const RCX: usize = 14;
+    pub const RSP: usize = 15;
+    pub const RIP: usize = 16;
+}
 
 /// struct sigaction as the kernel takes it (rt_sigaction, x86_64).
 #[repr(C)]
@@ -57,19 +77,29 @@ impl Wish {
 
 static PROGRAM_SIGSYS: Wish = Wish::new();
 static PROGRAM_SIGSEGV: Wish = Wish::new();
+/// Set once the shim's SIGSEGV handler is installed (`keep_sigsegv`).
+static SIGSEGV_KEPT: AtomicBool = AtomicBool::new(false);
 
 /// The program's wish for `signal`, if the shim keeps that signal.
 fn wish_for(signal: c_int) -> Option<&'static Wish> {
     match signal {
         SIGSYS => Some(&PROGRAM_SIGSYS),
-        crate::tsc::SIGSEGV if crate::tsc::trapped() => Some(&PROGRAM_SIGSEGV),
+        SIGSEGV if SIGSEGV_KEPT.load(Ordering::Relaxed) => Some(&PROGRAM_SIGSEGV),
         _ => None,
     }
 }
 
 /// The signals the program may never block.
 pub(crate) fn kept_signals() -> u64 {
-    SIGSYS_BIT | if crate::tsc::trapped() { crate::tsc::SIGSEGV_BIT } else { 0 }
+    SIGSYS_BIT | if SIGSEGV_KEPT.load(Ordering::Relaxed) { SIGSEGV_BIT } else { 0 }
+}
+
+/// The shim's SIGSEGV handler (tsc.rs's), kept from here on as SIGSYS's is.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn keep_sigsegv(handler: usize) -> Result<(), &'static [u8]> {
+    install_own_handler(SIGSEGV, handler).map_err(|_| b"cannot install the SIGSEGV handler for rdtsc".as_slice())?;
+    SIGSEGV_KEPT.store(true, Ordering::Relaxed);
+    Ok(())
 }
 
 /// The SIGSYS handler.
@@ -92,7 +122,7 @@ pub(crate) fn install_sigsys(handler: usize) -> Result<(), &'static [u8]> {
 /// of its threads (32 KiB). Elsewhere on the thread's own stack, as a C program's handlers do
 /// (Rust's std sets a small signal stack of its own for its overflow report).
 #[cfg(target_arch = "x86_64")]
-pub(crate) fn install_own_handler(signal: c_int, handler: usize) -> Result<(), ()> {
+fn install_own_handler(signal: c_int, handler: usize) -> Result<(), ()> {
     const SA_RESTORER: u64 = 0x0400_0000;
     const SA_NODEFER: u64 = 0x4000_0000;
     const SA_ONSTACK: u64 = 0x0800_0000;
@@ -101,7 +131,7 @@ pub(crate) fn install_own_handler(signal: c_int, handler: usize) -> Result<(), (
         handler,
         flags: SA_SIGINFO | SA_NODEFER | SA_RESTORER | on_stack,
         restorer: native::PAGE_ADDRESS + native::RESTORER_OFFSET,
-        mask: !(SIGSYS_BIT | crate::tsc::SIGSEGV_BIT),
+        mask: !(SIGSYS_BIT | SIGSEGV_BIT),
     };
     match native::call4(nr::RT_SIGACTION, signal as c_long, &action as *const KernelSigaction as c_long, 0, 8) {
         0 => Ok(()),
@@ -189,7 +219,7 @@ pub(crate) fn sigaction_call(a: [i64; 6]) -> c_long {
         return 0;
     }
     if action.is_null() {
-        return crate::seccomp::native_call(nr::RT_SIGACTION, a);
+        return native::call6(nr::RT_SIGACTION, a[0], a[1], a[2], a[3], a[4], a[5]);
     }
     // SAFETY: the caller's sigaction.
     let mut cleaned = unsafe { *action };

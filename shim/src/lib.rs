@@ -51,11 +51,6 @@ mod tsc;
 /// rdtsc is answered on x86_64 only.
 #[cfg(not(target_arch = "x86_64"))]
 mod tsc {
-    pub(crate) const SIGSEGV: core::ffi::c_int = 11;
-    pub(crate) const SIGSEGV_BIT: u64 = 1 << 10;
-    pub(crate) fn trapped() -> bool {
-        false
-    }
     pub(crate) fn around_exec(_: bool) {}
 }
 mod wait;

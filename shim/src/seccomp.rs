@@ -18,7 +18,7 @@
 use core::ffi::{c_int, c_long, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::handlers::{self, SIG_SETMASK};
+use crate::handlers::{self, SIG_SETMASK, context};
 use crate::native;
 use crate::sys::{self, nr};
 
@@ -235,23 +235,6 @@ fn install_go_filter(start: u64, end: u64) -> Result<(), &'static [u8]> {
     filter.install()
 }
 
-/// Offsets into the x86_64 `ucontext_t` the kernel passes: the general registers, and the
-/// signal mask restored when the handler returns.
-#[cfg(target_arch = "x86_64")]
-pub(crate) mod context {
-    pub const GREGS: usize = 40;
-    pub const SIGMASK: usize = 296;
-    pub const R8: usize = 0;
-    pub const R9: usize = 1;
-    pub const R10: usize = 2;
-    pub const RDI: usize = 8;
-    pub const RSI: usize = 9;
-    pub const RDX: usize = 12;
-    pub const RAX: usize = 13;
-    pub const RCX: usize = 14;
-    pub const RSP: usize = 15;
-    pub const RIP: usize = 16;
-}
 
 #[cfg(target_arch = "x86_64")]
 unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut c_void) {

@@ -22,13 +22,11 @@ use crate::sys::nr;
 const PR_SET_TSC: c_long = 26;
 const PR_TSC_ENABLE: c_long = 1;
 const PR_TSC_SIGSEGV: c_long = 2;
-pub(crate) const SIGSEGV: c_int = 11;
-pub(crate) const SIGSEGV_BIT: u64 = 1 << (SIGSEGV - 1);
 
 static TRAPPED: AtomicBool = AtomicBool::new(false);
 
 /// Whether this process's `rdtsc` faults into the shim.
-pub(crate) fn trapped() -> bool {
+fn trapped() -> bool {
     TRAPPED.load(Ordering::Relaxed)
 }
 
@@ -39,7 +37,7 @@ pub(crate) fn install() -> Result<(), &'static [u8]> {
     if crate::program::go_text().is_none() {
         return Ok(());
     }
-    crate::handlers::install_own_handler(SIGSEGV, on_sigsegv as *const () as usize).map_err(|_| b"cannot install the SIGSEGV handler for rdtsc".as_slice())?;
+    crate::handlers::keep_sigsegv(on_sigsegv as *const () as usize)?;
     if native::call2(nr::PRCTL, PR_SET_TSC, PR_TSC_SIGSEGV) != 0 {
         return Err(b"the kernel cannot make rdtsc fault (PR_SET_TSC)");
     }
@@ -65,7 +63,7 @@ fn counter() -> u64 {
 
 #[cfg(target_arch = "x86_64")]
 unsafe extern "C" fn on_sigsegv(signal: c_int, info: *mut c_void, context: *mut c_void) {
-    use crate::seccomp::context as regs;
+    use crate::handlers::context as regs;
     // A general-protection fault (rdtsc with the flag set) comes as SI_KERNEL.
     const SI_KERNEL: c_int = 0x80;
     // SAFETY: the kernel's siginfo: si_code is its third int.
