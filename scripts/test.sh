@@ -93,8 +93,8 @@ stage_done "the full-disk test"
 # load), then the 1 Mbps external scenario once more on the wall clock, so that the real-time
 # path (libfaketime aside) stays tested.
 climbsim="${CARGO_TARGET_DIR:-$repo/target}/debug/climbsim"
-echo "==> climbsim check scenarios/ --clock virtual"
-PATH="$venv/bin:$PATH" "$climbsim" check scenarios/ --clock virtual --junit target/check/junit.xml --out target/check
+echo "==> climbsim check scenarios/ --clock virtual --jobs 2"
+PATH="$venv/bin:$PATH" "$climbsim" check scenarios/ --clock virtual --jobs 2 --junit target/check/junit.xml --out target/check
 echo "==> climbsim check scenarios/external-line-follower.toml --clock wall --speed 1 --pace-tolerance-ms 30"
 PATH="$venv/bin:$PATH" "$climbsim" check scenarios/external-line-follower.toml --clock wall --speed 1 --pace-tolerance-ms 30 --junit target/check/junit-wall.xml --out target/check-wall
 stage_done "climbsim check scenarios/"

@@ -76,6 +76,20 @@ fn check_fails_on_a_broken_threshold_and_writes_junit() {
     assert!(listed.iter().any(|f| f.as_str().is_some_and(|f| f.contains("max_abs_distance_m"))), "{summary}");
     let passed: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("runs/pass/summary.json")).expect("summary")).expect("json");
     assert!(passed.get("failures").is_none(), "{passed}");
+    // Side by side (--jobs 2): the same verdicts and the same runs (lockstep repeats whatever
+    // else runs), each verdict said once, the JUnit cases in the files' order.
+    std::fs::write(dir.join("pass2.toml"), format!("{base}[expect]\n\"max_abs_distance_m\" = {{ max = 0.1 }}\n")).expect("write");
+    let jobs_out = dir.join("runs-jobs").display().to_string();
+    let output = climbsim(&["check", &dir.display().to_string(), "--jobs", "2", "--junit", &junit_arg, "--out", &jobs_out]);
+    assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+    let all = text(&output);
+    assert_eq!(all.matches("PASS ").count(), 2, "{all}");
+    assert_eq!(all.matches("FAIL ").count(), 1, "{all}");
+    let xml = std::fs::read_to_string(&junit).expect("junit");
+    let order: Vec<usize> = ["fail.toml", "pass.toml", "pass2.toml"].iter().map(|name| xml.find(name).unwrap_or_else(|| panic!("{name} missing in {xml}"))).collect();
+    assert!(order.windows(2).all(|w| w[0] < w[1]), "{xml}");
+    let series = |root: &str| std::fs::read(Path::new(root).join("pass/timeseries.csv")).expect("timeseries.csv");
+    assert!(series(&out_arg) == series(&jobs_out), "a run checked beside another differs");
     // And `run` alike.
     let run_out = dir.join("run-fail");
     let output = climbsim(&["run", &fail.display().to_string(), "--out", &run_out.display().to_string()]);

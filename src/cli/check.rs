@@ -25,6 +25,10 @@ pub struct CheckArgs {
     pub out: PathBuf,
     #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
     pub robot: PathBuf,
+    /// Scenarios checked at once. Runs on virtual time or in lockstep give the same verdicts
+    /// side by side; wall-clock runs compete for the CPU, and their pace shows it.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..))]
+    pub jobs: u16,
     /// An external controller runs on virtual time unless `--clock wall` (or `--speed N`) is
     /// given; built-in ones always run in lockstep, as fast as the CPU allows.
     #[command(flatten)]
@@ -32,12 +36,12 @@ pub struct CheckArgs {
 }
 
 pub fn exec(args: CheckArgs) -> Result<()> {
-    let CheckArgs { paths, junit, out, robot, pace } = args;
+    let CheckArgs { paths, junit, out, robot, jobs, pace } = args;
     interrupt::install()?;
     let robot = load_robot(&robot)?;
     preflight_dir(&out, "--out")?;
     if let Some(path) = &junit {
         preflight_file(path, "--junit")?;
     }
-    Ok(check(&paths, &robot, &out, junit.as_deref(), pace.pace_defaulting_to(ClockArg::Virtual)?, interrupt::flag(), &Terminal)?)
+    Ok(check(&paths, &robot, &out, junit.as_deref(), pace.pace_defaulting_to(ClockArg::Virtual)?, usize::from(jobs), interrupt::flag(), &Terminal)?)
 }

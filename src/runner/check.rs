@@ -2,7 +2,8 @@
 //! own verdict (controller, world, pace); JUnit for CI.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
 use crate::report::junit::{JunitCase, write_junit};
@@ -37,82 +38,113 @@ fn scenario_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Check every scenario in `paths` (each into its own folder under `out_root`), say each
-/// verdict as it comes, and write JUnit to `junit` if asked. Ok when all passed; otherwise
-/// [`RunnerError::Failed`] (a run failed), [`RunnerError::Interrupted`] (JUnit then holds the
-/// cases run and the interrupted one), or an error for scenarios that could not be loaded or run.
-pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit: Option<&Path>, pace: Pace, stop: &AtomicBool, console: &dyn Console) -> Result<()> {
+/// How one scenario's check ended.
+enum Checked {
+    Passed,
+    Failed,
+    /// It could not be loaded or run (a broken scenario, a run that could not start).
+    Broken,
+    Interrupted(String),
+}
+
+/// Check every scenario in `paths` (each into its own folder under `out_root`), `jobs` at once,
+/// say each verdict as it comes, and write JUnit to `junit` if asked (the cases in the files'
+/// order). Ok when all passed; otherwise [`RunnerError::Failed`] (a run failed),
+/// [`RunnerError::Interrupted`] (JUnit then holds the cases run and the interrupted ones), or an
+/// error for scenarios that could not be loaded or run.
+///
+/// Runs on virtual time or in lockstep repeat whatever else the machine does, so checking them
+/// side by side changes no verdict; wall-clock runs at once compete for the CPU, and their pace
+/// shows it.
+#[allow(clippy::too_many_arguments)]
+pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit: Option<&Path>, pace: Pace, jobs: usize, stop: &AtomicBool, console: &dyn Console) -> Result<()> {
     let files = scenario_files(paths)?;
     if files.is_empty() {
         return Err(RunnerError::Invalid(format!("no scenario files with an [expect] section in {}", paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))));
     }
-    let mut cases = Vec::new();
-    let (mut broken, mut interrupted) = (0, None);
-    for file in &files {
-        if stop.load(Ordering::Relaxed) {
-            break;
-        }
-        let started = Instant::now();
-        let name = file.display().to_string();
-        let out_dir = out_root.join(default_out_dir(file).file_name().unwrap_or_default());
-        let mut system_out = None;
-        let broken_before = broken;
-        let failures = match Scenario::load(file) {
-            Err(error) => {
-                broken += 1;
-                vec![error.to_string()]
-            }
-            Ok(scenario) if scenario.expect.is_empty() => {
-                broken += 1;
-                vec![format!("{name} has no [expect] thresholds")]
-            }
-            Ok(scenario) => {
-                let result = run_scenario(&scenario, robot, &out_dir, pace, stop, console);
-                if matches!(scenario.controller, ControllerSection::External(_)) {
-                    system_out = read_tail(&out_dir.join("controller.log"), SYSTEM_OUT_BYTES);
-                }
-                match result {
-                    Ok(mut outcome) => match judge(&mut outcome, &scenario, &out_dir) {
-                        Ok(found) => found,
-                        Err(error) => {
-                            broken += 1;
-                            vec![describe(&error)]
-                        }
-                    },
-                    Err(error) => {
-                        match &error {
-                            RunnerError::Interrupted(message) => interrupted = Some(message.clone()),
-                            _ => broken += 1,
-                        }
-                        vec![describe(&error)]
+    let next = AtomicUsize::new(0);
+    // Once a run is interrupted no new one starts (the others under way stop and write).
+    let halted = AtomicBool::new(false);
+    let results: Mutex<Vec<(usize, JunitCase, Checked)>> = Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.clamp(1, files.len()) {
+            scope.spawn(|| {
+                while !stop.load(Ordering::Relaxed) && !halted.load(Ordering::Relaxed) {
+                    let index = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(file) = files.get(index) else { break };
+                    let (case, checked) = check_one(file, robot, out_root, pace, stop, console);
+                    if matches!(checked, Checked::Interrupted(_)) {
+                        halted.store(true, Ordering::Relaxed);
                     }
+                    results.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push((index, case, checked));
                 }
-            }
-        };
-        let verdict = if failures.is_empty() { "PASS" } else if interrupted.is_some() { "INTERRUPTED" } else if broken > broken_before { "ERROR" } else { "FAIL" };
-        console.say(&format!("{verdict} {name} ({:.1} s)", started.elapsed().as_secs_f64()));
-        for failure in &failures {
-            console.say(&format!("    {failure}"));
+            });
         }
-        cases.push(JunitCase { name, time_s: started.elapsed().as_secs_f64(), failure_messages: failures, system_out, broken: broken > broken_before });
-        if interrupted.is_some() {
-            break;
-        }
-    }
+    });
+    let mut results = results.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
+    results.sort_by_key(|(index, _, _)| *index);
+    let failed = results.iter().filter(|(_, case, _)| !case.failure_messages.is_empty()).count();
+    let broken = results.iter().filter(|(_, _, checked)| matches!(checked, Checked::Broken)).count();
+    let interrupted = results.iter().find_map(|(_, _, checked)| match checked {
+        Checked::Interrupted(message) => Some(message.clone()),
+        _ => None,
+    });
+    let checked_count = results.len();
     if let Some(path) = junit {
+        let cases: Vec<JunitCase> = results.into_iter().map(|(_, case, _)| case).collect();
         write_junit(path, "climbsim check", &cases)?;
     }
-    let failed = cases.iter().filter(|c| !c.failure_messages.is_empty()).count();
-    if stop.load(Ordering::Relaxed) {
+    if stop.load(Ordering::Relaxed) || interrupted.is_some() {
         let message = interrupted.unwrap_or_else(|| "interrupted".to_owned());
-        return Err(RunnerError::Interrupted(format!("{message}; {} of {} scenarios were checked", cases.len(), files.len())));
+        return Err(RunnerError::Interrupted(format!("{message}; {checked_count} of {} scenarios were checked", files.len())));
     }
     if broken > 0 {
-        return Err(RunnerError::Invalid(format!("{failed} of {} scenarios failed, {broken} of them could not be loaded or run", cases.len())));
+        return Err(RunnerError::Invalid(format!("{failed} of {checked_count} scenarios failed, {broken} of them could not be loaded or run")));
     }
     if failed > 0 {
-        return Err(RunnerError::Failed(format!("{failed} of {} scenarios failed", cases.len())));
+        return Err(RunnerError::Failed(format!("{failed} of {checked_count} scenarios failed")));
     }
-    console.say(&format!("all {} scenarios passed", cases.len()));
+    console.say(&format!("all {checked_count} scenarios passed"));
     Ok(())
+}
+
+/// Check one scenario file into its folder under `out_root`; its verdict said as it comes.
+fn check_one(file: &Path, robot: &RobotDescription, out_root: &Path, pace: Pace, stop: &AtomicBool, console: &dyn Console) -> (JunitCase, Checked) {
+    let started = Instant::now();
+    let name = file.display().to_string();
+    let out_dir = out_root.join(default_out_dir(file).file_name().unwrap_or_default());
+    let mut system_out = None;
+    let (failures, checked) = match Scenario::load(file) {
+        Err(error) => (vec![error.to_string()], Checked::Broken),
+        Ok(scenario) if scenario.expect.is_empty() => (vec![format!("{name} has no [expect] thresholds")], Checked::Broken),
+        Ok(scenario) => {
+            let result = run_scenario(&scenario, robot, &out_dir, pace, stop, console);
+            if matches!(scenario.controller, ControllerSection::External(_)) {
+                system_out = read_tail(&out_dir.join("controller.log"), SYSTEM_OUT_BYTES);
+            }
+            match result {
+                Ok(mut outcome) => match judge(&mut outcome, &scenario, &out_dir) {
+                    Ok(found) if found.is_empty() => (found, Checked::Passed),
+                    Ok(found) => (found, Checked::Failed),
+                    Err(error) => (vec![describe(&error)], Checked::Broken),
+                },
+                Err(RunnerError::Interrupted(message)) => (vec![describe(&RunnerError::Interrupted(message.clone()))], Checked::Interrupted(message)),
+                Err(error) => (vec![describe(&error)], Checked::Broken),
+            }
+        }
+    };
+    let verdict = match checked {
+        Checked::Passed => "PASS",
+        Checked::Failed => "FAIL",
+        Checked::Broken => "ERROR",
+        Checked::Interrupted(_) => "INTERRUPTED",
+    };
+    // One call per scenario, so that lines of runs side by side do not interleave.
+    let mut lines = format!("{verdict} {name} ({:.1} s)", started.elapsed().as_secs_f64());
+    for failure in &failures {
+        lines.push_str(&format!("\n    {failure}"));
+    }
+    console.say(&lines);
+    let case = JunitCase { name, time_s: started.elapsed().as_secs_f64(), failure_messages: failures, system_out, broken: matches!(checked, Checked::Broken) };
+    (case, checked)
 }
