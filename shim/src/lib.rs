@@ -151,6 +151,7 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
         // Dormant; but a program exec'd by a followed one that dropped CLIMBSIM_VT (to run on
         // the wall clock) inherits the seccomp filter, and its trapped calls need the handler.
         if seccomp::inherited() {
+            program::inspect(envp, false);
             spawn::remember_shim_environment();
             if let Err(why) = seccomp::install_passthrough() {
                 sys::say(b"climbsim shim: ");
@@ -178,7 +179,7 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
     }
     spawn::resolve_exec_functions();
     spawn::remember_shim_environment();
-    program::inspect(envp);
+    program::inspect(envp, true);
     if let Err(why) = seccomp::install() {
         sys::say(b"climbsim shim: ");
         sys::say(why);

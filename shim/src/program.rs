@@ -44,8 +44,10 @@ pub(crate) fn go_text() -> Option<(u64, u64)> {
 }
 
 /// Look at the program (from the constructor, with the environment pointer the loader passed):
-/// hide the vDSO and note a Go program's text.
-pub(crate) fn inspect(envp: *const *const c_char) {
+/// note a Go program's text and, if the program is `followed`, hide the vDSO and fix the random
+/// bytes. (A dormant shim under an inherited filter only needs to know whether its handler
+/// must run on the signal stack.)
+pub(crate) fn inspect(envp: *const *const c_char, followed: bool) {
     let Some(auxv) = auxiliary_vector(envp) else { return };
     let (mut phdr, mut phnum) = (0u64, 0u64);
     let mut index = 0;
@@ -56,11 +58,11 @@ pub(crate) fn inspect(envp: *const *const c_char) {
             AT_NULL => break,
             AT_PHDR => phdr = value,
             AT_PHNUM => phnum = value,
-            AT_RANDOM if value != 0 => {
+            AT_RANDOM if followed && value != 0 => {
                 // SAFETY: the kernel's 16 bytes on the writable initial stack.
                 unsafe { core::ptr::copy_nonoverlapping(SAME_RANDOM_BYTES.as_ptr(), value as *mut u8, 16) };
             }
-            AT_SYSINFO_EHDR => {
+            AT_SYSINFO_EHDR if followed => {
                 // SAFETY: the entry's own type word, on the writable initial stack.
                 unsafe { *auxv.add(2 * index) = AT_IGNORE };
             }
