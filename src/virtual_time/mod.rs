@@ -34,8 +34,8 @@ use std::time::Duration;
 
 use thiserror::Error;
 
-use abi::{NEVER, mode, release, state, waits};
-use turns::{let_run, release_slot};
+use abi::{NEVER, mode, release, state};
+use turns::let_run;
 use block::Block;
 pub use held::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, await_pty_hand_over};
 pub use shim_file::{shim_bytes, shim_path};
@@ -424,79 +424,6 @@ impl VirtualTime {
         }
     }
 
-    /// Fire the port session's timers and the controller's signal timers due by `now`; a thread
-    /// let go for a signal takes the turn.
-    fn fire_all(&self, now: u64) {
-        self.fire_timers(now);
-        if self.fire_signal_timers(now) {
-            self.give_turn();
-        }
-    }
-
-    /// Let go every parked thread whose instant is `now` (its deadline, its spin's next byte, or
-    /// data for it), and set the horizon for those that run. `next_reply`: the next timer or
-    /// held reply.
-    fn let_go_at(&self, now: u64, next_timer: u64, next_reply: u64) -> LetGo {
-        let header = &self.shared().header;
-        let mut unread = None;
-        let mut due_now = Vec::new();
-        let mut next_thread = NEVER;
-        let mut blocked_on_port = false;
-        for slot in self.shared().live_slots() {
-            let parked = slot.state.load(Ordering::Acquire);
-            if parked != state::BLOCKED && parked != state::YIELDED {
-                continue;
-            }
-            let waits_on = slot.waits.load(Ordering::Relaxed);
-            let response = waits_on & waits::CONN != 0 && self.response_waiting(slot.conn_mask.load(Ordering::Relaxed));
-            let on_port = waits_on & waits::PORT != 0;
-            // An edge-triggered epoll registration waits for bytes past those it has reported.
-            let port_ready = on_port && {
-                let (unread, visible) = *unread.get_or_insert_with(|| self.port_unread_and_visible());
-                unread > 0 && visible > slot.port_seen.load(Ordering::Relaxed)
-            };
-            if port_ready || response {
-                due_now.push((slot, release::DATA));
-                continue;
-            }
-            blocked_on_port |= on_port && waits_on & waits::SPIN == 0;
-            let mut at = slot.deadline_ns.load(Ordering::Relaxed);
-            if waits_on & waits::SPIN != 0 {
-                // A spin on the port goes on to the next byte due on it (its own deadline
-                // bounds the jump).
-                at = at.min(next_reply);
-            }
-            if at <= now {
-                due_now.push((slot, release::DEADLINE));
-            } else {
-                next_thread = next_thread.min(at);
-            }
-        }
-        // Not the world's next tick: a thread may run past it (the world catches up). Nor a
-        // held reply's instant, unless a thread blocked on the port must be let go then.
-        let horizon = next_thread.min(next_timer).min(if blocked_on_port { next_reply } else { NEVER });
-        header.horizon_ns.store(horizon, Ordering::Release);
-        header.port_next_due_ns.store(next_timer, Ordering::Release);
-        let released = !due_now.is_empty();
-        if released {
-            let mut stats = lock(&self.stats);
-            for (slot, why) in due_now {
-                match why {
-                    release::DATA => stats.released_for_data += 1,
-                    _ => stats.released_at_deadline += 1,
-                }
-                release_slot(slot, why);
-            }
-        }
-        if released {
-            // Every thread is parked here: the first of them runs at once, while the world
-            // catches up or ticks (it sees the world only through replies made at their
-            // instants); the others get their turns as it parks.
-            self.give_turn();
-        }
-        LetGo { released, next: next_thread.min(next_reply) }
-    }
-
     /// Wait until no controller thread runs and every byte it wrote has been read, running the
     /// driven futures meanwhile; or until the controller, parked, is at or past the world's
     /// next tick `due`: that tick runs first, and what the controller sent is read after it (a
@@ -594,14 +521,6 @@ impl VirtualTime {
             _ => std::thread::sleep(Duration::from_micros(20)),
         }
     }
-}
-
-/// What [`VirtualTime::let_go_at`] did.
-struct LetGo {
-    /// Some thread was let go.
-    released: bool,
-    /// The next instant a parked thread is due, or a reply ([`NEVER`]: none).
-    next: u64,
 }
 
 /// Ends the run when dropped (see [`VirtualTime::end_on_drop`]).
