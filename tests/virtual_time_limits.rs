@@ -52,7 +52,7 @@ fn a_statically_linked_controller_is_refused() {
 #[test]
 fn a_static_go_controller_is_refused_before_it_runs() {
     let dir = support::scratch_dir("vt-go-static");
-    let program = support::vt::compiled_go(&dir, false);
+    let program = support::vt::compiled_go(&dir, ".", false);
     let path = scenario(&dir, "go-static", 2.0, &[program.to_str().expect("utf-8 path")], true);
     let (output, _) = run_virtual(&path, &dir.join("out"));
     assert_eq!(output.status.code(), Some(2), "{}", output_text(&output));

@@ -74,12 +74,17 @@ unsafe extern "C" fn on_sigsegv(signal: c_int, info: *mut c_void, context: *mut 
         // SAFETY: the saved instruction pointer, and the instruction there (a fault on it means
         // it is mapped and executable, so readable).
         let rip = unsafe { *gregs.add(regs::RIP) } as *const u8;
-        // SAFETY: as above; rdtsc is 2 bytes and rdtscp 3, and a fault at the last byte of a
-        // mapping is not one of them.
-        let (first, second, third) = unsafe { (*rip, *rip.add(1), if *rip.add(1) == 0x01 { *rip.add(2) } else { 0 }) };
-        let length = match (first, second, third) {
-            (0x0f, 0x31, _) => Some(2),
-            (0x0f, 0x01, 0xf9) => Some(3),
+        // Each byte is read only once the ones before it say the instruction goes on to it (0f
+        // opens a two-byte opcode, 0f 01 a three-byte one): a faulting instruction is mapped
+        // whole, the byte after it need not be.
+        // SAFETY: the first byte of the faulting instruction, then bytes within it.
+        let byte = |at: usize| unsafe { *rip.add(at) };
+        let length = match byte(0) {
+            0x0f => match byte(1) {
+                0x31 => Some(2),
+                0x01 if byte(2) == 0xf9 => Some(3),
+                _ => None,
+            },
             _ => None,
         };
         if let Some(length) = length {

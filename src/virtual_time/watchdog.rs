@@ -101,7 +101,7 @@ impl Watchdog {
         if self.liveness.elapsed() >= LIVENESS_EVERY {
             self.liveness = Instant::now();
             for (_, slot) in running(shared) {
-                if matches!(task_state(slot), TaskState::Gone) {
+                if matches!(task_state(slot), TaskState::Gone) || reserved_thread_orphaned(slot) {
                     slot.state.store(state::EXITED, Ordering::Release);
                 }
             }
@@ -223,6 +223,15 @@ fn state_letter(path: &str) -> Result<Option<char>, std::io::Error> {
 /// The task whose `stat` file is at `path` exists and is neither a zombie nor dead.
 pub(super) fn lives(path: &str) -> bool {
     state_letter(path).is_ok_and(|letter| letter.is_some_and(|state| state != 'Z' && state != 'X'))
+}
+
+/// A slot reserved for a thread to come (by `pthread_create` or a trapped `clone`) whose
+/// process has ended: the thread never starts (the process exited while creating it: a Go
+/// program that ends at once does), and its slot would be judged a process that never loaded
+/// the shim.
+fn reserved_thread_orphaned(slot: &Slot) -> bool {
+    let (pid, tid) = (slot.pid.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
+    slot.state.load(Ordering::Acquire) == state::RESERVED && tid < 0 && pid > 0 && !lives(&format!("/proc/{pid}/stat"))
 }
 
 /// The pid of the process tracing the slot's thread, if it is a followed one (it has a live

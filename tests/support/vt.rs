@@ -101,17 +101,19 @@ pub fn compiled_cpp(dir: &Path, name: &str) -> PathBuf {
     program
 }
 
-/// tests/vt/go's controller built into `dir` with Debian's Go (scripts/test.sh installs
-/// golang-go): with cgo (dynamically linked) or without (static). Go's build cache lives in the
-/// target directory, so that a second build is quick and no home directory is needed.
-pub fn compiled_go(dir: &Path, cgo: bool) -> PathBuf {
+/// A program of tests/vt/go (`package`: "." for the controller, or a folder in it) built into
+/// `dir` with Debian's Go (scripts/test.sh installs golang-go): with cgo (dynamically linked)
+/// or without (static). Go's build cache lives in the target directory, so that a second build
+/// is quick and no home directory is needed.
+pub fn compiled_go(dir: &Path, package: &str, cgo: bool) -> PathBuf {
     let go = on_path("go", "the Go controller's tests (apt-get install golang-go; scripts/test.sh does)");
-    let program = dir.join(if cgo { "go-controller" } else { "go-controller-static" });
+    let name = if package == "." { "controller" } else { package.trim_start_matches("./") };
+    let program = dir.join(format!("go-{name}{}", if cgo { "" } else { "-static" }));
     let cache = repo().join("target/go-cache");
     let compiled = Command::new(go)
         .args(["build", "-o"])
         .arg(&program)
-        .arg(".")
+        .arg(package)
         .current_dir(repo().join("tests/vt/go"))
         .env("CGO_ENABLED", if cgo { "1" } else { "0" })
         .env("GOCACHE", cache.join("build"))
