@@ -170,7 +170,7 @@ fn collect_more(shared: &crate::abi::Shared, call: EpollCall, first: c_int, port
 fn mask_events(shared: &crate::abi::Shared, epfd: c_int, events: *mut c_void, room: c_int, ready: c_int, port_fd: Option<c_int>) -> c_int {
     let Some(entry) = port_fd.filter(|_| ready >= 0).and_then(|fd| find(epfd, fd)) else { return ready };
     let port_data = entry.data.load(Ordering::Relaxed);
-    let edges = port_edges(epfd, port_fd).is_some();
+    let edges = edge_triggered(entry);
     let base = events.cast::<u8>();
     let mut kept = 0;
     let mut port_event = None;
@@ -228,18 +228,29 @@ fn mask_events(shared: &crate::abi::Shared, epfd: c_int, events: *mut c_void, ro
 /// readable whenever more bytes have become visible since it last said so and some are unread;
 /// writable once after it is registered, and again after a write to the port found it full.
 /// The events due now (0: none).
-fn port_edge(shared: &crate::abi::Shared, entry: &'static Entry) -> u32 {
-    let stream = crate::held::stream_now(shared);
-    let wanted = entry.events.load(Ordering::Relaxed);
-    let mut events = 0;
-    if wanted & EPOLLIN != 0 && stream.visible > entry.edge_at.load(Ordering::Relaxed) && stream.unread() > 0 {
-        entry.edge_at.store(stream.visible, Ordering::Relaxed);
-        events |= EPOLLIN;
+fn port_edge(shared: &crate::abi::Shared, entry: &Entry) -> u32 {
+    let (events, visible) = edges_due(shared, entry);
+    if events & EPOLLIN != 0 {
+        entry.edge_at.store(visible, Ordering::Relaxed);
     }
-    if wanted & EPOLLOUT != 0 && entry.writable_edge.swap(false, Ordering::Relaxed) {
-        events |= EPOLLOUT;
+    if events & EPOLLOUT != 0 {
+        entry.writable_edge.store(false, Ordering::Relaxed);
     }
     events
+}
+
+/// The edges due now to an edge-triggered registration of the port (see `port_edge`), not
+/// taken, and how far into the port's stream bytes are visible.
+fn edges_due(shared: &crate::abi::Shared, entry: &Entry) -> (u32, u64) {
+    let stream = crate::held::stream_now(shared);
+    let wanted = entry.events.load(Ordering::Relaxed);
+    let readable = wanted & EPOLLIN != 0 && stream.visible > entry.edge_at.load(Ordering::Relaxed) && stream.unread() > 0;
+    let writable = wanted & EPOLLOUT != 0 && entry.writable_edge.load(Ordering::Relaxed);
+    ((if readable { EPOLLIN } else { 0 }) | (if writable { EPOLLOUT } else { 0 }), stream.visible)
+}
+
+fn edge_triggered(entry: &Entry) -> bool {
+    entry.events.load(Ordering::Relaxed) & EPOLLET != 0
 }
 
 /// A write to the port found it full (EAGAIN): its edge-triggered registrations are told when
@@ -247,7 +258,7 @@ fn port_edge(shared: &crate::abi::Shared, entry: &'static Entry) -> u32 {
 pub(crate) fn port_was_full(shared: &crate::abi::Shared) {
     for entry in &ENTRIES_TABLE {
         let fd = entry.fd.load(Ordering::Relaxed);
-        if entry.epfd.load(Ordering::Acquire) >= 0 && entry.events.load(Ordering::Relaxed) & EPOLLET != 0 && crate::wait::is_port(shared, fd) {
+        if entry.epfd.load(Ordering::Acquire) >= 0 && edge_triggered(entry) && crate::wait::is_port(shared, fd) {
             entry.writable_edge.store(true, Ordering::Relaxed);
         }
     }
@@ -257,17 +268,14 @@ pub(crate) fn port_was_full(shared: &crate::abi::Shared) {
 /// port's stream to (its waits are for bytes past there; see `port_edge`).
 fn port_edges(epfd: c_int, port_fd: Option<c_int>) -> Option<&'static AtomicU64> {
     let entry = port_fd.and_then(|fd| find(epfd, fd))?;
-    (entry.events.load(Ordering::Relaxed) & EPOLLET != 0).then_some(&entry.edge_at)
+    edge_triggered(entry).then_some(&entry.edge_at)
 }
 
-/// The wall-clock timeout of the kernel wait for an epoll wait: none when the port's edge is
-/// due (the kernel would not report it).
-fn kernel_timeout_ms(shared: &crate::abi::Shared, epfd: c_int, port_fd: Option<c_int>, wall: Option<u64>) -> c_int {
-    let edge_due = port_edges(epfd, port_fd).is_some_and(|seen| {
-        let stream = crate::held::stream_now(shared);
-        stream.visible > seen.load(Ordering::Relaxed) && stream.unread() > 0
-    }) || port_fd.and_then(|fd| find(epfd, fd)).is_some_and(|entry| entry.writable_edge.load(Ordering::Relaxed));
-    if edge_due { 0 } else { wall_ms(wall) }
+/// The wall-clock timeout of the kernel wait for an epoll wait: none when the shim has an edge
+/// of the port's to report (the kernel would not report it).
+fn kernel_timeout(shared: &crate::abi::Shared, epfd: c_int, port_fd: Option<c_int>, wall: Option<u64>) -> Option<u64> {
+    let edge_due = port_fd.and_then(|fd| find(epfd, fd)).is_some_and(|entry| edge_triggered(entry) && edges_due(shared, entry).0 != 0);
+    if edge_due { Some(0) } else { wall }
 }
 
 #[unsafe(no_mangle)]
@@ -291,7 +299,7 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
     let interest = interest(EpollCall { epfd, events, max, collect_more });
     let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
-        let wall_ms = kernel_timeout_ms(shared, epfd, interest.port_fd, wall);
+        let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
         // SAFETY: the caller's arguments, with our timeout.
         mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms) }, interest.port_fd)
     })
@@ -307,7 +315,7 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
     let interest = interest(EpollCall { epfd, events, max, collect_more });
     let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
-        let wall_ms = kernel_timeout_ms(shared, epfd, interest.port_fd, wall);
+        let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
         // SAFETY: the caller's arguments, with our timeout.
         mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms, sigmask) }, interest.port_fd)
     })
@@ -325,8 +333,7 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
     let interest = interest(EpollCall { epfd, events, max, collect_more });
     let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     wait(shared, call::POLL, interest, asked, &mut |wall| {
-        let wall = if kernel_timeout_ms(shared, epfd, interest.port_fd, wall) == 0 { Some(0) } else { wall };
-        let limit = wall.map(from_ns);
+        let limit = kernel_timeout(shared, epfd, interest.port_fd, wall).map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
         // SAFETY: the caller's arguments, with our timeout.
         mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, limit_ptr, sigmask) }, interest.port_fd)

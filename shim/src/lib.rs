@@ -154,18 +154,14 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
             program::inspect(envp, false);
             spawn::remember_shim_environment();
             if let Err(why) = seccomp::install_passthrough() {
-                sys::say(b"climbsim shim: ");
-                sys::say(why);
-                sys::say(b"\n");
+                say_failure(why, b"");
             }
         }
         return;
     }
     PID.store(sys::getpid(), Ordering::Relaxed);
     if let Err(why) = map(path) {
-        sys::say(b"climbsim shim: ");
-        sys::say(why);
-        sys::say(b"; the controller runs on the wall clock, which climbsim will report\n");
+        say_failure(why, b"; the controller runs on the wall clock, which climbsim will report");
         return;
     }
     // SAFETY: registering plain C callbacks.
@@ -181,18 +177,22 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
     spawn::remember_shim_environment();
     program::inspect(envp, true);
     if let Err(why) = seccomp::install() {
-        sys::say(b"climbsim shim: ");
-        sys::say(why);
-        sys::say(b"; only calls through libc's symbols are followed\n");
+        say_failure(why, b"; only calls through libc's symbols are followed");
     }
     #[cfg(target_arch = "x86_64")]
     if let Err(why) = tsc::install() {
-        sys::say(b"climbsim shim: ");
-        sys::say(why);
-        sys::say(b"; the time-stamp counter is the host's\n");
+        say_failure(why, b"; the time-stamp counter is the host's");
     }
     // The main thread is followed from the start: before its first call it is already running.
     my_slot();
+}
+
+/// A line on stderr: what the shim could not do at start (`why`), and what follows from it.
+fn say_failure(why: &[u8], so: &[u8]) {
+    sys::say(b"climbsim shim: ");
+    sys::say(why);
+    sys::say(so);
+    sys::say(b"\n");
 }
 
 #[used]

@@ -235,7 +235,6 @@ fn install_go_filter(start: u64, end: u64) -> Result<(), &'static [u8]> {
     filter.install()
 }
 
-
 #[cfg(target_arch = "x86_64")]
 unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut c_void) {
     // Only the filter's traps (si_code SYS_SECCOMP); a SIGSYS sent with kill(2) carries no call.
@@ -308,7 +307,7 @@ unsafe fn clone_thread(gregs: *mut i64, info: *mut c_void, a: [i64; 6]) {
 #[cfg(not(target_arch = "x86_64"))]
 unsafe extern "C" fn on_sigsys(_signal: c_int, _info: *mut c_void, _context: *mut c_void) {}
 
-pub(crate) fn native_call(number: i64, a: [i64; 6]) -> c_long {
+fn native_call(number: i64, a: [i64; 6]) -> c_long {
     native::call6(number, a[0], a[1], a[2], a[3], a[4], a[5])
 }
 
@@ -337,9 +336,7 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         nr::RT_SIGACTION => return handlers::sigaction_call(a),
         // A Go program's own reads, writes and waits (only those trap: see GO_OWN_CALLS).
         // Its other signals wait meanwhile, as in a trapped futex wait.
-        nr::READ | nr::WRITE | nr::CLOSE | nr::IOCTL | nr::POLL | nr::SELECT | nr::EPOLL_WAIT | nr::EPOLL_CTL | nr::EPOLL_PWAIT if !crate::in_shim() => {
-            return own_io_call(number, a);
-        }
+        _ if GO_OWN_CALLS.contains(&number) && !crate::in_shim() => return own_io_call(number, a),
         // Not under the own-calls mark either: a handler that sigsuspend runs is the program's.
         nr::ALARM
         | nr::SETITIMER

@@ -156,8 +156,7 @@ impl VirtualTime {
                 }
                 release_slot(slot, why);
             }
-        }
-        if released {
+            drop(stats);
             // Every thread is parked here: the first of them runs at once, while the world
             // catches up or ticks (it sees the world only through replies made at their
             // instants); the others get their turns as it parks.
@@ -174,4 +173,3 @@ pub(super) struct LetGo {
     /// The next instant a parked thread is due, or a reply ([`NEVER`]: none).
     pub(super) next: u64,
 }
-
