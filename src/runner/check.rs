@@ -2,8 +2,7 @@
 //! own verdict (controller, world, pace); JUnit for CI.
 
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::report::junit::{JunitCase, write_junit};
@@ -13,7 +12,7 @@ use crate::scenario::{ControllerSection, Scenario};
 use super::clock::Pace;
 use super::outputs::judge;
 use super::process::read_tail;
-use super::{Console, During as _, Result, RunnerError, default_out_dir, describe, run_scenario};
+use super::{Console, During as _, Result, RunnerError, default_out_dir, describe, each_in_parallel, run_scenario};
 
 /// How much of an external controller's log goes into its JUnit case's `<system-out>`.
 const SYSTEM_OUT_BYTES: u64 = 64 * 1024;
@@ -62,36 +61,27 @@ pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit
     if files.is_empty() {
         return Err(RunnerError::Invalid(format!("no scenario files with an [expect] section in {}", paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))));
     }
-    let next = AtomicUsize::new(0);
     // Once a run is interrupted no new one starts (the others under way stop and write).
     let halted = AtomicBool::new(false);
-    let results: Mutex<Vec<(usize, JunitCase, Checked)>> = Mutex::new(Vec::new());
-    std::thread::scope(|scope| {
-        for _ in 0..jobs.clamp(1, files.len()) {
-            scope.spawn(|| {
-                while !stop.load(Ordering::Relaxed) && !halted.load(Ordering::Relaxed) {
-                    let index = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(file) = files.get(index) else { break };
-                    let (case, checked) = check_one(file, robot, out_root, pace, stop, console);
-                    if matches!(checked, Checked::Interrupted(_)) {
-                        halted.store(true, Ordering::Relaxed);
-                    }
-                    results.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push((index, case, checked));
-                }
-            });
+    let results = each_in_parallel(&files, jobs, |file| {
+        if stop.load(Ordering::Relaxed) || halted.load(Ordering::Relaxed) {
+            return None;
         }
+        let (case, checked) = check_one(file, robot, out_root, pace, stop, console);
+        if matches!(checked, Checked::Interrupted(_)) {
+            halted.store(true, Ordering::Relaxed);
+        }
+        Some((case, checked))
     });
-    let mut results = results.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
-    results.sort_by_key(|(index, _, _)| *index);
-    let failed = results.iter().filter(|(_, case, _)| !case.failure_messages.is_empty()).count();
-    let broken = results.iter().filter(|(_, _, checked)| matches!(checked, Checked::Broken)).count();
-    let interrupted = results.iter().find_map(|(_, _, checked)| match checked {
+    let failed = results.iter().filter(|(case, _)| !case.failure_messages.is_empty()).count();
+    let broken = results.iter().filter(|(_, checked)| matches!(checked, Checked::Broken)).count();
+    let interrupted = results.iter().find_map(|(_, checked)| match checked {
         Checked::Interrupted(message) => Some(message.clone()),
         _ => None,
     });
     let checked_count = results.len();
     if let Some(path) = junit {
-        let cases: Vec<JunitCase> = results.into_iter().map(|(_, case, _)| case).collect();
+        let cases: Vec<JunitCase> = results.into_iter().map(|(case, _)| case).collect();
         write_junit(path, "climbsim check", &cases)?;
     }
     if stop.load(Ordering::Relaxed) || interrupted.is_some() {

@@ -26,7 +26,8 @@ pub mod ticks;
 pub mod view;
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Mutex, PoisonError};
 
 use crate::bus::Timing;
 use crate::robot::RobotDescription;
@@ -36,6 +37,29 @@ pub use clock::{Clock, ClockStop, LockstepClock, Pace, TimeBase, VirtualClock, W
 pub use error::{During, Result, RunError, RunnerError};
 pub use observe::Observer;
 pub use outputs::{RunOutcome, write_outputs};
+
+/// `work` on each of `items`, `jobs` at once: scoped threads each take the next item until none
+/// is left. The results in the items' order; an item `work` returns `None` for is left out.
+fn each_in_parallel<T: Sync, R: Send>(items: &[T], jobs: usize, work: impl Fn(&T) -> Option<R> + Sync) -> Vec<R> {
+    let next = AtomicUsize::new(0);
+    let done: Mutex<Vec<(usize, R)>> = Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.clamp(1, items.len().max(1)) {
+            scope.spawn(|| {
+                loop {
+                    let index = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(item) = items.get(index) else { break };
+                    if let Some(result) = work(item) {
+                        done.lock().unwrap_or_else(PoisonError::into_inner).push((index, result));
+                    }
+                }
+            });
+        }
+    });
+    let mut done = done.into_inner().unwrap_or_else(PoisonError::into_inner);
+    done.sort_by_key(|(index, _)| *index);
+    done.into_iter().map(|(_, result)| result).collect()
+}
 
 /// Where a run tells a person what is happening. The library decides what is said; the command
 /// line decides where it goes (stdout for what scripts read, stderr for notes). Shared by the

@@ -5,8 +5,7 @@
 use std::collections::BTreeMap;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use serde_json::Value;
@@ -19,7 +18,7 @@ use crate::scenario::Scenario;
 
 use super::clock::Pace;
 use super::outputs::failures;
-use super::{Console, During as _, Result, RunnerError, describe, run_scenario};
+use super::{Console, During as _, Result, RunnerError, describe, each_in_parallel, run_scenario};
 
 /// One finished sweep run, as `sweep.json` stores it.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -99,44 +98,35 @@ pub fn sweep(scenario_path: &Path, plan: &SweepPlan<'_>, robot: &RobotDescriptio
         .collect::<Result<_>>()?;
     progress.start(scenarios.len());
     let started = Instant::now();
-    let next = AtomicUsize::new(0);
-    let rows: Mutex<Vec<SweepRow>> = Mutex::new(Vec::new());
-    std::thread::scope(|scope| {
-        for _ in 0..jobs.max(1) {
-            scope.spawn(|| {
-                while let Some((point, scenario)) = scenarios.get(next.fetch_add(1, Ordering::Relaxed)) {
-                    let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
-                    let mut row = SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: None, track: None };
-                    // Interrupted: the runs under way stop and write; no new ones start.
-                    if !stop.load(Ordering::Relaxed) {
-                        let run_dir = out_dir.join("runs").join(point.label());
-                        match run_scenario(scenario, robot, &run_dir, pace, stop, console) {
-                            Ok(outcome) => {
-                                let failures = failures(&outcome.summary);
-                                row.status = if failures.is_empty() { "completed" } else { "failed" }.to_owned();
-                                row.error = (!failures.is_empty()).then(|| failures.join("; "));
-                                row.summary = outcome.summary;
-                                row.track = Some(outcome.track);
-                            }
-                            Err(error) => {
-                                row.status = if error.is_interrupted() { "interrupted" } else { "failed" }.to_owned();
-                                row.error = Some(describe(&error));
-                                // An interrupted run wrote its outputs: keep what its summary says.
-                                if let Ok(text) = std::fs::read_to_string(run_dir.join("summary.json")) {
-                                    row.summary = serde_json::from_str(&text).unwrap_or_default();
-                                }
-                            }
-                        }
-                        progress.done_one();
-                    }
-                    rows.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(row);
+    let mut rows = each_in_parallel(&scenarios, jobs, |(point, scenario)| {
+        let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
+        let mut row = SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: None, track: None };
+        // Interrupted: the runs under way stop and write; no new ones start.
+        if !stop.load(Ordering::Relaxed) {
+            let run_dir = out_dir.join("runs").join(point.label());
+            match run_scenario(scenario, robot, &run_dir, pace, stop, console) {
+                Ok(outcome) => {
+                    let failures = failures(&outcome.summary);
+                    row.status = if failures.is_empty() { "completed" } else { "failed" }.to_owned();
+                    row.error = (!failures.is_empty()).then(|| failures.join("; "));
+                    row.summary = outcome.summary;
+                    row.track = Some(outcome.track);
                 }
-            });
+                Err(error) => {
+                    row.status = if error.is_interrupted() { "interrupted" } else { "failed" }.to_owned();
+                    row.error = Some(describe(&error));
+                    // An interrupted run wrote its outputs: keep what its summary says.
+                    if let Ok(text) = std::fs::read_to_string(run_dir.join("summary.json")) {
+                        row.summary = serde_json::from_str(&text).unwrap_or_default();
+                    }
+                }
+            }
+            progress.done_one();
         }
+        Some(row)
     });
     progress.finish();
     let wall_s = started.elapsed().as_secs_f64();
-    let mut rows = rows.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
     rows.sort_by_key(|r| r.index);
     let file = SweepFile { scenario: scenario_path.display().to_string(), axes: axes.iter().map(|a| a.key.clone()).collect(), grid: axes.to_vec(), rows };
     write_sweep(&file, out_dir)?;
