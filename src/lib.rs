@@ -17,6 +17,7 @@ pub mod sim;
 pub mod control;
 pub mod sensor_server;
 pub mod transcript;
+pub mod real_bus;
 pub mod virtual_time;
 pub mod transport;
 pub mod metrics;

@@ -26,6 +26,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use thiserror::Error;
@@ -48,8 +49,17 @@ pub enum TranscriptError {
     Line { path: PathBuf, line: usize, message: String },
     #[error("{}: empty: no header line", path.display())]
     Empty { path: PathBuf },
-    #[error("{}:1: not a climbsim transcript (format {found:?}, version {version}; this climbsim reads {FORMAT:?} version {VERSION})", path.display())]
-    Format { path: PathBuf, found: String, version: u32 },
+    #[error("{}:1: not a {expected} file (format {found:?}, version {version}; this climbsim reads {expected:?} version {expected_version}){}", path.display(), format_hint(found, expected))]
+    Format { path: PathBuf, found: String, version: u32, expected: String, expected_version: u32 },
+}
+
+/// What to do with a file of the other kind of transcript.
+fn format_hint(found: &str, expected: &str) -> &'static str {
+    match (found, expected) {
+        (crate::real_bus::FORMAT, FORMAT) => ": it is a real bus's session, recorded by `climbsim tap`",
+        (FORMAT, crate::real_bus::FORMAT) => ": it is a simulated session, recorded by `--record`; `climbsim replay` re-enacts it",
+        _ => "",
+    }
 }
 
 /// What a transcript needs to rebuild the session's world and bus.
@@ -206,7 +216,7 @@ impl std::fmt::Debug for Recorder {
 
 impl Recorder {
     /// Create `path` and write the header (flushed at once: a transcript is never headless).
-    pub fn create(path: &Path, header: &Header) -> Result<Self, TranscriptError> {
+    pub fn create(path: &Path, header: &impl Serialize) -> Result<Self, TranscriptError> {
         let io_error = |source| TranscriptError::Io { path: path.to_owned(), source };
         let mut file = File::create(path).map_err(io_error)?;
         let mut line = serde_json::to_vec(header).map_err(|e| io_error(e.into()))?;
@@ -247,7 +257,13 @@ impl Recorder {
 
     /// Write the `end` line and flush; the first write error of the session, if any.
     pub fn finish(&self, t: Duration, ticks: u64, overruns: u64) -> Result<(), TranscriptError> {
-        self.append(&Record::End { t: nanos(t), ticks, overruns });
+        self.finish_with(&Record::End { t: nanos(t), ticks, overruns })
+    }
+
+    /// Write `end` (the last line, whatever its kind) and flush; the first write error of the
+    /// session, if any.
+    pub fn finish_with(&self, end: &impl Serialize) -> Result<(), TranscriptError> {
+        self.append(end);
         let mut inner = self.lock();
         inner.finished = true;
         inner.flush();
@@ -261,12 +277,13 @@ impl Recorder {
         self.inner.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    fn append(&self, record: &Record) {
+    /// Append one line (any record kind that serialises to a JSON object).
+    pub fn append(&self, record: &impl Serialize) {
         let mut inner = self.lock();
         if inner.failed.is_some() || inner.finished {
             return;
         }
-        // ok: a Record always serialises (no maps with non-string keys, no foreign types).
+        // ok: records always serialise (no maps with non-string keys, no foreign types).
         if serde_json::to_writer(&mut inner.pending, record).is_ok() {
             inner.pending.push(b'\n');
         }
@@ -314,52 +331,72 @@ impl Transcript {
     /// Read `path`. A bad line is an error naming its number, except a last line without its
     /// newline, which a killed run leaves behind: it is dropped and `torn_tail` set.
     pub fn read(path: &Path) -> Result<Self, TranscriptError> {
-        let io_error = |source| TranscriptError::Io { path: path.to_owned(), source };
-        let file = File::open(path).map_err(io_error)?;
-        let mut reader = BufReader::new(file);
-        let line_error = |line: usize, message: String| TranscriptError::Line { path: path.to_owned(), line, message };
-        let mut text = String::new();
-        if reader.read_line(&mut text).map_err(io_error)? == 0 {
-            return Err(TranscriptError::Empty { path: path.to_owned() });
-        }
-        let header_value: Value = serde_json::from_str(text.trim_end()).map_err(|e| line_error(1, format!("header is not JSON: {e}")))?;
-        let found = header_value.get("format").and_then(Value::as_str).unwrap_or_default().to_owned();
-        let version = header_value.get("version").and_then(Value::as_u64).and_then(|v| u32::try_from(v).ok()).unwrap_or(0);
-        if found != FORMAT || version != VERSION {
-            return Err(TranscriptError::Format { path: path.to_owned(), found, version });
-        }
-        let header: Header = serde_json::from_value(header_value).map_err(|e| line_error(1, format!("header: {e}")))?;
-        let mut records = Vec::new();
-        let (mut torn_tail, mut complete) = (false, false);
-        let mut number = 1;
-        loop {
-            text.clear();
-            if reader.read_line(&mut text).map_err(io_error)? == 0 {
-                break;
-            }
-            number += 1;
-            let whole = text.ends_with('\n');
-            let line = text.trim_end();
-            if line.is_empty() {
-                continue;
-            }
-            if complete {
-                return Err(line_error(number, "a record after the `end` line".to_owned()));
-            }
-            match serde_json::from_str::<Record>(line) {
-                Ok(record) => {
-                    complete = matches!(record, Record::End { .. });
-                    records.push((number, record));
-                }
-                Err(_) if !whole => {
-                    warn!(path = %path.display(), line = number, "the transcript's last line is cut short (a killed run?); replaying what precedes it");
-                    torn_tail = true;
-                }
-                Err(error) => return Err(line_error(number, format!("not a transcript record: {error}"))),
-            }
-        }
-        Ok(Self { path: path.to_owned(), header, records, torn_tail, complete })
+        let lines = read_json_lines(path, FORMAT, VERSION, |record: &Record| matches!(record, Record::End { .. }))?;
+        Ok(Self { path: path.to_owned(), header: lines.header, records: lines.records, torn_tail: lines.torn_tail, complete: lines.complete })
     }
+}
+
+/// A file of JSON lines read back: a header, then records up to an end record.
+#[derive(Debug, Clone)]
+pub struct JsonLines<H, R> {
+    pub header: H,
+    /// Each record with its line number in the file (the header is line 1).
+    pub records: Vec<(usize, R)>,
+    /// The last line was cut short (a killed session) and was left out.
+    pub torn_tail: bool,
+    /// The last record is an end record (`is_end`).
+    pub complete: bool,
+}
+
+/// Read a header of `format` and `version`, then records up to one that `is_end`. A bad line is
+/// an error naming its number, except a last line without its newline, which a killed session
+/// leaves behind: it is dropped and `torn_tail` set.
+pub fn read_json_lines<H: DeserializeOwned, R: DeserializeOwned>(path: &Path, format: &str, version: u32, is_end: impl Fn(&R) -> bool) -> Result<JsonLines<H, R>, TranscriptError> {
+    let io_error = |source| TranscriptError::Io { path: path.to_owned(), source };
+    let file = File::open(path).map_err(io_error)?;
+    let mut reader = BufReader::new(file);
+    let line_error = |line: usize, message: String| TranscriptError::Line { path: path.to_owned(), line, message };
+    let mut text = String::new();
+    if reader.read_line(&mut text).map_err(io_error)? == 0 {
+        return Err(TranscriptError::Empty { path: path.to_owned() });
+    }
+    let header_value: Value = serde_json::from_str(text.trim_end()).map_err(|e| line_error(1, format!("header is not JSON: {e}")))?;
+    let found = header_value.get("format").and_then(Value::as_str).unwrap_or_default().to_owned();
+    let found_version = header_value.get("version").and_then(Value::as_u64).and_then(|v| u32::try_from(v).ok()).unwrap_or(0);
+    if found != format || found_version != version {
+        return Err(TranscriptError::Format { path: path.to_owned(), found, version: found_version, expected: format.to_owned(), expected_version: version });
+    }
+    let header: H = serde_json::from_value(header_value).map_err(|e| line_error(1, format!("header: {e}")))?;
+    let mut records = Vec::new();
+    let (mut torn_tail, mut complete) = (false, false);
+    let mut number = 1;
+    loop {
+        text.clear();
+        if reader.read_line(&mut text).map_err(io_error)? == 0 {
+            break;
+        }
+        number += 1;
+        let whole = text.ends_with('\n');
+        let line = text.trim_end();
+        if line.is_empty() {
+            continue;
+        }
+        if complete {
+            return Err(line_error(number, "a record after the `end` line".to_owned()));
+        }
+        match serde_json::from_str::<R>(line) {
+            Ok(record) => {
+                complete = is_end(&record);
+                records.push((number, record));
+            }
+            Err(_) if !whole => {
+                warn!(path = %path.display(), line = number, "the last line is cut short (a killed session?); using what precedes it");
+                torn_tail = true;
+            }
+            Err(error) => return Err(line_error(number, format!("not a {format} record: {error}"))),
+        }
+    }
+    Ok(JsonLines { header, records, torn_tail, complete })
 }
 
 #[cfg(test)]

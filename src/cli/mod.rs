@@ -11,6 +11,7 @@ mod replay;
 mod run;
 mod serve;
 mod sweep;
+mod tap;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -30,6 +31,7 @@ pub enum Command {
     Replay(replay::ReplayArgs),
     Diff(diff::DiffArgs),
     Sweep(sweep::SweepArgs),
+    Tap(tap::TapArgs),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -40,5 +42,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Replay(args) => replay::exec(args),
         Command::Diff(args) => diff::exec(args),
         Command::Sweep(args) => sweep::exec(args),
+        Command::Tap(args) => tap::exec(args),
     }
 }

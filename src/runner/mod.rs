@@ -22,6 +22,7 @@ pub mod recording;
 pub mod replay;
 pub mod serve;
 pub mod sweep;
+pub mod tap;
 pub mod ticks;
 pub mod view;
 

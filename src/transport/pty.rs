@@ -100,6 +100,30 @@ impl VirtualPort {
         }
     }
 
+    /// The master's descriptor, for a caller that polls it itself (`climbsim tap`'s bridge).
+    pub fn raw_master(&self) -> RawFd {
+        self.master.as_raw_fd()
+    }
+
+    /// Set the port's rate as a controller would (TCSETS2, any rate): the rate a controller
+    /// that never sets one finds.
+    pub fn set_controller_baud(&self, bps: u32) -> io::Result<()> {
+        let slave = self.slave.as_raw_fd();
+        // SAFETY: termios2 is plain data; TCGETS2/TCSETS2 read and write one through a pointer
+        // valid for the call.
+        let mut termios: libc::termios2 = unsafe { std::mem::zeroed() };
+        if unsafe { libc::ioctl(slave, libc::TCGETS2, &mut termios) } != 0 {
+            return Err(io::Error::last_os_error());
+        }
+        termios.c_cflag = (termios.c_cflag & !libc::CBAUD) | libc::BOTHER;
+        termios.c_ispeed = bps;
+        termios.c_ospeed = bps;
+        if unsafe { libc::ioctl(slave, libc::TCSETS2, &termios) } != 0 {
+            return Err(io::Error::last_os_error());
+        }
+        Ok(())
+    }
+
     /// A handle reporting the baud the controller set on the port.
     pub fn line(&self) -> PtyLine {
         PtyLine { slave: self.slave.as_raw_fd(), master: self.master.as_raw_fd() }

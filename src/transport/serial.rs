@@ -138,6 +138,12 @@ impl SerialDevice {
         self.baud.load(Ordering::Relaxed)
     }
 
+    /// The descriptor, for a caller that polls it itself (`climbsim tap`'s bridge: no echo
+    /// filter, every byte as it came).
+    pub fn raw_fd(&self) -> std::os::fd::RawFd {
+        self.fd.get_ref().as_raw_fd()
+    }
+
     /// Switch the UART to `bps` once everything written has left it (TCSETSW2), as a servo
     /// switches only after its reply.
     pub fn set_baud(&self, bps: u32) -> Result<(), SerialError> {

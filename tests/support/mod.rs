@@ -401,6 +401,9 @@ pub mod physics;
 
 pub mod vt;
 
+/// Two ptys joined like a null-modem cable (`climbsim tap` between a controller and `serve --device`).
+pub mod null_modem;
+
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
 /// controller (`command = ["python", ...]`) runs in the venv.
 pub fn climbsim_with_sdk_python(args: &[&str]) -> std::process::Output {

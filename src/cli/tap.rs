@@ -1,0 +1,59 @@
+//! `climbsim tap`: record an unchanged controller on the real servos, until SIGINT or SIGTERM
+//! or until the device goes away.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+
+use climbsim::runner::Console as _;
+use climbsim::runner::tap::{TapOptions, default_report_path, tap};
+
+use super::console::Terminal;
+use super::interrupt;
+
+/// Sit between your controller and the real servos and record the bus: the controller opens
+/// `--link` as it would the adapter, every byte is forwarded both ways as soon as it is read,
+/// unaltered, and the session is written as a real bus's transcript (each instruction with its
+/// replies and their times, missed replies, CRC errors) with a timing report of the servos at
+/// the end. The robot moves: the controller's commands reach it as they are.
+#[derive(Debug, clap::Args)]
+pub struct TapArgs {
+    /// The serial device the servos are on (a USB–RS485 adapter: /dev/serial/by-id/…): opened
+    /// exclusively, 8N1, no flow control.
+    #[arg(long, value_name = "PATH")]
+    pub device: PathBuf,
+    /// The port your controller opens: a symlink to climbsim's pseudo-terminal.
+    #[arg(long, value_name = "PATH")]
+    pub link: PathBuf,
+    /// The transcript to write (JSON lines).
+    #[arg(long, value_name = "FILE")]
+    pub record: PathBuf,
+    /// The timing report to write (default: beside the transcript, NAME.timing.json).
+    #[arg(long, value_name = "FILE")]
+    pub report: Option<PathBuf>,
+    /// The rate the device starts at, and the port until the controller sets its own (the
+    /// device then follows the controller's rate).
+    #[arg(long, value_name = "BPS", default_value = "57600")]
+    pub baud: u32,
+    /// Set the USB adapter's latency timer to 1 ms (FTDI's default is 16) and the tty's
+    /// ASYNC_LOW_LATENCY flag while tapping; both are put back on exit.
+    #[arg(long)]
+    pub low_latency: bool,
+}
+
+pub fn exec(args: TapArgs) -> Result<()> {
+    interrupt::install()?;
+    let report = args.report.unwrap_or_else(|| default_report_path(&args.record));
+    let options = TapOptions { device: args.device, link: args.link, record: args.record, report, baud: args.baud, low_latency: args.low_latency };
+    let outcome = tap(&options, interrupt::flag(), |port| Terminal.say(&format!("port: {}", port.display())))?;
+    Terminal.note(&format!(
+        "tap ended ({}): {} bytes from the controller, {} from the servos; transcript {}, timing report {}",
+        outcome.ended,
+        outcome.from_controller,
+        outcome.from_servos,
+        options.record.display(),
+        options.report.display()
+    ));
+    Terminal.note(&outcome.report.table());
+    Ok(())
+}
