@@ -5,15 +5,14 @@
 
 mod support;
 
-use std::io::{BufRead, BufReader};
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 use climbsim::real_bus::RealRecord;
 use climbsim::real_bus::transcript::{RealReply, read};
 use climbsim::transcript::from_hex;
 use support::null_modem::NullModem;
+use support::tap::TapProcess;
 
 /// The controller: pings 1 to 9 (there is no 9), twenty Sync Reads of Present Position from
 /// the eight servos, an LED write, then its port switched to 1 Mbps and one more ping. It
@@ -41,52 +40,12 @@ print("ping at 1 Mbps", result == COMM_SUCCESS)
 /// An instruction in the transcript: its hex, replies, missed servos and its last byte's time.
 type Tx<'a> = (&'a str, &'a [RealReply], &'a [u8], u64);
 
-/// `climbsim tap` with its port announced.
-struct Tap {
-    child: Child,
-    port: String,
-}
-
-fn start_tap(device: &Path, dir: &Path) -> Tap {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["tap", "--device"])
-        .arg(device)
-        .arg("--link")
-        .arg(dir.join("ttyDXL"))
-        .arg("--record")
-        .arg(dir.join("real.jsonl"))
-        .stdout(Stdio::piped())
-        .stderr(std::fs::File::create(dir.join("tap.stderr")).expect("stderr file"))
-        .spawn()
-        .expect("start climbsim tap");
-    let stdout = child.stdout.take().expect("stdout");
-    let mut line = String::new();
-    BufReader::new(stdout).read_line(&mut line).expect("tap's first line");
-    let port = line.trim().strip_prefix("port: ").unwrap_or_else(|| panic!("tap announced {line:?}; stderr: {}", std::fs::read_to_string(dir.join("tap.stderr")).unwrap_or_default())).to_owned();
-    Tap { child, port }
-}
-
-fn wait_exit(child: &mut Child, within: Duration) -> std::process::ExitStatus {
-    let deadline = Instant::now() + within;
-    loop {
-        if let Some(status) = child.try_wait().expect("try_wait") {
-            return status;
-        }
-        assert!(Instant::now() < deadline, "did not exit within {within:?}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-fn interrupt(child: &Child) {
-    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGINT).expect("SIGINT");
-}
-
 #[test]
 fn tap_forwards_an_unchanged_sdk_controller_and_records_each_transaction_with_its_replies() {
     let dir = support::scratch_dir("tap-sdk");
     let cable = NullModem::new();
     let servos = support::Options::default().stderr_log().start(&["--device", cable.b().to_str().expect("utf-8")]);
-    let mut tap = start_tap(cable.a(), &dir);
+    let mut tap = TapProcess::start(cable.a(), &dir, &[]);
 
     let controller = Command::new(support::sdk_python()).arg("-c").arg(CONTROLLER).arg(&tap.port).output().expect("run the SDK controller");
     let said = String::from_utf8_lossy(&controller.stdout).into_owned();
@@ -98,9 +57,9 @@ fn tap_forwards_an_unchanged_sdk_controller_and_records_each_transaction_with_it
     assert!(said.contains("ping 9 False") && said.contains("sync reads 20") && said.contains("led True") && said.contains("ping at 1 Mbps True"), "{said}");
     assert_eq!(cable.baud_a(), Some(1_000_000), "the device follows the controller's rate");
 
-    interrupt(&tap.child);
-    let status = wait_exit(&mut tap.child, Duration::from_secs(10));
-    let stderr = std::fs::read_to_string(dir.join("tap.stderr")).unwrap_or_default();
+    tap.interrupt();
+    let status = tap.wait(Duration::from_secs(10));
+    let stderr = tap.stderr();
     assert!(status.success(), "tap exited {status}: {stderr}");
     drop(servos);
 
@@ -143,10 +102,10 @@ fn tap_forwards_an_unchanged_sdk_controller_and_records_each_transaction_with_it
 fn a_device_that_goes_away_ends_the_tap_with_complete_outputs() {
     let dir = support::scratch_dir("tap-unplug");
     let cable = NullModem::new();
-    let mut tap = start_tap(cable.a(), &dir);
+    let mut tap = TapProcess::start(cable.a(), &dir, &[]);
     cable.unplug_a();
-    let status = wait_exit(&mut tap.child, Duration::from_secs(10));
-    let stderr = std::fs::read_to_string(dir.join("tap.stderr")).unwrap_or_default();
+    let status = tap.wait(Duration::from_secs(10));
+    let stderr = tap.stderr();
     assert!(status.success(), "tap exited {status}: {stderr}");
     let transcript = read(&dir.join("real.jsonl")).expect("the transcript reads back");
     assert!(transcript.complete, "an end line");

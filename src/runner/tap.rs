@@ -21,12 +21,17 @@ use tracing::{info, warn};
 use crate::real_bus::{Event, Pairing, RealHeader, RealRecord, TimingReport, TimingTally};
 use crate::transcript::{Recorder, nanos};
 use crate::transport::latency::{self, LowLatencyGuard};
-use crate::transport::{DeviceSettings, Echo, LineSettings, SerialDevice, VirtualPort};
+use crate::transport::{DeviceSettings, Echo, LineSettings, SerialDevice, VirtualPort, queued_bytes};
 
 use super::{Result, RunnerError};
 
 /// How often the loop looks at the stop flag while both sides are quiet.
 const QUIET_POLL: Duration = Duration::from_millis(50);
+/// How long after bytes passed the loop spins on both sides' queues instead of sleeping in
+/// poll(2): the other side's answer (a reply, the controller's next request) usually follows
+/// within a millisecond, and a wake-up from poll costs tens of microseconds on a VM whose idle
+/// CPUs halt (`cargo bench --bench tap_latency`: docs/performance.md). Not on one CPU.
+const SPIN_AFTER_TRAFFIC: Duration = Duration::from_millis(2);
 
 #[derive(Debug, Clone)]
 pub struct TapOptions {
@@ -120,15 +125,28 @@ impl Bridge<'_> {
     fn run(&mut self, stop: &AtomicBool) -> String {
         let (master, device) = (self.port.raw_master(), self.device.raw_fd());
         let mut buf = vec![0u8; 4096];
+        let spins = std::thread::available_parallelism().is_ok_and(|n| n.get() > 1);
+        let mut spin_until = Instant::now();
         loop {
             if stop.load(Ordering::Relaxed) {
                 return "interrupted".to_owned();
+            }
+            let spinning = spins && Instant::now() < spin_until;
+            if spinning {
+                // FIONREAD, not read(2): a read of an empty pty waits for the kernel's flush
+                // worker when it has bytes queued. A side that cannot say goes to poll.
+                let waiting = [queued_bytes(master), queued_bytes(device)];
+                if waiting.iter().all(|n| *n == Some(0)) {
+                    std::hint::spin_loop();
+                    continue;
+                }
             }
             // SAFETY: both descriptors stay open for the bridge's life (the port and the device
             // outlive it).
             let (master_fd, device_fd) = unsafe { (BorrowedFd::borrow_raw(master), BorrowedFd::borrow_raw(device)) };
             let mut fds = [PollFd::new(master_fd, PollFlags::POLLIN), PollFd::new(device_fd, PollFlags::POLLIN)];
-            match poll(&mut fds, PollTimeout::try_from(QUIET_POLL).unwrap_or(PollTimeout::MAX)) {
+            let timeout = if spinning { PollTimeout::ZERO } else { PollTimeout::try_from(QUIET_POLL).unwrap_or(PollTimeout::MAX) };
+            match poll(&mut fds, timeout) {
                 Ok(0) | Err(Errno::EINTR) => continue,
                 Ok(_) => {}
                 Err(error) => return format!("poll failed: {error}"),
@@ -144,6 +162,7 @@ impl Bridge<'_> {
                             return format!("writing to the controller's port failed: {error}");
                         }
                         self.from_servos += n as u64;
+                        spin_until = Instant::now() + SPIN_AFTER_TRAFFIC;
                         for event in self.pairing.from_servos(at, &buf[..n]) {
                             self.record(&event);
                         }
@@ -164,6 +183,7 @@ impl Bridge<'_> {
                         }
                         let forwarded = self.started.elapsed();
                         self.from_controller += n as u64;
+                        spin_until = Instant::now() + SPIN_AFTER_TRAFFIC;
                         for event in self.pairing.from_controller(at, forwarded, self.baud, &buf[..n]) {
                             self.record(&event);
                         }

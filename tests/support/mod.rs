@@ -403,6 +403,8 @@ pub mod vt;
 
 /// Two ptys joined like a null-modem cable (`climbsim tap` between a controller and `serve --device`).
 pub mod null_modem;
+/// A `climbsim tap` process.
+pub mod tap;
 
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
 /// controller (`command = ["python", ...]`) runs in the venv.

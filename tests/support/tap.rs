@@ -1,0 +1,69 @@
+//! One `climbsim tap` process for the tests and the benches: started on a device, its port
+//! announced, ended with SIGINT as a person's Ctrl-C would.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+pub struct TapProcess {
+    child: Child,
+    /// The port the controller opens (`--link`).
+    pub port: PathBuf,
+    stderr: PathBuf,
+}
+
+impl TapProcess {
+    /// `climbsim tap --device DEVICE --link DIR/ttyDXL --record DIR/real.jsonl EXTRA...`, once
+    /// it has announced its port; its stderr goes to DIR/tap.stderr.
+    pub fn start(device: &Path, dir: &Path, extra: &[&str]) -> Self {
+        let stderr = dir.join("tap.stderr");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+            .args(["tap", "--device"])
+            .arg(device)
+            .arg("--link")
+            .arg(dir.join("ttyDXL"))
+            .arg("--record")
+            .arg(dir.join("real.jsonl"))
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stderr).expect("stderr file"))
+            .spawn()
+            .expect("start climbsim tap");
+        let stdout = child.stdout.take().expect("stdout");
+        let mut line = String::new();
+        BufReader::new(stdout).read_line(&mut line).expect("tap's first line");
+        let port = line.trim().strip_prefix("port: ").unwrap_or_else(|| panic!("tap announced {line:?}; stderr: {}", std::fs::read_to_string(&stderr).unwrap_or_default())).into();
+        Self { child, port, stderr }
+    }
+
+    pub fn stderr(&self) -> String {
+        std::fs::read_to_string(&self.stderr).unwrap_or_default()
+    }
+
+    /// SIGINT, as Ctrl-C.
+    pub fn interrupt(&self) {
+        nix::sys::signal::kill(nix::unistd::Pid::from_raw(self.child.id() as i32), nix::sys::signal::Signal::SIGINT).expect("SIGINT");
+    }
+
+    /// Its exit status once it has exited (panics after `within`).
+    pub fn wait(&mut self, within: Duration) -> ExitStatus {
+        let deadline = Instant::now() + within;
+        loop {
+            if let Some(status) = self.child.try_wait().expect("try_wait") {
+                return status;
+            }
+            assert!(Instant::now() < deadline, "tap did not exit within {within:?}: {}", self.stderr());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for TapProcess {
+    fn drop(&mut self) {
+        if self.child.try_wait().ok().flatten().is_none() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
