@@ -33,6 +33,7 @@ use thiserror::Error;
 use tracing::warn;
 
 use crate::bus::Transaction;
+use crate::protocol::{Decoder, RawPacket};
 
 /// The `format` of a transcript's header.
 pub const FORMAT: &str = "climbsim-transcript";
@@ -187,6 +188,21 @@ pub fn from_hex(text: &str) -> Result<Vec<u8>, String> {
             u8::from_str_radix(text, 16).map_err(|_| format!("`{text}` is not a hex byte"))
         })
         .collect()
+}
+
+/// The one whole packet `hex` holds (a recorded instruction or reply).
+pub fn packet_from_hex(hex: &str) -> Result<RawPacket, String> {
+    packet_from_bytes(&from_hex(hex)?)
+}
+
+/// The one whole packet `bytes` are.
+pub fn packet_from_bytes(bytes: &[u8]) -> Result<RawPacket, String> {
+    let mut framed = Decoder::default().push(Duration::ZERO, bytes).into_iter();
+    match (framed.next(), framed.next()) {
+        (Some(Ok(packet)), None) if packet.bytes.len() == bytes.len() => Ok(packet),
+        (Some(Err(error)), _) => Err(format!("the recorded packet does not frame: {error}")),
+        _ => Err(format!("the recorded bytes are not exactly one packet ({} bytes)", bytes.len())),
+    }
 }
 
 /// Writes a transcript as the session goes. Shared by the transports (packets), the pacer
@@ -467,5 +483,14 @@ mod tests {
         assert_eq!(to_hex(&[0xFF, 0x0A]), "FF0A");
         assert_eq!(from_hex("ff 0a"), Ok(vec![0xFF, 0x0A]));
         assert!(from_hex("F").is_err() && from_hex("ZZ").is_err());
+    }
+
+    #[test]
+    fn a_recorded_packet_must_be_one_whole_packet() {
+        let ping = "FFFFFD0001030001194E";
+        assert_eq!(packet_from_hex(ping).map(|p| p.id), Ok(1));
+        assert!(packet_from_hex(&ping[..12]).is_err(), "a partial packet");
+        assert!(packet_from_hex(&format!("{ping}{ping}")).is_err(), "two packets");
+        assert!(packet_from_hex("FFFFFD0001030001194F").is_err(), "a bad CRC");
     }
 }

@@ -4,6 +4,7 @@
 
 mod args;
 mod check;
+mod compare;
 mod console;
 mod diff;
 mod interrupt;
@@ -32,6 +33,7 @@ pub enum Command {
     Diff(diff::DiffArgs),
     Sweep(sweep::SweepArgs),
     Tap(tap::TapArgs),
+    Compare(compare::CompareArgs),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -43,5 +45,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Diff(args) => diff::exec(args),
         Command::Sweep(args) => sweep::exec(args),
         Command::Tap(args) => tap::exec(args),
+        Command::Compare(args) => compare::exec(args),
     }
 }

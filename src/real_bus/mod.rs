@@ -4,6 +4,7 @@
 //! answer, [`transcript`] is the file it writes (marked as real), [`timing`] the report of the
 //! servos' reply latency. All sans-IO: the bridge itself is `runner::tap`.
 
+pub mod compare;
 pub mod pairing;
 pub mod stream;
 pub mod timing;

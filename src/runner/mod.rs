@@ -11,6 +11,7 @@
 pub mod capped_log;
 pub mod check;
 pub mod clock;
+pub mod compare;
 pub mod error;
 pub mod external;
 pub mod feed;

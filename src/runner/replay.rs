@@ -24,9 +24,8 @@ use super::outputs::{RunOutcome, settings_json};
 use super::view::ViewOptions;
 use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::bus::Timing;
-use crate::protocol::{Decoder, RawPacket};
 use crate::robot::{RobotDescription, RobotError};
-use crate::transcript::{Record, Transcript, TranscriptError, crc64_hex, from_hex, to_hex};
+use crate::transcript::{Record, Transcript, TranscriptError, crc64_hex, packet_from_hex, to_hex};
 
 #[derive(Debug, Error)]
 pub enum ReplayError {
@@ -196,7 +195,7 @@ pub fn replay(transcript: &Transcript, sources: &ReplaySources, out_dir: &Path) 
                 last_t = last_t.max(at);
             }
             Record::Rx { t, baud, hex, end, replies } => {
-                let packet = decode_packet(hex).map_err(|message| packet_error(*line, message))?;
+                let packet = packet_from_hex(hex).map_err(|message| packet_error(*line, message))?;
                 let at = Duration::from_nanos(*t);
                 let transaction = bus.handle(packet, at, *baud);
                 stats.packets += 1;
@@ -260,17 +259,6 @@ fn same_text(what: &'static str, path: &Path, transcript: &Path, recorded: &str,
     }
 }
 
-/// The one packet `hex` holds.
-fn decode_packet(hex: &str) -> Result<RawPacket, String> {
-    let bytes = from_hex(hex)?;
-    let mut framed = Decoder::default().push(Duration::ZERO, &bytes).into_iter();
-    match (framed.next(), framed.next()) {
-        (Some(Ok(packet)), None) if packet.bytes.len() == bytes.len() => Ok(packet),
-        (Some(Err(error)), _) => Err(format!("the recorded packet does not frame: {error}")),
-        _ => Err(format!("the recorded bytes are not exactly one packet ({} bytes)", bytes.len())),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -283,14 +271,5 @@ mod tests {
         let error = same_text("scenario", Path::new("s.toml"), Path::new("t.jsonl"), "a\n", "a\nb\n").expect_err("longer");
         assert!(error.to_string().contains("line 2: recorded `<end of file>`"), "{error}");
         assert!(same_text("scenario", Path::new("s.toml"), Path::new("t.jsonl"), "a\n", "a\n").is_ok());
-    }
-
-    #[test]
-    fn a_recorded_packet_must_be_one_whole_packet() {
-        let ping = "FFFFFD0001030001194E";
-        assert_eq!(decode_packet(ping).map(|p| p.id), Ok(1));
-        assert!(decode_packet(&ping[..12]).is_err(), "a partial packet");
-        assert!(decode_packet(&format!("{ping}{ping}")).is_err(), "two packets");
-        assert!(decode_packet("FFFFFD0001030001194F").is_err(), "a bad CRC");
     }
 }

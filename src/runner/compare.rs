@@ -1,0 +1,198 @@
+//! `climbsim compare`: a real session (`climbsim tap`) re-enacted open-loop in a scenario's
+//! world, and every real read reply set beside the world's answer to the same read.
+//!
+//! The world starts as the scenario says at the tap's start (t = 0) and ticks at the servos'
+//! control period; each recorded instruction is handed to the bus at its recorded time (when
+//! its first byte was read from the controller) and line rate, so the world's servos get the
+//! same commands at the same instants as the real ones did. The world's answers are compared,
+//! register by register ([`crate::real_bus::compare`]), and so is the reply latency: the real
+//! one (the request's last byte handed to the servos' side to the reply's first byte read back)
+//! against the wire model's (the request's end on the wire to the reply's start).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Serialize;
+use serde_json::json;
+use thiserror::Error;
+use tracing::info_span;
+
+use super::RunError;
+use super::observe::scenario_bus;
+use crate::bus::Timing;
+use crate::real_bus::compare::{Comparison, RegisterStats, Tolerances, read_spans};
+use crate::real_bus::{RealRecord, RealTranscript};
+use crate::robot::{RobotDescription, RobotError};
+use crate::scenario::{Override, Scenario, ScenarioError};
+use crate::transcript::{TranscriptError, packet_from_bytes, packet_from_hex};
+
+#[derive(Debug, Error)]
+pub enum CompareError {
+    #[error(transparent)]
+    Transcript(#[from] TranscriptError),
+    #[error(transparent)]
+    Run(#[from] RunError),
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error(transparent)]
+    Robot(#[from] RobotError),
+    #[error("{}:{line}: {message}", path.display())]
+    Record { path: PathBuf, line: usize, message: String },
+    #[error("{}: no read replies to compare (the session has no Read, Sync Read or Bulk Read that a servo answered)", path.display())]
+    NothingToCompare { path: PathBuf },
+    #[error("cannot write {}: {source}", path.display())]
+    Write { path: PathBuf, source: std::io::Error },
+}
+
+/// What to compare the session with.
+#[derive(Debug, Clone)]
+pub struct CompareOptions {
+    pub scenario: PathBuf,
+    pub overrides: Vec<Override>,
+    pub robot: PathBuf,
+    pub tolerances: Tolerances,
+    pub out: PathBuf,
+}
+
+/// Reply latency of one servo, real and modelled (µs, medians).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LatencyComparison {
+    pub id: u8,
+    pub replies: usize,
+    pub real_median_us: f64,
+    pub model_median_us: f64,
+}
+
+/// The comparison's result (`compare.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct CompareReport {
+    pub transcript: PathBuf,
+    pub scenario: PathBuf,
+    pub robot: PathBuf,
+    pub overrides: Vec<String>,
+    /// Instructions re-enacted, and read replies compared.
+    pub instructions: u64,
+    pub replies_compared: u64,
+    /// Real replies the world did not give (a servo it does not have, a different answer).
+    pub replies_the_world_missed: u64,
+    pub registers: Vec<RegisterStats>,
+    pub latency: Vec<LatencyComparison>,
+}
+
+impl CompareReport {
+    /// The registers past their tolerance.
+    pub fn failures(&self) -> Vec<&RegisterStats> {
+        self.registers.iter().filter(|r| !r.passed).collect()
+    }
+
+    /// A table for the terminal.
+    pub fn table(&self) -> String {
+        let mut out = String::from("   ID  register                 unit      samples        bias         RMS     max |Δ|   lag ms   tolerance\n");
+        for r in &self.registers {
+            out.push_str(&format!(
+                "  {:>3}  {:<24} {:<8} {:>8}  {:>10.4}  {:>10.4}  {:>10.4}  {:>7.1}  {:>10.4}{}\n",
+                r.id,
+                r.key,
+                r.unit.as_deref().unwrap_or("-"),
+                r.samples,
+                r.bias,
+                r.rms,
+                r.max_abs,
+                r.lag_ms,
+                r.tolerance,
+                if r.passed { "" } else { "  EXCEEDED" }
+            ));
+        }
+        for l in &self.latency {
+            out.push_str(&format!("  servo {:>3}: reply latency median {:.0} µs real, {:.0} µs in the wire model ({} replies)\n", l.id, l.real_median_us, l.model_median_us, l.replies));
+        }
+        out
+    }
+}
+
+/// Re-enact `transcript` in the scenario's world and compare; writes `compare.json` into
+/// `options.out`.
+pub fn compare(transcript: &RealTranscript, path: &Path, options: &CompareOptions) -> Result<CompareReport, CompareError> {
+    let _span = info_span!("compare", transcript = %path.display(), scenario = %options.scenario.display()).entered();
+    let scenario = Scenario::load_with(&options.scenario, &options.overrides)?;
+    let robot = RobotDescription::load(&options.robot)?;
+    let (mut bus, mut observer) = scenario_bus(&scenario, &robot, Timing::Wire, None)?;
+    let profile = match bus.servos().first() {
+        Some(servo) => std::sync::Arc::clone(servo.profile()),
+        None => return Err(CompareError::NothingToCompare { path: path.to_owned() }),
+    };
+    let tick = bus.servos().first().map_or(Duration::from_millis(1), |s| s.control_period());
+    let mut next_tick = tick;
+    let mut comparison = Comparison::default();
+    let (mut instructions, mut compared, mut missed) = (0u64, 0u64, 0u64);
+    let mut latencies: BTreeMap<u8, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+    let mut last = Duration::ZERO;
+    let record_error = |line: usize, message: String| CompareError::Record { path: path.to_owned(), line, message };
+    for (line, record) in &transcript.records {
+        let RealRecord::Tx { t, end, baud, hex, replies, .. } = record else { continue };
+        let at = Duration::from_nanos(*t);
+        if at < last {
+            return Err(record_error(*line, format!("t = {:.6} s is before the instruction before it ({:.6} s): a tap writes them in order", at.as_secs_f64(), last.as_secs_f64())));
+        }
+        last = at;
+        while next_tick <= at {
+            bus.advance(next_tick);
+            if let Some(error) = observer.on_tick(&mut bus, next_tick).error {
+                return Err(CompareError::Run(error));
+            }
+            next_tick += tick;
+        }
+        let packet = packet_from_hex(hex).map_err(|message| record_error(*line, message))?;
+        let spans = read_spans(&packet);
+        let transaction = bus.handle(packet, at, Some(*baud));
+        instructions += 1;
+        for reply in replies {
+            let real = packet_from_hex(&reply.hex).map_err(|message| record_error(*line, format!("a reply: {message}")))?;
+            let sim = transaction.replies.iter().find(|r| r.from == [reply.id]);
+            let Some(sim) = sim else {
+                missed += 1;
+                continue;
+            };
+            let entry = latencies.entry(reply.id).or_default();
+            entry.0.push(Duration::from_nanos(reply.t.saturating_sub(*end)).as_secs_f64() * 1e6);
+            entry.1.push(sim.start.saturating_sub(transaction.instruction_end).as_secs_f64() * 1e6);
+            let Some(&(_, address, _)) = spans.iter().find(|(id, _, _)| *id == reply.id) else { continue };
+            let sim_packet = packet_from_bytes(&sim.bytes).map_err(|message| record_error(*line, format!("the world's reply: {message}")))?;
+            if let (Ok(real_data), Ok(sim_data)) = (real.status_data(), sim_packet.status_data()) {
+                comparison.add(&profile, reply.id, address, Duration::from_nanos(reply.t).as_secs_f64(), real_data, sim_data);
+                compared += 1;
+            }
+        }
+    }
+    if compared == 0 {
+        return Err(CompareError::NothingToCompare { path: path.to_owned() });
+    }
+    let latency = latencies.into_iter().map(|(id, (mut real, mut model))| LatencyComparison { id, replies: real.len(), real_median_us: median(&mut real), model_median_us: median(&mut model) }).collect();
+    let report = CompareReport {
+        transcript: path.to_owned(),
+        scenario: options.scenario.clone(),
+        robot: options.robot.clone(),
+        overrides: options.overrides.iter().map(|o| o.to_string()).collect(),
+        instructions,
+        replies_compared: compared,
+        replies_the_world_missed: missed,
+        registers: comparison.stats(&profile, &options.tolerances),
+        latency,
+    };
+    std::fs::create_dir_all(&options.out).map_err(|source| CompareError::Write { path: options.out.clone(), source })?;
+    let json_path = options.out.join("compare.json");
+    let mut value = serde_json::to_value(&report).unwrap_or_else(|_| json!({}));
+    value["passed"] = json!(report.failures().is_empty());
+    let text = serde_json::to_string_pretty(&value).unwrap_or_default() + "\n";
+    std::fs::write(&json_path, text).map_err(|source| CompareError::Write { path: json_path, source })?;
+    Ok(report)
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
+}
