@@ -6,6 +6,7 @@
 
 pub mod protocol;
 pub mod source_location;
+pub mod overrides;
 pub mod parts;
 pub mod rng;
 pub mod device;

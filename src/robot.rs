@@ -10,7 +10,8 @@ use crate::bus::{self, Bus, BusError, Timing};
 // Defined below the bus (fault descriptions name wheels too); part of the robot description.
 pub use crate::parts::{ServoRole, WheelPosition};
 use crate::device::{BenchPlant, FirmwareProfile, Plant, ProfileError, Servo};
-use crate::source_location::{DataFileError, load_toml};
+use crate::overrides::Override;
+use crate::source_location::{DataFileError, load_toml_with};
 
 #[derive(Debug, Error)]
 pub enum RobotError {
@@ -118,6 +119,51 @@ pub struct RobotDescription {
     pub lidar: LidarMount,
     #[serde(skip)]
     pub path: PathBuf,
+    /// `--set profile.KEY=VALUE`: set in the firmware profile whenever it is loaded.
+    #[serde(skip)]
+    pub profile_overrides: Vec<Override>,
+}
+
+/// `--set robot.KEY=VALUE` and `--set profile.KEY=VALUE`: keys of the robot description and of
+/// its firmware profile, set as a scenario's are (`robot.wheel.friction=0.35`,
+/// `profile.motor.coulomb_friction_nm=0.04`). One key syntax for `run`, `check`, `sweep`,
+/// `compare` and `fit`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RobotOverrides {
+    /// `robot.…` keys, as given.
+    pub robot: Vec<Override>,
+    /// `profile.…` keys, as given.
+    pub profile: Vec<Override>,
+}
+
+impl RobotOverrides {
+    pub const ROBOT: &'static str = crate::overrides::ROBOT_PREFIX;
+    pub const PROFILE: &'static str = crate::overrides::PROFILE_PREFIX;
+
+    /// Split `--set` overrides into the scenario's (returned) and the robot's and profile's.
+    pub fn split(all: &[Override]) -> (Vec<Override>, Self) {
+        let mut scenario = Vec::new();
+        let mut these = Self::default();
+        for set in all {
+            if set.key.starts_with(Self::ROBOT) {
+                these.robot.push(set.clone());
+            } else if set.key.starts_with(Self::PROFILE) {
+                these.profile.push(set.clone());
+            } else {
+                scenario.push(set.clone());
+            }
+        }
+        (scenario, these)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.robot.is_empty() && self.profile.is_empty()
+    }
+
+    /// As given on the command line (`robot.wheel.friction=0.35`).
+    pub fn describe(&self) -> Vec<String> {
+        self.robot.iter().chain(&self.profile).map(ToString::to_string).collect()
+    }
 }
 
 impl RobotDescription {
@@ -127,9 +173,24 @@ impl RobotDescription {
     }
 
     pub fn load(path: &Path) -> Result<Self, RobotError> {
-        let mut robot: Self = load_toml("robot description", path)?;
+        Self::load_with(path, &RobotOverrides::default())
+    }
+
+    /// Load with `--set robot.…` and `--set profile.…` keys set (the profile's when it is
+    /// loaded; it is checked here, so that a bad key fails before anything runs).
+    pub fn load_with(path: &Path, overrides: &RobotOverrides) -> Result<Self, RobotError> {
+        let mut robot: Self = load_toml_with("robot description", path, RobotOverrides::ROBOT, &overrides.robot)?;
         robot.path = path.to_owned();
+        robot.profile_overrides = overrides.profile.clone();
+        if !robot.profile_overrides.is_empty() {
+            robot.profile()?;
+        }
         Ok(robot)
+    }
+
+    /// The firmware profile, with this description's `--set profile.…` keys.
+    pub fn profile(&self) -> Result<FirmwareProfile, RobotError> {
+        Ok(FirmwareProfile::load_with(&self.profile_path(), &self.profile_overrides)?)
     }
 
     /// The firmware profile path, resolved against this file's folder.
@@ -154,7 +215,7 @@ impl RobotDescription {
 
     /// Factory-fresh servos for this description (power-on baud from it unless given).
     pub fn servos(&self, baud_override: Option<u32>) -> Result<Vec<Servo>, RobotError> {
-        let profile = Arc::new(FirmwareProfile::load(&self.profile_path())?);
+        let profile = Arc::new(self.profile()?);
         let baud = baud_override.unwrap_or(self.bus.baud_bps);
         bus::servos_from_profile(&profile, &self.ids(), baud, self.bus.supply_voltage_v).map_err(|source| RobotError::Bus { path: self.path.clone(), source })
     }
@@ -163,5 +224,34 @@ impl RobotDescription {
     pub fn bus_of(&self, servos: Vec<Servo>, plant: Box<dyn Plant>, timing: Timing, baud_override: Option<u32>) -> Result<Bus, RobotError> {
         let baud = baud_override.unwrap_or(self.bus.baud_bps);
         Bus::new(servos, plant, timing, baud).map_err(|source| RobotError::Bus { path: self.path.clone(), source })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sets(texts: &[&str]) -> Vec<Override> {
+        texts.iter().map(|t| Override::parse(t).expect("KEY=VALUE")).collect()
+    }
+
+    #[test]
+    fn robot_and_profile_keys_are_split_from_the_scenarios_and_set_in_their_files() {
+        let (scenario, robot_sets) = RobotOverrides::split(&sets(&["world.seed=3", "robot.wheel.friction=0.35", "profile.motor.coulomb_friction_nm=0.05"]));
+        assert_eq!(scenario, sets(&["world.seed=3"]));
+        assert_eq!(robot_sets.describe(), ["robot.wheel.friction=0.35", "profile.motor.coulomb_friction_nm=0.05"]);
+        let robot = RobotDescription::load_with(&RobotDescription::default_path(), &robot_sets).expect("loads");
+        assert_eq!(robot.wheel.friction, 0.35);
+        assert_eq!(robot.profile().expect("the profile loads").motor.coulomb_friction_nm, 0.05);
+    }
+
+    #[test]
+    fn a_key_neither_file_has_is_named_as_given() {
+        let (_, robot_sets) = RobotOverrides::split(&sets(&["robot.wheel.frction=0.35"]));
+        let error = RobotDescription::load_with(&RobotDescription::default_path(), &robot_sets).expect_err("no such key").to_string();
+        assert!(error.contains("--set robot.wheel.frction=0.35") && error.contains("unknown field `frction`"), "{error}");
+        let (_, profile_sets) = RobotOverrides::split(&sets(&["profile.motor.coulomb_friction_nm=\"x\""]));
+        let error = RobotDescription::load_with(&RobotDescription::default_path(), &profile_sets).expect_err("not a number").to_string();
+        assert!(error.contains("profile.motor.coulomb_friction_nm"), "{error}");
     }
 }

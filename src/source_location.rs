@@ -13,6 +13,9 @@ pub enum DataFileError {
     Io { what: &'static str, path: PathBuf, source: std::io::Error },
     #[error("{what} {path}:{line}:{column}: {message}")]
     Parse { what: &'static str, path: PathBuf, line: usize, column: usize, message: String },
+    /// The file with `--set` overrides applied does not make a valid one.
+    #[error("{what} {path} with --set {sets}: {message}")]
+    Override { what: &'static str, path: PathBuf, sets: String, message: String },
 }
 
 /// Line and column (1-based) of a byte offset in a text.
@@ -35,6 +38,22 @@ pub fn parse_toml<T: DeserializeOwned>(what: &'static str, path: &Path, text: &s
 pub fn load_toml<T: DeserializeOwned>(what: &'static str, path: &Path) -> Result<T, DataFileError> {
     let text = std::fs::read_to_string(path).map_err(|source| DataFileError::Io { what, path: path.to_owned(), source })?;
     parse_toml(what, path, &text)
+}
+
+/// Read the TOML file at `path`, set `overrides` in it (see [`crate::overrides`]; their keys
+/// start with `prefix`, which names the file: `robot.`), and parse the result; an override
+/// that makes no valid file is named as it was given.
+pub fn load_toml_with<T: DeserializeOwned>(what: &'static str, path: &Path, prefix: &str, overrides: &[crate::overrides::Override]) -> Result<T, DataFileError> {
+    if overrides.is_empty() {
+        return load_toml(what, path);
+    }
+    let mut table: toml::Table = load_toml(what, path)?;
+    let sets = || overrides.iter().map(ToString::to_string).collect::<Vec<_>>().join(" ");
+    for set in overrides {
+        let key = set.key.strip_prefix(prefix).unwrap_or(&set.key).to_owned();
+        crate::overrides::Override { key, value: set.value.clone() }.apply(&mut table).map_err(|e| DataFileError::Override { what, path: path.to_owned(), sets: sets(), message: e.to_string() })?;
+    }
+    table.try_into().map_err(|e: toml::de::Error| DataFileError::Override { what, path: path.to_owned(), sets: sets(), message: e.message().to_owned() })
 }
 
 #[cfg(test)]

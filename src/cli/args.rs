@@ -9,7 +9,7 @@ use clap::ValueEnum;
 
 use climbsim::bus::Timing;
 use climbsim::fault::ScheduledFault;
-use climbsim::robot::RobotDescription;
+use climbsim::robot::{RobotDescription, RobotOverrides};
 use climbsim::runner::{Pace, TimeBase};
 use climbsim::runner::view::LiveAddress;
 use climbsim::virtual_time::VtSettings;
@@ -116,10 +116,15 @@ pub const ROBOT_IN_CHECKOUT: &str = "hil/robot.toml";
 
 /// Load the robot description at `path`, saying what to do when the default is not here.
 pub fn load_robot(path: &Path) -> Result<RobotDescription> {
+    load_robot_with(path, &RobotOverrides::default())
+}
+
+/// [`load_robot`] with `--set robot.…` and `--set profile.…` keys.
+pub fn load_robot_with(path: &Path, overrides: &RobotOverrides) -> Result<RobotDescription> {
     if path == Path::new(ROBOT_IN_CHECKOUT) && !path.exists() {
         bail!("robot description {ROBOT_IN_CHECKOUT} not found from {}: run climbsim from its checkout, or pass --robot FILE or set CLIMBSIM_ROBOT", std::env::current_dir().map(|d| d.display().to_string()).unwrap_or_else(|_| "here".to_owned()));
     }
-    Ok(RobotDescription::load(path)?)
+    Ok(RobotDescription::load_with(path, overrides)?)
 }
 
 /// The highest `--speed`: beyond it a firmware tick is shorter on the wall clock than a sleep.

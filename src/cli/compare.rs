@@ -27,7 +27,9 @@ pub struct CompareArgs {
     /// The scenario whose world the session is re-enacted in (it starts at the tap's start).
     #[arg(long)]
     pub scenario: PathBuf,
-    /// Override a scenario key, e.g. `--set world.seed=2` (repeatable).
+    /// Override a key (repeatable): the scenario's (`world.seed=2`), the robot description's
+    /// (`robot.wheel.friction=0.35`) or the firmware profile's
+    /// (`profile.motor.coulomb_friction_nm=0.04`).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Robot description.

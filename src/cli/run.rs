@@ -10,9 +10,10 @@ use climbsim::runner::lockstep::{LiveRun, run_builtin};
 use climbsim::runner::outputs::judge;
 use climbsim::runner::recording::RecordSpec;
 use climbsim::runner::{Console as _, RunOutcome, RunnerError, default_out_dir, preflight_dir, preflight_file};
+use climbsim::robot::RobotOverrides;
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
-use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, load_robot, parse_fault, refuse_recorded_cli_faults};
+use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, load_robot_with, parse_fault, refuse_recorded_cli_faults};
 use super::console::Terminal;
 use super::interrupt;
 
@@ -28,7 +29,9 @@ pub struct RunArgs {
     /// Output folder (default: results/<scenario name>).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Override a scenario key, e.g. `--set controller.zeta=0.5` (repeatable).
+    /// Override a key (repeatable): the scenario's (`controller.zeta=0.5`), the robot
+    /// description's (`robot.wheel.friction=0.35`) or the firmware profile's
+    /// (`profile.motor.coulomb_friction_nm=0.04`).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Reply timing on the pty (external controllers only; default wire).
@@ -56,8 +59,8 @@ pub fn exec(args: RunArgs) -> Result<()> {
     let RunArgs { scenario, out, set, timing, link, robot, faults, record, foxglove: FoxgloveArgs { address: foxglove }, pace } = args;
     interrupt::install()?;
     refuse_recorded_cli_faults(&faults, record.as_deref())?;
-    let robot = load_robot(&robot)?;
-    let overrides = parse_overrides(&set)?;
+    let (overrides, robot_sets) = RobotOverrides::split(&parse_overrides(&set)?);
+    let robot = load_robot_with(&robot, &robot_sets)?;
     let mut loaded = Scenario::load_with(&scenario, &overrides)?;
     loaded.add_faults(faults);
     let out_dir = out.unwrap_or_else(|| default_out_dir(&scenario));

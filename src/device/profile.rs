@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 use thiserror::Error;
 
-use crate::source_location::{DataFileError, load_toml, parse_toml};
+use crate::source_location::{DataFileError, load_toml, load_toml_with, parse_toml};
 
 use super::keys::Keys;
 
@@ -207,6 +207,12 @@ impl FirmwareProfile {
     /// Load and validate a profile file.
     pub fn load(path: &Path) -> Result<Self, ProfileError> {
         let file: ProfileFile = load_toml(WHAT, path)?;
+        Self::from_file(path, file)
+    }
+
+    /// Load with `overrides` set in the file (`--set profile.motor.coulomb_friction_nm=0.04`).
+    pub fn load_with(path: &Path, overrides: &[crate::overrides::Override]) -> Result<Self, ProfileError> {
+        let file: ProfileFile = load_toml_with(WHAT, path, crate::overrides::PROFILE_PREFIX, overrides)?;
         Self::from_file(path, file)
     }
 

@@ -23,7 +23,7 @@ use super::observe::scenario_bus;
 use crate::bus::Timing;
 use crate::real_bus::compare::{Comparison, RegisterStats, Tolerances, read_spans};
 use crate::real_bus::{RealRecord, RealTranscript};
-use crate::robot::{RobotDescription, RobotError};
+use crate::robot::{RobotDescription, RobotError, RobotOverrides};
 use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::transcript::{TranscriptError, packet_from_bytes, packet_from_hex};
 
@@ -49,6 +49,8 @@ pub enum CompareError {
 #[derive(Debug, Clone)]
 pub struct CompareOptions {
     pub scenario: PathBuf,
+    /// `--set`: the scenario's keys, and the robot description's and profile's (`robot.…`,
+    /// `profile.…`).
     pub overrides: Vec<Override>,
     pub robot: PathBuf,
     pub tolerances: Tolerances,
@@ -115,8 +117,9 @@ impl CompareReport {
 /// `options.out`.
 pub fn compare(transcript: &RealTranscript, path: &Path, options: &CompareOptions) -> Result<CompareReport, CompareError> {
     let _span = info_span!("compare", transcript = %path.display(), scenario = %options.scenario.display()).entered();
-    let scenario = Scenario::load_with(&options.scenario, &options.overrides)?;
-    let robot = RobotDescription::load(&options.robot)?;
+    let (overrides, robot_sets) = RobotOverrides::split(&options.overrides);
+    let scenario = Scenario::load_with(&options.scenario, &overrides)?;
+    let robot = RobotDescription::load_with(&options.robot, &robot_sets)?;
     let (mut bus, mut observer) = scenario_bus(&scenario, &robot, Timing::Wire, None)?;
     let profile = match bus.servos().first() {
         Some(servo) => std::sync::Arc::clone(servo.profile()),

@@ -24,7 +24,7 @@ use super::outputs::{RunOutcome, settings_json};
 use super::view::ViewOptions;
 use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::bus::Timing;
-use crate::robot::{RobotDescription, RobotError};
+use crate::robot::{RobotDescription, RobotError, RobotOverrides};
 use crate::transcript::{Record, Transcript, TranscriptError, crc64_hex, packet_from_hex, to_hex};
 
 #[derive(Debug, Error)]
@@ -158,8 +158,9 @@ pub fn replay(transcript: &Transcript, sources: &ReplaySources, out_dir: &Path) 
         .iter()
         .map(|set| Override::parse(set).map_err(|e| ReplayError::Override { path: transcript.path.clone(), set: set.clone(), message: e.to_string() }))
         .collect::<Result<Vec<_>, _>>()?;
+    let (overrides, robot_sets) = RobotOverrides::split(&overrides);
     let scenario = Scenario::load_with(&scenario_path, &overrides)?;
-    let robot = RobotDescription::load(&robot_path)?;
+    let robot = RobotDescription::load_with(&robot_path, &robot_sets)?;
     let profile_path = robot.profile_path();
     let profile_crc = crc64_hex(read_text(&profile_path)?.as_bytes());
     if !sources.force && profile_crc != header.robot.profile_crc64 {

@@ -13,11 +13,10 @@ use rapier3d::prelude::Vector;
 use serde::Deserialize;
 use thiserror::Error;
 
-mod overrides;
 pub mod sweep;
 pub mod validate;
 
-pub use overrides::{Override, OverrideError, parse_value, split_values};
+pub use crate::overrides::{Override, OverrideError, parse_value, split_values};
 
 use crate::control::ReferenceConfig;
 use crate::fault::{Fault, ScheduledFault};

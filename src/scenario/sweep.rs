@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 
 use thiserror::Error;
 
-use super::overrides::{Override, OverrideError, parse_value, split_values};
+use crate::overrides::{Override, OverrideError, parse_value, split_values};
 
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum SweepError {

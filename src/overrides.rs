@@ -1,5 +1,6 @@
-//! `--set KEY=VALUE` overrides of scenario keys, for sweeps: `controller.zeta=0.5` sets `zeta` in
-//! the `[controller]` table. Values are TOML (`0.5`, `true`, `"text"`, `[1, 2]`); anything that
+//! `--set KEY=VALUE` overrides of a data file's keys (a scenario's, and with a `robot.` or
+//! `profile.` prefix the robot description's and the firmware profile's), for runs, sweeps and
+//! fits: `controller.zeta=0.5` sets `zeta` in the `[controller]` table. Values are TOML (`0.5`, `true`, `"text"`, `[1, 2]`); anything that
 //! does not parse as TOML is taken as a string.
 
 use thiserror::Error;
@@ -8,11 +9,16 @@ use thiserror::Error;
 pub enum OverrideError {
     #[error("`{0}` is not KEY=VALUE")]
     NotAssignment(String),
-    #[error("`{key}`: `{part}` is not a table in this scenario")]
+    #[error("`{key}`: `{part}` is not a table in this file")]
     NotATable { key: String, part: String },
     #[error("`{0}` has an empty key part")]
     EmptyKey(String),
 }
+
+/// The prefix of a robot description's keys in `--set`.
+pub const ROBOT_PREFIX: &str = "robot.";
+/// The prefix of a firmware profile's keys in `--set`.
+pub const PROFILE_PREFIX: &str = "profile.";
 
 /// One `KEY=VALUE`.
 #[derive(Debug, Clone, PartialEq)]
