@@ -1,12 +1,18 @@
-//! The real robot in the loop, without hardware: the "real robot" is climbsim itself with a
-//! robot description the test keeps to itself (`serve SCENARIO --device` on the far end of a
-//! null-modem pty pair), the reference controller on the official SDK drives it through
-//! `climbsim tap`, and `climbsim compare` sets the recorded session beside the shipped world.
+//! The real robot in the loop, without hardware: `climbsim tap` between an unchanged controller
+//! (the official Python SDK) and "real" servos, which are climbsim itself on the far end of two
+//! pseudo-terminals joined like a null-modem cable (`serve --device`), with a robot description
+//! the test keeps to itself; then `climbsim compare` and `climbsim fit` against the shipped
+//! world. Everything here is real: the ptys, the SDK, the serial device's exclusive open and
+//! termios, the bytes on both sides. (One test binary for all of it: each costs a link in CI.)
 
 mod support;
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
+
+use climbsim::real_bus::RealRecord;
+use climbsim::real_bus::transcript::{RealReply, read};
+use climbsim::transcript::from_hex;
 
 use support::null_modem::NullModem;
 use support::tap::TapProcess;
@@ -37,7 +43,7 @@ fn hidden_robot(dir: &std::path::Path) -> std::path::PathBuf {
     path
 }
 
-fn compare(transcript: &std::path::Path, robot: &std::path::Path, out: &std::path::Path) -> std::process::Output {
+fn compare(transcript: &std::path::Path, robot: &std::path::Path, out: &std::path::Path, extra: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_climbsim"))
         .args(["compare"])
         .arg(transcript)
@@ -45,6 +51,7 @@ fn compare(transcript: &std::path::Path, robot: &std::path::Path, out: &std::pat
         .arg(robot)
         .arg("--out")
         .arg(out)
+        .args(extra)
         .current_dir(support::repo())
         .output()
         .expect("run climbsim compare")
@@ -81,7 +88,7 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     let transcript = dir.join("real.jsonl");
     // Against the shipped description: the magnet shafts' encoders read 12 pulses apart, and
     // the wheels, with less grip, do not turn as the world's do.
-    let shipped = compare(&transcript, &support::repo().join("hil/robot.toml"), &dir.join("shipped"));
+    let shipped = compare(&transcript, &support::repo().join("hil/robot.toml"), &dir.join("shipped"), &[]);
     let text = support::output_text(&shipped);
     assert_eq!(shipped.status.code(), Some(1), "{text}");
     for servo in 5..=8 {
@@ -94,6 +101,158 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     assert_eq!(magnet["bias"], -12.0, "the world reads 2048 where the robot reads 2060: {magnet}");
 
     // Against the robot's own description: the world matches it.
-    let own = compare(&transcript, &robot, &dir.join("own"));
+    let own = compare(&transcript, &robot, &dir.join("own"), &[]);
     assert_eq!(own.status.code(), Some(0), "{}", support::output_text(&own));
+
+    // Fit the shipped world to the session: the tread's friction and the encoders' mounting,
+    // with the magnet's pull given (a flat line excites grip, friction × pull, only as a
+    // product: fitted together they are reported as not identifiable, see docs/real-robot.md).
+    let fitted = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .arg("fit")
+        .arg(&transcript)
+        .args(["--scenario", "scenarios/external-line-follower.toml", "--set", "robot.magnet.pull_at_contact_n=60"])
+        .args(["--param", "robot.wheel.friction=0.2..0.9", "--param", "robot.magnet.encoder_at_down_pulses=2000..2100", "--out"])
+        .arg(dir.join("fit"))
+        .current_dir(support::repo())
+        .output()
+        .expect("run climbsim fit");
+    let text = support::output_text(&fitted);
+    assert_eq!(fitted.status.code(), Some(0), "the fitted world matches the robot: {text}");
+    let fit: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("fit/fit.json")).expect("fit.json")).expect("JSON");
+    let param = |key: &str| fit["parameters"].as_array().expect("parameters").iter().find(|p| p["key"] == key).cloned().unwrap_or_else(|| panic!("{key} in {fit}"));
+    let offset = param("robot.magnet.encoder_at_down_pulses");
+    assert_eq!(offset["value"], 2060.0, "{offset}");
+    let friction = param("robot.wheel.friction");
+    let (value, resolution) = (friction["value"].as_f64().expect("value"), friction["resolution"].as_f64().expect("determined"));
+    // The session pins it sharply (the error rises by 10 % within a small part of the range),
+    // but the "real robot" is a world on the wall clock: on a loaded machine its ticks come
+    // late, and what it shows is biased by that, as a real robot's noise would bias it. Measured
+    // (2026-11-27): 0.349 on a quiet machine, 0.39 beside two busy loops. So: within 0.06 (17 %)
+    // of the hidden value, or three widths if wider.
+    assert!(friction["identifiable"] == true && resolution < 0.05, "{friction}");
+    assert!((value - 0.35).abs() <= (3.0 * resolution).max(0.06), "friction {value} against the hidden 0.35 (± {resolution}): {text}");
+    let sets = std::fs::read_to_string(dir.join("fit/fitted.sets")).expect("fitted.sets");
+    assert!(sets.contains("robot.magnet.encoder_at_down_pulses=2060"), "{sets}");
+    let fitted_robot = dir.join("fit/fitted-robot.toml");
+    let after = compare(&transcript, &fitted_robot, &dir.join("after"), &["--set", "robot.magnet.pull_at_contact_n=60"]);
+    assert_eq!(after.status.code(), Some(0), "the fitted description (and the pull given) matches: {}", support::output_text(&after));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("after/compare.json")).expect("compare.json")).expect("JSON");
+    let magnet = report["registers"].as_array().expect("registers").iter().find(|r| r["id"] == 5).expect("servo 5");
+    assert_eq!(magnet["bias"], 0.0, "{magnet}");
+}
+
+/// The controller: pings 1 to 9 (there is no 9), twenty Sync Reads of Present Position from
+/// the eight servos, an LED write, then its port switched to 1 Mbps and one more ping. It
+/// prints what it got, one line each.
+const CONTROLLER: &str = r#"
+import sys
+from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler, PortHandler
+port = PortHandler(sys.argv[1])
+assert port.openPort() and port.setBaudRate(57600)
+packets = PacketHandler(2.0)
+for servo in range(1, 10):
+    _, result, _ = packets.ping(port, servo)
+    print("ping", servo, result == COMM_SUCCESS)
+sync_read = GroupSyncRead(port, packets, 132, 4)
+for servo in range(1, 9):
+    sync_read.addParam(servo)
+print("sync reads", sum(sync_read.txRxPacket() == COMM_SUCCESS for _ in range(20)))
+result, _ = packets.write1ByteTxRx(port, 3, 65, 1)
+print("led", result == COMM_SUCCESS)
+assert port.setBaudRate(1000000)
+_, result, _ = packets.ping(port, 1)
+print("ping at 1 Mbps", result == COMM_SUCCESS)
+"#;
+
+/// An instruction in the transcript: its hex, replies, missed servos and its last byte's time.
+type Tx<'a> = (&'a str, &'a [RealReply], &'a [u8], u64);
+
+#[test]
+fn tap_forwards_an_unchanged_sdk_controller_and_records_each_transaction_with_its_replies() {
+    let dir = support::scratch_dir("tap-sdk");
+    let cable = NullModem::new();
+    let servos = support::Options::default().stderr_log().start(&["--device", cable.b().to_str().expect("utf-8")]);
+    let mut tap = TapProcess::start(cable.a(), &dir, &[]);
+
+    let controller = Command::new(support::sdk_python()).arg("-c").arg(CONTROLLER).arg(&tap.port).output().expect("run the SDK controller");
+    let said = String::from_utf8_lossy(&controller.stdout).into_owned();
+    assert!(controller.status.success(), "the controller failed: {said}{}", String::from_utf8_lossy(&controller.stderr));
+    // Through the tap the controller sees the servos as it would directly.
+    for servo in 1..=8 {
+        assert!(said.contains(&format!("ping {servo} True")), "{said}");
+    }
+    assert!(said.contains("ping 9 False") && said.contains("sync reads 20") && said.contains("led True") && said.contains("ping at 1 Mbps True"), "{said}");
+    assert_eq!(cable.baud_a(), Some(1_000_000), "the device follows the controller's rate");
+
+    tap.interrupt();
+    let status = tap.wait(Duration::from_secs(10));
+    let stderr = tap.stderr();
+    assert!(status.success(), "tap exited {status}: {stderr}");
+    drop(servos);
+
+    let transcript = read(&dir.join("real.jsonl")).expect("the transcript reads back");
+    assert!(transcript.complete && !transcript.torn_tail);
+    assert_eq!(transcript.header.mode, "tap");
+    let records: Vec<&RealRecord> = transcript.records.iter().map(|(_, r)| r).collect();
+    let txs: Vec<Tx<'_>> = records.iter().filter_map(|r| if let RealRecord::Tx { hex, replies, missed, end, .. } = r { Some((hex.as_str(), replies.as_slice(), missed.as_slice(), *end)) } else { None }).collect();
+    // 9 pings, 20 Sync Reads, the LED write, the last ping (the SDK adds nothing else).
+    assert_eq!(txs.len(), 31, "{records:?}");
+    let missed: Vec<u8> = txs.iter().flat_map(|tx| tx.2.iter().copied()).collect();
+    assert_eq!(missed, vec![9], "only the absent servo is missed");
+    let sync_reads: Vec<_> = txs.iter().filter(|tx| tx.0.get(14..16) == Some("82")).collect();
+    assert_eq!(sync_reads.len(), 20);
+    for tx in &sync_reads {
+        let ids: Vec<u8> = tx.1.iter().map(|r| r.id).collect();
+        assert_eq!(ids, (1..=8).collect::<Vec<u8>>(), "each Sync Read paired with its eight replies, in order");
+        assert!(tx.1.iter().all(|r| r.t >= tx.3 && r.end >= r.t), "replies come after the request's last byte");
+    }
+    // Every byte the tap forwarded is in the transcript: instructions, replies and nothing raw.
+    let Some(RealRecord::End { from_controller, from_servos, why, .. }) = records.last() else { panic!("no end line") };
+    assert_eq!(why, "interrupted");
+    let sent: usize = txs.iter().map(|tx| from_hex(tx.0).expect("hex").len()).sum();
+    let answered: usize = txs.iter().flat_map(|tx| tx.1.iter()).map(|r| from_hex(&r.hex).expect("hex").len()).sum();
+    assert_eq!((sent as u64, answered as u64), (*from_controller, *from_servos));
+    assert!(records.iter().any(|r| matches!(r, RealRecord::Baud { baud: 1_000_000, .. })));
+    assert!(!records.iter().any(|r| matches!(r, RealRecord::Raw { .. } | RealRecord::Unpaired { .. } | RealRecord::FrameError { .. })), "{records:?}");
+
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("real.timing.json")).expect("the timing report")).expect("JSON");
+    let servos = report["servos"].as_array().expect("servos");
+    assert_eq!(servos.len(), 9, "{report}");
+    assert_eq!(servos[8]["id"], 9);
+    assert_eq!(servos[8]["missed"], 1);
+    assert_eq!(servos[0]["replies"], 22, "servo 1: its ping, 20 Sync Reads and the last ping");
+    assert!(servos[0]["latency_us"]["median"].as_f64().is_some_and(|m| m > 0.0), "{report}");
+    assert!(stderr.contains("transactions; reply latency"), "the table is printed: {stderr}");
+}
+
+#[test]
+fn a_device_that_goes_away_ends_the_tap_with_complete_outputs() {
+    let dir = support::scratch_dir("tap-unplug");
+    let cable = NullModem::new();
+    let mut tap = TapProcess::start(cable.a(), &dir, &[]);
+    cable.unplug_a();
+    let status = tap.wait(Duration::from_secs(10));
+    let stderr = tap.stderr();
+    assert!(status.success(), "tap exited {status}: {stderr}");
+    let transcript = read(&dir.join("real.jsonl")).expect("the transcript reads back");
+    assert!(transcript.complete, "an end line");
+    assert!(matches!(transcript.records.last(), Some((_, RealRecord::End { why, .. })) if why.contains("went away")), "{:?}", transcript.records);
+    assert!(dir.join("real.timing.json").exists());
+    assert!(!dir.join("ttyDXL").exists(), "the link is removed");
+}
+
+#[test]
+fn a_device_that_is_not_there_is_named_and_nothing_is_left_behind() {
+    let dir = support::scratch_dir("tap-missing");
+    let output = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["tap", "--device", "/dev/does-not-exist", "--link"])
+        .arg(dir.join("ttyDXL"))
+        .arg("--record")
+        .arg(dir.join("real.jsonl"))
+        .output()
+        .expect("run climbsim tap");
+    let text = support::output_text(&output);
+    assert_eq!(output.status.code(), Some(2), "{text}");
+    assert!(text.contains("/dev/does-not-exist") && text.contains("no such device"), "{text}");
+    assert!(!dir.join("real.jsonl").exists() && !dir.join("ttyDXL").exists());
 }

@@ -1,27 +1,23 @@
 //! `climbsim compare TRANSCRIPT --scenario S`: a real session beside the world, register by
-//! register.
+//! register; and what `fit` shares with it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 
 use climbsim::real_bus::compare::Tolerances;
 use climbsim::real_bus::transcript::read;
 use climbsim::report::diff::Tolerances as DiffTolerances;
-use climbsim::runner::compare::{CompareOptions, compare};
+use climbsim::runner::compare::{CompareOptions, CompareReport, compare};
 use climbsim::runner::{Console as _, RunnerError};
 
 use super::args::ROBOT_IN_CHECKOUT;
 use super::console::Terminal;
 use super::run::parse_overrides;
 
-/// Re-enact a real session recorded by `climbsim tap` open-loop in a scenario's world (its
-/// instructions at their recorded instants) and compare every real read reply with the world's
-/// answer to the same read: per servo and register the bias, RMS, largest difference and lag,
-/// and the reply latency against the wire model. Writes compare.json; exits 1 when a register's
-/// RMS is past its tolerance (by default 5 % of the real signal's span, at least two steps).
+/// The world a real session is set beside, and how far apart they may be (`compare`, `fit`).
 #[derive(Debug, clap::Args)]
-pub struct CompareArgs {
+pub struct AgainstArgs {
     /// The real session's transcript (`climbsim tap --record`).
     pub transcript: PathBuf,
     /// The scenario whose world the session is re-enacted in (it starts at the tap's start).
@@ -35,45 +31,77 @@ pub struct CompareArgs {
     /// Robot description.
     #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
     pub robot: PathBuf,
-    /// Output folder (default: results/compare/<transcript name>).
-    #[arg(long)]
-    pub out: Option<PathBuf>,
     /// The RMS a register may differ by, in its unit: `present_position=0.5` for every servo,
     /// `3.present_position=0.5` for one (repeatable).
     #[arg(long = "tolerance", value_name = "KEY=ABS")]
     pub tolerance: Vec<String>,
     /// The RMS a register without an absolute tolerance may differ by, as a fraction of the
-    /// real signal's span.
+    /// real signal's span (never less than two steps of the register).
     #[arg(long, value_name = "R", default_value = "0.05")]
     pub rel: f64,
 }
 
+impl AgainstArgs {
+    /// The compare options, with `out` (default results/`what`/<transcript name>).
+    pub fn options(&self, what: &str, out: Option<PathBuf>) -> Result<CompareOptions> {
+        if self.rel.is_nan() || self.rel < 0.0 {
+            bail!("--rel must be a non-negative number");
+        }
+        let mut tolerances = Tolerances { rel: self.rel, ..Tolerances::default() };
+        for text in &self.tolerance {
+            let (key, value) = DiffTolerances::parse_abs(text).map_err(|e| anyhow::anyhow!("--tolerance {e}"))?;
+            tolerances.abs.insert(key, value);
+        }
+        super::args::load_robot(&self.robot)?;
+        let out = out.unwrap_or_else(|| {
+            let stem = self.transcript.file_stem().map_or_else(|| what.into(), |s| s.to_string_lossy().into_owned());
+            PathBuf::from("results").join(what).join(stem)
+        });
+        Ok(CompareOptions { scenario: self.scenario.clone(), overrides: parse_overrides(&self.set)?, robot: self.robot.clone(), tolerances, out })
+    }
+}
+
+/// Re-enact a real session recorded by `climbsim tap` open-loop in a scenario's world (its
+/// instructions at their recorded instants) and compare every real read reply with the world's
+/// answer to the same read: per servo and register the bias, RMS, largest difference and lag,
+/// and the reply latency against the wire model. Writes compare.json; exits 1 when a register's
+/// RMS is past its tolerance (by default 5 % of the real signal's span, at least two steps).
+#[derive(Debug, clap::Args)]
+pub struct CompareArgs {
+    #[command(flatten)]
+    pub against: AgainstArgs,
+    /// Output folder (default: results/compare/<transcript name>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
 pub fn exec(args: CompareArgs) -> Result<()> {
-    let CompareArgs { transcript, scenario, set, robot, out, tolerance, rel } = args;
-    if rel.is_nan() || rel < 0.0 {
-        bail!("--rel must be a non-negative number");
-    }
-    let mut tolerances = Tolerances { rel, ..Tolerances::default() };
-    for text in &tolerance {
-        let (key, value) = DiffTolerances::parse_abs(text).map_err(|e| anyhow::anyhow!("--tolerance {e}"))?;
-        tolerances.abs.insert(key, value);
-    }
-    super::args::load_robot(&robot)?;
-    let session = read(&transcript)?;
-    let out = out.unwrap_or_else(|| {
-        let stem = transcript.file_stem().map_or_else(|| "compare".into(), |s| s.to_string_lossy().into_owned());
-        PathBuf::from("results").join("compare").join(stem)
-    });
-    let options = CompareOptions { scenario, overrides: parse_overrides(&set)?, robot, tolerances, out: out.clone() };
-    let report = compare(&session, &transcript, &options)?;
-    // A tolerance for a register the session never read is a typo that would loosen nothing.
+    let options = args.against.options("compare", args.out)?;
+    let transcript = &args.against.transcript;
+    let report = compare(&read(transcript)?, transcript, &options)?;
+    refuse_unknown_tolerances(&options, &report)?;
+    say_report(transcript, &options.scenario, &report);
+    Terminal.say(&format!("wrote {}", options.out.join("compare.json").display()));
+    verdict(&report)
+}
+
+/// A tolerance for a register the session never read is a typo that would loosen nothing.
+pub fn refuse_unknown_tolerances(options: &CompareOptions, report: &CompareReport) -> Result<()> {
     if let Some(unknown) = options.tolerances.abs.keys().find(|key| !report.registers.iter().any(|r| &r.key == *key || &format!("{}.{}", r.id, r.key) == *key)) {
         let known: Vec<String> = report.registers.iter().map(|r| format!("{}.{}", r.id, r.key)).collect();
         bail!("--tolerance {unknown}=...: the session has no register `{unknown}` (it read: {})", known.join(", "));
     }
-    Terminal.say(&format!("{}: {} instructions re-enacted in {}, {} read replies compared{}", transcript.display(), report.instructions, options.scenario.display(), report.replies_compared, if report.replies_the_world_missed > 0 { format!(", {} real replies the world did not give", report.replies_the_world_missed) } else { String::new() }));
+    Ok(())
+}
+
+pub fn say_report(transcript: &Path, scenario: &Path, report: &CompareReport) {
+    let missed = if report.replies_the_world_missed > 0 { format!(", {} real replies the world did not give", report.replies_the_world_missed) } else { String::new() };
+    Terminal.say(&format!("{}: {} instructions re-enacted in {}, {} read replies compared{missed}", transcript.display(), report.instructions, scenario.display(), report.replies_compared));
     Terminal.say(report.table().trim_end_matches('\n'));
-    Terminal.say(&format!("wrote {}", out.join("compare.json").display()));
+}
+
+/// Exit 1 (a failed comparison, not bad input) when a register is past its tolerance.
+pub fn verdict(report: &CompareReport) -> Result<()> {
     let failures = report.failures();
     if !failures.is_empty() {
         let names: Vec<String> = failures.iter().map(|r| format!("servo {} {} (RMS {:.4} {} > {:.4})", r.id, r.key, r.rms, r.unit.as_deref().unwrap_or(""), r.tolerance)).collect();

@@ -7,6 +7,7 @@ mod check;
 mod compare;
 mod console;
 mod diff;
+mod fit;
 mod interrupt;
 mod replay;
 mod run;
@@ -34,6 +35,7 @@ pub enum Command {
     Sweep(sweep::SweepArgs),
     Tap(tap::TapArgs),
     Compare(compare::CompareArgs),
+    Fit(fit::FitArgs),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -46,5 +48,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Sweep(args) => sweep::exec(args),
         Command::Tap(args) => tap::exec(args),
         Command::Compare(args) => compare::exec(args),
+        Command::Fit(args) => fit::exec(args),
     }
 }

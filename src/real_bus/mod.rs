@@ -5,6 +5,7 @@
 //! servos' reply latency. All sans-IO: the bridge itself is `runner::tap`.
 
 pub mod compare;
+pub mod fit;
 pub mod pairing;
 pub mod stream;
 pub mod timing;

@@ -54,6 +54,7 @@ pub struct CompareOptions {
     pub overrides: Vec<Override>,
     pub robot: PathBuf,
     pub tolerances: Tolerances,
+    /// Where `compare.json` goes ([`compare`]; [`reenact`] writes nothing).
     pub out: PathBuf,
 }
 
@@ -116,6 +117,23 @@ impl CompareReport {
 /// Re-enact `transcript` in the scenario's world and compare; writes `compare.json` into
 /// `options.out`.
 pub fn compare(transcript: &RealTranscript, path: &Path, options: &CompareOptions) -> Result<CompareReport, CompareError> {
+    let report = reenact(transcript, path, options)?;
+    write_report(&report, &options.out)?;
+    Ok(report)
+}
+
+/// Write `compare.json` (the report and whether it passed) into `out`.
+pub fn write_report(report: &CompareReport, out: &Path) -> Result<(), CompareError> {
+    std::fs::create_dir_all(out).map_err(|source| CompareError::Write { path: out.to_owned(), source })?;
+    let json_path = out.join("compare.json");
+    let mut value = serde_json::to_value(report).unwrap_or_else(|_| json!({}));
+    value["passed"] = json!(report.failures().is_empty());
+    let text = serde_json::to_string_pretty(&value).unwrap_or_default() + "\n";
+    std::fs::write(&json_path, text).map_err(|source| CompareError::Write { path: json_path, source })
+}
+
+/// Re-enact `transcript` in the scenario's world and compare, writing nothing.
+pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOptions) -> Result<CompareReport, CompareError> {
     let _span = info_span!("compare", transcript = %path.display(), scenario = %options.scenario.display()).entered();
     let (overrides, robot_sets) = RobotOverrides::split(&options.overrides);
     let scenario = Scenario::load_with(&options.scenario, &overrides)?;
@@ -172,7 +190,7 @@ pub fn compare(transcript: &RealTranscript, path: &Path, options: &CompareOption
         return Err(CompareError::NothingToCompare { path: path.to_owned() });
     }
     let latency = latencies.into_iter().map(|(id, (mut real, mut model))| LatencyComparison { id, replies: real.len(), real_median_us: median(&mut real), model_median_us: median(&mut model) }).collect();
-    let report = CompareReport {
+    Ok(CompareReport {
         transcript: path.to_owned(),
         scenario: options.scenario.clone(),
         robot: options.robot.clone(),
@@ -182,14 +200,7 @@ pub fn compare(transcript: &RealTranscript, path: &Path, options: &CompareOption
         replies_the_world_missed: missed,
         registers: comparison.stats(&profile, &options.tolerances),
         latency,
-    };
-    std::fs::create_dir_all(&options.out).map_err(|source| CompareError::Write { path: options.out.clone(), source })?;
-    let json_path = options.out.join("compare.json");
-    let mut value = serde_json::to_value(&report).unwrap_or_else(|_| json!({}));
-    value["passed"] = json!(report.failures().is_empty());
-    let text = serde_json::to_string_pretty(&value).unwrap_or_default() + "\n";
-    std::fs::write(&json_path, text).map_err(|source| CompareError::Write { path: json_path, source })?;
-    Ok(report)
+    })
 }
 
 fn median(values: &mut [f64]) -> f64 {

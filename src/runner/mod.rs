@@ -12,6 +12,7 @@ pub mod capped_log;
 pub mod check;
 pub mod clock;
 pub mod compare;
+pub mod fit;
 pub mod error;
 pub mod external;
 pub mod feed;

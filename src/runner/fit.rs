@@ -1,0 +1,167 @@
+//! `climbsim fit`: the parameter values that make the world answer a real session as the robot
+//! did ([`crate::real_bus::fit`] searches; each evaluation is a `compare` re-enactment, run
+//! `--jobs` at a time), how well the session determines each, and the files to use them.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use serde_json::json;
+use tracing::warn;
+
+use super::compare::{CompareError, CompareOptions, CompareReport, reenact, write_report};
+use super::each_in_parallel;
+use super::sweep::Progress;
+use crate::overrides::Override;
+use crate::real_bus::RealTranscript;
+use crate::real_bus::fit::{Determination, FitParam, Minimum, Stop, determine, minimise};
+use crate::robot::RobotOverrides;
+
+/// What to fit, against what.
+#[derive(Debug, Clone)]
+pub struct FitOptions {
+    /// The scenario, the robot, the fixed `--set` keys, the tolerances and the output folder.
+    pub compare: CompareOptions,
+    pub params: Vec<FitParam>,
+    pub jobs: usize,
+    pub stop: Stop,
+}
+
+/// One fitted parameter.
+#[derive(Debug, Clone, Serialize)]
+pub struct Fitted {
+    #[serde(flatten)]
+    pub param: FitParam,
+    pub value: f64,
+    #[serde(flatten)]
+    pub determination: Determination,
+}
+
+/// The fit's result.
+#[derive(Debug, Clone)]
+pub struct FitOutcome {
+    pub fitted: Vec<Fitted>,
+    pub evaluations: usize,
+    /// `compare` with the parameters as the files have them, and with the fitted values.
+    pub before: CompareReport,
+    pub after: CompareReport,
+    pub error_before: f64,
+    pub error_after: f64,
+}
+
+/// The error the fit minimises: the mean over registers of (RMS / tolerance)², so that every
+/// register counts in units of what it may differ by (the tolerances come from the real signals
+/// and the flags, so they do not move with the parameters).
+pub fn fit_error(report: &CompareReport) -> f64 {
+    let terms: Vec<f64> = report.registers.iter().filter(|r| r.tolerance > 0.0).map(|r| (r.rms / r.tolerance).powi(2)).collect();
+    if terms.is_empty() { f64::INFINITY } else { terms.iter().sum::<f64>() / terms.len() as f64 }
+}
+
+/// The `--set` for `param` at `unit` of its range: an integer where the range was given in
+/// integers (an encoder offset), else a float.
+fn set_for(param: &FitParam, unit: f64) -> Override {
+    let value = param.value(unit);
+    let value = if param.integer { toml::Value::Integer(value.round() as i64) } else { toml::Value::Float(value) };
+    Override { key: param.key.clone(), value }
+}
+
+/// Search, probe, and write `fit.json`, `fitted.sets`, `fitted-robot.toml` (when robot keys were
+/// fitted) and the compare reports before and after into the output folder.
+pub fn fit(transcript: &RealTranscript, path: &Path, options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, CompareError> {
+    let params = &options.params;
+    let base = &options.compare;
+    let with = |unit: &[f64]| {
+        let mut sets = base.overrides.clone();
+        sets.extend(params.iter().zip(unit).map(|(param, u)| set_for(param, *u)));
+        CompareOptions { overrides: sets, ..base.clone() }
+    };
+    // The files' own values are the baseline, and a session the world cannot re-enact at all
+    // fails here, clearly, rather than as an infinite error.
+    let before = reenact(transcript, path, base)?;
+    let error_before = fit_error(&before);
+    // Every point is evaluated; one the world cannot be built for (a value its checks refuse)
+    // counts as infinitely far.
+    let mut evaluate = |points: &[Vec<f64>]| -> Vec<f64> {
+        each_in_parallel(points, options.jobs, |unit| {
+            let error = match reenact(transcript, path, &with(unit)) {
+                Ok(report) => fit_error(&report),
+                Err(error) => {
+                    warn!(%error, "an evaluation failed; it counts as infinitely far");
+                    f64::INFINITY
+                }
+            };
+            progress.done_one();
+            Some(error)
+        })
+    };
+    progress.start(options.stop.max_evaluations + 2 * params.len() + 2);
+    let start = vec![0.5; params.len()];
+    let minimum: Minimum = minimise(&start, options.stop, options.jobs > 1, &mut evaluate);
+    let determinations = determine(params, &minimum, &mut evaluate);
+    progress.finish();
+    let after_options = with(&minimum.unit);
+    let after = reenact(transcript, path, &after_options)?;
+    let fitted: Vec<Fitted> = params
+        .iter()
+        .zip(&minimum.unit)
+        .zip(determinations)
+        .map(|((param, unit), determination)| Fitted { param: param.clone(), value: set_value(&set_for(param, *unit)), determination })
+        .collect();
+    let outcome = FitOutcome { fitted, evaluations: minimum.evaluations + 2 * params.len(), error_before, error_after: fit_error(&after), before, after };
+    write_outputs(&outcome, base, &after_options, path)?;
+    Ok(outcome)
+}
+
+fn set_value(set: &Override) -> f64 {
+    set.value.as_float().or_else(|| set.value.as_integer().map(|i| i as f64)).unwrap_or(f64::NAN)
+}
+
+fn write(path: PathBuf, text: String) -> Result<(), CompareError> {
+    std::fs::write(&path, text).map_err(|source| CompareError::Write { path, source })
+}
+
+fn write_outputs(outcome: &FitOutcome, base: &CompareOptions, after: &CompareOptions, transcript: &Path) -> Result<(), CompareError> {
+    let out = &base.out;
+    write_report(&outcome.before, &out.join("before"))?;
+    write_report(&outcome.after, &out.join("after"))?;
+    let summary = json!({
+        "transcript": transcript,
+        "scenario": base.scenario,
+        "robot": base.robot,
+        "fixed_sets": base.overrides.iter().map(ToString::to_string).collect::<Vec<_>>(),
+        "evaluations": outcome.evaluations,
+        "error_before": outcome.error_before,
+        "error_after": outcome.error_after,
+        "parameters": outcome.fitted,
+    });
+    write(out.join("fit.json"), serde_json::to_string_pretty(&summary).unwrap_or_default() + "\n")?;
+    // One `--set` per line, for `run --set`, `compare --set` and the like.
+    let fitted_sets = &after.overrides[base.overrides.len()..];
+    let mut sets: String = fitted_sets.iter().map(|s| format!("{s}\n")).collect();
+    sets.insert_str(0, "# climbsim fit: the fitted keys, one KEY=VALUE per line (pass each as --set)\n");
+    write(out.join("fitted.sets"), sets)?;
+    let (_, robot_sets) = RobotOverrides::split(fitted_sets);
+    if !robot_sets.robot.is_empty() {
+        write(out.join("fitted-robot.toml"), fitted_robot(&base.robot, &robot_sets.robot)?)?;
+    }
+    Ok(())
+}
+
+/// The robot description with the fitted `robot.…` keys set, its profile path made absolute
+/// (the file is written elsewhere). The file's comments do not survive.
+fn fitted_robot(robot: &Path, sets: &[Override]) -> Result<String, CompareError> {
+    let io = |source| CompareError::Write { path: robot.to_owned(), source };
+    let text = std::fs::read_to_string(robot).map_err(io)?;
+    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| io(std::io::Error::other(e.to_string())))?;
+    for set in sets {
+        let key = set.key.strip_prefix(RobotOverrides::ROBOT).unwrap_or(&set.key).to_owned();
+        Override { key, value: set.value.clone() }.apply(&mut table).map_err(|e| io(std::io::Error::other(e.to_string())))?;
+    }
+    if let Some(profile) = table.get_mut("bus").and_then(|bus| bus.get_mut("profile"))
+        && let Some(relative) = profile.as_str()
+    {
+        let absolute = robot.parent().unwrap_or(Path::new(".")).join(relative);
+        *profile = toml::Value::String(std::fs::canonicalize(&absolute).unwrap_or(absolute).display().to_string());
+    }
+    let sets: Vec<String> = sets.iter().map(ToString::to_string).collect();
+    Ok(format!("# {} with the values `climbsim fit` found: {}\n{}", robot.display(), sets.join(" "), toml::to_string(&table).unwrap_or_default()))
+}
