@@ -39,6 +39,9 @@ use crate::protocol::{Decoder, RawPacket};
 pub const FORMAT: &str = "climbsim-transcript";
 /// The version this climbsim writes and reads.
 pub const VERSION: u32 = 1;
+/// The `format` of a real bus's transcript (`climbsim tap`, [`crate::real_bus::transcript`]):
+/// named here, so that each kind's reader can say what the other one is.
+pub const REAL_FORMAT: &str = "climbsim-real-transcript";
 /// Longest time a written line may sit in memory before it reaches the file.
 pub const FLUSH_EVERY: Duration = Duration::from_millis(20);
 
@@ -57,8 +60,8 @@ pub enum TranscriptError {
 /// What to do with a file of the other kind of transcript.
 fn format_hint(found: &str, expected: &str) -> &'static str {
     match (found, expected) {
-        (crate::real_bus::FORMAT, FORMAT) => ": it is a real bus's session, recorded by `climbsim tap`",
-        (FORMAT, crate::real_bus::FORMAT) => ": it is a simulated session, recorded by `--record`; `climbsim replay` re-enacts it",
+        (REAL_FORMAT, FORMAT) => ": it is a real bus's session, recorded by `climbsim tap`",
+        (FORMAT, REAL_FORMAT) => ": it is a simulated session, recorded by `--record`; `climbsim replay` re-enacts it",
         _ => "",
     }
 }

@@ -17,7 +17,7 @@ use crate::transcript::{JsonLines, TranscriptError, nanos, read_json_lines, to_h
 use super::pairing::{Event, Seen};
 
 /// The `format` of a real bus's transcript.
-pub const FORMAT: &str = "climbsim-real-transcript";
+pub const FORMAT: &str = crate::transcript::REAL_FORMAT;
 /// The version this climbsim writes and reads.
 pub const VERSION: u32 = 1;
 
