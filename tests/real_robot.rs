@@ -99,6 +99,10 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     assert!(report["replies_compared"].as_u64().is_some_and(|n| n > 8 * 100), "{report}");
     let magnet = report["registers"].as_array().expect("registers").iter().find(|r| r["id"] == 5).expect("servo 5");
     assert_eq!(magnet["bias"], -12.0, "the world reads 2048 where the robot reads 2060: {magnet}");
+    for servo in 1..=8 {
+        let plot = dir.join(format!("shipped/plots/servo{servo}_present_position.png"));
+        assert!(std::fs::metadata(&plot).is_ok_and(|m| m.len() > 1000), "a plot per register: {}", plot.display());
+    }
 
     // Against the robot's own description: the world matches it.
     let own = compare(&transcript, &robot, &dir.join("own"), &[]);

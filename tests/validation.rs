@@ -117,6 +117,18 @@ fn sweep_refuses_a_bad_grid_point_before_any_run() {
 }
 
 #[test]
+fn sweep_refuses_a_bad_robot_key_in_its_grid_before_any_run_naming_it() {
+    let dir = support::scratch_dir("bad-robot-grid");
+    let out = dir.join("sweep");
+    let output = climbsim(&["sweep", "scenarios/flat-line.toml", "--set", "robot.wheel.friction=0.5,\"x\"", "--out", &out.display().to_string()]);
+    assert_refused(&output, "a friction that is not a number", &["--set robot.wheel.friction=\"x\"", "robot description"]);
+    let output = climbsim(&["run", "scenarios/flat-line.toml", "--set", "profile.motor.no_such_key=1", "--out", &dir.join("run").display().to_string()]);
+    assert_refused(&output, "a profile key the profile lacks", &["--set profile.motor.no_such_key=1", "unknown field `no_such_key`"]);
+    let runs = std::fs::read_dir(&out).map(|entries| entries.count()).unwrap_or(0);
+    assert_eq!(runs, 0, "no point ran before the bad one was found");
+}
+
+#[test]
 fn a_start_off_the_terrain_is_refused() {
     let dir = support::scratch_dir("start-off");
     let path = variant(&dir, "off", &[("size_m = 10.0", "size_m = 1.0"), ("points = [[-0.5, 0.0], [3.0, 0.0]]", "points = [[-0.45, 0.0], [0.45, 0.0]]"), ("line_offset_m = 0.05", "line_offset_m = 0.45")]);

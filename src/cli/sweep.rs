@@ -19,7 +19,8 @@ pub struct SweepArgs {
     /// Scenario file (not with --merge).
     #[arg(required_unless_present = "merge")]
     pub scenario: Option<PathBuf>,
-    /// A swept key and its values: `controller.zeta=0.3,0.5,0.7` (repeatable: a grid).
+    /// A swept key and its values: `controller.zeta=0.3,0.5,0.7` (repeatable: a grid). Robot
+    /// description and firmware profile keys too: `robot.wheel.friction=0.4,0.6,0.8`.
     #[arg(long = "set", value_name = "KEY=V1,V2,...")]
     pub set: Vec<String>,
     /// Runs at once (default: the number of CPUs).

@@ -21,7 +21,8 @@ use tracing::info_span;
 use super::RunError;
 use super::observe::scenario_bus;
 use crate::bus::Timing;
-use crate::real_bus::compare::{Comparison, RegisterStats, Tolerances, read_spans};
+use crate::real_bus::compare::{Comparison, RegisterSeries, RegisterStats, Tolerances, read_spans};
+use crate::report::{PlotLabels, PlotSeries, plot_series};
 use crate::real_bus::{RealRecord, RealTranscript};
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
 use crate::scenario::{Override, Scenario, ScenarioError};
@@ -43,6 +44,8 @@ pub enum CompareError {
     NothingToCompare { path: PathBuf },
     #[error("cannot write {}: {source}", path.display())]
     Write { path: PathBuf, source: std::io::Error },
+    #[error(transparent)]
+    Plot(crate::report::ReportError),
 }
 
 /// What to compare the session with.
@@ -81,6 +84,9 @@ pub struct CompareReport {
     pub replies_the_world_missed: u64,
     pub registers: Vec<RegisterStats>,
     pub latency: Vec<LatencyComparison>,
+    /// Each register's samples, real and simulated (plotted, not in the JSON).
+    #[serde(skip)]
+    pub series: Vec<RegisterSeries>,
 }
 
 impl CompareReport {
@@ -122,14 +128,27 @@ pub fn compare(transcript: &RealTranscript, path: &Path, options: &CompareOption
     Ok(report)
 }
 
-/// Write `compare.json` (the report and whether it passed) into `out`.
+/// Write `compare.json` (the report and whether it passed) into `out`, and a plot per register
+/// (the robot's and the world's values over time) into `out/plots`.
 pub fn write_report(report: &CompareReport, out: &Path) -> Result<(), CompareError> {
     std::fs::create_dir_all(out).map_err(|source| CompareError::Write { path: out.to_owned(), source })?;
     let json_path = out.join("compare.json");
     let mut value = serde_json::to_value(report).unwrap_or_else(|_| json!({}));
     value["passed"] = json!(report.failures().is_empty());
     let text = serde_json::to_string_pretty(&value).unwrap_or_default() + "\n";
-    std::fs::write(&json_path, text).map_err(|source| CompareError::Write { path: json_path, source })
+    std::fs::write(&json_path, text).map_err(|source| CompareError::Write { path: json_path, source })?;
+    let plots = out.join("plots");
+    std::fs::create_dir_all(&plots).map_err(|source| CompareError::Write { path: plots.clone(), source })?;
+    for series in &report.series {
+        let t: Vec<f64> = series.samples.iter().map(|s| s.0).collect();
+        let (real, sim): (Vec<f64>, Vec<f64>) = series.samples.iter().map(|s| (s.1, s.2)).unzip();
+        let title = format!("servo {} {}: the robot and the world", series.id, series.key);
+        let y = format!("{} ({})", series.key, series.unit.as_deref().unwrap_or("raw"));
+        let labels = PlotLabels { title: &title, x: "t (s, since the tap started)", y: &y };
+        let lines = [PlotSeries { label: "robot", x: &t, y: &real }, PlotSeries { label: "world", x: &t, y: &sim }];
+        plot_series(&plots, &format!("servo{}_{}", series.id, series.key), &labels, &lines).map_err(CompareError::Plot)?;
+    }
+    Ok(())
 }
 
 /// Re-enact `transcript` in the scenario's world and compare, writing nothing.
@@ -200,6 +219,7 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
         replies_the_world_missed: missed,
         registers: comparison.stats(&profile, &options.tolerances),
         latency,
+        series: comparison.series().cloned().collect(),
     })
 }
 

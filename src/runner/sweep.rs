@@ -11,7 +11,7 @@ use std::time::Instant;
 use serde_json::Value;
 
 use crate::report::{self, PlotLabels, PlotSeries, TimeSeries, units};
-use crate::robot::RobotDescription;
+use crate::robot::{RobotDescription, RobotOverrides};
 use crate::runner::observe::capture::MetricTrack;
 use crate::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
 use crate::scenario::Scenario;
@@ -87,24 +87,27 @@ pub fn sweep(scenario_path: &Path, plan: &SweepPlan<'_>, robot: &RobotDescriptio
     if points.is_empty() {
         return Err(RunnerError::Invalid(format!("shard {}/{} of this grid is empty", shard.index, shard.count)));
     }
-    // Check every grid point loads before spending minutes on the first ones.
-    let scenarios: Vec<(GridPoint, Scenario)> = points
+    // Check every grid point loads before spending minutes on the first ones. A point that sets
+    // `robot.…` or `profile.…` keys has a robot description of its own.
+    let scenarios: Vec<(GridPoint, Scenario, Option<RobotDescription>)> = points
         .into_iter()
         .map(|point| {
-            let mut scenario = Scenario::load_with(scenario_path, &point.overrides)?;
+            let (overrides, robot_sets) = RobotOverrides::split(&point.overrides);
+            let mut scenario = Scenario::load_with(scenario_path, &overrides)?;
             scenario.capture.mcap = record_mcap;
-            Ok((point.clone(), scenario))
+            let own_robot = if robot_sets.is_empty() { None } else { Some(RobotDescription::load_with(&robot.path, &robot_sets)?) };
+            Ok((point.clone(), scenario, own_robot))
         })
         .collect::<Result<_>>()?;
     progress.start(scenarios.len());
     let started = Instant::now();
-    let mut rows = each_in_parallel(&scenarios, jobs, |(point, scenario)| {
+    let mut rows = each_in_parallel(&scenarios, jobs, |(point, scenario, own_robot)| {
         let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
         let mut row = SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: None, track: None };
         // Interrupted: the runs under way stop and write; no new ones start.
         if !stop.load(Ordering::Relaxed) {
             let run_dir = out_dir.join("runs").join(point.label());
-            match run_scenario(scenario, robot, &run_dir, pace, stop, console) {
+            match run_scenario(scenario, own_robot.as_ref().unwrap_or(robot), &run_dir, pace, stop, console) {
                 Ok(outcome) => {
                     let failures = failures(&outcome.summary);
                     row.status = if failures.is_empty() { "completed" } else { "failed" }.to_owned();
