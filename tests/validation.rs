@@ -126,6 +126,11 @@ fn sweep_refuses_a_bad_robot_key_in_its_grid_before_any_run_naming_it() {
     assert_refused(&output, "a profile key the profile lacks", &["--set profile.motor.no_such_key=1", "unknown field `no_such_key`"]);
     let runs = std::fs::read_dir(&out).map(|entries| entries.count()).unwrap_or(0);
     assert_eq!(runs, 0, "no point ran before the bad one was found");
+    // serve: a robot key it lacks, and a scenario key on the bench, before anything is served.
+    let output = climbsim(&["serve", "--set", "robot.wheel.frction=0.3"]);
+    assert_refused(&output, "a misspelt robot key on serve", &["--set robot.wheel.frction=0.3", "unknown field `frction`"]);
+    let output = climbsim(&["serve", "--set", "world.seed=2"]);
+    assert_refused(&output, "a scenario key on the bench", &["--set world.seed=2", "serve has no scenario"]);
 }
 
 #[test]

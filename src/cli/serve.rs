@@ -14,7 +14,7 @@ use climbsim::runner::view::ViewOptions;
 use climbsim::transport::can::CanIds;
 use climbsim::transport::{Adapter, parse_tcp_addr, parse_tcp_server_addr};
 
-use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, load_robot, parse_fault, refuse_recorded_cli_faults};
+use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, load_robot_with, parse_fault, refuse_recorded_cli_faults};
 use super::console::Terminal;
 use super::interrupt;
 
@@ -85,6 +85,11 @@ pub struct ServeArgs {
     /// Robot description (servo IDs, firmware profile, power-on baud).
     #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
     pub robot: PathBuf,
+    /// Override a key (repeatable): the scenario's (`world.seed=2`), the robot description's
+    /// (`robot.wheel.friction=0.35`) or the firmware profile's
+    /// (`profile.motor.coulomb_friction_nm=0.04`). On the bench, only the last two.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     /// Power-on baud of every servo, overriding the robot description.
     #[arg(long)]
     pub baud: Option<u32>,
@@ -113,7 +118,7 @@ pub struct ServeArgs {
 }
 
 pub fn exec(args: ServeArgs) -> Result<()> {
-    let ServeArgs { scenario, link, tcp, tcp_connect, can, can_ids, can_padding, device, echo, low_latency, rs485, rs485_delay_ms, timing, adapter, latency_timer_ms, trace_bus, robot, baud, report, faults, record, mcap, foxglove, pace } = args;
+    let ServeArgs { scenario, link, tcp, tcp_connect, can, can_ids, can_padding, device, echo, low_latency, rs485, rs485_delay_ms, timing, adapter, latency_timer_ms, trace_bus, robot, set, baud, report, faults, record, mcap, foxglove, pace } = args;
     interrupt::install()?;
     let adapter = match (adapter, latency_timer_ms) {
         (AdapterArg::Ideal, Some(_)) => bail!("--latency-timer-ms is a setting of a modelled adapter: give --adapter u2d2 with it"),
@@ -135,8 +140,10 @@ pub fn exec(args: ServeArgs) -> Result<()> {
         device: device.map(|path| DeviceOptions { path, echo: echo.into(), low_latency, rs485: rs485.then(|| rs485_delay_ms.unwrap_or_default()) }),
     };
     let view = ViewOptions { mcap, live: foxglove.address, packets: false };
-    let options = ServeOptions { scenario, transports, timing: timing.into(), trace_bus, baud, report, faults, record, view, pace: pace.pace()? };
-    let robot = load_robot(&robot)?;
+    let overrides = super::run::parse_overrides(&set)?;
+    let (_, robot_sets) = climbsim::robot::RobotOverrides::split(&overrides);
+    let options = ServeOptions { scenario, overrides, transports, timing: timing.into(), trace_bus, baud, report, faults, record, view, pace: pace.pace()? };
+    let robot = load_robot_with(&robot, &robot_sets)?;
     Ok(serve(options, &robot, interrupt::flag(), &Terminal)?)
 }
 

@@ -170,7 +170,7 @@ pub const RISE_FLOOR: f64 = 1e-3;
 /// A parameter is identifiable when its region is narrower than this fraction of its range.
 pub const IDENTIFIABLE_WITHIN: f64 = 0.25;
 
-/// Probe the error around `minimum` (all probes in one batch: 1 + 2n + 2n(n-1) evaluations).
+/// Probe the error around `minimum` (all probes in one batch: 1 + 2n + 2n(n-1) = 1 + 2n² evaluations).
 pub fn determine(params: &[FitParam], minimum: &Minimum, evaluate: &mut Evaluate<'_>) -> Vec<Determination> {
     let n = params.len();
     let h = PROBE_UNIT;

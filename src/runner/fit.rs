@@ -93,7 +93,8 @@ pub fn fit(transcript: &RealTranscript, path: &Path, options: &FitOptions, progr
             Some(error)
         })
     };
-    progress.start(options.stop.max_evaluations + 2 * params.len() + 2);
+    let probes = 1 + 2 * params.len() * params.len();
+    progress.start(options.stop.max_evaluations + probes);
     let start = vec![0.5; params.len()];
     let minimum: Minimum = minimise(&start, options.stop, options.jobs > 1, &mut evaluate);
     let determinations = determine(params, &minimum, &mut evaluate);
@@ -106,7 +107,7 @@ pub fn fit(transcript: &RealTranscript, path: &Path, options: &FitOptions, progr
         .zip(determinations)
         .map(|((param, unit), determination)| Fitted { param: param.clone(), value: set_value(&set_for(param, *unit)), determination })
         .collect();
-    let outcome = FitOutcome { fitted, evaluations: minimum.evaluations + 2 * params.len(), error_before, error_after: fit_error(&after), before, after };
+    let outcome = FitOutcome { fitted, evaluations: minimum.evaluations + probes, error_before, error_after: fit_error(&after), before, after };
     write_outputs(&outcome, base, &after_options, path)?;
     Ok(outcome)
 }

@@ -18,7 +18,8 @@ use tracing::{info, warn};
 
 use crate::bus::{BusFaults, Timing, TraceWriter};
 use crate::fault::ScheduledFault;
-use crate::robot::RobotDescription;
+use crate::overrides::Override;
+use crate::robot::{RobotDescription, RobotOverrides};
 use crate::scenario::Scenario;
 use crate::runner::view::ViewOptions;
 use crate::sensor_server::SensorFeed;
@@ -53,6 +54,9 @@ pub struct Transports {
 pub struct ServeOptions {
     /// A scenario's world; without one the servos sit on the bench.
     pub scenario: Option<PathBuf>,
+    /// `--set`: the scenario's keys (the robot's and profile's are in the robot description
+    /// given to [`serve`]); all of them recorded, for `replay`.
+    pub overrides: Vec<Override>,
     pub transports: Transports,
     pub timing: Timing,
     /// Every bus transaction as JSON lines.
@@ -74,7 +78,13 @@ const STOP_POLL: Duration = Duration::from_millis(20);
 /// are in place before the port is announced: a supervisor that stops climbsim as soon as it has
 /// printed its port still gets a clean shutdown).
 pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool, console: &dyn Console) -> Result<()> {
-    let ServeOptions { scenario, transports, timing, trace_bus, baud, report, faults, record, view, pace } = options;
+    let ServeOptions { scenario, overrides, transports, timing, trace_bus, baud, report, faults, record, view, pace } = options;
+    let (scenario_sets, _) = RobotOverrides::split(&overrides);
+    if scenario.is_none()
+        && let Some(set) = scenario_sets.first()
+    {
+        return Err(RunnerError::Invalid(format!("--set {set}: a scenario key, and serve has no scenario (on the bench only robot.… and profile.… keys apply)")));
+    }
     let speed_scaled = pace.speed != 1.0;
     if speed_scaled && transports.can.is_some() {
         return Err(RunnerError::Invalid("--speed with --can: a CAN bus is a real bus whose other nodes keep real time; serve it at --speed 1".to_owned()));
@@ -105,10 +115,10 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
     // sensor server and, if asked, the Foxglove view.
     let (bus, observer, recorder) = match &scenario {
         Some(path) => {
-            let mut loaded = Scenario::load(path)?;
+            let mut loaded = Scenario::load_with(path, &scenario_sets)?;
             loaded.add_faults(faults);
             let (mut bus, mut observer) = scenario_bus(&loaded, robot, timing, baud)?;
-            let spec = record.map(|path| RecordSpec { path, overrides: Vec::new() });
+            let spec = record.map(|path| RecordSpec { path, overrides: overrides.iter().map(ToString::to_string).collect() });
             let recorder = spec.map(|spec| start_recording(&spec, "serve", &loaded, robot, &bus, baud)).transpose()?;
             // `serve` writes no time series: a session may last for days.
             observer.discard_rows();
