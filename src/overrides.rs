@@ -51,7 +51,16 @@ impl Override {
 
     /// Set the key in `table`, creating missing tables on the way.
     pub fn apply(&self, table: &mut toml::Table) -> Result<(), OverrideError> {
-        let parts: Vec<&str> = self.key.split('.').collect();
+        self.set(&self.key, table)
+    }
+
+    /// Set the key less its `prefix` (`robot.`: which file it names) in that file's `table`.
+    pub fn apply_under(&self, prefix: &str, table: &mut toml::Table) -> Result<(), OverrideError> {
+        self.set(self.key.strip_prefix(prefix).unwrap_or(&self.key), table)
+    }
+
+    fn set(&self, key: &str, table: &mut toml::Table) -> Result<(), OverrideError> {
+        let parts: Vec<&str> = key.split('.').collect();
         let (last, path) = parts.split_last().ok_or_else(|| OverrideError::EmptyKey(self.key.clone()))?;
         let mut current = table;
         for part in path {

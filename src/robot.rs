@@ -10,8 +10,11 @@ use crate::bus::{self, Bus, BusError, Timing};
 // Defined below the bus (fault descriptions name wheels too); part of the robot description.
 pub use crate::parts::{ServoRole, WheelPosition};
 use crate::device::{BenchPlant, FirmwareProfile, Plant, ProfileError, Servo};
-use crate::overrides::Override;
+use crate::overrides::{Override, PROFILE_PREFIX, ROBOT_PREFIX};
 use crate::source_location::{DataFileError, load_toml_with};
+
+/// What a robot description is called in errors.
+pub const WHAT: &str = "robot description";
 
 #[derive(Debug, Error)]
 pub enum RobotError {
@@ -126,8 +129,8 @@ pub struct RobotDescription {
 
 /// `--set robot.KEY=VALUE` and `--set profile.KEY=VALUE`: keys of the robot description and of
 /// its firmware profile, set as a scenario's are (`robot.wheel.friction=0.35`,
-/// `profile.motor.coulomb_friction_nm=0.04`). One key syntax for `run`, `check`, `sweep`,
-/// `compare` and `fit`.
+/// `profile.motor.coulomb_friction_nm=0.04`). One key syntax for `run`, `sweep`, `serve`,
+/// `compare`, `fit` and a recording's `replay`.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RobotOverrides {
     /// `robot.…` keys, as given.
@@ -137,17 +140,14 @@ pub struct RobotOverrides {
 }
 
 impl RobotOverrides {
-    pub const ROBOT: &'static str = crate::overrides::ROBOT_PREFIX;
-    pub const PROFILE: &'static str = crate::overrides::PROFILE_PREFIX;
-
     /// Split `--set` overrides into the scenario's (returned) and the robot's and profile's.
     pub fn split(all: &[Override]) -> (Vec<Override>, Self) {
         let mut scenario = Vec::new();
         let mut these = Self::default();
         for set in all {
-            if set.key.starts_with(Self::ROBOT) {
+            if set.key.starts_with(ROBOT_PREFIX) {
                 these.robot.push(set.clone());
-            } else if set.key.starts_with(Self::PROFILE) {
+            } else if set.key.starts_with(PROFILE_PREFIX) {
                 these.profile.push(set.clone());
             } else {
                 scenario.push(set.clone());
@@ -158,11 +158,6 @@ impl RobotOverrides {
 
     pub fn is_empty(&self) -> bool {
         self.robot.is_empty() && self.profile.is_empty()
-    }
-
-    /// As given on the command line (`robot.wheel.friction=0.35`).
-    pub fn describe(&self) -> Vec<String> {
-        self.robot.iter().chain(&self.profile).map(ToString::to_string).collect()
     }
 }
 
@@ -179,7 +174,7 @@ impl RobotDescription {
     /// Load with `--set robot.…` and `--set profile.…` keys set (the profile's when it is
     /// loaded; it is checked here, so that a bad key fails before anything runs).
     pub fn load_with(path: &Path, overrides: &RobotOverrides) -> Result<Self, RobotError> {
-        let mut robot: Self = load_toml_with("robot description", path, RobotOverrides::ROBOT, &overrides.robot)?;
+        let mut robot: Self = load_toml_with(WHAT, path, ROBOT_PREFIX, &overrides.robot)?;
         robot.path = path.to_owned();
         robot.profile_overrides = overrides.profile.clone();
         if !robot.profile_overrides.is_empty() {
@@ -239,7 +234,7 @@ mod tests {
     fn robot_and_profile_keys_are_split_from_the_scenarios_and_set_in_their_files() {
         let (scenario, robot_sets) = RobotOverrides::split(&sets(&["world.seed=3", "robot.wheel.friction=0.35", "profile.motor.coulomb_friction_nm=0.05"]));
         assert_eq!(scenario, sets(&["world.seed=3"]));
-        assert_eq!(robot_sets.describe(), ["robot.wheel.friction=0.35", "profile.motor.coulomb_friction_nm=0.05"]);
+        assert_eq!((robot_sets.robot.clone(), robot_sets.profile.clone()), (sets(&["robot.wheel.friction=0.35"]), sets(&["profile.motor.coulomb_friction_nm=0.05"])));
         let robot = RobotDescription::load_with(&RobotDescription::default_path(), &robot_sets).expect("loads");
         assert_eq!(robot.wheel.friction, 0.35);
         assert_eq!(robot.profile().expect("the profile loads").motor.coulomb_friction_nm, 0.05);

@@ -50,8 +50,7 @@ pub fn load_toml_with<T: DeserializeOwned>(what: &'static str, path: &Path, pref
     let mut table: toml::Table = load_toml(what, path)?;
     let sets = || overrides.iter().map(ToString::to_string).collect::<Vec<_>>().join(" ");
     for set in overrides {
-        let key = set.key.strip_prefix(prefix).unwrap_or(&set.key).to_owned();
-        crate::overrides::Override { key, value: set.value.clone() }.apply(&mut table).map_err(|e| DataFileError::Override { what, path: path.to_owned(), sets: sets(), message: e.to_string() })?;
+        set.apply_under(prefix, &mut table).map_err(|e| DataFileError::Override { what, path: path.to_owned(), sets: sets(), message: e.to_string() })?;
     }
     table.try_into().map_err(|e: toml::de::Error| DataFileError::Override { what, path: path.to_owned(), sets: sets(), message: e.message().to_owned() })
 }

@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use crate::protocol::{BROADCAST_ID, Instruction, MAX_ID, RawPacket, STATUS_INSTRUCTION};
+use crate::protocol::{BROADCAST_ID, FrameError, Instruction, MAX_ID, RawPacket, STATUS_INSTRUCTION};
 
 use super::stream::{Piece, TimedStream};
 
@@ -51,7 +51,7 @@ pub enum Event {
     /// instruction, or an instruction echoed by a half-duplex adapter).
     Unpaired { at: Duration, packet: RawPacket },
     /// A framing error (a failed CRC, a cut packet) in one direction; its bytes come raw.
-    FrameError { from_servos: bool, at: Duration, what: String },
+    FrameError { from_servos: bool, at: Duration, error: FrameError },
 }
 
 /// The controller's and the servos' streams, and the instruction waiting for its replies.
@@ -91,7 +91,7 @@ impl Pairing {
                     self.pending = Some(Pending { seen: Seen { t: first, end: forwarded_at, baud, instruction: packet, replies: Vec::new(), missed: Vec::new() }, expected });
                 }
                 Piece::Raw { bytes, first } => events.push(Event::Raw { from_servos: false, at: first, bytes }),
-                Piece::FrameError(error) => events.push(Event::FrameError { from_servos: false, at: read_at, what: error.to_string() }),
+                Piece::FrameError(error) => events.push(Event::FrameError { from_servos: false, at: read_at, error }),
             }
         }
         events
@@ -111,7 +111,7 @@ impl Pairing {
                     }
                 }
                 Piece::Raw { bytes, first } => events.push(Event::Raw { from_servos: true, at: first, bytes }),
-                Piece::FrameError(error) => events.push(Event::FrameError { from_servos: true, at, what: error.to_string() }),
+                Piece::FrameError(error) => events.push(Event::FrameError { from_servos: true, at, error }),
             }
         }
         events
@@ -126,7 +126,7 @@ impl Pairing {
             for piece in pieces {
                 match piece {
                     Piece::Raw { bytes, first } => events.push(Event::Raw { from_servos: servos, at: first, bytes }),
-                    Piece::FrameError(error) => events.push(Event::FrameError { from_servos: servos, at: Duration::ZERO, what: error.to_string() }),
+                    Piece::FrameError(error) => events.push(Event::FrameError { from_servos: servos, at: Duration::ZERO, error }),
                     // A flush completes nothing new that a push had not (it only drops).
                     Piece::Packet { packet, first, .. } => events.push(Event::Unpaired { at: first, packet }),
                 }
@@ -253,7 +253,7 @@ mod tests {
         let n = bad.len();
         bad[n - 2] ^= 0x55;
         let events = pairing.from_servos(us(5), &bad);
-        assert!(events.iter().any(|e| matches!(e, Event::FrameError { from_servos: true, what, .. } if what.contains("CRC"))), "{events:?}");
+        assert!(events.iter().any(|e| matches!(e, Event::FrameError { from_servos: true, error: FrameError::BadCrc { id: 1, .. }, .. })), "{events:?}");
         let mut events = events;
         events.extend(pairing.finish());
         let raw: usize = events.iter().map(|e| if let Event::Raw { from_servos: true, bytes, .. } = e { bytes.len() } else { 0 }).sum();

@@ -9,6 +9,7 @@ use std::time::Duration;
 use serde::Serialize;
 
 use super::pairing::{Event, Seen};
+use crate::protocol::FrameError;
 
 /// What one servo did over a session.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
@@ -62,10 +63,8 @@ impl TimingTally {
             Event::Raw { from_servos: true, bytes, .. } => self.report.raw_bytes_from_servos += bytes.len() as u64,
             Event::Raw { from_servos: false, bytes, .. } => self.report.raw_bytes_from_controller += bytes.len() as u64,
             Event::Unpaired { .. } => self.report.unpaired += 1,
-            Event::FrameError { from_servos: true, what, .. } => match crc_error_id(what) {
-                Some(id) => self.servo(id).crc_errors += 1,
-                None => self.report.other_frame_errors += 1,
-            },
+            Event::FrameError { from_servos: true, error: FrameError::BadCrc { id, .. }, .. } => self.servo(*id).crc_errors += 1,
+            Event::FrameError { from_servos: true, .. } => self.report.other_frame_errors += 1,
             Event::FrameError { from_servos: false, .. } => {}
         }
     }
@@ -102,11 +101,6 @@ impl TimingTally {
             .collect();
         report
     }
-}
-
-/// The servo a "failed its CRC" framing error names.
-fn crc_error_id(what: &str) -> Option<u8> {
-    what.strip_prefix("packet for ID ")?.split_once(" failed its CRC")?.0.parse().ok()
 }
 
 fn micros(d: Duration) -> f64 {
@@ -151,7 +145,7 @@ impl TimingReport {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::protocol::{FrameError, RawPacket};
+    use crate::protocol::RawPacket;
     use crate::real_bus::pairing::SeenReply;
 
     fn seen(end_us: u64, replies: &[(u8, u64)], missed: &[u8]) -> Event {
@@ -166,7 +160,7 @@ mod tests {
         tally.add(&seen(100, &[(1, 350), (2, 500)], &[]));
         tally.add(&seen(1000, &[(1, 1260)], &[2]));
         tally.add(&seen(2000, &[(1, 2240)], &[2]));
-        tally.add(&Event::FrameError { from_servos: true, at: Duration::ZERO, what: FrameError::BadCrc { id: 2, received: 1, computed: 2 }.to_string() });
+        tally.add(&Event::FrameError { from_servos: true, at: Duration::ZERO, error: FrameError::BadCrc { id: 2, received: 1, computed: 2 } });
         let report = tally.report();
         assert_eq!(report.transactions, 3);
         let one = &report.servos[0];

@@ -93,7 +93,7 @@ impl RealRecord {
             Event::Transaction(seen) => Self::transaction(seen),
             Event::Raw { from_servos, at, bytes } => Self::Raw { from: Side::from_servos(*from_servos), t: nanos(*at), hex: to_hex(bytes) },
             Event::Unpaired { at, packet } => Self::Unpaired { t: nanos(*at), hex: to_hex(&packet.bytes) },
-            Event::FrameError { from_servos, at, what } => Self::FrameError { from: Side::from_servos(*from_servos), t: nanos(*at), what: what.clone() },
+            Event::FrameError { from_servos, at, error } => Self::FrameError { from: Side::from_servos(*from_servos), t: nanos(*at), what: error.to_string() },
         }
     }
 

@@ -158,11 +158,9 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
     let scenario = Scenario::load_with(&options.scenario, &overrides)?;
     let robot = RobotDescription::load_with(&options.robot, &robot_sets)?;
     let (mut bus, mut observer) = scenario_bus(&scenario, &robot, Timing::Wire, None)?;
-    let profile = match bus.servos().first() {
-        Some(servo) => std::sync::Arc::clone(servo.profile()),
-        None => return Err(CompareError::NothingToCompare { path: path.to_owned() }),
-    };
-    let tick = bus.servos().first().map_or(Duration::from_millis(1), |s| s.control_period());
+    // The servos' profile decodes the replies; their control period is the world's tick.
+    let Some(servo) = bus.servos().first() else { return Err(CompareError::NothingToCompare { path: path.to_owned() }) };
+    let (profile, tick) = (std::sync::Arc::clone(servo.profile()), servo.control_period());
     let mut next_tick = tick;
     let mut comparison = Comparison::default();
     let (mut instructions, mut compared, mut missed) = (0u64, 0u64, 0u64);

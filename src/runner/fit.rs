@@ -11,10 +11,11 @@ use tracing::warn;
 use super::compare::{CompareError, CompareOptions, CompareReport, reenact, write_report};
 use super::each_in_parallel;
 use super::sweep::Progress;
-use crate::overrides::Override;
+use crate::overrides::{Override, ROBOT_PREFIX};
 use crate::real_bus::RealTranscript;
 use crate::real_bus::fit::{Determination, FitParam, Minimum, Stop, determine, minimise};
-use crate::robot::RobotOverrides;
+use crate::robot::{RobotError, RobotOverrides};
+use crate::source_location::load_toml_with;
 
 /// What to fit, against what.
 #[derive(Debug, Clone)]
@@ -150,13 +151,7 @@ fn write_outputs(outcome: &FitOutcome, base: &CompareOptions, after: &CompareOpt
 /// The robot description with the fitted `robot.…` keys set, its profile path made absolute
 /// (the file is written elsewhere). The file's comments do not survive.
 fn fitted_robot(robot: &Path, sets: &[Override]) -> Result<String, CompareError> {
-    let io = |source| CompareError::Write { path: robot.to_owned(), source };
-    let text = std::fs::read_to_string(robot).map_err(io)?;
-    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| io(std::io::Error::other(e.to_string())))?;
-    for set in sets {
-        let key = set.key.strip_prefix(RobotOverrides::ROBOT).unwrap_or(&set.key).to_owned();
-        Override { key, value: set.value.clone() }.apply(&mut table).map_err(|e| io(std::io::Error::other(e.to_string())))?;
-    }
+    let mut table: toml::Table = load_toml_with(crate::robot::WHAT, robot, ROBOT_PREFIX, sets).map_err(RobotError::from)?;
     if let Some(profile) = table.get_mut("bus").and_then(|bus| bus.get_mut("profile"))
         && let Some(relative) = profile.as_str()
     {
