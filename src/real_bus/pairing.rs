@@ -117,8 +117,9 @@ impl Pairing {
         events
     }
 
-    /// The session has ended: the last instruction and every partial packet come out.
-    pub fn finish(&mut self) -> Vec<Event> {
+    /// The session has ended at `at`: the last instruction and every partial packet come out
+    /// (a cut packet's framing error at that time).
+    pub fn finish(&mut self, at: Duration) -> Vec<Event> {
         let mut events = Vec::new();
         let from_servos = self.from_servos.flush();
         let from_controller = self.from_controller.flush();
@@ -126,7 +127,7 @@ impl Pairing {
             for piece in pieces {
                 match piece {
                     Piece::Raw { bytes, first } => events.push(Event::Raw { from_servos: servos, at: first, bytes }),
-                    Piece::FrameError(error) => events.push(Event::FrameError { from_servos: servos, at: Duration::ZERO, error }),
+                    Piece::FrameError(error) => events.push(Event::FrameError { from_servos: servos, at, error }),
                     // A flush completes nothing new that a push had not (it only drops).
                     Piece::Packet { packet, first, .. } => events.push(Event::Unpaired { at: first, packet }),
                 }
@@ -236,7 +237,7 @@ mod tests {
         assert_eq!(transactions(&events)[0].missed, vec![5], "the read was due an answer");
         // Pings to broadcast: whoever answers is paired, nobody is missed.
         pairing.from_servos(us(400), &encode_status(7, 0, &[0x06, 0x04, 0x2D]));
-        let events = pairing.finish();
+        let events = pairing.finish(us(450));
         let seen = transactions(&events);
         assert_eq!((seen[0].replies.len(), seen[0].missed.len()), (1, 0));
         // A status with nothing pending is kept, unpaired.
@@ -255,8 +256,13 @@ mod tests {
         let events = pairing.from_servos(us(5), &bad);
         assert!(events.iter().any(|e| matches!(e, Event::FrameError { from_servos: true, error: FrameError::BadCrc { id: 1, .. }, .. })), "{events:?}");
         let mut events = events;
-        events.extend(pairing.finish());
+        events.extend(pairing.finish(us(10)));
         let raw: usize = events.iter().map(|e| if let Event::Raw { from_servos: true, bytes, .. } = e { bytes.len() } else { 0 }).sum();
         assert_eq!(raw, bad.len());
+        // A packet cut by the session's end: its error carries the end's time.
+        let ping = encode_instruction(2, 0x01, &[]);
+        pairing.from_controller(us(20), us(21), 57_600, &ping[..6]);
+        let events = pairing.finish(us(30));
+        assert!(events.iter().any(|e| matches!(e, Event::FrameError { from_servos: false, at, .. } if *at == us(30))), "{events:?}");
     }
 }

@@ -91,7 +91,7 @@ pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path)) -
     let mut bridge = Bridge { device: &device, port: &port, recorder: &recorder, pairing: Pairing::default(), tally: TimingTally::default(), started: Instant::now(), baud: options.baud, from_controller: 0, from_servos: 0 };
     let ended = bridge.run(stop);
     let at = bridge.started.elapsed();
-    for event in bridge.pairing.finish() {
+    for event in bridge.pairing.finish(at) {
         bridge.record(&event);
     }
     let (from_controller, from_servos) = (bridge.from_controller, bridge.from_servos);
