@@ -63,7 +63,9 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     let robot = hidden_robot(&dir);
     let cable = NullModem::new();
     let real_robot = support::Options::default().stderr_log().sensors().start(&["scenarios/external-line-follower.toml", "--robot", robot.to_str().expect("utf-8"), "--device", cable.b().to_str().expect("utf-8")]);
-    let mut tap = TapProcess::start(cable.a(), &dir, &["--baud", "1000000"]);
+    // Shown live (on a port the kernel picks) and recorded for Foxglove as it goes.
+    let tap_mcap = dir.join("tap.mcap");
+    let mut tap = TapProcess::start(cable.a(), &dir, &["--baud", "1000000", "--foxglove=127.0.0.1:0", "--mcap", tap_mcap.to_str().expect("utf-8")]);
 
     // The reference controller as it would run on the robot: its port and the camera's URL.
     let mut controller = Command::new(support::sdk_python())
@@ -86,6 +88,7 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     drop(real_robot);
 
     let transcript = dir.join("real.jsonl");
+    tap_recording_shows_the_real_servos(&tap_mcap, &transcript);
     // Against the shipped description: the magnet shafts' encoders read 12 pulses apart, and
     // the wheels, with less grip, do not turn as the world's do.
     let shipped = compare(&transcript, &support::repo().join("hil/robot.toml"), &dir.join("shipped"), &[]);
@@ -103,6 +106,8 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
         let plot = dir.join(format!("shipped/plots/servo{servo}_present_position.png"));
         assert!(std::fs::metadata(&plot).is_ok_and(|m| m.len() > 1000), "a plot per register: {}", plot.display());
     }
+
+    compare_recording_holds_both_sides(&dir.join("shipped/compare.mcap"));
 
     // Against the robot's own description: the world matches it.
     let own = compare(&transcript, &robot, &dir.join("own"), &[]);
@@ -143,6 +148,61 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("after/compare.json")).expect("compare.json")).expect("JSON");
     let magnet = report["registers"].as_array().expect("registers").iter().find(|r| r["id"] == 5).expect("servo 5");
     assert_eq!(magnet["bias"], 0.0, "{magnet}");
+}
+
+/// `tap --mcap` (read back with the `mcap` crate): a message on `/servos` for each Sync Read,
+/// with the real magnet shafts' positions where the transcript has them, and every record of
+/// the transcript on `/bus/packets`.
+fn tap_recording_shows_the_real_servos(path: &std::path::Path, transcript: &std::path::Path) {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let (mut servos, mut packets) = (Vec::new(), 0usize);
+    for message in mcap::MessageStream::new(&bytes).expect("an MCAP") {
+        let message = message.expect("a complete message");
+        match message.channel.topic.as_str() {
+            "/servos" => servos.push(serde_json::from_slice::<serde_json::Value>(&message.data).expect("JSON")),
+            "/bus/packets" => packets += 1,
+            _ => {}
+        }
+    }
+    let records = read(transcript).expect("the transcript").records;
+    let transactions = records.iter().filter(|(_, r)| matches!(r, RealRecord::Tx { .. })).count();
+    assert_eq!(packets, records.iter().filter(|(_, r)| !matches!(r, RealRecord::End { .. })).count(), "every record shown");
+    let magnet_readings: Vec<i64> = servos.iter().filter_map(|m| m["magnet_front_left"]["present_position"].as_i64()).collect();
+    assert!(magnet_readings.len() > 100 && magnet_readings.len() <= transactions, "{} readings of servo 5 in {transactions} transactions", magnet_readings.len());
+    assert!(magnet_readings.iter().all(|p| (2000..2120).contains(p)), "the real magnet shaft reads about 2060: {:?}", &magnet_readings[..5]);
+    assert!(servos.iter().any(|m| m["wheel_rear_right"]["id"] == 4), "the wheels by name: {}", servos[0]);
+}
+
+/// `compare.mcap` (read back with the `mcap` crate): the world as a run records it, and each
+/// read reply of the session as the robot and the world gave it, at the same instants; the
+/// magnet shafts 12 pulses apart.
+fn compare_recording_holds_both_sides(path: &std::path::Path) {
+    use std::collections::BTreeMap;
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut readings: BTreeMap<(String, u64), serde_json::Value> = BTreeMap::new();
+    let mut topics = std::collections::BTreeSet::new();
+    for message in mcap::MessageStream::new(&bytes).expect("an MCAP") {
+        let message = message.expect("a complete message");
+        let topic = message.channel.topic.clone();
+        if topic.starts_with("/compare/") {
+            readings.insert((topic.clone(), message.log_time), serde_json::from_slice(&message.data).expect("JSON"));
+        }
+        topics.insert(topic);
+    }
+    for topic in ["/tf", "/servos", "/bus/packets", "/compare/robot", "/compare/world"] {
+        assert!(topics.contains(topic), "{topic} in {topics:?}");
+    }
+    let mut magnet_pairs = 0;
+    for ((topic, at), robot) in readings.iter().filter(|((topic, _), _)| topic == "/compare/robot") {
+        let world = readings.get(&("/compare/world".to_owned(), *at)).unwrap_or_else(|| panic!("the world's answer at {at} ns beside {topic}'s"));
+        if let Some(robot) = robot.get("magnet_front_left") {
+            assert_eq!(robot["id"], 5);
+            let (real, simulated) = (robot["present_position"].as_i64().expect("a position"), world["magnet_front_left"]["present_position"].as_i64().expect("the world's"));
+            assert_eq!(real - simulated, 12, "at {at} ns: {robot} against {world}");
+            magnet_pairs += 1;
+        }
+    }
+    assert!(magnet_pairs > 100, "{magnet_pairs} readings of servo 5");
 }
 
 /// The controller: pings 1 to 9 (there is no 9), twenty Sync Reads of Present Position from

@@ -81,7 +81,7 @@ pub fn exec(args: CompareArgs) -> Result<()> {
     let report = compare(&read(transcript)?, transcript, &options)?;
     refuse_unknown_tolerances(&options, &report)?;
     say_report(transcript, &options.scenario, &report);
-    Terminal.say(&format!("wrote {}", options.out.join("compare.json").display()));
+    Terminal.say(&format!("wrote {}: compare.json, compare.mcap (the world and both sides' readings, for Foxglove), plots/", options.out.display()));
     verdict(&report)
 }
 

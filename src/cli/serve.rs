@@ -139,7 +139,7 @@ pub fn exec(args: ServeArgs) -> Result<()> {
         can: can.map(|iface| CanOptions { iface, ids: can_ids, padding: can_padding.0 }),
         device: device.map(|path| DeviceOptions { path, echo: echo.into(), low_latency, rs485: rs485.then(|| rs485_delay_ms.unwrap_or_default()) }),
     };
-    let view = ViewOptions { mcap, live: foxglove.address, packets: false };
+    let view = ViewOptions { mcap, live: foxglove.address, packets: false, compare: false };
     let overrides = super::run::parse_overrides(&set)?;
     let (_, robot_sets) = climbsim::robot::RobotOverrides::split(&overrides);
     let options = ServeOptions { scenario, overrides, transports, timing: timing.into(), trace_bus, baud, report, faults, record, view, pace: pace.pace()? };

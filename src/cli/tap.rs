@@ -2,12 +2,16 @@
 //! or until the device goes away.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::Result;
 
 use climbsim::runner::Console as _;
 use climbsim::runner::tap::{TapOptions, default_report_path, tap};
+use climbsim::runner::tap_view::TapViewOptions;
+use climbsim::runner::view::LiveAddress;
 
+use super::args::{ROBOT_IN_CHECKOUT, load_robot};
 use super::console::Terminal;
 use super::interrupt;
 
@@ -39,13 +43,36 @@ pub struct TapArgs {
     /// ASYNC_LOW_LATENCY flag while tapping; both are put back on exit.
     #[arg(long)]
     pub low_latency: bool,
+    /// Show the real servos live in Foxglove: their registers as their read replies say, on
+    /// `/servos` (the shipped layout's plots), every record on `/bus/packets`, missed replies
+    /// and errors on `/log`; at 127.0.0.1:8765 or `--foxglove=ADDR`.
+    #[arg(long = "foxglove", value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<LiveAddress>,
+    /// Record what `--foxglove` shows into FILE (MCAP).
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
+    /// Robot description: the servos' names and control table, for `--foxglove` and `--mcap`.
+    #[arg(long, env = "CLIMBSIM_ROBOT", value_name = "FILE", default_value = ROBOT_IN_CHECKOUT)]
+    pub robot: PathBuf,
 }
 
 pub fn exec(args: TapArgs) -> Result<()> {
     interrupt::install()?;
     let report = args.report.unwrap_or_else(|| default_report_path(&args.record));
-    let options = TapOptions { device: args.device, link: args.link, record: args.record, report, baud: args.baud, low_latency: args.low_latency };
-    let outcome = tap(&options, interrupt::flag(), |port| Terminal.say(&format!("port: {}", port.display())))?;
+    let view = if args.foxglove.is_some() || args.mcap.is_some() {
+        let robot = load_robot(&args.robot)?;
+        let names = robot.servo.iter().map(|s| (s.id, s.name.clone())).collect();
+        Some(TapViewOptions { live: args.foxglove, mcap: args.mcap, names, profile: Arc::new(robot.profile()?) })
+    } else {
+        None
+    };
+    let options = TapOptions { device: args.device, link: args.link, record: args.record, report, baud: args.baud, low_latency: args.low_latency, view };
+    let outcome = tap(&options, interrupt::flag(), |port, live| {
+        Terminal.say(&format!("port: {}", port.display()));
+        if let Some(url) = live {
+            Terminal.say(&format!("foxglove: {url}"));
+        }
+    })?;
     Terminal.note(&format!(
         "tap ended ({}): {} bytes from the controller, {} from the servos; transcript {}, timing report {}",
         outcome.ended,

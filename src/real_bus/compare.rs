@@ -93,6 +93,11 @@ pub fn items_in(profile: &FirmwareProfile, address: u16, data: &[u8]) -> Vec<(us
     out
 }
 
+/// The whole items in `data` by key, read from `address` on: (key, raw value).
+pub fn registers_in<'p>(profile: &'p FirmwareProfile, address: u16, data: &[u8]) -> Vec<(&'p str, i64)> {
+    items_in(profile, address, data).into_iter().map(|(index, value)| (profile.items[index].spec.key.as_str(), value)).collect()
+}
+
 /// Gathers the pairs of a session, register by register.
 #[derive(Debug, Default)]
 pub struct Comparison {

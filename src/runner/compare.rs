@@ -21,7 +21,8 @@ use tracing::info_span;
 use super::RunError;
 use super::observe::scenario_bus;
 use crate::bus::Timing;
-use crate::real_bus::compare::{Comparison, RegisterSeries, RegisterStats, Tolerances, read_spans};
+use crate::real_bus::compare::{Comparison, RegisterSeries, RegisterStats, Tolerances, read_spans, registers_in};
+use crate::runner::view::{ReadingsTopic, ServoReadings, ViewOptions};
 use crate::report::{PlotLabels, PlotSeries, plot_series};
 use crate::real_bus::{RealRecord, RealTranscript};
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
@@ -120,10 +121,15 @@ impl CompareReport {
     }
 }
 
-/// Re-enact `transcript` in the scenario's world and compare; writes `compare.json` into
-/// `options.out`.
+/// The recording of a comparison in its output folder: the world re-enacting the session, as a
+/// run records it, with `/compare/robot` and `/compare/world` (see [`crate::runner::view`]).
+pub const COMPARE_MCAP: &str = "compare.mcap";
+
+/// Re-enact `transcript` in the scenario's world and compare; writes `compare.json`, the plots
+/// and `compare.mcap` into `options.out`.
 pub fn compare(transcript: &RealTranscript, path: &Path, options: &CompareOptions) -> Result<CompareReport, CompareError> {
-    let report = reenact(transcript, path, options)?;
+    std::fs::create_dir_all(&options.out).map_err(|source| CompareError::Write { path: options.out.clone(), source })?;
+    let report = reenact(transcript, path, options, Some(&options.out.join(COMPARE_MCAP)))?;
     write_report(&report, &options.out)?;
     Ok(report)
 }
@@ -151,13 +157,17 @@ pub fn write_report(report: &CompareReport, out: &Path) -> Result<(), CompareErr
     Ok(())
 }
 
-/// Re-enact `transcript` in the scenario's world and compare, writing nothing.
-pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOptions) -> Result<CompareReport, CompareError> {
+/// Re-enact `transcript` in the scenario's world and compare, writing nothing but the recording
+/// (`recording`, if given: an MCAP of the world, its bus packets and both sides' readings).
+pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOptions, recording: Option<&Path>) -> Result<CompareReport, CompareError> {
     let _span = info_span!("compare", transcript = %path.display(), scenario = %options.scenario.display()).entered();
     let (overrides, robot_sets) = RobotOverrides::split(&options.overrides);
     let scenario = Scenario::load_with(&options.scenario, &overrides)?;
     let robot = RobotDescription::load_with(&options.robot, &robot_sets)?;
     let (mut bus, mut observer) = scenario_bus(&scenario, &robot, Timing::Wire, None)?;
+    if let Some(recording) = recording {
+        observer.start_view(&ViewOptions { mcap: Some(recording.to_owned()), live: None, packets: true, compare: true }, &mut bus)?;
+    }
     // The servos' profile decodes the replies; their control period is the world's tick.
     let Some(servo) = bus.servos().first() else { return Err(CompareError::NothingToCompare { path: path.to_owned() }) };
     let (profile, tick) = (std::sync::Arc::clone(servo.profile()), servo.control_period());
@@ -185,6 +195,8 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
         let spans = read_spans(&packet);
         let transaction = bus.handle(packet, at, Some(*baud));
         instructions += 1;
+        // Both sides' readings of this instruction, for the recording.
+        let (mut robot_readings, mut world_readings) = (Vec::new(), Vec::new());
         for reply in replies {
             let real = packet_from_hex(&reply.hex).map_err(|message| record_error(*line, format!("a reply: {message}")))?;
             let sim = transaction.replies.iter().find(|r| r.from == [reply.id]);
@@ -200,12 +212,21 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
             if let (Ok(real_data), Ok(sim_data)) = (real.status_data(), sim_packet.status_data()) {
                 comparison.add(&profile, reply.id, address, Duration::from_nanos(reply.t).as_secs_f64(), real_data, sim_data);
                 compared += 1;
+                if let (Some(_), Some(name)) = (observer.view(), observer.servo_name(reply.id)) {
+                    robot_readings.push(ServoReadings { name, id: reply.id, registers: registers_in(&profile, address, real_data) });
+                    world_readings.push(ServoReadings { name, id: reply.id, registers: registers_in(&profile, address, sim_data) });
+                }
             }
+        }
+        if let Some(view) = observer.view() {
+            view.readings(ReadingsTopic::Robot, at, &robot_readings);
+            view.readings(ReadingsTopic::World, at, &world_readings);
         }
     }
     if compared == 0 {
         return Err(CompareError::NothingToCompare { path: path.to_owned() });
     }
+    observer.finish_view()?;
     let latency = latencies.into_iter().map(|(id, (mut real, mut model))| LatencyComparison { id, replies: real.len(), real_median_us: median(&mut real), model_median_us: median(&mut model) }).collect();
     Ok(CompareReport {
         transcript: path.to_owned(),

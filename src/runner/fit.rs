@@ -8,7 +8,7 @@ use serde::Serialize;
 use serde_json::json;
 use tracing::warn;
 
-use super::compare::{CompareError, CompareOptions, CompareReport, reenact, write_report};
+use super::compare::{COMPARE_MCAP, CompareError, CompareOptions, CompareReport, reenact, write_report};
 use super::each_in_parallel;
 use super::sweep::Progress;
 use crate::overrides::{Override, ROBOT_PREFIX};
@@ -77,13 +77,13 @@ pub fn fit(transcript: &RealTranscript, path: &Path, options: &FitOptions, progr
     };
     // The files' own values are the baseline, and a session the world cannot re-enact at all
     // fails here, clearly, rather than as an infinite error.
-    let before = reenact(transcript, path, base)?;
+    let before = reenact(transcript, path, base, Some(&recording_in(&base.out.join("before"))?))?;
     let error_before = fit_error(&before);
     // Every point is evaluated; one the world cannot be built for (a value its checks refuse)
     // counts as infinitely far.
     let mut evaluate = |points: &[Vec<f64>]| -> Vec<f64> {
         each_in_parallel(points, options.jobs, |unit| {
-            let error = match reenact(transcript, path, &with(unit)) {
+            let error = match reenact(transcript, path, &with(unit), None) {
                 Ok(report) => fit_error(&report),
                 Err(error) => {
                     warn!(%error, "an evaluation failed; it counts as infinitely far");
@@ -101,7 +101,7 @@ pub fn fit(transcript: &RealTranscript, path: &Path, options: &FitOptions, progr
     let determinations = determine(params, &minimum, &mut evaluate);
     progress.finish();
     let after_options = with(&minimum.unit);
-    let after = reenact(transcript, path, &after_options)?;
+    let after = reenact(transcript, path, &after_options, Some(&recording_in(&base.out.join("after"))?))?;
     let fitted: Vec<Fitted> = params
         .iter()
         .zip(&minimum.unit)
@@ -111,6 +111,12 @@ pub fn fit(transcript: &RealTranscript, path: &Path, options: &FitOptions, progr
     let outcome = FitOutcome { fitted, evaluations: minimum.evaluations + probes, error_before, error_after: fit_error(&after), before, after };
     write_outputs(&outcome, base, &after_options, path)?;
     Ok(outcome)
+}
+
+/// `compare.mcap` in `dir`, made first.
+fn recording_in(dir: &Path) -> Result<PathBuf, CompareError> {
+    std::fs::create_dir_all(dir).map_err(|source| CompareError::Write { path: dir.to_owned(), source })?;
+    Ok(dir.join(COMPARE_MCAP))
 }
 
 fn set_value(set: &Override) -> f64 {

@@ -25,6 +25,7 @@ pub mod replay;
 pub mod serve;
 pub mod sweep;
 pub mod tap;
+pub mod tap_view;
 pub mod ticks;
 pub mod view;
 

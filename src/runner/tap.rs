@@ -2,7 +2,8 @@
 //! controller opens a pseudo-terminal as it would the adapter; every byte is forwarded to the
 //! serial device as soon as it is read, and every byte back, unaltered (nothing dropped, added
 //! or reordered). Both directions are framed and paired ([`crate::real_bus`]) and written as a
-//! real bus's transcript, with a timing report of the servos at the end.
+//! real bus's transcript, with a timing report of the servos at the end, and shown in Foxglove
+//! if asked ([`super::tap_view`]).
 //!
 //! One thread polls both descriptors with poll(2) (no reactor between the two: a byte read is
 //! written to the other side within the same wake-up). The controller's rate is followed: when
@@ -23,6 +24,7 @@ use crate::transcript::{Recorder, nanos};
 use crate::transport::latency::{self, LowLatencyGuard};
 use crate::transport::{DeviceSettings, Echo, LineSettings, SerialDevice, VirtualPort, queued_bytes};
 
+use super::tap_view::{TapView, TapViewOptions};
 use super::{Result, RunnerError};
 
 /// How often the loop looks at the stop flag while both sides are quiet.
@@ -47,6 +49,8 @@ pub struct TapOptions {
     pub baud: u32,
     /// The adapter's latency timer to 1 ms and ASYNC_LOW_LATENCY, both put back on exit.
     pub low_latency: bool,
+    /// Show the real servos in Foxglove, live or recorded (`--foxglove`, `--mcap`).
+    pub view: Option<TapViewOptions>,
 }
 
 /// How the session went.
@@ -66,9 +70,10 @@ pub fn default_report_path(record: &Path) -> PathBuf {
 }
 
 /// Run the bridge until `stop` is set or the device goes away; `ready` is called with the
-/// controller's port once it can be opened. The transcript ends with an `end` line and the
-/// timing report is written whichever way the session ends.
-pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> Result<TapOutcome> {
+/// controller's port once it can be opened, and the live view's URL if there is one. The
+/// transcript ends with an `end` line and the timing report is written whichever way the
+/// session ends.
+pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path, Option<&str>)) -> Result<TapOutcome> {
     // The device and the port register with a reactor when opened; this thread never polls it
     // (it polls the descriptors itself), but they need one to exist.
     let runtime = tokio::runtime::Builder::new_current_thread().enable_io().build().map_err(|e| RunnerError::during("cannot start the tap's runtime", e))?;
@@ -85,10 +90,11 @@ pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path)) -
     let started_unix_ns = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, nanos);
     let header = RealHeader::new(&options.device, &options.link, options.baud, started_unix_ns);
     let recorder = Recorder::create(&options.record, &header).map_err(|e| RunnerError::during("tap --record", e))?;
+    let view = options.view.as_ref().map(TapView::start).transpose()?;
     info!(device = %options.device.display(), link = %port.path().display(), baud = options.baud, "tap ready");
-    ready(port.path());
+    ready(port.path(), view.as_ref().and_then(TapView::live_url));
 
-    let mut bridge = Bridge { device: &device, port: &port, recorder: &recorder, pairing: Pairing::default(), tally: TimingTally::default(), started: Instant::now(), baud: options.baud, from_controller: 0, from_servos: 0 };
+    let mut bridge = Bridge { device: &device, port: &port, recorder: &recorder, view, pairing: Pairing::default(), tally: TimingTally::default(), started: Instant::now(), baud: options.baud, from_controller: 0, from_servos: 0 };
     let ended = bridge.run(stop);
     let at = bridge.started.elapsed();
     for event in bridge.pairing.finish(at) {
@@ -97,8 +103,10 @@ pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path)) -
     let (from_controller, from_servos) = (bridge.from_controller, bridge.from_servos);
     let report = bridge.tally.report();
     let finished = recorder.finish_with(&RealRecord::end(at, &ended, from_controller, from_servos));
+    let view_finished = bridge.view.take().map_or(Ok(()), TapView::finish);
     write_report(&options.report, &report)?;
     finished.map_err(|e| RunnerError::during("tap --record", e))?;
+    view_finished?;
     Ok(TapOutcome { ended, from_controller, from_servos, report })
 }
 
@@ -111,6 +119,8 @@ struct Bridge<'a> {
     device: &'a SerialDevice,
     port: &'a VirtualPort,
     recorder: &'a Recorder,
+    /// Where the events are shown too, if anywhere.
+    view: Option<TapView>,
     pairing: Pairing,
     tally: TimingTally,
     started: Instant,
@@ -216,6 +226,9 @@ impl Bridge<'_> {
     fn record(&mut self, event: &Event) {
         self.tally.add(event);
         self.recorder.append(&RealRecord::from_event(event));
+        if let Some(view) = &mut self.view {
+            view.send(event);
+        }
     }
 }
 

@@ -297,6 +297,16 @@ impl Observer {
         self.watch.failure()
     }
 
+    /// The view, once started.
+    pub fn view(&self) -> Option<&crate::runner::view::View> {
+        self.view.as_ref().map(ViewFeed::view)
+    }
+
+    /// A servo's name in the robot description.
+    pub fn servo_name(&self, id: u8) -> Option<&str> {
+        self.servo_names.iter().find(|(of, _)| *of == id).map(|(_, name)| name.as_str())
+    }
+
     /// Close the view: the recording gets its final name, the live server stops.
     pub fn finish_view(&mut self) -> Result<(), RunError> {
         match self.view.take() {

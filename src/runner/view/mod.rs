@@ -17,7 +17,10 @@
 //!   `d_m` and `psi_rad` among them), and d and speed in mm and mm/min too, for plots;
 //! - `/servos` (JSON): each servo's key registers, by name, at the capture rate;
 //! - `/log` (`foxglove.Log`): events, faults starting and ending, and why a run failed;
-//! - `/bus/packets` (JSON), when asked: every packet on the bus, hex and decoded.
+//! - `/bus/packets` (JSON), when asked: every packet on the bus, hex and decoded;
+//! - `/compare/robot` and `/compare/world` (JSON, `climbsim compare`): the registers each real
+//!   read reply carried, and the world's answer to the same read, shaped as `/servos` is (raw
+//!   values under the servo's name), so that one plot overlays the robot and the world.
 //!
 //! A live viewer that connects late still gets the scene: the server sends the latest terrain
 //! and robot to each new subscriber.
@@ -77,13 +80,15 @@ pub struct ViewOptions {
     pub live: Option<LiveAddress>,
     /// Put every bus packet on `/bus/packets` too (`[capture] bus_packets`).
     pub packets: bool,
+    /// Advertise `/compare/robot` and `/compare/world` (`climbsim compare`'s recording).
+    pub compare: bool,
 }
 
 impl ViewOptions {
     /// What a run's `[capture]` asks for: `run.mcap` in its output folder (if it has one and
     /// `mcap` is on), bus packets if `bus_packets`, and the live server at `live`.
     pub fn of_run(capture: &CaptureSection, out_dir: Option<&Path>, live: Option<LiveAddress>) -> Self {
-        Self { mcap: out_dir.filter(|_| capture.mcap).map(|dir| dir.join(MCAP_FILE)), live, packets: capture.bus_packets }
+        Self { mcap: out_dir.filter(|_| capture.mcap).map(|dir| dir.join(MCAP_FILE)), live, packets: capture.bus_packets, compare: false }
     }
 
     pub fn is_off(&self) -> bool {
@@ -147,6 +152,28 @@ struct Channels {
     signals: Arc<RawChannel>,
     servos: Arc<RawChannel>,
     packets: Option<Arc<RawChannel>>,
+    /// `/compare/robot` and `/compare/world`, when asked.
+    compare: Option<[Arc<RawChannel>; 2]>,
+}
+
+/// Where [`View::readings`] go.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReadingsTopic {
+    /// `/servos`: a real bus's replies shown where the world's registers usually are (`tap
+    /// --foxglove`: the shipped layout shows the real servos).
+    Servos,
+    /// `/compare/robot`: what the real servo answered.
+    Robot,
+    /// `/compare/world`: what the world answered to the same read.
+    World,
+}
+
+/// One servo's read reply as registers: its name, ID and (key, raw value) pairs.
+#[derive(Debug, Clone)]
+pub struct ServoReadings<'a> {
+    pub name: &'a str,
+    pub id: u8,
+    pub registers: Vec<(&'a str, i64)>,
 }
 
 /// A run as Foxglove sees it.
@@ -240,6 +267,11 @@ impl View {
             signals: json_channel(&context, "/signals", "climbsim.Signals", signals_schema(&schema_names)).map_err(error)?,
             servos: json_channel(&context, "/servos", "climbsim.Servos", servos_schema(servo_names)).map_err(error)?,
             packets: options.packets.then(|| json_channel(&context, "/bus/packets", "climbsim.BusPacket", PACKET_SCHEMA.as_bytes().to_vec())).transpose().map_err(error)?,
+            compare: options
+                .compare
+                .then(|| Ok::<_, String>([json_channel(&context, "/compare/robot", "climbsim.Servos", servos_schema(servo_names))?, json_channel(&context, "/compare/world", "climbsim.Servos", servos_schema(servo_names))?]))
+                .transpose()
+                .map_err(error)?,
         });
         let latest = Arc::new(Mutex::new(LatestScene::default()));
         let live = options.live.as_ref().map(|address| LiveServer::start(&context, address, Arc::clone(&channels), Arc::clone(&latest))).transpose()?;
@@ -364,6 +396,46 @@ impl View {
         }
         json.push('}');
         self.channels.servos.log_with_meta(json.as_bytes(), PartialMetadata { log_time: Some(nanos(t)) });
+    }
+
+    /// The registers read replies carried at `t` (one message for the replies of one
+    /// instruction), shaped as [`View::servos`] shapes them, on `topic` (nothing if the view has
+    /// no such topic).
+    pub fn readings(&self, topic: ReadingsTopic, t: Duration, servos: &[ServoReadings<'_>]) {
+        use std::fmt::Write as _;
+        let channel = match topic {
+            ReadingsTopic::Servos => Some(&self.channels.servos),
+            ReadingsTopic::Robot => self.channels.compare.as_ref().map(|[robot, _]| robot),
+            ReadingsTopic::World => self.channels.compare.as_ref().map(|[_, world]| world),
+        };
+        let Some(channel) = channel.filter(|_| !servos.is_empty()) else { return };
+        let mut json = String::from("{");
+        for (index, servo) in servos.iter().enumerate() {
+            // The name comes from the robot description: escaped as JSON; the keys are the
+            // profile's identifiers.
+            let _ = write!(json, "{}{}:{{\"id\":{}", if index > 0 { "," } else { "" }, serde_json::Value::from(servo.name), servo.id);
+            for (key, value) in &servo.registers {
+                let _ = write!(json, ",\"{key}\":{value}");
+            }
+            json.push('}');
+        }
+        json.push('}');
+        channel.log_with_meta(json.as_bytes(), PartialMetadata { log_time: Some(nanos(t)) });
+    }
+
+    /// A line of JSON on `/bus/packets` at `t` (a real bus's record: `climbsim tap`), if the
+    /// view shows packets.
+    pub fn packet_line(&self, t: Duration, json: &str) {
+        if let Some(channel) = &self.channels.packets {
+            channel.log_with_meta(json.as_bytes(), PartialMetadata { log_time: Some(nanos(t)) });
+        }
+    }
+
+    /// Tell a live viewer that time is `t` now (a view without a world to move).
+    pub fn time(&self, t: Duration) {
+        if let Some(live) = &self.live {
+            live.broadcast_time(nanos(t));
+        }
     }
 
     /// What puts every transaction of a bus on `/bus/packets` (the instruction, then each reply,
