@@ -70,7 +70,8 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     // The reference controller as it would run on the robot: its port and the camera's URL.
     let mut controller = Command::new(support::sdk_python())
         .arg(support::repo().join("hil/controllers/line_follower.py"))
-        .args(["--zeta", "1.4", "--omega-n", "0.3", "--max-yaw-rate", "0.5"])
+        .args(["--zeta", "1.4", "--omega-n", "0.3", "--max-yaw-rate", "0.5", "--log-offset"])
+        .arg(dir.join("offset.csv"))
         .env("DXL_PORT", &tap.port)
         .env("DXL_BAUD", "1000000")
         .env("CLIMBSIM_SENSORS", real_robot.sensors())
@@ -109,9 +110,22 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
 
     compare_recording_holds_both_sides(&dir.join("shipped/compare.mcap"));
 
-    // Against the robot's own description: the world matches it.
-    let own = compare(&transcript, &robot, &dir.join("own"), &[]);
-    assert_eq!(own.status.code(), Some(0), "{}", support::output_text(&own));
+    // Against the robot's own description: the world matches it, open loop and closed: the
+    // same controller run directly on the world (virtual time) follows the line as it did
+    // through the tap on the "real robot" (wall clock), within the noise of the two clocks.
+    let offsets = dir.join("offset.csv");
+    let own = compare(&transcript, &robot, &dir.join("own"), &["--signals", offsets.to_str().expect("utf-8")]);
+    let text = support::output_text(&own);
+    assert_eq!(own.status.code(), Some(0), "{text}");
+    let signals: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("own/signals.json")).expect("signals.json")).expect("JSON");
+    for side in ["robot", "world"] {
+        assert!(signals[side]["samples"].as_u64().is_some_and(|n| n > 150), "{side}: {signals}");
+        assert!(signals[side]["step"]["reference"].as_f64().is_some_and(|e0| (e0 - 0.01).abs() < 0.002), "both start 10 mm off: {signals}");
+    }
+    let rms = signals["rms_difference_m"].as_f64().expect("an overlap");
+    assert!(rms < 0.001, "the two closed loops within 1 mm RMS: {rms} m\n{text}");
+    assert!(text.contains("steady-state error") && dir.join("own/plots/line_offset.png").exists(), "{text}");
+    assert!(dir.join("own/world-run/summary.json").exists(), "the world's run keeps its outputs");
 
     // Fit the shipped world to the session: the tread's friction and the encoders' mounting,
     // with the magnet's pull given (a flat line excites grip, friction × pull, only as a

@@ -74,6 +74,7 @@ def parse_args():
     p.add_argument("--speed-window", type=float, default=0.5)
     p.add_argument("--radius", type=float, default=0.05, help="wheel radius (m)")
     p.add_argument("--track", type=float, default=0.26, help="wheel track (m)")
+    p.add_argument("--log-offset", metavar="FILE", help="write the measured line offset, t_s,d_m (s since the start, m), each period (climbsim compare --signals)")
     return p.parse_args()
 
 
@@ -133,6 +134,10 @@ def main():
     last_error = None
     last_time = None
     next_tick = time.monotonic()
+    started = next_tick
+    offset_log = open(args.log_offset, "w", buffering=1) if args.log_offset else None
+    if offset_log:
+        offset_log.write("t_s,d_m\n")
     ticks = 0
     blind = 0
     while running:
@@ -175,6 +180,8 @@ def main():
                 # /line gives the robot relative to the line (d > 0: the robot is left of it),
                 # the errors the control law takes.
                 d_err, psi_err = line["d"], line["psi"]
+                if offset_log:
+                    offset_log.write(f"{now - started:.6f},{d_err:.6g}\n")
                 w, pole = args.omega_n, args.integral_pole
                 damping = 2 * args.zeta * w
                 k_d, k_psi, k_i = -(w ** 2 + damping * pole) / target, -(damping + pole), -(w ** 2) * pole / target
@@ -209,6 +216,8 @@ def main():
     for dxl in WHEELS:
         packet.write1ByteTxRx(port, dxl, ADDR_TORQUE_ENABLE, 0)
     port.closePort()
+    if offset_log:
+        offset_log.close()
     print(f"line_follower: {ticks} control periods, {blind} without a line measurement", flush=True)
 
 

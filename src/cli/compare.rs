@@ -9,10 +9,12 @@ use climbsim::real_bus::compare::Tolerances;
 use climbsim::real_bus::transcript::read;
 use climbsim::report::diff::Tolerances as DiffTolerances;
 use climbsim::runner::compare::{CompareOptions, CompareReport, compare};
-use climbsim::runner::{Console as _, RunnerError};
+use climbsim::runner::signals::compare_signals;
+use climbsim::runner::{Console as _, Pace, RunnerError};
 
 use super::args::ROBOT_IN_CHECKOUT;
 use super::console::Terminal;
+use super::interrupt;
 use super::run::parse_overrides;
 
 /// The world a real session is set beside, and how far apart they may be (`compare`, `fit`).
@@ -64,8 +66,9 @@ impl AgainstArgs {
 /// Re-enact a real session recorded by `climbsim tap` open-loop in a scenario's world (its
 /// instructions at their recorded instants) and compare every real read reply with the world's
 /// answer to the same read: per servo and register the bias, RMS, largest difference and lag,
-/// and the reply latency against the wire model. Writes compare.json; exits 1 when a register's
-/// RMS is past its tolerance (by default 5 % of the real signal's span, at least two steps).
+/// and the reply latency against the wire model. Writes compare.json, compare.mcap and a plot
+/// per register; exits 1 when a register's RMS is past its tolerance (by default 5 % of the
+/// real signal's span, at least two steps).
 #[derive(Debug, clap::Args)]
 pub struct CompareArgs {
     #[command(flatten)]
@@ -73,15 +76,28 @@ pub struct CompareArgs {
     /// Output folder (default: results/compare/<transcript name>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// The real run's line offset as the controller measured it (CSV with `t_s` and `d_m`
+    /// columns): the scenario is also run closed loop with its controller (on virtual time,
+    /// with --robot and --set), and the seed's step metrics of the two are set side by side
+    /// (signals.json, plots/line_offset.png). Informative: it does not change the exit code.
+    #[arg(long, value_name = "FILE")]
+    pub signals: Option<PathBuf>,
 }
 
 pub fn exec(args: CompareArgs) -> Result<()> {
+    if args.signals.is_some() {
+        interrupt::install()?;
+    }
     let options = args.against.options("compare", args.out)?;
     let transcript = &args.against.transcript;
     let report = compare(&read(transcript)?, transcript, &options)?;
     refuse_unknown_tolerances(&options, &report)?;
     say_report(transcript, &options.scenario, &report);
-    Terminal.say(&format!("wrote {}: compare.json, compare.mcap (the world and both sides' readings, for Foxglove), plots/", options.out.display()));
+    if let Some(file) = &args.signals {
+        let signals = compare_signals(file, &options, Pace::virtual_time(), interrupt::flag())?;
+        Terminal.note(&signals.table());
+    }
+    Terminal.say(&format!("wrote {}: compare.json, compare.mcap (the world and both sides' readings, for Foxglove), plots/{}", options.out.display(), if args.signals.is_some() { ", signals.json, world-run/" } else { "" }));
     verdict(&report)
 }
 

@@ -30,6 +30,14 @@ pub struct Pace {
     pub time: TimeBase,
 }
 
+impl Pace {
+    /// `check`'s default: an external controller on simulated time (the tolerance does not
+    /// apply: nothing is late on virtual time).
+    pub fn virtual_time() -> Self {
+        Self { speed: 1.0, tolerance: Duration::from_millis(10), time: TimeBase::Virtual(VtSettings::default()) }
+    }
+}
+
 /// Whose clock an external controller runs on.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum TimeBase {

@@ -47,6 +47,11 @@ pub enum CompareError {
     Write { path: PathBuf, source: std::io::Error },
     #[error(transparent)]
     Plot(crate::report::ReportError),
+    /// The world's run of `--signals` failed.
+    #[error(transparent)]
+    Runner(#[from] super::RunnerError),
+    #[error("{}: {message}", path.display())]
+    Signals { path: PathBuf, message: String },
 }
 
 /// What to compare the session with.

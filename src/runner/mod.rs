@@ -23,6 +23,7 @@ pub mod process;
 pub mod recording;
 pub mod replay;
 pub mod serve;
+pub mod signals;
 pub mod sweep;
 pub mod tap;
 pub mod tap_view;
