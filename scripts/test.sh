@@ -62,10 +62,38 @@ need_debian_package libjssc-java "/usr/share/java/jssc.jar" "the Java controller
 # The Go controller of the virtual-time tests (built with and without cgo).
 need_debian_package golang-go "/usr/bin/go" "the Go controller of the virtual-time tests"
 stage_done "Debian packages"
+# This script builds climbsim once, from scratch on a fresh machine, and runs it: no
+# incremental compilation (its bookkeeping is ~7 % more work when there is nothing to reuse) and
+# climbsim's own crates in 16 code-generation units instead of the dev profile's 256 (~11 % less
+# work for the optimiser: measured on the library, 162 against 144 CPU-s). `cargo test` run by
+# hand keeps the dev profile's incremental builds; the two builds sit side by side in target/.
+export CARGO_INCREMENTAL=0
+cargo() { command cargo "$1" --config 'profile.dev.package.climbsim.codegen-units=16' "${@:2}"; }
 echo "==> cargo test"
 cargo test --locked --no-run "$@"
 stage_done "cargo test: build"
-cargo test --locked "$@"
+# The official Python SDK's suite (tests/python_sdk.rs: 240 tests, about a minute, most of it one
+# process at a time) runs beside the other test binaries, which cargo runs one after another:
+# a minute less in all on two cores. Its output is printed when it is done.
+sdk_log="$(mktemp)"
+cargo test --locked --test python_sdk "$@" > "$sdk_log" 2>&1 &
+sdk_pid=$!
+others=(--lib --bins)
+for file in tests/*.rs; do
+    name="$(basename "$file" .rs)"
+    [[ "$name" == python_sdk ]] || others+=(--test "$name")
+done
+others_status=0
+cargo test --locked "${others[@]}" "$@" || others_status=$?
+sdk_status=0
+wait "$sdk_pid" || sdk_status=$?
+echo "==> cargo test --test python_sdk (ran beside the others)"
+cat "$sdk_log"
+rm -f "$sdk_log"
+if (( others_status != 0 || sdk_status != 0 )); then
+    echo "error: cargo test failed (the other tests: exit $others_status; the official Python SDK's suite: exit $sdk_status)" >&2
+    exit 1
+fi
 stage_done "cargo test: run"
 
 # A disk that fills while a run writes its outputs needs a small tmpfs, which only root can
