@@ -72,28 +72,7 @@ cargo() { command cargo "$1" --config 'profile.dev.package.climbsim.codegen-unit
 echo "==> cargo test"
 cargo test --locked --no-run "$@"
 stage_done "cargo test: build"
-# The official Python SDK's suite (tests/python_sdk.rs: 240 tests, about a minute, most of it one
-# process at a time) runs beside the other test binaries, which cargo runs one after another:
-# a minute less in all on two cores. Its output is printed when it is done.
-sdk_log="$(mktemp)"
-cargo test --locked --test python_sdk "$@" > "$sdk_log" 2>&1 &
-sdk_pid=$!
-others=(--lib --bins)
-for file in tests/*.rs; do
-    name="$(basename "$file" .rs)"
-    [[ "$name" == python_sdk ]] || others+=(--test "$name")
-done
-others_status=0
-cargo test --locked "${others[@]}" "$@" || others_status=$?
-sdk_status=0
-wait "$sdk_pid" || sdk_status=$?
-echo "==> cargo test --test python_sdk (ran beside the others)"
-cat "$sdk_log"
-rm -f "$sdk_log"
-if (( others_status != 0 || sdk_status != 0 )); then
-    echo "error: cargo test failed (the other tests: exit $others_status; the official Python SDK's suite: exit $sdk_status)" >&2
-    exit 1
-fi
+cargo test --locked "$@"
 stage_done "cargo test: run"
 
 # A disk that fills while a run writes its outputs needs a small tmpfs, which only root can

@@ -5,6 +5,7 @@
 //! [`transport`] (pty, TCP, in-memory). See `docs/architecture.md` for the architecture.
 
 pub mod protocol;
+pub mod embedded;
 pub mod source_location;
 pub mod overrides;
 pub mod parts;

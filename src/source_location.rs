@@ -34,9 +34,10 @@ pub fn parse_toml<T: DeserializeOwned>(what: &'static str, path: &Path, text: &s
     })
 }
 
-/// Read and parse the TOML file at `path`.
+/// Read and parse the TOML file at `path` (a file climbsim has built in if it says
+/// `embedded:…`, see [`crate::embedded`]).
 pub fn load_toml<T: DeserializeOwned>(what: &'static str, path: &Path) -> Result<T, DataFileError> {
-    let text = std::fs::read_to_string(path).map_err(|source| DataFileError::Io { what, path: path.to_owned(), source })?;
+    let text = crate::embedded::read_to_string(path).map_err(|source| DataFileError::Io { what, path: path.to_owned(), source })?;
     parse_toml(what, path, &text)
 }
 

@@ -405,3 +405,45 @@ fn a_full_disk_is_a_clear_error_keeping_what_was_written() {
         assert!(out.join(kept).is_file(), "{kept} was not kept: {all}");
     }
 }
+
+/// climbsim outside its checkout: from an empty folder, a shipped scenario copied there runs on
+/// the robot description built into climbsim (settings.json says so), `export controller`
+/// writes the reference controller beside a scenario that names it, and `check` runs that
+/// external controller under virtual time from there; `export robot` gives a description that
+/// `--robot` takes.
+#[test]
+fn from_an_empty_folder_climbsim_runs_on_the_files_it_has_built_in() {
+    let dir = std::env::temp_dir().join(format!("climbsim-outside-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("an empty folder");
+    let in_dir = |args: &[&str]| Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(&dir).env("PATH", support::path_with_sdk_python()).env_remove("CLIMBSIM_ROBOT").output().expect("climbsim");
+    let shipped = std::fs::read_to_string(repo().join("scenarios/flat-line.toml")).expect("a shipped scenario");
+    std::fs::write(dir.join("flat.toml"), shipped.replace("duration_s = 120.0", "duration_s = 5.0")).expect("copied");
+    let run = in_dir(&["run", "flat.toml", "--set", "expect={}", "--out", "out"]);
+    assert!(run.status.success(), "{}", text(&run));
+    let settings = std::fs::read_to_string(dir.join("out/settings.json")).expect("settings.json");
+    assert!(settings.contains("\"embedded:hil/robot.toml\""), "the built-in robot, named as such: {settings}");
+
+    let default = in_dir(&["run", "--set", "world.duration_s=2", "--set", "expect={}", "--out", "default"]);
+    assert!(default.status.success(), "{}", text(&default));
+    assert!(std::fs::read_to_string(dir.join("default/settings.json")).expect("settings.json").contains("embedded:scenarios/flat-line.toml"), "run's default scenario, built in");
+
+    let exported = in_dir(&["export", "controller", "."]);
+    assert!(exported.status.success() && String::from_utf8_lossy(&exported.stdout).contains("line_follower.py"), "{}", text(&exported));
+    let again = in_dir(&["export", "controller", "."]);
+    assert_eq!(again.status.code(), Some(2), "not overwritten (bad input): {}", text(&again));
+    assert!(text(&again).contains("--force"), "{}", text(&again));
+    let external = std::fs::read_to_string(repo().join("scenarios/external-line-follower.toml")).expect("the external scenario");
+    let (external, _expect) = external.split_once("[expect]").expect("it has expectations");
+    let external = external.replace("\"../hil/controllers/line_follower.py\"", "\"./line_follower.py\"").replace("duration_s = 40.0", "duration_s = 4.0");
+    std::fs::write(dir.join("external.toml"), format!("{external}[expect]\n\"controller.period_p50_ms\" = {{ max = 22.0 }}\n")).expect("written");
+    let check = in_dir(&["check", "external.toml", "--out", "checked"]);
+    assert!(check.status.success(), "{}\n{}", text(&check), std::fs::read_to_string(dir.join("checked/external/controller.log")).unwrap_or_default());
+
+    let robot = in_dir(&["export", "robot", "my-robot"]);
+    assert!(robot.status.success(), "{}", text(&robot));
+    let with_file = in_dir(&["run", "flat.toml", "--robot", "my-robot/robot.toml", "--set", "expect={}", "--set", "robot.wheel.friction=0.5", "--out", "out2"]);
+    assert!(with_file.status.success(), "{}", text(&with_file));
+    assert!(std::fs::read_to_string(dir.join("out2/settings.json")).expect("settings.json").contains("my-robot/robot.toml"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -52,6 +52,7 @@ fn compare(transcript: &std::path::Path, robot: &std::path::Path, out: &std::pat
         .arg("--out")
         .arg(out)
         .args(extra)
+        .env("PATH", support::path_with_sdk_python())
         .current_dir(support::repo())
         .output()
         .expect("run climbsim compare")

@@ -11,7 +11,8 @@ two environment variables any HIL rig would set:
 and, optionally, DXL_BAUD (default 57600) and CLIMBSIM_TARGET_SPEED_MM_MIN (default 250).
 The algorithm is the built-in reference controller's (src/control/reference.rs):
 
-  - every period: Sync Read Present Position (132, 4 B) of wheels 1-4 and magnet shafts 5-8;
+  - every period: Sync Read Present Position (132, 4 B) of wheels 1-4 and magnet shafts 5-8
+    (with --read-current, Present Current to Position: 126, 10 B);
   - wheel rates from position differences over a sliding window (Present Velocity's 0.229 rpm
     step is 29 % of 250 mm/min on a 50 mm wheel);
   - speed = mean of rate x R / cos(alpha) with normal compensation (alpha = magnet angle);
@@ -39,6 +40,7 @@ from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHan
 ADDR_OPERATING_MODE = 11
 ADDR_TORQUE_ENABLE = 64
 ADDR_GOAL_VELOCITY = 104
+ADDR_PRESENT_CURRENT = 126
 ADDR_PRESENT_POSITION = 132
 VELOCITY_MODE = 1
 RPM_PER_UNIT = 0.229
@@ -74,6 +76,7 @@ def parse_args():
     p.add_argument("--speed-window", type=float, default=0.5)
     p.add_argument("--radius", type=float, default=0.05, help="wheel radius (m)")
     p.add_argument("--track", type=float, default=0.26, help="wheel track (m)")
+    p.add_argument("--read-current", action="store_true", help="Sync Read Present Current and Velocity too (126-135, 10 B): a tapped session then shows the motors' load (climbsim fit)")
     p.add_argument("--log-offset", metavar="FILE", help="write the measured line offset, t_s,d_m (s since the start, m), each period (climbsim compare --signals)")
     return p.parse_args()
 
@@ -122,7 +125,10 @@ def main():
         # Passive magnets: they follow the surface normal, their encoders read its angle.
         check(packet, *packet.write1ByteTxRx(port, dxl, ADDR_TORQUE_ENABLE, 0), f"torque off {dxl}")
 
-    reader = GroupSyncRead(port, packet, ADDR_PRESENT_POSITION, 4)
+    if args.read_current:
+        reader = GroupSyncRead(port, packet, ADDR_PRESENT_CURRENT, ADDR_PRESENT_POSITION + 4 - ADDR_PRESENT_CURRENT)
+    else:
+        reader = GroupSyncRead(port, packet, ADDR_PRESENT_POSITION, 4)
     for dxl in WHEELS + MAGNETS:
         reader.addParam(dxl)
     writer = GroupSyncWrite(port, packet, ADDR_GOAL_VELOCITY, 4)

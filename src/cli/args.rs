@@ -1,13 +1,14 @@
 //! What several subcommands share: flags (`--foxglove`, `--speed`, `--timing`, `--fault`), their
 //! parsers, and loading the robot description.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Result, bail};
 use clap::ValueEnum;
 
 use climbsim::bus::Timing;
+use climbsim::embedded;
 use climbsim::fault::ScheduledFault;
 use climbsim::robot::{RobotDescription, RobotOverrides};
 use climbsim::runner::{Pace, TimeBase};
@@ -121,10 +122,14 @@ pub fn load_robot(path: &Path) -> Result<RobotDescription> {
 
 /// [`load_robot`] with `--set robot.…` and `--set profile.…` keys.
 pub fn load_robot_with(path: &Path, overrides: &RobotOverrides) -> Result<RobotDescription> {
-    if path == Path::new(ROBOT_IN_CHECKOUT) && !path.exists() {
-        bail!("robot description {ROBOT_IN_CHECKOUT} not found from {}: run climbsim from its checkout, or pass --robot FILE or set CLIMBSIM_ROBOT", std::env::current_dir().map(|d| d.display().to_string()).unwrap_or_else(|_| "here".to_owned()));
-    }
-    Ok(RobotDescription::load_with(path, overrides)?)
+    Ok(RobotDescription::load_with(&robot_path(path), overrides)?)
+}
+
+/// The robot description `--robot` names. Its default, `hil/robot.toml`, is the checkout's
+/// when climbsim runs in one (or a folder that has its own), else the one built into climbsim
+/// (`embedded:hil/robot.toml`): an installed binary runs from any folder.
+pub fn robot_path(path: &Path) -> PathBuf {
+    if path == Path::new(ROBOT_IN_CHECKOUT) && !path.exists() { embedded::ROBOT.embedded_path() } else { path.to_owned() }
 }
 
 /// The highest `--speed`: beyond it a firmware tick is shorter on the wall clock than a sleep.

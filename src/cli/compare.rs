@@ -54,12 +54,13 @@ impl AgainstArgs {
             let (key, value) = DiffTolerances::parse_abs(text).map_err(|e| anyhow::anyhow!("--tolerance {e}"))?;
             tolerances.abs.insert(key, value);
         }
-        super::args::load_robot(&self.robot)?;
+        let robot = super::args::robot_path(&self.robot);
+        super::args::load_robot(&robot)?;
         let out = out.unwrap_or_else(|| {
             let stem = self.transcript.file_stem().map_or_else(|| what.into(), |s| s.to_string_lossy().into_owned());
             PathBuf::from("results").join(what).join(stem)
         });
-        Ok(CompareOptions { scenario: self.scenario.clone(), overrides: parse_overrides(&self.set)?, robot: self.robot.clone(), tolerances, out })
+        Ok(CompareOptions { scenario: self.scenario.clone(), overrides: parse_overrides(&self.set)?, robot, tolerances, out })
     }
 }
 

@@ -7,6 +7,7 @@ mod check;
 mod compare;
 mod console;
 mod diff;
+mod export;
 mod fit;
 mod interrupt;
 mod replay;
@@ -38,6 +39,7 @@ pub enum Command {
     Tap(tap::TapArgs),
     Compare(compare::CompareArgs),
     Fit(fit::FitArgs),
+    Export(export::ExportArgs),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -51,5 +53,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Tap(args) => tap::exec(args),
         Command::Compare(args) => compare::exec(args),
         Command::Fit(args) => fit::exec(args),
+        Command::Export(args) => export::exec(args),
     }
 }

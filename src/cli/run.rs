@@ -1,6 +1,6 @@
 //! `climbsim run SCENARIO`: one run, its outputs, its verdict.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 
@@ -11,11 +11,15 @@ use climbsim::runner::outputs::judge;
 use climbsim::runner::recording::RecordSpec;
 use climbsim::runner::{Console as _, RunOutcome, RunnerError, default_out_dir, preflight_dir, preflight_file};
 use climbsim::robot::RobotOverrides;
+use climbsim::embedded;
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
 use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, load_robot_with, parse_fault, refuse_recorded_cli_faults};
 use super::console::Terminal;
 use super::interrupt;
+
+/// `run`'s scenario when none is given.
+const DEFAULT_SCENARIO: &str = "scenarios/flat-line.toml";
 
 /// Run a scenario and write its time series, summary, workbook and plots. A built-in
 /// controller runs in lockstep, faster than real time; an external one (`command = [...]`)
@@ -23,8 +27,8 @@ use super::interrupt;
 /// unless `--clock virtual` is given (simulated time).
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
-    /// Scenario file (default: scenarios/flat-line.toml).
-    #[arg(default_value = "scenarios/flat-line.toml")]
+    /// Scenario file (default: scenarios/flat-line.toml, the one built in outside the checkout).
+    #[arg(default_value = DEFAULT_SCENARIO)]
     pub scenario: PathBuf,
     /// Output folder (default: results/<scenario name>).
     #[arg(long)]
@@ -61,6 +65,8 @@ pub fn exec(args: RunArgs) -> Result<()> {
     refuse_recorded_cli_faults(&faults, record.as_deref())?;
     let (overrides, robot_sets) = RobotOverrides::split(&parse_overrides(&set)?);
     let robot = load_robot_with(&robot, &robot_sets)?;
+    // The default scenario is the checkout's, else the one built in (from any folder).
+    let scenario = if scenario == Path::new(DEFAULT_SCENARIO) && !scenario.exists() { embedded::SCENARIO.embedded_path() } else { scenario };
     let mut loaded = Scenario::load_with(&scenario, &overrides)?;
     loaded.add_faults(faults);
     let out_dir = out.unwrap_or_else(|| default_out_dir(&scenario));

@@ -162,7 +162,11 @@ fn fitted_robot(robot: &Path, sets: &[Override]) -> Result<String, CompareError>
         && let Some(relative) = profile.as_str()
     {
         let absolute = robot.parent().unwrap_or(Path::new(".")).join(relative);
-        *profile = toml::Value::String(std::fs::canonicalize(&absolute).unwrap_or(absolute).display().to_string());
+        let resolved = match crate::embedded::find(&absolute) {
+            Some(built_in) => built_in.embedded_path(),
+            None => std::fs::canonicalize(&absolute).unwrap_or(absolute),
+        };
+        *profile = toml::Value::String(resolved.display().to_string());
     }
     let sets: Vec<String> = sets.iter().map(ToString::to_string).collect();
     Ok(format!("# {} with the values `climbsim fit` found: {}\n{}", robot.display(), sets.join(" "), toml::to_string(&table).unwrap_or_default()))

@@ -409,10 +409,15 @@ pub mod tap;
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
 /// controller (`command = ["python", ...]`) runs in the venv.
 pub fn climbsim_with_sdk_python(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).env("PATH", path_with_sdk_python()).current_dir(repo()).output().expect("run climbsim")
+}
+
+/// `PATH` with the SDK's Python first: what a scenario's `#!/usr/bin/env python3` controller
+/// runs on.
+pub fn path_with_sdk_python() -> std::ffi::OsString {
     let python = sdk_python();
     let bin = python.parent().expect("python's folder").to_owned();
-    let path = std::env::join_paths(std::iter::once(bin).chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()))).expect("PATH");
-    Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).env("PATH", path).current_dir(repo()).output().expect("run climbsim")
+    std::env::join_paths(std::iter::once(bin).chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()))).expect("PATH")
 }
 
 /// GET `path` from the sensor server at `url` (`http://HOST:PORT`), the body as JSON.
