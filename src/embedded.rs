@@ -95,6 +95,19 @@ pub enum Export {
     All,
 }
 
+impl Export {
+    /// Each choice by the name `climbsim export` takes.
+    pub const NAMES: [(&'static str, Export); 6] = [("robot", Self::Robot), ("profile", Self::Profile), ("layout", Self::Layout), ("controller", Self::Controller), ("scenario", Self::Scenario), ("all", Self::All)];
+}
+
+impl std::str::FromStr for Export {
+    type Err = String;
+
+    fn from_str(name: &str) -> Result<Self, String> {
+        Self::NAMES.iter().find(|(n, _)| *n == name).map(|(_, what)| *what).ok_or_else(|| format!("`{name}` is not one of {}", Self::NAMES.map(|(n, _)| n).join(", ")))
+    }
+}
+
 /// Why files could not be exported.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
@@ -184,6 +197,13 @@ mod tests {
         assert!(find(Path::new("embedded:hil/./foxglove/../robot.toml")).is_some());
         let error = read_to_string(Path::new("embedded:hil/nothing.toml")).expect_err("not built in");
         assert!(error.to_string().contains("embedded:hil/robot.toml"), "{error}");
+    }
+
+    #[test]
+    fn export_choices_are_parsed_by_name_and_a_wrong_one_lists_them() {
+        assert_eq!("controller".parse::<Export>(), Ok(Export::Controller));
+        let error = "robots".parse::<Export>().expect_err("no such choice");
+        assert!(error.contains("robot, profile, layout, controller, scenario, all"), "{error}");
     }
 
     #[test]

@@ -16,8 +16,8 @@ use super::console::Terminal;
 /// not overwritten without --force.
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {
-    /// What to write.
-    pub what: ExportWhat,
+    /// What to write: robot, profile, layout, controller, scenario or all.
+    pub what: Export,
     /// Where to write it (made if missing).
     pub dir: PathBuf,
     /// Overwrite files that are there.
@@ -25,27 +25,8 @@ pub struct ExportArgs {
     pub force: bool,
 }
 
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub enum ExportWhat {
-    Robot,
-    Profile,
-    Layout,
-    Controller,
-    /// `run`'s default scenario (flat-line.toml).
-    Scenario,
-    All,
-}
-
 pub fn exec(args: ExportArgs) -> Result<()> {
-    let what = match args.what {
-        ExportWhat::Robot => Export::Robot,
-        ExportWhat::Profile => Export::Profile,
-        ExportWhat::Layout => Export::Layout,
-        ExportWhat::Controller => Export::Controller,
-        ExportWhat::Scenario => Export::Scenario,
-        ExportWhat::All => Export::All,
-    };
-    for path in export(what, &args.dir, args.force)? {
+    for path in export(args.what, &args.dir, args.force)? {
         Terminal.say(&format!("wrote {}", path.display()));
     }
     Ok(())
