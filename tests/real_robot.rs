@@ -63,7 +63,8 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     let dir = support::scratch_dir("real-robot");
     let robot = hidden_robot(&dir);
     let cable = NullModem::new();
-    let real_robot = support::Options::default().stderr_log().sensors().start(&["scenarios/external-line-follower.toml", "--robot", robot.to_str().expect("utf-8"), "--device", cable.b().to_str().expect("utf-8")]);
+    // Its gearboxes too: twice the shipped profile's Coulomb friction.
+    let real_robot = support::Options::default().stderr_log().sensors().start(&["scenarios/external-line-follower.toml", "--robot", robot.to_str().expect("utf-8"), "--set", HIDDEN_GEARBOX, "--device", cable.b().to_str().expect("utf-8")]);
     // Shown live (on a port the kernel picks) and recorded for Foxglove as it goes.
     let tap_mcap = dir.join("tap.mcap");
     let mut tap = TapProcess::start(cable.a(), &dir, &["--baud", "1000000", "--foxglove=127.0.0.1:0", "--mcap", tap_mcap.to_str().expect("utf-8")]);
@@ -71,7 +72,7 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     // The reference controller as it would run on the robot: its port and the camera's URL.
     let mut controller = Command::new(support::sdk_python())
         .arg(support::repo().join("hil/controllers/line_follower.py"))
-        .args(["--zeta", "1.4", "--omega-n", "0.3", "--max-yaw-rate", "0.5", "--log-offset"])
+        .args(["--zeta", "1.4", "--omega-n", "0.3", "--max-yaw-rate", "0.5", "--read-current", "--log-offset"])
         .arg(dir.join("offset.csv"))
         .env("DXL_PORT", &tap.port)
         .env("DXL_BAUD", "1000000")
@@ -102,7 +103,7 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("shipped/compare.json")).expect("compare.json")).expect("JSON");
     assert_eq!(report["passed"], false);
     assert!(report["replies_compared"].as_u64().is_some_and(|n| n > 8 * 100), "{report}");
-    let magnet = report["registers"].as_array().expect("registers").iter().find(|r| r["id"] == 5).expect("servo 5");
+    let magnet = report["registers"].as_array().expect("registers").iter().find(|r| r["id"] == 5 && r["key"] == "present_position").expect("servo 5");
     assert_eq!(magnet["bias"], -12.0, "the world reads 2048 where the robot reads 2060: {magnet}");
     for servo in 1..=8 {
         let plot = dir.join(format!("shipped/plots/servo{servo}_present_position.png"));
@@ -115,7 +116,7 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     // same controller run directly on the world (virtual time) follows the line as it did
     // through the tap on the "real robot" (wall clock), within the noise of the two clocks.
     let offsets = dir.join("offset.csv");
-    let own = compare(&transcript, &robot, &dir.join("own"), &["--signals", offsets.to_str().expect("utf-8")]);
+    let own = compare(&transcript, &robot, &dir.join("own"), &["--set", HIDDEN_GEARBOX, "--signals", offsets.to_str().expect("utf-8")]);
     let text = support::output_text(&own);
     assert_eq!(own.status.code(), Some(0), "{text}");
     let signals: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("own/signals.json")).expect("signals.json")).expect("JSON");
@@ -128,14 +129,15 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     assert!(text.contains("steady-state error") && dir.join("own/plots/line_offset.png").exists(), "{text}");
     assert!(dir.join("own/world-run/summary.json").exists(), "the world's run keeps its outputs");
 
-    // Fit the shipped world to the session: the tread's friction and the encoders' mounting,
-    // with the magnet's pull given (a flat line excites grip, friction × pull, only as a
-    // product: fitted together they are reported as not identifiable, see docs/real-robot.md).
+    // Fit the shipped world to the session: the tread's friction, the gearboxes' friction (the
+    // controller reads the motors' current) and the encoders' mounting, with the magnet's pull
+    // given (a flat line excites grip, friction × pull, nearly only as a product: see
+    // docs/real-robot.md).
     let fitted = Command::new(env!("CARGO_BIN_EXE_climbsim"))
         .arg("fit")
         .arg(&transcript)
         .args(["--scenario", "scenarios/external-line-follower.toml", "--set", "robot.magnet.pull_at_contact_n=60"])
-        .args(["--param", "robot.wheel.friction=0.2..0.9", "--param", "robot.magnet.encoder_at_down_pulses=2000..2100", "--out"])
+        .args(["--param", "robot.wheel.friction=0.2..0.9", "--param", "profile.motor.coulomb_friction_nm=0.0..0.12", "--param", "robot.magnet.encoder_at_down_pulses=2000..2100", "--out"])
         .arg(dir.join("fit"))
         .current_dir(support::repo())
         .output()
@@ -155,15 +157,26 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     // of the hidden value, or three widths if wider.
     assert!(friction["identifiable"] == true && resolution < 0.05, "{friction}");
     assert!((value - 0.35).abs() <= (3.0 * resolution).max(0.06), "friction {value} against the hidden 0.35 (± {resolution}): {text}");
+    // The gearbox shows in the wheels' current (about 12 mA more at twice the friction, a few
+    // of its 2.69 mA steps): measured (2026-11-27) 0.066 ± 0.012 on a 20 s session.
+    let gearbox = param("profile.motor.coulomb_friction_nm");
+    let (value, resolution) = (gearbox["value"].as_f64().expect("value"), gearbox["resolution"].as_f64().expect("determined"));
+    assert!(gearbox["identifiable"] == true, "{gearbox}");
+    assert!((value - 0.06).abs() <= (3.0 * resolution).max(0.02), "gearbox friction {value} against the hidden 0.06 (± {resolution}): {text}");
     let sets = std::fs::read_to_string(dir.join("fit/fitted.sets")).expect("fitted.sets");
     assert!(sets.contains("robot.magnet.encoder_at_down_pulses=2060"), "{sets}");
+    // The description takes the robot's keys; the profile's come from fitted.sets.
     let fitted_robot = dir.join("fit/fitted-robot.toml");
-    let after = compare(&transcript, &fitted_robot, &dir.join("after"), &["--set", "robot.magnet.pull_at_contact_n=60"]);
+    let fitted_gearbox = sets.lines().find(|l| l.starts_with("profile.motor.coulomb_friction_nm=")).expect("the gearbox in fitted.sets");
+    let after = compare(&transcript, &fitted_robot, &dir.join("after"), &["--set", "robot.magnet.pull_at_contact_n=60", "--set", fitted_gearbox]);
     assert_eq!(after.status.code(), Some(0), "the fitted description (and the pull given) matches: {}", support::output_text(&after));
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("after/compare.json")).expect("compare.json")).expect("JSON");
-    let magnet = report["registers"].as_array().expect("registers").iter().find(|r| r["id"] == 5).expect("servo 5");
+    let magnet = report["registers"].as_array().expect("registers").iter().find(|r| r["id"] == 5 && r["key"] == "present_position").expect("servo 5");
     assert_eq!(magnet["bias"], 0.0, "{magnet}");
 }
+
+/// The "real robot"'s gearbox friction, which only it has.
+const HIDDEN_GEARBOX: &str = "profile.motor.coulomb_friction_nm=0.06";
 
 /// `tap --mcap` (read back with the `mcap` crate): a message on `/servos` for each Sync Read,
 /// with the real magnet shafts' positions where the transcript has them, and every record of
