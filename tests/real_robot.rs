@@ -348,3 +348,52 @@ fn a_device_that_is_not_there_is_named_and_nothing_is_left_behind() {
     assert!(text.contains("/dev/does-not-exist") && text.contains("no such device"), "{text}");
     assert!(!dir.join("real.jsonl").exists() && !dir.join("ttyDXL").exists());
 }
+
+/// A controller that reads with Fast Sync Read: its one combined reply is split per servo and
+/// compared register by register. The session is written with the library's own recorder (a
+/// Fast Sync Read of Present Position from all eight, every 20 ms for 2 s, each servo's block
+/// saying 2048 + its ID), and compared against the world at rest on flat ground.
+#[test]
+fn a_fast_sync_read_session_is_compared_per_servo() {
+    use climbsim::protocol::{FastReplyBuilder, encode_instruction};
+    use climbsim::real_bus::RealHeader;
+    use climbsim::transcript::Recorder;
+
+    let dir = support::scratch_dir("fast-compare");
+    let path = dir.join("fast.jsonl");
+    let recorder = Recorder::create(&path, &RealHeader::new(std::path::Path::new("/dev/null"), &dir.join("ttyDXL"), 57_600, 0)).expect("a transcript");
+    let hex = |bytes: &[u8]| bytes.iter().map(|b| format!("{b:02x}")).collect::<String>();
+    let request = encode_instruction(0xFE, 0x8A, &[132, 0, 4, 0, 1, 2, 3, 4, 5, 6, 7, 8]);
+    for period in 0..100u64 {
+        let t = 50_000_000 + period * 20_000_000;
+        let mut reply = FastReplyBuilder::new([4; 8]).expect("fits");
+        for id in 1..=8u8 {
+            reply.push_block(0, id, &(2048 + i32::from(id)).to_le_bytes());
+        }
+        let replies = vec![RealReply { id: 0xFE, t: t + 3_200_000, end: t + 10_000_000, hex: hex(&reply.into_bytes()) }];
+        recorder.append(&RealRecord::Tx { t, end: t + 2_600_000, baud: 57_600, hex: hex(&request), replies, missed: Vec::new() });
+    }
+    recorder.finish_with(&RealRecord::End { t: 2_100_000_000, why: "written by the test".into(), from_controller: 0, from_servos: 0 }).expect("complete");
+
+    let out = dir.join("compared");
+    let compared = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["compare"])
+        .arg(&path)
+        .args(["--scenario", "scenarios/flat-line.toml", "--out"])
+        .arg(&out)
+        .current_dir(support::repo())
+        .output()
+        .expect("run climbsim compare");
+    let text = support::output_text(&compared);
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("compare.json")).unwrap_or_else(|e| panic!("{e}: {text}"))).expect("JSON");
+    assert_eq!(report["replies_compared"], 800, "eight servos in each of 100 combined replies: {text}");
+    assert_eq!(report["replies_the_world_missed"], 0, "{text}");
+    let registers = report["registers"].as_array().expect("registers");
+    assert_eq!(registers.len(), 8, "{text}");
+    for (register, id) in registers.iter().zip(1..=8) {
+        assert_eq!((register["id"].as_u64(), register["key"].as_str(), register["samples"].as_u64()), (Some(id), Some("present_position"), Some(100)), "{register}");
+    }
+    // The world's magnet shafts rest at 2048 (pointing down): servo N's block said 2048 + N.
+    let magnet = registers.iter().find(|r| r["id"] == 6).expect("servo 6");
+    assert_eq!(magnet["bias"], -6.0, "{magnet}");
+}

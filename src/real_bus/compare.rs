@@ -65,15 +65,44 @@ impl Tolerances {
     }
 }
 
-/// Which registers each reply to `instruction` carries: (servo, first address, length).
+/// Which registers each reply to `instruction` carries: (servo, first address, length). A Fast
+/// Sync or Bulk Read's one combined reply carries them all, in this order ([`fast_blocks`]).
 pub fn read_spans(packet: &RawPacket) -> Vec<(u8, u16, u16)> {
     match Instruction::parse(packet.instruction, &packet.params) {
         Ok(Instruction::Read { address, length }) if packet.id != BROADCAST_ID => vec![(packet.id, address, length)],
-        Ok(Instruction::SyncRead { address, length, ids }) => ids.into_iter().map(|id| (id, address, length)).collect(),
-        Ok(Instruction::BulkRead { entries }) => entries.into_iter().map(|e| (e.id, e.address, e.length)).collect(),
-        // Fast Sync/Bulk Read's combined replies are not split per servo yet.
+        Ok(Instruction::SyncRead { address, length, ids } | Instruction::FastSyncRead { address, length, ids }) => ids.into_iter().map(|id| (id, address, length)).collect(),
+        Ok(Instruction::BulkRead { entries } | Instruction::FastBulkRead { entries }) => entries.into_iter().map(|e| (e.id, e.address, e.length)).collect(),
         _ => Vec::new(),
     }
+}
+
+/// Whether `instruction` is answered by one combined status packet (Fast Sync/Bulk Read).
+pub fn is_fast_read(instruction: &RawPacket) -> bool {
+    matches!(Instruction::parse(instruction.instruction, &instruction.params), Ok(Instruction::FastSyncRead { .. } | Instruction::FastBulkRead { .. }))
+}
+
+/// A Fast Sync/Bulk Read's combined reply split per servo: (ID, first address, data) for each
+/// block whose error byte is clear, in the order of `spans` ([`read_spans`] of the
+/// instruction). Per block the reply holds its error byte, the servo's ID, the data and, except
+/// after the last, a CRC (the e-manual's Fast Sync Read); a servo that stopped answering ends
+/// the packet early, so only whole blocks are returned, and a block whose ID is not the one
+/// expected there ends the split.
+pub fn fast_blocks<'a>(status: &'a RawPacket, spans: &[(u8, u16, u16)]) -> Vec<(u8, u16, &'a [u8])> {
+    let mut out = Vec::new();
+    let mut rest = status.params.as_slice();
+    for (index, &(id, address, length)) in spans.iter().enumerate() {
+        let length = usize::from(length);
+        let Some((&[error, block_id], after)) = rest.split_first_chunk::<2>() else { break };
+        if block_id != id || after.len() < length {
+            break;
+        }
+        if error & !crate::protocol::ALERT_BIT == 0 {
+            out.push((id, address, &after[..length]));
+        }
+        let crc = if index + 1 < spans.len() { 2 } else { 0 };
+        rest = after.get(length + crc..).unwrap_or_default();
+    }
+    out
 }
 
 /// The whole items in `data`, read from `address` on: (item index, raw value).
@@ -196,6 +225,24 @@ mod tests {
         let data = [0xFD, 0xFF, 0xFF, 0xFF, 0x00, 0x10, 0x00, 0x00];
         let keys: Vec<(String, i64)> = items_in(&profile, 128, &data).into_iter().map(|(i, v)| (profile.items[i].spec.key.clone(), v)).collect();
         assert_eq!(keys, vec![("present_velocity".to_owned(), -3), ("present_position".to_owned(), 4096)]);
+    }
+
+    #[test]
+    fn a_fast_sync_read_reply_splits_per_servo_as_the_e_manual_lays_it_out() {
+        // The e-manual's Fast Sync Read of Present Position (132, 4 B) from IDs 3, 7 and 4.
+        let request = packet(&encode_instruction(BROADCAST_ID, 0x8A, &[132, 0, 4, 0, 3, 7, 4]));
+        assert!(is_fast_read(&request));
+        let spans = read_spans(&request);
+        assert_eq!(spans, vec![(3, 132, 4), (7, 132, 4), (4, 132, 4)]);
+        let reply = packet(&[
+            0xFF, 0xFF, 0xFD, 0x00, 0xFE, 0x19, 0x00, 0x55, 0x00, 0x03, 0xA6, 0x00, 0x00, 0x00, 0x84, 0x08, 0x00, 0x07, 0x1F, 0x08, 0x00, 0x00, 0x16, 0xCA, 0x00, 0x04, 0xFF, 0x03, 0x00, 0x00, 0xD1, 0x9E,
+        ]);
+        let blocks = fast_blocks(&reply, &spans);
+        assert_eq!(blocks, vec![(3, 132, &[0xA6, 0, 0, 0][..]), (7, 132, &[0x1F, 0x08, 0, 0][..]), (4, 132, &[0xFF, 0x03, 0, 0][..])]);
+        // Cut after the second block (the third servo did not answer), or a block out of order.
+        assert_eq!(fast_blocks(&reply, &[(3, 132, 4), (7, 132, 4), (9, 132, 4)]).len(), 2);
+        assert!(fast_blocks(&reply, &[(7, 132, 4)]).is_empty());
+        assert!(!is_fast_read(&packet(&encode_instruction(BROADCAST_ID, 0x82, &[132, 0, 4, 0, 3]))));
     }
 
     #[test]

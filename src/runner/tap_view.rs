@@ -17,7 +17,9 @@ use foxglove::messages::log::Level as LogLevel;
 use tracing::warn;
 
 use crate::device::FirmwareProfile;
-use crate::real_bus::compare::{read_spans, registers_in};
+use crate::protocol::RawPacket;
+use crate::real_bus::compare::{fast_blocks, is_fast_read, read_spans, registers_in};
+use crate::transcript::packet_from_bytes;
 use crate::real_bus::{Event, RealRecord};
 use crate::runner::view::{LiveAddress, ReadingsTopic, ServoReadings, Setup, View, ViewError, ViewOptions};
 
@@ -121,14 +123,15 @@ fn show_event(view: &View, servos: &TapViewOptions, event: &Event) {
     match event {
         Event::Transaction(seen) => {
             let spans = read_spans(&seen.instruction);
-            let names: Vec<(u8, String)> = seen.replies.iter().map(|reply| (reply.id, name(reply.id))).collect();
-            let mut readings = Vec::new();
-            for (reply, (id, name)) in seen.replies.iter().zip(&names) {
-                let Some(&(_, address, _)) = spans.iter().find(|(of, _, _)| of == id) else { continue };
-                let Ok(packet) = crate::transcript::packet_from_bytes(&reply.bytes) else { continue };
-                let Ok(data) = packet.status_data() else { continue };
-                readings.push(ServoReadings { name, id: *id, registers: registers_in(&servos.profile, address, data) });
-            }
+            let packets: Vec<RawPacket> = seen.replies.iter().filter_map(|reply| packet_from_bytes(&reply.bytes).ok()).collect();
+            // (ID, first address, data) of each servo's answer: a Fast read's one reply split.
+            let blocks: Vec<(u8, u16, &[u8])> = if is_fast_read(&seen.instruction) {
+                packets.first().map(|packet| fast_blocks(packet, &spans)).unwrap_or_default()
+            } else {
+                packets.iter().filter_map(|packet| Some((packet.id, spans.iter().find(|(of, _, _)| *of == packet.id)?.1, packet.status_data().ok()?))).collect()
+            };
+            let names: Vec<String> = blocks.iter().map(|(id, _, _)| name(*id)).collect();
+            let readings: Vec<ServoReadings<'_>> = blocks.iter().zip(&names).map(|(&(id, address, data), name)| ServoReadings { name, id, registers: registers_in(&servos.profile, address, data) }).collect();
             view.readings(ReadingsTopic::Servos, seen.t, &readings);
             if !seen.missed.is_empty() {
                 let missed: Vec<String> = seen.missed.iter().map(|id| format!("{} ({id})", name(*id))).collect();
