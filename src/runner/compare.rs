@@ -21,6 +21,7 @@ use tracing::info_span;
 use super::RunError;
 use super::observe::scenario_bus;
 use crate::bus::Timing;
+use crate::device::FirmwareProfile;
 use crate::real_bus::compare::{Comparison, RegisterSeries, RegisterStats, Tolerances, fast_blocks, is_fast_read, read_spans, registers_in};
 use crate::runner::view::{ReadingsTopic, ServoReadings, ViewOptions};
 use crate::report::{PlotLabels, PlotSeries, plot_series};
@@ -201,7 +202,7 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
         let transaction = bus.handle(packet, at, Some(*baud));
         instructions += 1;
         // Both sides' readings of this instruction, for the recording.
-        let (mut robot_readings, mut world_readings) = (Vec::new(), Vec::new());
+        let mut readings = (Vec::new(), Vec::new());
         if fast {
             // One combined reply each, split per servo; no per-servo latency to set beside the
             // wire model's.
@@ -218,12 +219,9 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
                     missed += 1;
                     continue;
                 };
-                comparison.add(&profile, id, address, at_s, real_data, sim_data);
+                let name = observer.view().and(observer.servo_name(id));
+                add_pair(&mut comparison, &mut readings, &profile, name, (id, address, at_s), (real_data, sim_data));
                 compared += 1;
-                if let (Some(_), Some(name)) = (observer.view(), observer.servo_name(id)) {
-                    robot_readings.push(ServoReadings { name, id, registers: registers_in(&profile, address, real_data) });
-                    world_readings.push(ServoReadings { name, id, registers: registers_in(&profile, address, sim_data) });
-                }
             }
         }
         for reply in replies.iter().filter(|_| !fast) {
@@ -239,17 +237,14 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
             let Some(&(_, address, _)) = spans.iter().find(|(id, _, _)| *id == reply.id) else { continue };
             let sim_packet = packet_from_bytes(&sim.bytes).map_err(|message| record_error(*line, format!("the world's reply: {message}")))?;
             if let (Ok(real_data), Ok(sim_data)) = (real.status_data(), sim_packet.status_data()) {
-                comparison.add(&profile, reply.id, address, Duration::from_nanos(reply.t).as_secs_f64(), real_data, sim_data);
+                let name = observer.view().and(observer.servo_name(reply.id));
+                add_pair(&mut comparison, &mut readings, &profile, name, (reply.id, address, Duration::from_nanos(reply.t).as_secs_f64()), (real_data, sim_data));
                 compared += 1;
-                if let (Some(_), Some(name)) = (observer.view(), observer.servo_name(reply.id)) {
-                    robot_readings.push(ServoReadings { name, id: reply.id, registers: registers_in(&profile, address, real_data) });
-                    world_readings.push(ServoReadings { name, id: reply.id, registers: registers_in(&profile, address, sim_data) });
-                }
             }
         }
         if let Some(view) = observer.view() {
-            view.readings(ReadingsTopic::Robot, at, &robot_readings);
-            view.readings(ReadingsTopic::World, at, &world_readings);
+            view.readings(ReadingsTopic::Robot, at, &readings.0);
+            view.readings(ReadingsTopic::World, at, &readings.1);
         }
     }
     if compared == 0 {
@@ -269,6 +264,16 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
         latency,
         series: comparison.series().cloned().collect(),
     })
+}
+
+/// One servo's answer to a read, as the robot and the world gave it: compared register by
+/// register, and kept for the recording under the servo's `name` when there is one (a view).
+fn add_pair<'a>(comparison: &mut Comparison, readings: &mut (Vec<ServoReadings<'a>>, Vec<ServoReadings<'a>>), profile: &'a FirmwareProfile, name: Option<&'a str>, (id, address, t_s): (u8, u16, f64), (real, sim): (&[u8], &[u8])) {
+    comparison.add(profile, id, address, t_s, real, sim);
+    if let Some(name) = name {
+        readings.0.push(ServoReadings { name, id, registers: registers_in(profile, address, real) });
+        readings.1.push(ServoReadings { name, id, registers: registers_in(profile, address, sim) });
+    }
 }
 
 fn median(values: &mut [f64]) -> f64 {
