@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Runs every climbsim test on a fresh machine: makes .venv with the pinned official DynamixelSDK
-# (tests/sdk/requirements.txt) and tests/vt/node's node_modules (npm ci), then `cargo test`
-# (unit, golden-vector, property, dynamixel2 and official-SDK tests), then `climbsim check scenarios/` (every shipped scenario against its
+# and maturin (tests/sdk/requirements.txt) and tests/vt/node's node_modules (npm ci), then `cargo test`
+# (unit, golden-vector, property, dynamixel2 and official-SDK tests), then climbsim as a user outside
+# the checkout gets it (scripts/test-outside.sh: the wheel, `climbsim init`, pytest), then `climbsim check scenarios/` (every shipped scenario against its
 # [expect], on virtual time, and 15 s of the 1 Mbps external one on the wall clock), then the SocketCAN test if a vcan interface
 # exists. Installs Debian's libfaketime (for --speed) when missing and it can (root + apt-get).
 # Extra arguments go to the first `cargo test`.
@@ -74,6 +75,13 @@ cargo test --locked --no-run "$@"
 stage_done "cargo test: build"
 cargo test --locked "$@"
 stage_done "cargo test: run"
+
+# climbsim outside its checkout, as a user gets it: the wheel (packed from this build) in a
+# fresh venv, `climbsim init` in an empty folder and the generated pytest suite and check, the
+# Python API's tests, and `cargo install`.
+echo "==> scripts/test-outside.sh (the wheel, climbsim init, the pytest plugin, cargo install)"
+./scripts/test-outside.sh
+stage_done "climbsim outside its checkout"
 
 # A disk that fills while a run writes its outputs needs a small tmpfs, which only root can
 # mount (tests/cli_run.rs, #[ignore]d): run it where we are root, say so where we are not.

@@ -90,6 +90,17 @@ fn check_fails_on_a_broken_threshold_and_writes_junit() {
     assert!(order.windows(2).all(|w| w[0] < w[1]), "{xml}");
     let series = |root: &str| std::fs::read(Path::new(root).join("pass/timeseries.csv")).expect("timeseries.csv");
     assert!(series(&out_arg) == series(&jobs_out), "a run checked beside another differs");
+    // `--set` applies to every scenario checked: the failing threshold loosened passes both,
+    // a key of the robot's reaches the robot, and a wrong key is bad input naming it.
+    let set_out = dir.join("runs-set").display().to_string();
+    let loosened = r#"expect={ "max_abs_distance_m" = { max = 0.1 } }"#;
+    let output = climbsim(&["check", &pass.display().to_string(), &fail.display().to_string(), "--set", loosened, "--set", "robot.wheel.friction=0.5", "--out", &set_out]);
+    assert!(output.status.success(), "{}", text(&output));
+    let settings: serde_json::Value = serde_json::from_slice(&std::fs::read(Path::new(&set_out).join("fail/settings.json")).expect("settings.json")).expect("json");
+    assert_eq!(settings["friction"], 0.5, "{settings}");
+    let output = climbsim(&["check", &pass.display().to_string(), "--set", "world.durashon_s=2", "--out", &set_out]);
+    assert_eq!(output.status.code(), Some(2), "{}", text(&output));
+    assert!(text(&output).contains("durashon_s"), "{}", text(&output));
     // And `run` alike.
     let run_out = dir.join("run-fail");
     let output = climbsim(&["run", &fail.display().to_string(), "--out", &run_out.display().to_string()]);

@@ -4,10 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 
-use climbsim::runner::check::check;
+use climbsim::robot::RobotOverrides;
+use climbsim::runner::check::{CheckOptions, check};
 use climbsim::runner::{preflight_dir, preflight_file};
 
-use super::args::{ClockArg, PaceArgs, ROBOT_IN_CHECKOUT, load_robot};
+use super::args::{ClockArg, PaceArgs, ROBOT_IN_CHECKOUT, load_robot_with};
 use super::console::Terminal;
 use super::interrupt;
 
@@ -25,6 +26,11 @@ pub struct CheckArgs {
     pub out: PathBuf,
     #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
     pub robot: PathBuf,
+    /// Override a key in every scenario checked (repeatable), as `run --set` does: the
+    /// scenario's (`world.duration_s=5`, `controller={ kind = "external", command = [...] }`),
+    /// the robot description's (`robot.wheel.friction=0.35`) or the firmware profile's.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     /// Scenarios checked at once. Runs on virtual time or in lockstep give the same verdicts
     /// side by side; wall-clock runs compete for the CPU, and their pace shows it.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..))]
@@ -36,12 +42,14 @@ pub struct CheckArgs {
 }
 
 pub fn exec(args: CheckArgs) -> Result<()> {
-    let CheckArgs { paths, junit, out, robot, jobs, pace } = args;
+    let CheckArgs { paths, junit, out, robot, set, jobs, pace } = args;
     interrupt::install()?;
-    let robot = load_robot(&robot)?;
+    let (overrides, robot_sets) = RobotOverrides::split(&super::run::parse_overrides(&set)?);
+    let robot = load_robot_with(&robot, &robot_sets)?;
     preflight_dir(&out, "--out")?;
     if let Some(path) = &junit {
         preflight_file(path, "--junit")?;
     }
-    Ok(check(&paths, &robot, &out, junit.as_deref(), pace.pace_defaulting_to(ClockArg::Virtual)?, usize::from(jobs), interrupt::flag(), &Terminal)?)
+    let options = CheckOptions { out_root: &out, junit: junit.as_deref(), pace: pace.pace_defaulting_to(ClockArg::Virtual)?, jobs: usize::from(jobs), overrides: &overrides };
+    Ok(check(&paths, &robot, &options, interrupt::flag(), &Terminal)?)
 }

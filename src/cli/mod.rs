@@ -40,6 +40,7 @@ pub enum Command {
     Compare(compare::CompareArgs),
     Fit(fit::FitArgs),
     Export(export::ExportArgs),
+    Init(export::InitArgs),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -54,5 +55,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Compare(args) => compare::exec(args),
         Command::Fit(args) => fit::exec(args),
         Command::Export(args) => export::exec(args),
+        Command::Init(args) => export::exec_init(args),
     }
 }

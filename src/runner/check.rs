@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use crate::report::junit::{JunitCase, write_junit};
 use crate::robot::RobotDescription;
+use crate::overrides::Override;
 use crate::scenario::{ControllerSection, Scenario};
 
 use super::clock::Pace;
@@ -46,6 +47,18 @@ enum Checked {
     Interrupted(String),
 }
 
+/// Where and how `check` runs its scenarios.
+pub struct CheckOptions<'a> {
+    /// Root of the runs' folders: each scenario's is named after its file.
+    pub out_root: &'a Path,
+    pub junit: Option<&'a Path>,
+    pub pace: Pace,
+    pub jobs: usize,
+    /// `--set` keys of the scenarios (the robot's and profile's are in the description given),
+    /// applied to every scenario checked: `world.duration_s=5`, a `controller={ … }` of your own.
+    pub overrides: &'a [Override],
+}
+
 /// Check every scenario in `paths` (each into its own folder under `out_root`), `jobs` at once,
 /// say each verdict as it comes, and write JUnit to `junit` if asked (the cases in the files'
 /// order). Ok when all passed; otherwise [`RunnerError::Failed`] (a run failed),
@@ -55,8 +68,8 @@ enum Checked {
 /// Runs on virtual time or in lockstep repeat whatever else the machine does, so checking them
 /// side by side changes no verdict; wall-clock runs at once compete for the CPU, and their pace
 /// shows it.
-#[allow(clippy::too_many_arguments)]
-pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit: Option<&Path>, pace: Pace, jobs: usize, stop: &AtomicBool, console: &dyn Console) -> Result<()> {
+pub fn check(paths: &[PathBuf], robot: &RobotDescription, options: &CheckOptions, stop: &AtomicBool, console: &dyn Console) -> Result<()> {
+    let CheckOptions { junit, jobs, .. } = *options;
     let files = scenario_files(paths)?;
     if files.is_empty() {
         return Err(RunnerError::Invalid(format!("no scenario files with an [expect] section in {}", paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "))));
@@ -67,7 +80,7 @@ pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit
         if stop.load(Ordering::Relaxed) || halted.load(Ordering::Relaxed) {
             return None;
         }
-        let (case, checked) = check_one(file, robot, out_root, pace, stop, console);
+        let (case, checked) = check_one(file, robot, options, stop, console);
         if matches!(checked, Checked::Interrupted(_)) {
             halted.store(true, Ordering::Relaxed);
         }
@@ -99,12 +112,13 @@ pub fn check(paths: &[PathBuf], robot: &RobotDescription, out_root: &Path, junit
 }
 
 /// Check one scenario file into its folder under `out_root`; its verdict said as it comes.
-fn check_one(file: &Path, robot: &RobotDescription, out_root: &Path, pace: Pace, stop: &AtomicBool, console: &dyn Console) -> (JunitCase, Checked) {
+fn check_one(file: &Path, robot: &RobotDescription, options: &CheckOptions, stop: &AtomicBool, console: &dyn Console) -> (JunitCase, Checked) {
+    let CheckOptions { out_root, pace, overrides, .. } = *options;
     let started = Instant::now();
     let name = file.display().to_string();
     let out_dir = out_root.join(default_out_dir(file).file_name().unwrap_or_default());
     let mut system_out = None;
-    let (failures, checked) = match Scenario::load(file) {
+    let (failures, checked) = match Scenario::load_with(file, overrides) {
         Err(error) => (vec![error.to_string()], Checked::Broken),
         Ok(scenario) if scenario.expect.is_empty() => (vec![format!("{name} has no [expect] thresholds")], Checked::Broken),
         Ok(scenario) => {

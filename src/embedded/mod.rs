@@ -1,0 +1,119 @@
+//! The data files climbsim ships, compiled into the binary: the robot description, the firmware
+//! profile, the Foxglove layout, the reference controller and `run`'s default scenario. A binary installed anywhere
+//! (`cargo install`, `pip install`) runs without its source tree: when no file is given and the
+//! checkout's is not there, these are used, under paths that say so (`embedded:hil/robot.toml`
+//! in errors and in `settings.json`). `climbsim export` writes them out to edit.
+//!
+//! An embedded path is the file's path in the checkout behind [`PREFIX`]; relative paths inside
+//! an embedded file (the robot's `profile = "../firmware-profiles/…"`) resolve among the
+//! embedded files as they would in the checkout.
+
+use std::path::{Component, Path, PathBuf};
+
+mod write;
+pub use write::{Export, ExportError, export, init};
+
+/// What marks a path as one of these files.
+pub const PREFIX: &str = "embedded:";
+
+/// One shipped file.
+#[derive(Debug, Clone, Copy)]
+pub struct EmbeddedFile {
+    /// Its path in climbsim's checkout.
+    pub path: &'static str,
+    pub text: &'static str,
+}
+
+/// The robot description (`--robot`'s default).
+pub const ROBOT: EmbeddedFile = EmbeddedFile { path: "hil/robot.toml", text: include_str!("../../hil/robot.toml") };
+/// The XM540-W270-R's control table and motor (the robot's `profile`).
+pub const PROFILE: EmbeddedFile = EmbeddedFile { path: "firmware-profiles/xm540-w270-r.toml", text: include_str!("../../firmware-profiles/xm540-w270-r.toml") };
+/// Foxglove's layout for a run's topics.
+pub const LAYOUT: EmbeddedFile = EmbeddedFile { path: "hil/foxglove/climbsim-layout.json", text: include_str!("../../hil/foxglove/climbsim-layout.json") };
+/// The reference external controller (Python, the official SDK).
+pub const CONTROLLER: EmbeddedFile = EmbeddedFile { path: "hil/controllers/line_follower.py", text: include_str!("../../hil/controllers/line_follower.py") };
+
+/// `run`'s default scenario: the built-in controller following a weld line on flat steel.
+pub const SCENARIO: EmbeddedFile = EmbeddedFile { path: "scenarios/flat-line.toml", text: include_str!("../../scenarios/flat-line.toml") };
+
+/// Every shipped file.
+pub const FILES: [EmbeddedFile; 5] = [ROBOT, PROFILE, LAYOUT, CONTROLLER, SCENARIO];
+
+impl EmbeddedFile {
+    /// The path that names it (`embedded:hil/robot.toml`).
+    pub fn embedded_path(&self) -> PathBuf {
+        PathBuf::from(format!("{PREFIX}{}", self.path))
+    }
+
+    /// Its file name (`robot.toml`).
+    pub fn file_name(&self) -> &'static str {
+        self.path.rsplit('/').next().unwrap_or(self.path)
+    }
+}
+
+/// Whether `path` names an embedded file (whether or not one is there).
+pub fn is_embedded(path: &Path) -> bool {
+    path.to_str().is_some_and(|p| p.starts_with(PREFIX))
+}
+
+/// The embedded file `path` names, `..` and `.` resolved lexically (`embedded:hil/../x` is
+/// `x`), if there is one.
+pub fn find(path: &Path) -> Option<&'static EmbeddedFile> {
+    let inner = path.to_str()?.strip_prefix(PREFIX)?;
+    let mut parts: Vec<&str> = Vec::new();
+    for component in Path::new(inner).components() {
+        match component {
+            Component::Normal(part) => parts.push(part.to_str()?),
+            Component::ParentDir => {
+                parts.pop()?;
+            }
+            Component::CurDir => {}
+            Component::RootDir | Component::Prefix(_) => return None,
+        }
+    }
+    let wanted = parts.join("/");
+    FILES.iter().find(|file| file.path == wanted)
+}
+
+/// The text at `path`: an embedded file's, or the file system's.
+pub fn read_to_string(path: &Path) -> std::io::Result<String> {
+    if is_embedded(path) {
+        return find(path).map(|file| file.text.to_owned()).ok_or_else(|| {
+            let known: Vec<String> = FILES.iter().map(|f| f.embedded_path().display().to_string()).collect();
+            std::io::Error::new(std::io::ErrorKind::NotFound, format!("climbsim has no such file built in (it has {})", known.join(", ")))
+        });
+    }
+    std::fs::read_to_string(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_robots_profile_resolves_among_the_embedded_files() {
+        let robot = ROBOT.embedded_path();
+        let text: toml::Table = read_to_string(&robot).expect("the robot is built in").parse().expect("TOML");
+        let relative = text["bus"]["profile"].as_str().expect("a profile path");
+        let profile: toml::Table = read_to_string(&robot.parent().expect("a folder").join(relative)).expect("the profile is built in").parse().expect("TOML");
+        assert!(profile.contains_key("motor"), "{profile:?}");
+    }
+
+    #[test]
+    fn paths_outside_the_embedded_files_are_not_found() {
+        assert!(find(Path::new("embedded:hil/../../etc/passwd")).is_none());
+        assert!(find(Path::new("embedded:/hil/robot.toml")).is_none());
+        assert!(find(Path::new("hil/robot.toml")).is_none(), "a path on disk is not embedded");
+        assert!(find(Path::new("embedded:hil/./foxglove/../robot.toml")).is_some());
+        let error = read_to_string(Path::new("embedded:hil/nothing.toml")).expect_err("not built in");
+        assert!(error.to_string().contains("embedded:hil/robot.toml"), "{error}");
+    }
+
+    #[test]
+    fn the_embedded_files_are_the_checkouts() {
+        for file in FILES {
+            let on_disk = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(file.path)).expect("in the checkout");
+            assert_eq!(on_disk, file.text, "{}", file.path);
+        }
+    }
+}
