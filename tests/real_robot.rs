@@ -165,10 +165,13 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     assert!((value - 0.06).abs() <= (3.0 * resolution).max(0.02), "gearbox friction {value} against the hidden 0.06 (± {resolution}): {text}");
     let sets = std::fs::read_to_string(dir.join("fit/fitted.sets")).expect("fitted.sets");
     assert!(sets.contains("robot.magnet.encoder_at_down_pulses=2060"), "{sets}");
-    // The description takes the robot's keys; the profile's come from fitted.sets.
+    // The fitted description carries the robot's keys, and names a fitted profile beside it
+    // that carries the gearbox.
     let fitted_robot = dir.join("fit/fitted-robot.toml");
-    let fitted_gearbox = sets.lines().find(|l| l.starts_with("profile.motor.coulomb_friction_nm=")).expect("the gearbox in fitted.sets");
-    let after = compare(&transcript, &fitted_robot, &dir.join("after"), &["--set", "robot.magnet.pull_at_contact_n=60", "--set", fitted_gearbox]);
+    let fitted_profile: toml::Table = std::fs::read_to_string(dir.join("fit/fitted-profile.toml")).expect("fitted-profile.toml").parse().expect("TOML");
+    let fitted_gearbox: f64 = sets.lines().find_map(|l| l.strip_prefix("profile.motor.coulomb_friction_nm=")).expect("the gearbox in fitted.sets").parse().expect("a number");
+    assert_eq!(fitted_profile["motor"]["coulomb_friction_nm"].as_float(), Some(fitted_gearbox), "{fitted_profile:?}");
+    let after = compare(&transcript, &fitted_robot, &dir.join("after"), &["--set", "robot.magnet.pull_at_contact_n=60"]);
     assert_eq!(after.status.code(), Some(0), "the fitted description (and the pull given) matches: {}", support::output_text(&after));
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("after/compare.json")).expect("compare.json")).expect("JSON");
     let magnet = report["registers"].as_array().expect("registers").iter().find(|r| r["id"] == 5 && r["key"] == "present_position").expect("servo 5");

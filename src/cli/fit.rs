@@ -17,7 +17,8 @@ use super::console::{Bar, Terminal};
 /// the given ranges that make `compare`'s error smallest (Nelder–Mead, deterministic), how well
 /// the session determines each (a parameter it does not excite is reported as not
 /// identifiable), and compare reports before and after. Writes fit.json, fitted.sets (one
-/// KEY=VALUE per line, for --set), fitted-robot.toml (for --robot, when robot keys were fitted)
+/// KEY=VALUE per line, for --set), fitted-robot.toml (for --robot, when robot or profile keys
+/// were fitted; with fitted-profile.toml beside it when profile keys were)
 /// and before/ and after/compare.json. Exits 1 when the fitted world still differs past
 /// tolerance.
 #[derive(Debug, clap::Args)]

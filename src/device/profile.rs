@@ -12,7 +12,7 @@ use crate::source_location::{DataFileError, load_toml, load_toml_with, parse_tom
 
 use super::keys::Keys;
 
-const WHAT: &str = "firmware profile";
+pub const WHAT: &str = "firmware profile";
 
 /// A profile file that cannot be used.
 #[derive(Debug, Error)]

@@ -11,10 +11,10 @@ use tracing::warn;
 use super::compare::{COMPARE_MCAP, CompareError, CompareOptions, CompareReport, reenact, write_report};
 use super::each_in_parallel;
 use super::sweep::Progress;
-use crate::overrides::{Override, ROBOT_PREFIX};
+use crate::overrides::{Override, PROFILE_PREFIX, ROBOT_PREFIX};
 use crate::real_bus::RealTranscript;
 use crate::real_bus::fit::{Determination, FitParam, Minimum, Stop, determine, minimise};
-use crate::robot::{RobotError, RobotOverrides};
+use crate::robot::{RobotDescription, RobotError, RobotOverrides};
 use crate::source_location::load_toml_with;
 
 /// What to fit, against what.
@@ -148,26 +148,60 @@ fn write_outputs(outcome: &FitOutcome, base: &CompareOptions, after: &CompareOpt
     sets.insert_str(0, "# climbsim fit: the fitted keys, one KEY=VALUE per line (pass each as --set)\n");
     write(out.join("fitted.sets"), sets)?;
     let (_, robot_sets) = RobotOverrides::split(fitted_sets);
-    if !robot_sets.robot.is_empty() {
-        write(out.join("fitted-robot.toml"), fitted_robot(&base.robot, &robot_sets.robot)?)?;
+    if !robot_sets.is_empty() {
+        // A fitted profile key (the gearbox's friction) goes into a copy of the profile beside
+        // the description, which names it: `--robot fitted-robot.toml` then carries them all.
+        let profile = if robot_sets.profile.is_empty() {
+            None
+        } else {
+            let original = RobotDescription::load(&base.robot)?.profile_path();
+            write(out.join(FITTED_PROFILE), fitted_profile(&original, &robot_sets.profile)?)?;
+            Some(FITTED_PROFILE)
+        };
+        write(out.join("fitted-robot.toml"), fitted_robot(&base.robot, &robot_sets.robot, profile)?)?;
     }
     Ok(())
 }
 
-/// The robot description with the fitted `robot.…` keys set, its profile path made absolute
-/// (the file is written elsewhere). The file's comments do not survive.
-fn fitted_robot(robot: &Path, sets: &[Override]) -> Result<String, CompareError> {
-    let mut table: toml::Table = load_toml_with(crate::robot::WHAT, robot, ROBOT_PREFIX, sets).map_err(RobotError::from)?;
+/// The fitted firmware profile's name, beside `fitted-robot.toml`.
+const FITTED_PROFILE: &str = "fitted-profile.toml";
+
+/// A data file (`what` at `path`) with the fitted `sets` (keys under `prefix`) set.
+fn fitted_table(what: &'static str, path: &Path, prefix: &str, sets: &[Override]) -> Result<toml::Table, CompareError> {
+    Ok(load_toml_with(what, path, prefix, sets).map_err(RobotError::from)?)
+}
+
+/// `table` as TOML, headed by a comment that says what it was and what was fitted. The
+/// original's own comments do not survive.
+fn fitted_text(path: &Path, sets: &[Override], table: &toml::Table) -> String {
+    let sets: Vec<String> = sets.iter().map(ToString::to_string).collect();
+    format!("# {} with the values `climbsim fit` found: {}\n{}", path.display(), sets.join(" "), toml::to_string(table).unwrap_or_default())
+}
+
+/// The firmware profile at `path` with the fitted `profile.…` keys set.
+fn fitted_profile(path: &Path, sets: &[Override]) -> Result<String, CompareError> {
+    Ok(fitted_text(path, sets, &fitted_table(crate::device::profile::WHAT, path, PROFILE_PREFIX, sets)?))
+}
+
+/// The robot description with the fitted `robot.…` keys set. Its profile is `fitted_profile`
+/// (a file beside it) when profile keys were fitted, else the original's made absolute (the
+/// description is written elsewhere).
+fn fitted_robot(robot: &Path, sets: &[Override], fitted_profile: Option<&str>) -> Result<String, CompareError> {
+    let mut table = fitted_table(crate::robot::WHAT, robot, ROBOT_PREFIX, sets)?;
     if let Some(profile) = table.get_mut("bus").and_then(|bus| bus.get_mut("profile"))
         && let Some(relative) = profile.as_str()
     {
-        let absolute = robot.parent().unwrap_or(Path::new(".")).join(relative);
-        let resolved = match crate::embedded::find(&absolute) {
-            Some(built_in) => built_in.embedded_path(),
-            None => std::fs::canonicalize(&absolute).unwrap_or(absolute),
+        let resolved = match fitted_profile {
+            Some(beside) => PathBuf::from(beside),
+            None => {
+                let absolute = robot.parent().unwrap_or(Path::new(".")).join(relative);
+                match crate::embedded::find(&absolute) {
+                    Some(built_in) => built_in.embedded_path(),
+                    None => std::fs::canonicalize(&absolute).unwrap_or(absolute),
+                }
+            }
         };
         *profile = toml::Value::String(resolved.display().to_string());
     }
-    let sets: Vec<String> = sets.iter().map(ToString::to_string).collect();
-    Ok(format!("# {} with the values `climbsim fit` found: {}\n{}", robot.display(), sets.join(" "), toml::to_string(&table).unwrap_or_default()))
+    Ok(fitted_text(robot, sets, &table))
 }
