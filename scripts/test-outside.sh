@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # climbsim as a user outside its checkout gets it, run by scripts/test.sh after the test build:
 #   1. the wheel, built with maturin from the test build's target folder (the dev profile and
-#      scripts/test.sh's settings: nothing compiles again, the binary is packed), installed into
+#      scripts/test.sh's settings, not stripped: nothing compiles again, the binary is packed), installed into
 #      a fresh venv with what the generated controller needs;
 #   2. in an empty folder outside the checkout: `climbsim init`, the generated pytest suite,
 #      `climbsim check scenarios/ --junit`, `python -m climbsim`; then the Python API's and the
@@ -21,7 +21,9 @@ step() { echo "==> $*"; }
 
 step "maturin build (the wheel, from $target)"
 started=$SECONDS
-(cd "$repo" && "$repo/.venv/bin/maturin" build --locked --profile dev --target-dir "$target" "${cargo_config[@]}" --out "$work/wheels" --quiet)
+# --strip false: maturin strips by passing `-C strip=symbols` to rustc, which would link the
+# binary again under another name (a minute on 2 cores) rather than pack the one cargo test made.
+(cd "$repo" && "$repo/.venv/bin/maturin" build --locked --profile dev --strip false --target-dir "$target" "${cargo_config[@]}" --out "$work/wheels" --quiet)
 wheel="$(ls "$work"/wheels/climbsim-*.whl)"
 echo "    $(basename "$wheel"), $(du -h "$wheel" | cut -f1), built in $((SECONDS - started)) s"
 
