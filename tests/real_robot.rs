@@ -358,26 +358,9 @@ fn a_device_that_is_not_there_is_named_and_nothing_is_left_behind() {
 /// saying 2048 + its ID), and compared against the world at rest on flat ground.
 #[test]
 fn a_fast_sync_read_session_is_compared_per_servo() {
-    use climbsim::protocol::{FastReplyBuilder, encode_instruction};
-    use climbsim::real_bus::RealHeader;
-    use climbsim::transcript::Recorder;
-
     let dir = support::scratch_dir("fast-compare");
     let path = dir.join("fast.jsonl");
-    let recorder = Recorder::create(&path, &RealHeader::new(std::path::Path::new("/dev/null"), &dir.join("ttyDXL"), 57_600, 0)).expect("a transcript");
-    let hex = |bytes: &[u8]| bytes.iter().map(|b| format!("{b:02x}")).collect::<String>();
-    let request = encode_instruction(0xFE, 0x8A, &[132, 0, 4, 0, 1, 2, 3, 4, 5, 6, 7, 8]);
-    for period in 0..100u64 {
-        let t = 50_000_000 + period * 20_000_000;
-        let mut reply = FastReplyBuilder::new([4; 8]).expect("fits");
-        for id in 1..=8u8 {
-            reply.push_block(0, id, &(2048 + i32::from(id)).to_le_bytes());
-        }
-        let replies = vec![RealReply { id: 0xFE, t: t + 3_200_000, end: t + 10_000_000, hex: hex(&reply.into_bytes()) }];
-        recorder.append(&RealRecord::Tx { t, end: t + 2_600_000, baud: 57_600, hex: hex(&request), replies, missed: Vec::new() });
-    }
-    recorder.finish_with(&RealRecord::End { t: 2_100_000_000, why: "written by the test".into(), from_controller: 0, from_servos: 0 }).expect("complete");
-
+    fast_read_session(&path, &[1, 2, 3, 4, 5, 6, 7, 8], |id| 2048 + i32::from(id));
     let out = dir.join("compared");
     let compared = Command::new(env!("CARGO_BIN_EXE_climbsim"))
         .args(["compare"])
@@ -399,4 +382,80 @@ fn a_fast_sync_read_session_is_compared_per_servo() {
     // The world's magnet shafts rest at 2048 (pointing down): servo N's block said 2048 + N.
     let magnet = registers.iter().find(|r| r["id"] == 6).expect("servo 6");
     assert_eq!(magnet["bias"], -6.0, "{magnet}");
+}
+
+/// A real session written by hand at `path`: 2 s of a Fast Sync Read of Present Position
+/// (132) from servos `ids` every 20 ms, servo N answering `position(N)`.
+fn fast_read_session(path: &std::path::Path, ids: &[u8], position: impl Fn(u8) -> i32) {
+    use climbsim::protocol::{FastReplyBuilder, encode_instruction};
+    use climbsim::real_bus::RealHeader;
+    use climbsim::transcript::Recorder;
+
+    let dir = path.parent().expect("a folder");
+    let recorder = Recorder::create(path, &RealHeader::new(std::path::Path::new("/dev/null"), &dir.join("ttyDXL"), 57_600, 0)).expect("a transcript");
+    let hex = |bytes: &[u8]| bytes.iter().map(|b| format!("{b:02x}")).collect::<String>();
+    let request = encode_instruction(0xFE, 0x8A, &[&[132, 0, 4, 0][..], ids].concat());
+    for period in 0..100u64 {
+        let t = 50_000_000 + period * 20_000_000;
+        let mut reply = FastReplyBuilder::new(vec![4; ids.len()]).expect("fits");
+        for &id in ids {
+            reply.push_block(0, id, &position(id).to_le_bytes());
+        }
+        let replies = vec![RealReply { id: 0xFE, t: t + 3_200_000, end: t + 10_000_000, hex: hex(&reply.into_bytes()) }];
+        recorder.append(&RealRecord::Tx { t, end: t + 2_600_000, baud: 57_600, hex: hex(&request), replies, missed: Vec::new() });
+    }
+    recorder.finish_with(&RealRecord::End { t: 2_100_000_000, why: "written by the test".into(), from_controller: 0, from_servos: 0 }).expect("complete");
+}
+
+/// `fit --session`: two sessions are fitted at once, to the mean of their errors. The magnet
+/// shafts (only they are read) read 2050 in one and 2070 in the other; the world's shafts rest
+/// at the encoder offset, so one session alone gives 2050, the other 2070, and both the value
+/// between (± 2: an integer parameter's steps are plateaus the search may stop on), each
+/// session's reports in a folder of its own.
+#[test]
+fn a_fit_of_two_sessions_minimises_their_mean_error() {
+    let dir = support::scratch_dir("fit-sessions");
+    let (low, high) = (dir.join("low.jsonl"), dir.join("high.jsonl"));
+    fast_read_session(&low, &[5, 6, 7, 8], |_| 2050);
+    fast_read_session(&high, &[5, 6, 7, 8], |_| 2070);
+    let fit = |transcript: &std::path::Path, more: &[&str], out: &str| {
+        let output = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+            .arg("fit")
+            .arg(transcript)
+            .args(["--scenario", "scenarios/flat-line.toml", "--param", "robot.magnet.encoder_at_down_pulses=2000..2100", "--jobs", "2", "--out"])
+            .arg(dir.join(out))
+            .args(more)
+            .current_dir(support::repo())
+            .output()
+            .expect("run climbsim fit");
+        let text = support::output_text(&output);
+        let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join(out).join("fit.json")).unwrap_or_else(|e| panic!("{e}: {text}"))).expect("JSON");
+        (report["parameters"][0]["value"].as_f64().unwrap_or_else(|| panic!("no value: {text}")), report, text)
+    };
+    let (alone_low, _, text) = fit(&low, &[], "low");
+    assert!((2048.0..=2052.0).contains(&alone_low), "{alone_low}: {text}");
+    let (alone_high, _, text) = fit(&high, &[], "high");
+    assert!((2068.0..=2072.0).contains(&alone_high), "{alone_high}: {text}");
+    let session = format!("{}=scenarios/flat-line.toml", high.display());
+    let (both, report, text) = fit(&low, &["--session", &session], "both");
+    assert!((2058.0..=2062.0).contains(&both), "{both}: {text}");
+    let sessions = report["sessions"].as_array().expect("sessions");
+    assert_eq!(sessions.len(), 2, "{report}");
+    let errors: Vec<f64> = sessions.iter().map(|s| s["error_after"].as_f64().expect("an error")).collect();
+    let mean = (errors[0] + errors[1]) / 2.0;
+    assert!((report["error_after"].as_f64().expect("an error") - mean).abs() < 1e-12, "{report}");
+    for folder in ["both/after/compare.json", "both/session-2/before/compare.json", "both/session-2/after/compare.json"] {
+        assert!(dir.join(folder).is_file(), "{folder}: {text}");
+    }
+    // A session that cannot be read is named.
+    let output = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .arg("fit")
+        .arg(&low)
+        .args(["--scenario", "scenarios/flat-line.toml", "--param", "robot.magnet.encoder_at_down_pulses=2000..2100", "--session", "nothing-here.jsonl", "--out"])
+        .arg(dir.join("bad"))
+        .current_dir(support::repo())
+        .output()
+        .expect("run climbsim fit");
+    assert_eq!(output.status.code(), Some(2), "{}", support::output_text(&output));
+    assert!(support::output_text(&output).contains("nothing-here.jsonl"), "{}", support::output_text(&output));
 }

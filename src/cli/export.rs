@@ -33,8 +33,9 @@ pub fn exec(args: ExportArgs) -> Result<()> {
     Ok(())
 }
 
-/// Start a controller repository in DIR: a scenario on the built-in robot
-/// (scenarios/line-follow.toml), a sample controller on the official Python SDK
+/// Start a controller repository in DIR: a scenario, a sample controller, a pytest test and CI.
+///
+/// A scenario on the built-in robot (scenarios/line-follow.toml), a sample controller on the official Python SDK
 /// (controller/line_follower.py, climbsim's reference line follower), a pytest test on
 /// climbsim's plugin (tests/test_climbsim.py), a CI workflow that installs climbsim with pip
 /// and runs `climbsim check scenarios/ --junit` (.github/workflows/climbsim.yml), and what they

@@ -53,6 +53,9 @@ pub enum CompareError {
     Runner(#[from] super::RunnerError),
     #[error("{}: {message}", path.display())]
     Signals { path: PathBuf, message: String },
+    /// `fit` was given no session to fit against.
+    #[error("fit needs at least one session")]
+    NoSession,
 }
 
 /// What to compare the session with.

@@ -17,11 +17,23 @@ use crate::real_bus::fit::{Determination, FitParam, Minimum, Stop, determine, mi
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
 use crate::source_location::load_toml_with;
 
+/// One real session to fit against: its transcript, the file it was read from, and its
+/// comparison's options (its scenario and output folder; the robot, the fixed keys and the
+/// tolerances are the same for every session of a fit).
+#[derive(Debug, Clone)]
+pub struct Session {
+    pub transcript: RealTranscript,
+    pub path: PathBuf,
+    pub compare: CompareOptions,
+}
+
 /// What to fit, against what.
 #[derive(Debug, Clone)]
 pub struct FitOptions {
-    /// The scenario, the robot, the fixed `--set` keys, the tolerances and the output folder.
-    pub compare: CompareOptions,
+    /// One or more: a parameter one session cannot tell from another (the tread's friction from
+    /// the magnets' pull on a floor) may be told by two (a floor and a wall). The first one's
+    /// output folder is the fit's.
+    pub sessions: Vec<Session>,
     pub params: Vec<FitParam>,
     pub jobs: usize,
     pub stop: Stop,
@@ -37,14 +49,22 @@ pub struct Fitted {
     pub determination: Determination,
 }
 
+/// `compare` of one session with the parameters as the files have them, and with the fitted
+/// values.
+#[derive(Debug, Clone)]
+pub struct SessionOutcome {
+    pub before: CompareReport,
+    pub after: CompareReport,
+}
+
 /// The fit's result.
 #[derive(Debug, Clone)]
 pub struct FitOutcome {
     pub fitted: Vec<Fitted>,
     pub evaluations: usize,
-    /// `compare` with the parameters as the files have them, and with the fitted values.
-    pub before: CompareReport,
-    pub after: CompareReport,
+    /// In the order of [`FitOptions::sessions`].
+    pub sessions: Vec<SessionOutcome>,
+    /// The error (the mean over sessions) before and after.
     pub error_before: f64,
     pub error_after: f64,
 }
@@ -65,26 +85,44 @@ fn set_for(param: &FitParam, unit: f64) -> Override {
     Override { key: param.key.clone(), value }
 }
 
-/// Search, probe, and write `fit.json`, `fitted.sets`, `fitted-robot.toml` (when robot keys were
-/// fitted) and the compare reports before and after into the output folder.
-pub fn fit(transcript: &RealTranscript, path: &Path, options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, CompareError> {
+/// The error of several sessions' comparisons: the mean of each one's [`fit_error`].
+fn sessions_error(reports: &[CompareReport]) -> f64 {
+    if reports.is_empty() { f64::INFINITY } else { reports.iter().map(fit_error).sum::<f64>() / reports.len() as f64 }
+}
+
+/// Where session `index`'s `before/` and `after/` go: the fit's folder for the first, a
+/// `session-N` folder in it for the others.
+fn session_out(out: &Path, index: usize) -> PathBuf {
+    if index == 0 { out.to_owned() } else { out.join(format!("session-{}", index + 1)) }
+}
+
+/// Search, probe, and write `fit.json`, `fitted.sets`, `fitted-robot.toml` (when robot or
+/// profile keys were fitted) and each session's compare reports before and after into the
+/// first session's output folder.
+pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, CompareError> {
     let params = &options.params;
-    let base = &options.compare;
-    let with = |unit: &[f64]| {
-        let mut sets = base.overrides.clone();
+    let Some(first) = options.sessions.first() else {
+        return Err(CompareError::NoSession);
+    };
+    let out = &first.compare.out;
+    let with = |session: &Session, unit: &[f64]| {
+        let mut sets = session.compare.overrides.clone();
         sets.extend(params.iter().zip(unit).map(|(param, u)| set_for(param, *u)));
-        CompareOptions { overrides: sets, ..base.clone() }
+        CompareOptions { overrides: sets, ..session.compare.clone() }
     };
     // The files' own values are the baseline, and a session the world cannot re-enact at all
     // fails here, clearly, rather than as an infinite error.
-    let before = reenact(transcript, path, base, Some(&recording_in(&base.out.join("before"))?))?;
-    let error_before = fit_error(&before);
+    let mut before = Vec::new();
+    for (index, session) in options.sessions.iter().enumerate() {
+        before.push(reenact(&session.transcript, &session.path, &session.compare, Some(&recording_in(&session_out(out, index).join("before"))?))?);
+    }
     // Every point is evaluated; one the world cannot be built for (a value its checks refuse)
     // counts as infinitely far.
     let mut evaluate = |points: &[Vec<f64>]| -> Vec<f64> {
         each_in_parallel(points, options.jobs, |unit| {
-            let error = match reenact(transcript, path, &with(unit), None) {
-                Ok(report) => fit_error(&report),
+            let reports: Result<Vec<CompareReport>, CompareError> = options.sessions.iter().map(|session| reenact(&session.transcript, &session.path, &with(session, unit), None)).collect();
+            let error = match reports {
+                Ok(reports) => sessions_error(&reports),
                 Err(error) => {
                     warn!(%error, "an evaluation failed; it counts as infinitely far");
                     f64::INFINITY
@@ -100,16 +138,21 @@ pub fn fit(transcript: &RealTranscript, path: &Path, options: &FitOptions, progr
     let minimum: Minimum = minimise(&start, options.stop, options.jobs > 1, &mut evaluate);
     let determinations = determine(params, &minimum, &mut evaluate);
     progress.finish();
-    let after_options = with(&minimum.unit);
-    let after = reenact(transcript, path, &after_options, Some(&recording_in(&base.out.join("after"))?))?;
+    let mut sessions = Vec::new();
+    for ((index, session), before) in options.sessions.iter().enumerate().zip(before) {
+        let after = reenact(&session.transcript, &session.path, &with(session, &minimum.unit), Some(&recording_in(&session_out(out, index).join("after"))?))?;
+        sessions.push(SessionOutcome { before, after });
+    }
     let fitted: Vec<Fitted> = params
         .iter()
         .zip(&minimum.unit)
         .zip(determinations)
         .map(|((param, unit), determination)| Fitted { param: param.clone(), value: set_value(&set_for(param, *unit)), determination })
         .collect();
-    let outcome = FitOutcome { fitted, evaluations: minimum.evaluations + probes, error_before, error_after: fit_error(&after), before, after };
-    write_outputs(&outcome, base, &after_options, path)?;
+    let error_before = sessions_error(&sessions.iter().map(|s| s.before.clone()).collect::<Vec<_>>());
+    let error_after = sessions_error(&sessions.iter().map(|s| s.after.clone()).collect::<Vec<_>>());
+    let outcome = FitOutcome { fitted, evaluations: minimum.evaluations + probes, sessions, error_before, error_after };
+    write_outputs(&outcome, options, &with(first, &minimum.unit))?;
     Ok(outcome)
 }
 
@@ -127,13 +170,30 @@ fn write(path: PathBuf, text: String) -> Result<(), CompareError> {
     std::fs::write(&path, text).map_err(|source| CompareError::Write { path, source })
 }
 
-fn write_outputs(outcome: &FitOutcome, base: &CompareOptions, after: &CompareOptions, transcript: &Path) -> Result<(), CompareError> {
+fn write_outputs(outcome: &FitOutcome, options: &FitOptions, after: &CompareOptions) -> Result<(), CompareError> {
+    let Some(base) = options.sessions.first().map(|s| &s.compare) else { return Ok(()) };
     let out = &base.out;
-    write_report(&outcome.before, &out.join("before"))?;
-    write_report(&outcome.after, &out.join("after"))?;
+    for (index, session) in outcome.sessions.iter().enumerate() {
+        write_report(&session.before, &session_out(out, index).join("before"))?;
+        write_report(&session.after, &session_out(out, index).join("after"))?;
+    }
+    let sessions: Vec<serde_json::Value> = options
+        .sessions
+        .iter()
+        .zip(&outcome.sessions)
+        .enumerate()
+        .map(|(index, (session, reports))| json!({
+            "transcript": session.path,
+            "scenario": session.compare.scenario,
+            "out": session_out(out, index),
+            "error_before": fit_error(&reports.before),
+            "error_after": fit_error(&reports.after),
+        }))
+        .collect();
     let summary = json!({
-        "transcript": transcript,
+        "transcript": options.sessions[0].path,
         "scenario": base.scenario,
+        "sessions": sessions,
         "robot": base.robot,
         "fixed_sets": base.overrides.iter().map(ToString::to_string).collect::<Vec<_>>(),
         "evaluations": outcome.evaluations,
