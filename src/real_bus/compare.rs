@@ -3,7 +3,7 @@
 //! far apart they are (bias, RMS, largest difference, and the lag that best lines them up).
 //! Sans-IO: `runner::compare` re-enacts the session and feeds the pairs here.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use serde::Serialize;
 
@@ -127,13 +127,29 @@ pub fn registers_in<'p>(profile: &'p FirmwareProfile, address: u16, data: &[u8])
     items_in(profile, address, data).into_iter().map(|(index, value)| (profile.items[index].spec.key.as_str(), value)).collect()
 }
 
+/// The register whose value [`Comparison::new`]'s servos count from the session's start.
+const POSITION: &str = "present_position";
+
 /// Gathers the pairs of a session, register by register.
 #[derive(Debug, Default)]
 pub struct Comparison {
     series: BTreeMap<(u8, usize), RegisterSeries>,
+    /// Servos whose Present Position each side counts from its own first reading.
+    position_from_start: BTreeSet<u8>,
+    /// Those servos' first readings: (real, world).
+    origins: BTreeMap<u8, (f64, f64)>,
 }
 
 impl Comparison {
+    /// `position_from_start`: servos whose Present Position is compared as the distance turned
+    /// since the session's first reading, on each side. A wheel's absolute position says where
+    /// its shaft happened to be when the servo was powered (and how far the robot rolled before
+    /// the session: down a wall, with the torque off), which the world cannot know; a magnet
+    /// shaft's is its angle, and is compared as it is.
+    pub fn new(position_from_start: impl IntoIterator<Item = u8>) -> Self {
+        Self { position_from_start: position_from_start.into_iter().collect(), ..Self::default() }
+    }
+
     /// A real reply's data and the world's to the same read of `address` from servo `id`.
     pub fn add(&mut self, profile: &FirmwareProfile, id: u8, address: u16, t_s: f64, real: &[u8], sim: &[u8]) {
         let simulated: BTreeMap<usize, i64> = items_in(profile, address, sim).into_iter().collect();
@@ -141,8 +157,13 @@ impl Comparison {
             let Some(sim_value) = simulated.get(&index) else { continue };
             let spec = &profile.items[index].spec;
             let scale = spec.scale.unwrap_or(1.0);
+            let (mut real, mut sim) = (real_value as f64 * scale, *sim_value as f64 * scale);
+            if spec.key == POSITION && self.position_from_start.contains(&id) {
+                let (real_origin, sim_origin) = *self.origins.entry(id).or_insert((real, sim));
+                (real, sim) = (real - real_origin, sim - sim_origin);
+            }
             let series = self.series.entry((id, index)).or_insert_with(|| RegisterSeries { id, key: spec.key.clone(), unit: spec.unit.clone(), samples: Vec::new() });
-            series.samples.push((t_s, real_value as f64 * scale, *sim_value as f64 * scale));
+            series.samples.push((t_s, real, sim));
         }
     }
 
@@ -257,6 +278,15 @@ mod tests {
         }
         let stats = comparison.stats(&profile, &Tolerances::default());
         assert_eq!(stats.len(), 1);
+        // Counted from the first reading on each side, the 10 steps' offset is gone.
+        let mut from_start = Comparison::new([3]);
+        for i in 0..100i32 {
+            from_start.add(&profile, 3, 132, f64::from(i) * 0.02, &(5000 + i * 100).to_le_bytes(), &(-20 + i * 100).to_le_bytes());
+            from_start.add(&profile, 5, 132, f64::from(i) * 0.02, &2060i32.to_le_bytes(), &2048i32.to_le_bytes());
+        }
+        let turned = from_start.stats(&profile, &Tolerances::default());
+        assert_eq!((turned[0].id, turned[0].bias, turned[0].rms), (3, 0.0, 0.0), "{turned:?}");
+        assert!(turned[1].id == 5 && turned[1].bias < 0.0, "a magnet shaft's position is compared as it is: {turned:?}");
         let s = &stats[0];
         assert_eq!((s.id, s.key.as_str(), s.samples), (3, "present_position", 100));
         let step = profile.items[profile.index("present_position")].spec.scale.unwrap_or(1.0);

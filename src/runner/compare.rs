@@ -181,7 +181,8 @@ pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOption
     let Some(servo) = bus.servos().first() else { return Err(CompareError::NothingToCompare { path: path.to_owned() }) };
     let (profile, tick) = (std::sync::Arc::clone(servo.profile()), servo.control_period());
     let mut next_tick = tick;
-    let mut comparison = Comparison::default();
+    let wheels = robot.servo.iter().filter(|servo| servo.role == crate::parts::ServoRole::WheelDrive).map(|servo| servo.id);
+    let mut comparison = Comparison::new(wheels);
     let (mut instructions, mut compared, mut missed) = (0u64, 0u64, 0u64);
     let mut latencies: BTreeMap<u8, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
     let mut last = Duration::ZERO;
