@@ -16,7 +16,8 @@ use super::compare::{AgainstArgs, refuse_unknown_tolerances, say_report, verdict
 use super::console::{Bar, Terminal};
 
 /// Fit robot-description, firmware-profile or scenario keys to a real session: the values in
-/// the given ranges that make `compare`'s error smallest (Nelder–Mead, deterministic), how well
+/// the given ranges that make `compare`'s error smallest (a coarse grid, then Nelder–Mead;
+/// deterministic), how well
 /// the session determines each (a parameter it does not excite is reported as not
 /// identifiable), and compare reports before and after. Writes fit.json, fitted.sets (one
 /// KEY=VALUE per line, for --set), fitted-robot.toml (for --robot, when robot or profile keys
@@ -28,7 +29,8 @@ pub struct FitArgs {
     #[command(flatten)]
     pub against: AgainstArgs,
     /// A key to fit and its range (repeatable): `robot.wheel.friction=0.2..0.9`. A range in
-    /// whole numbers fits an integer (`robot.magnet.encoder_at_down_pulses=2000..2100`).
+    /// whole numbers fits an integer (`robot.magnet.encoder_at_down_pulses=2000..2100`): give a
+    /// continuous one a decimal point (`robot.magnet.pull_at_contact_n=30.0..120.0`).
     #[arg(long = "param", value_name = "KEY=LO..HI", required = true)]
     pub param: Vec<String>,
     /// Another real session to fit at the same time (repeatable): its transcript, and after `=`

@@ -87,8 +87,8 @@ fn along(a: &[f64], b: &[f64], t: f64) -> Vec<f64> {
 /// 4-parameter fit of tread friction, magnet pull, gearbox friction and encoder offset stopped at
 /// 10 times the true point's error without restarts). `speculate`: evaluate the expansion with
 /// the reflection, as one batch.
-pub fn minimise(start: &[f64], stop: Stop, speculate: bool, evaluate: &mut Evaluate<'_>) -> Minimum {
-    let mut best = nelder_mead(start, 0, stop, speculate, evaluate);
+pub fn minimise(start: &[f64], spent: usize, stop: Stop, speculate: bool, evaluate: &mut Evaluate<'_>) -> Minimum {
+    let mut best = nelder_mead(start, spent, stop, speculate, evaluate);
     while best.evaluations < stop.max_evaluations {
         let restart = nelder_mead(&best.unit, best.evaluations, stop, speculate, evaluate);
         let improved = restart.error < best.error - stop.relative_error_spread * best.error.abs().max(1e-12);
@@ -99,6 +99,35 @@ pub fn minimise(start: &[f64], stop: Stop, speculate: bool, evaluate: &mut Evalu
         }
     }
     best
+}
+
+/// The most points of the coarse grid [`grid_start`] evaluates.
+pub const GRID_POINTS: usize = 32;
+
+/// The levels per axis of the coarse grid for `n` parameters: the most, up to 5, whose grid
+/// has at most [`GRID_POINTS`] points (5 for one or two parameters, 3 for three, 2 for four or
+/// five); 1 (no grid) beyond.
+pub fn grid_levels(n: usize) -> usize {
+    (1..=5usize).rev().find(|levels| u32::try_from(n).ok().and_then(|n| levels.checked_pow(n)).is_some_and(|points| points <= GRID_POINTS)).unwrap_or(1)
+}
+
+/// Where the search starts: the best of a coarse grid over the unit box (the cells' centres,
+/// [`grid_levels`] per axis, one batch), or its centre when there are too many parameters for
+/// one. The error of a re-enactment is not a smooth bowl: contact and slip make it rugged, and
+/// a search from the box's centre can slide down a narrow valley to a range's end, far from the
+/// minimum (a floor and a wall session's friction and magnet pull did, at three times the
+/// hidden values' error). Returns the start and the evaluations spent.
+pub fn grid_start(n: usize, evaluate: &mut Evaluate<'_>) -> (Vec<f64>, usize) {
+    let levels = grid_levels(n);
+    if levels < 2 || n == 0 {
+        return (vec![0.5; n], 0);
+    }
+    let cell = |index: usize| (index as f64 + 0.5) / levels as f64;
+    let count = levels.pow(n as u32);
+    let points: Vec<Vec<f64>> = (0..count).map(|mut k| (0..n).map(|_| { let index = k % levels; k /= levels; cell(index) }).collect()).collect();
+    let errors = evaluate(&points);
+    let best = errors.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map_or(0, |(i, _)| i);
+    (points[best].clone(), count)
 }
 
 /// One Nelder–Mead run from `start`, `spent` evaluations already made of the budget.
@@ -190,11 +219,12 @@ pub const RISE_FLOOR: f64 = 1e-3;
 /// A parameter is identifiable when its region is narrower than this fraction of its range.
 pub const IDENTIFIABLE_WITHIN: f64 = 0.25;
 
-/// Probe the error around `minimum` (all probes in one batch: 1 + 2n + 2n(n-1) = 1 + 2n² evaluations).
-pub fn determine(params: &[FitParam], minimum: &Minimum, evaluate: &mut Evaluate<'_>) -> Vec<Determination> {
-    let n = params.len();
+/// The probes around `minimum`: the stencil's centre (a step inside the box, so that every
+/// probe is where it says), a step either way along each axis, and the four diagonal steps of
+/// each pair of axes: 1 + 2n + 2n(n-1) = 1 + 2n² points.
+pub fn probe_points(minimum: &Minimum) -> Vec<Vec<f64>> {
+    let n = minimum.unit.len();
     let h = PROBE_UNIT;
-    // The stencil's centre stays a step inside the box, so that every probe is where it says.
     let centre: Vec<f64> = minimum.unit.iter().map(|u| u.clamp(h, 1.0 - h)).collect();
     let at = |steps: &[(usize, f64)]| {
         let mut point = centre.clone();
@@ -208,16 +238,28 @@ pub fn determine(params: &[FitParam], minimum: &Minimum, evaluate: &mut Evaluate
         probes.push(at(&[(i, -1.0)]));
         probes.push(at(&[(i, 1.0)]));
     }
-    let mut pairs = Vec::new();
     for i in 0..n {
         for j in i + 1..n {
-            pairs.push((i, j));
             for (si, sj) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
                 probes.push(at(&[(i, si), (j, sj)]));
             }
         }
     }
-    let errors = evaluate(&probes);
+    probes
+}
+
+/// Probe the error around `minimum` (all probes in one batch, [`probe_points`]) and judge each
+/// parameter from the curvature.
+pub fn determine(params: &[FitParam], minimum: &Minimum, evaluate: &mut Evaluate<'_>) -> Vec<Determination> {
+    let errors = evaluate(&probe_points(minimum));
+    determine_from(params, minimum, &errors)
+}
+
+/// [`determine`] from the errors at [`probe_points`], in their order.
+pub fn determine_from(params: &[FitParam], minimum: &Minimum, errors: &[f64]) -> Vec<Determination> {
+    let n = params.len();
+    let h = PROBE_UNIT;
+    let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
     let f0 = errors[0];
     let mut hessian = nalgebra::DMatrix::<f64>::zeros(n, n);
     for i in 0..n {
@@ -296,7 +338,7 @@ mod tests {
     fn nelder_mead_finds_the_floor_with_or_without_speculation_and_the_flat_axis_is_not_identifiable() {
         for speculate in [false, true] {
             let mut evaluate = |points: &[Vec<f64>]| bowl(points);
-            let minimum = minimise(&[0.5, 0.5, 0.5], Stop { max_evaluations: 400, relative_error_spread: 1e-9, unit_size: 1e-6 }, speculate, &mut evaluate);
+            let minimum = minimise(&[0.5, 0.5, 0.5], 0, Stop { max_evaluations: 400, relative_error_spread: 1e-9, unit_size: 1e-6 }, speculate, &mut evaluate);
             assert!((minimum.unit[0] - 0.3).abs() < 1e-3 && (minimum.unit[1] - 0.7).abs() < 1e-3, "{minimum:?}");
             assert!(minimum.evaluations <= 400);
             let params: Vec<FitParam> = ["a", "b", "c"].iter().map(|k| FitParam { key: (*k).into(), lo: 0.0, hi: 10.0, integer: false }).collect();
@@ -316,7 +358,7 @@ mod tests {
     fn two_parameters_seen_only_as_their_product_are_neither_identifiable_but_a_third_is() {
         // The error depends on a × b (grip: friction × pull) and on c alone.
         let mut evaluate = |points: &[Vec<f64>]| points.iter().map(|p| (p[0] * p[1] - 0.2).powi(2) + (p[2] - 0.6).powi(2) + 1e-4).collect::<Vec<f64>>();
-        let minimum = minimise(&[0.5, 0.5, 0.5], Stop { max_evaluations: 400, relative_error_spread: 1e-9, unit_size: 1e-6 }, false, &mut evaluate);
+        let minimum = minimise(&[0.5, 0.5, 0.5], 0, Stop { max_evaluations: 400, relative_error_spread: 1e-9, unit_size: 1e-6 }, false, &mut evaluate);
         assert!((minimum.unit[0] * minimum.unit[1] - 0.2).abs() < 1e-2 && (minimum.unit[2] - 0.6).abs() < 1e-2, "{minimum:?}");
         let params: Vec<FitParam> = ["friction", "pull", "offset"].iter().map(|k| FitParam { key: (*k).into(), lo: 0.0, hi: 1.0, integer: false }).collect();
         let determined = determine(&params, &minimum, &mut evaluate);
@@ -326,13 +368,25 @@ mod tests {
     }
 
     #[test]
+    fn the_grid_is_at_most_thirty_two_points_and_its_best_cell_is_the_start() {
+        assert_eq!((1..=7).map(grid_levels).collect::<Vec<_>>(), vec![5, 5, 3, 2, 2, 1, 1]);
+        // A narrow valley from (0, 1) to (1, 0) that falls gently towards (0.3, 0.7), where a
+        // search from the centre (on the valley already) can stop short.
+        let mut evaluate = |points: &[Vec<f64>]| points.iter().map(|p| 100.0 * (p[0] + p[1] - 1.0).powi(2) + 0.1 * (p[0] - 0.3).powi(2)).collect::<Vec<f64>>();
+        let (start, spent) = grid_start(2, &mut evaluate);
+        assert_eq!((start, spent), (vec![0.3, 0.7], 25), "the cell on the valley nearest its lowest point");
+        let (start, spent) = grid_start(6, &mut evaluate);
+        assert_eq!((start, spent), (vec![0.5; 6], 0), "too many parameters for a grid");
+    }
+
+    #[test]
     fn points_stay_in_the_box() {
         let mut seen = Vec::new();
         let mut evaluate = |points: &[Vec<f64>]| {
             seen.extend(points.iter().cloned());
             points.iter().map(|p| -p[0] - p[1]).collect()
         };
-        let minimum = minimise(&[0.9, 0.1], Stop::default(), true, &mut evaluate);
+        let minimum = minimise(&[0.9, 0.1], 0, Stop::default(), true, &mut evaluate);
         assert!(seen.iter().flatten().all(|v| (0.0..=1.0).contains(v)));
         assert!(minimum.unit[0] > 0.99 && minimum.unit[1] > 0.99, "the corner: {minimum:?}");
     }

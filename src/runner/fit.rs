@@ -13,7 +13,7 @@ use super::each_in_parallel;
 use super::sweep::Progress;
 use crate::overrides::{Override, PROFILE_PREFIX, ROBOT_PREFIX};
 use crate::real_bus::RealTranscript;
-use crate::real_bus::fit::{Determination, FitParam, Minimum, Stop, determine, minimise};
+use crate::real_bus::fit::{Determination, FitParam, Minimum, Stop, determine_from, grid_start, minimise, probe_points};
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
 use crate::source_location::load_toml_with;
 
@@ -85,6 +85,11 @@ fn set_for(param: &FitParam, unit: f64) -> Override {
     Override { key: param.key.clone(), value }
 }
 
+/// How many times the fit searches on from a probe lower than its minimum.
+const POLISH_ROUNDS: usize = 2;
+/// Each such search's budget, per parameter.
+const POLISH_EVALUATIONS_PER_PARAM: usize = 12;
+
 /// The error of several sessions' comparisons: the mean of each one's [`fit_error`].
 fn sessions_error(reports: &[CompareReport]) -> f64 {
     if reports.is_empty() { f64::INFINITY } else { reports.iter().map(fit_error).sum::<f64>() / reports.len() as f64 }
@@ -134,9 +139,25 @@ pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, 
     };
     let probes = 1 + 2 * params.len() * params.len();
     progress.start(options.stop.max_evaluations + probes);
-    let start = vec![0.5; params.len()];
-    let minimum: Minimum = minimise(&start, options.stop, options.jobs > 1, &mut evaluate);
-    let determinations = determine(params, &minimum, &mut evaluate);
+    let (start, spent) = grid_start(params.len(), &mut evaluate);
+    let mut minimum: Minimum = minimise(&start, spent, options.stop, options.jobs > 1, &mut evaluate);
+    // A probe lower than the fit means the search stopped short on a rugged error: search on
+    // from that probe a little (its own small budget), and probe again, at most twice.
+    let mut polished = 0;
+    let determinations = loop {
+        let probes = probe_points(&minimum);
+        let errors = evaluate(&probes);
+        minimum.evaluations += probes.len();
+        let lowest = errors.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, e)| (i, *e));
+        match lowest {
+            Some((index, error)) if polished < POLISH_ROUNDS && error < minimum.error * (1.0 - options.stop.relative_error_spread) => {
+                polished += 1;
+                let stop = Stop { max_evaluations: minimum.evaluations + POLISH_EVALUATIONS_PER_PARAM * params.len(), ..options.stop };
+                minimum = minimise(&probes[index], minimum.evaluations, stop, options.jobs > 1, &mut evaluate);
+            }
+            _ => break determine_from(params, &minimum, &errors),
+        }
+    };
     progress.finish();
     let mut sessions = Vec::new();
     for ((index, session), before) in options.sessions.iter().enumerate().zip(before) {
@@ -151,7 +172,7 @@ pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, 
         .collect();
     let error_before = sessions_error(&sessions.iter().map(|s| s.before.clone()).collect::<Vec<_>>());
     let error_after = sessions_error(&sessions.iter().map(|s| s.after.clone()).collect::<Vec<_>>());
-    let outcome = FitOutcome { fitted, evaluations: minimum.evaluations + probes, sessions, error_before, error_after };
+    let outcome = FitOutcome { fitted, evaluations: minimum.evaluations, sessions, error_before, error_after };
     write_outputs(&outcome, options, &with(first, &minimum.unit))?;
     Ok(outcome)
 }
