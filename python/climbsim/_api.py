@@ -122,6 +122,11 @@ class RunResult:
     def __bool__(self) -> bool:
         return self.passed
 
+    def __repr__(self) -> str:
+        # Short: pytest prints it beside a failed assertion, where the whole summary and output
+        # would bury climbsim's lines.
+        return f"RunResult(passed={self.passed}, exit_code={self.exit_code}, out={str(self.out)!r}, {len(self.failures.lines)} failure line(s))"
+
 
 def _finish(command: List[str], completed: "subprocess.CompletedProcess[str]", out: Path) -> RunResult:
     """A run's result from its exit code and summary.json; an exception when climbsim did not
