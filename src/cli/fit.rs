@@ -8,7 +8,7 @@ use anyhow::{Result, bail};
 use climbsim::real_bus::fit::{FitParam, Stop};
 use climbsim::real_bus::transcript::read;
 use climbsim::runner::Console as _;
-use climbsim::runner::fit::{FitOptions, Session, fit};
+use climbsim::runner::fit::{FitOptions, Session, fit, session_out};
 
 use climbsim::runner::compare::CompareOptions;
 
@@ -69,7 +69,7 @@ pub fn exec(args: FitArgs) -> Result<()> {
             Some(_) => bail!("--session {text}: a scenario after `=`, or no `=`"),
             None => (PathBuf::from(text), compare.scenario.clone()),
         };
-        let out = compare.out.join(format!("session-{}", index + 2));
+        let out = session_out(&compare.out, index + 1);
         sessions.push(Session { transcript: read(&path)?, path, compare: CompareOptions { scenario, out, ..compare.clone() } });
     }
     let options = FitOptions { sessions, params, jobs, stop: Stop { max_evaluations: args.max_evaluations, ..Stop::default() } };

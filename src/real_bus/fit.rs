@@ -126,8 +126,45 @@ pub fn grid_start(n: usize, evaluate: &mut Evaluate<'_>) -> (Vec<f64>, usize) {
     let count = levels.pow(n as u32);
     let points: Vec<Vec<f64>> = (0..count).map(|mut k| (0..n).map(|_| { let index = k % levels; k /= levels; cell(index) }).collect()).collect();
     let errors = evaluate(&points);
-    let best = errors.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map_or(0, |(i, _)| i);
+    let best = lowest(&errors).map_or(0, |(index, _)| index);
     (points[best].clone(), count)
+}
+
+/// The lowest of `errors`: its index and value (None when empty).
+fn lowest(errors: &[f64]) -> Option<(usize, f64)> {
+    errors.iter().copied().enumerate().min_by(|a, b| a.1.total_cmp(&b.1))
+}
+
+/// How many times [`search`] goes on from a probe lower than its minimum.
+const POLISH_ROUNDS: usize = 2;
+/// Each such search's budget, per parameter.
+const POLISH_EVALUATIONS_PER_PARAM: usize = 12;
+
+/// The whole search for `params`: from the best point of a coarse grid ([`grid_start`]),
+/// Nelder–Mead with restarts ([`minimise`]), then the probes around the fit that judge each
+/// parameter ([`determine`]). A probe lower than the fit means the search stopped short on a
+/// rugged error: it goes on from that probe with a small budget of its own and probes again,
+/// at most [`POLISH_ROUNDS`] times. The minimum's evaluations count every point evaluated.
+pub fn search(params: &[FitParam], stop: Stop, speculate: bool, evaluate: &mut Evaluate<'_>) -> (Minimum, Vec<Determination>) {
+    let (start, spent) = grid_start(params.len(), evaluate);
+    let mut minimum = minimise(&start, spent, stop, speculate, evaluate);
+    let mut polished = 0;
+    loop {
+        let probes = probe_points(&minimum);
+        let errors = evaluate(&probes);
+        minimum.evaluations += probes.len();
+        match lowest(&errors) {
+            Some((index, error)) if polished < POLISH_ROUNDS && error < minimum.error * (1.0 - stop.relative_error_spread) => {
+                polished += 1;
+                let polish = Stop { max_evaluations: minimum.evaluations + POLISH_EVALUATIONS_PER_PARAM * params.len(), ..stop };
+                minimum = minimise(&probes[index], minimum.evaluations, polish, speculate, evaluate);
+            }
+            _ => {
+                let determinations = determine_from(params, &minimum, &errors);
+                return (minimum, determinations);
+            }
+        }
+    }
 }
 
 /// One Nelder–Mead run from `start`, `spent` evaluations already made of the budget.
@@ -222,7 +259,7 @@ pub const IDENTIFIABLE_WITHIN: f64 = 0.25;
 /// The probes around `minimum`: the stencil's centre (a step inside the box, so that every
 /// probe is where it says), a step either way along each axis, and the four diagonal steps of
 /// each pair of axes: 1 + 2n + 2n(n-1) = 1 + 2n² points.
-pub fn probe_points(minimum: &Minimum) -> Vec<Vec<f64>> {
+fn probe_points(minimum: &Minimum) -> Vec<Vec<f64>> {
     let n = minimum.unit.len();
     let h = PROBE_UNIT;
     let centre: Vec<f64> = minimum.unit.iter().map(|u| u.clamp(h, 1.0 - h)).collect();
@@ -256,7 +293,7 @@ pub fn determine(params: &[FitParam], minimum: &Minimum, evaluate: &mut Evaluate
 }
 
 /// [`determine`] from the errors at [`probe_points`], in their order.
-pub fn determine_from(params: &[FitParam], minimum: &Minimum, errors: &[f64]) -> Vec<Determination> {
+fn determine_from(params: &[FitParam], minimum: &Minimum, errors: &[f64]) -> Vec<Determination> {
     let n = params.len();
     let h = PROBE_UNIT;
     let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();

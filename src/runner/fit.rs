@@ -13,7 +13,7 @@ use super::each_in_parallel;
 use super::sweep::Progress;
 use crate::overrides::{Override, PROFILE_PREFIX, ROBOT_PREFIX};
 use crate::real_bus::RealTranscript;
-use crate::real_bus::fit::{Determination, FitParam, Minimum, Stop, determine_from, grid_start, minimise, probe_points};
+use crate::real_bus::fit::{Determination, FitParam, Stop, search};
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
 use crate::source_location::load_toml_with;
 
@@ -85,31 +85,26 @@ fn set_for(param: &FitParam, unit: f64) -> Override {
     Override { key: param.key.clone(), value }
 }
 
-/// How many times the fit searches on from a probe lower than its minimum.
-const POLISH_ROUNDS: usize = 2;
-/// Each such search's budget, per parameter.
-const POLISH_EVALUATIONS_PER_PARAM: usize = 12;
-
 /// The error of several sessions' comparisons: the mean of each one's [`fit_error`].
-fn sessions_error(reports: &[CompareReport]) -> f64 {
-    if reports.is_empty() { f64::INFINITY } else { reports.iter().map(fit_error).sum::<f64>() / reports.len() as f64 }
+fn sessions_error<'a>(reports: impl ExactSizeIterator<Item = &'a CompareReport>) -> f64 {
+    let count = reports.len();
+    if count == 0 { f64::INFINITY } else { reports.map(fit_error).sum::<f64>() / count as f64 }
 }
 
-/// Where session `index`'s `before/` and `after/` go: the fit's folder for the first, a
-/// `session-N` folder in it for the others.
-fn session_out(out: &Path, index: usize) -> PathBuf {
+/// The output folder of a fit's session `index` (0-based) when the fit writes into `out`: `out`
+/// itself for the first, `out/session-N` for the others. Each session's `compare.out`.
+pub fn session_out(out: &Path, index: usize) -> PathBuf {
     if index == 0 { out.to_owned() } else { out.join(format!("session-{}", index + 1)) }
 }
 
 /// Search, probe, and write `fit.json`, `fitted.sets`, `fitted-robot.toml` (when robot or
-/// profile keys were fitted) and each session's compare reports before and after into the
-/// first session's output folder.
+/// profile keys were fitted) into the first session's output folder, and each session's
+/// compare reports before and after into its own ([`session_out`]).
 pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, CompareError> {
     let params = &options.params;
     let Some(first) = options.sessions.first() else {
         return Err(CompareError::NoSession);
     };
-    let out = &first.compare.out;
     let with = |session: &Session, unit: &[f64]| {
         let mut sets = session.compare.overrides.clone();
         sets.extend(params.iter().zip(unit).map(|(param, u)| set_for(param, *u)));
@@ -118,8 +113,8 @@ pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, 
     // The files' own values are the baseline, and a session the world cannot re-enact at all
     // fails here, clearly, rather than as an infinite error.
     let mut before = Vec::new();
-    for (index, session) in options.sessions.iter().enumerate() {
-        before.push(reenact(&session.transcript, &session.path, &session.compare, Some(&recording_in(&session_out(out, index).join("before"))?))?);
+    for session in &options.sessions {
+        before.push(reenact(&session.transcript, &session.path, &session.compare, Some(&recording_in(&session.compare.out.join("before"))?))?);
     }
     // Every point is evaluated; one the world cannot be built for (a value its checks refuse)
     // counts as infinitely far.
@@ -127,7 +122,7 @@ pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, 
         each_in_parallel(points, options.jobs, |unit| {
             let reports: Result<Vec<CompareReport>, CompareError> = options.sessions.iter().map(|session| reenact(&session.transcript, &session.path, &with(session, unit), None)).collect();
             let error = match reports {
-                Ok(reports) => sessions_error(&reports),
+                Ok(reports) => sessions_error(reports.iter()),
                 Err(error) => {
                     warn!(%error, "an evaluation failed; it counts as infinitely far");
                     f64::INFINITY
@@ -139,29 +134,11 @@ pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, 
     };
     let probes = 1 + 2 * params.len() * params.len();
     progress.start(options.stop.max_evaluations + probes);
-    let (start, spent) = grid_start(params.len(), &mut evaluate);
-    let mut minimum: Minimum = minimise(&start, spent, options.stop, options.jobs > 1, &mut evaluate);
-    // A probe lower than the fit means the search stopped short on a rugged error: search on
-    // from that probe a little (its own small budget), and probe again, at most twice.
-    let mut polished = 0;
-    let determinations = loop {
-        let probes = probe_points(&minimum);
-        let errors = evaluate(&probes);
-        minimum.evaluations += probes.len();
-        let lowest = errors.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, e)| (i, *e));
-        match lowest {
-            Some((index, error)) if polished < POLISH_ROUNDS && error < minimum.error * (1.0 - options.stop.relative_error_spread) => {
-                polished += 1;
-                let stop = Stop { max_evaluations: minimum.evaluations + POLISH_EVALUATIONS_PER_PARAM * params.len(), ..options.stop };
-                minimum = minimise(&probes[index], minimum.evaluations, stop, options.jobs > 1, &mut evaluate);
-            }
-            _ => break determine_from(params, &minimum, &errors),
-        }
-    };
+    let (minimum, determinations) = search(params, options.stop, options.jobs > 1, &mut evaluate);
     progress.finish();
     let mut sessions = Vec::new();
-    for ((index, session), before) in options.sessions.iter().enumerate().zip(before) {
-        let after = reenact(&session.transcript, &session.path, &with(session, &minimum.unit), Some(&recording_in(&session_out(out, index).join("after"))?))?;
+    for (session, before) in options.sessions.iter().zip(before) {
+        let after = reenact(&session.transcript, &session.path, &with(session, &minimum.unit), Some(&recording_in(&session.compare.out.join("after"))?))?;
         sessions.push(SessionOutcome { before, after });
     }
     let fitted: Vec<Fitted> = params
@@ -170,10 +147,10 @@ pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, 
         .zip(determinations)
         .map(|((param, unit), determination)| Fitted { param: param.clone(), value: set_value(&set_for(param, *unit)), determination })
         .collect();
-    let error_before = sessions_error(&sessions.iter().map(|s| s.before.clone()).collect::<Vec<_>>());
-    let error_after = sessions_error(&sessions.iter().map(|s| s.after.clone()).collect::<Vec<_>>());
+    let error_before = sessions_error(sessions.iter().map(|s| &s.before));
+    let error_after = sessions_error(sessions.iter().map(|s| &s.after));
     let outcome = FitOutcome { fitted, evaluations: minimum.evaluations, sessions, error_before, error_after };
-    write_outputs(&outcome, options, &with(first, &minimum.unit))?;
+    write_outputs(&outcome, options, first, &with(first, &minimum.unit))?;
     Ok(outcome)
 }
 
@@ -191,28 +168,27 @@ fn write(path: PathBuf, text: String) -> Result<(), CompareError> {
     std::fs::write(&path, text).map_err(|source| CompareError::Write { path, source })
 }
 
-fn write_outputs(outcome: &FitOutcome, options: &FitOptions, after: &CompareOptions) -> Result<(), CompareError> {
-    let Some(base) = options.sessions.first().map(|s| &s.compare) else { return Ok(()) };
+fn write_outputs(outcome: &FitOutcome, options: &FitOptions, first: &Session, after: &CompareOptions) -> Result<(), CompareError> {
+    let base = &first.compare;
     let out = &base.out;
-    for (index, session) in outcome.sessions.iter().enumerate() {
-        write_report(&session.before, &session_out(out, index).join("before"))?;
-        write_report(&session.after, &session_out(out, index).join("after"))?;
+    for (session, reports) in options.sessions.iter().zip(&outcome.sessions) {
+        write_report(&reports.before, &session.compare.out.join("before"))?;
+        write_report(&reports.after, &session.compare.out.join("after"))?;
     }
     let sessions: Vec<serde_json::Value> = options
         .sessions
         .iter()
         .zip(&outcome.sessions)
-        .enumerate()
-        .map(|(index, (session, reports))| json!({
+        .map(|(session, reports)| json!({
             "transcript": session.path,
             "scenario": session.compare.scenario,
-            "out": session_out(out, index),
+            "out": session.compare.out,
             "error_before": fit_error(&reports.before),
             "error_after": fit_error(&reports.after),
         }))
         .collect();
     let summary = json!({
-        "transcript": options.sessions[0].path,
+        "transcript": first.path,
         "scenario": base.scenario,
         "sessions": sessions,
         "robot": base.robot,
