@@ -129,7 +129,13 @@ pub fn load_robot_with(path: &Path, overrides: &RobotOverrides) -> Result<RobotD
 /// when climbsim runs in one (or a folder that has its own), else the one built into climbsim
 /// (`embedded:hil/robot.toml`): an installed binary runs from any folder.
 pub fn robot_path(path: &Path) -> PathBuf {
-    if path == Path::new(ROBOT_IN_CHECKOUT) && !path.exists() { embedded::ROBOT.embedded_path() } else { path.to_owned() }
+    built_in_unless_here(path, ROBOT_IN_CHECKOUT, &embedded::ROBOT)
+}
+
+/// `path`, unless it is a flag's `default` and no such file is here: then the file climbsim
+/// has built in for it.
+pub fn built_in_unless_here(path: &Path, default: &str, built_in: &embedded::EmbeddedFile) -> PathBuf {
+    if path == Path::new(default) && !path.exists() { built_in.embedded_path() } else { path.to_owned() }
 }
 
 /// The highest `--speed`: beyond it a firmware tick is shorter on the wall clock than a sleep.

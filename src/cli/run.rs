@@ -1,6 +1,6 @@
 //! `climbsim run SCENARIO`: one run, its outputs, its verdict.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 
@@ -14,7 +14,7 @@ use climbsim::robot::RobotOverrides;
 use climbsim::embedded;
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
-use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, load_robot_with, parse_fault, refuse_recorded_cli_faults};
+use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, built_in_unless_here, load_robot_with, parse_fault, refuse_recorded_cli_faults};
 use super::console::Terminal;
 use super::interrupt;
 
@@ -66,7 +66,7 @@ pub fn exec(args: RunArgs) -> Result<()> {
     let (overrides, robot_sets) = RobotOverrides::split(&parse_overrides(&set)?);
     let robot = load_robot_with(&robot, &robot_sets)?;
     // The default scenario is the checkout's, else the one built in (from any folder).
-    let scenario = if scenario == Path::new(DEFAULT_SCENARIO) && !scenario.exists() { embedded::SCENARIO.embedded_path() } else { scenario };
+    let scenario = built_in_unless_here(&scenario, DEFAULT_SCENARIO, &embedded::SCENARIO);
     let mut loaded = Scenario::load_with(&scenario, &overrides)?;
     loaded.add_faults(faults);
     let out_dir = out.unwrap_or_else(|| default_out_dir(&scenario));
