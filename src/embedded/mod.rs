@@ -24,17 +24,26 @@ pub struct EmbeddedFile {
     pub text: &'static str,
 }
 
+/// The file at `$path` in the checkout, built in (its path written once: the one it is read
+/// from is the one it is named by).
+macro_rules! shipped {
+    ($path:literal) => {
+        EmbeddedFile { path: $path, text: include_str!(concat!("../../", $path)) }
+    };
+}
+pub(crate) use shipped;
+
 /// The robot description (`--robot`'s default).
-pub const ROBOT: EmbeddedFile = EmbeddedFile { path: "hil/robot.toml", text: include_str!("../../hil/robot.toml") };
+pub const ROBOT: EmbeddedFile = shipped!("hil/robot.toml");
 /// The XM540-W270-R's control table and motor (the robot's `profile`).
-pub const PROFILE: EmbeddedFile = EmbeddedFile { path: "firmware-profiles/xm540-w270-r.toml", text: include_str!("../../firmware-profiles/xm540-w270-r.toml") };
+pub const PROFILE: EmbeddedFile = shipped!("firmware-profiles/xm540-w270-r.toml");
 /// Foxglove's layout for a run's topics.
-pub const LAYOUT: EmbeddedFile = EmbeddedFile { path: "hil/foxglove/climbsim-layout.json", text: include_str!("../../hil/foxglove/climbsim-layout.json") };
+pub const LAYOUT: EmbeddedFile = shipped!("hil/foxglove/climbsim-layout.json");
 /// The reference external controller (Python, the official SDK).
-pub const CONTROLLER: EmbeddedFile = EmbeddedFile { path: "hil/controllers/line_follower.py", text: include_str!("../../hil/controllers/line_follower.py") };
+pub const CONTROLLER: EmbeddedFile = shipped!("hil/controllers/line_follower.py");
 
 /// `run`'s default scenario: the built-in controller following a weld line on flat steel.
-pub const SCENARIO: EmbeddedFile = EmbeddedFile { path: "scenarios/flat-line.toml", text: include_str!("../../scenarios/flat-line.toml") };
+pub const SCENARIO: EmbeddedFile = shipped!("scenarios/flat-line.toml");
 
 /// Every shipped file.
 pub const FILES: [EmbeddedFile; 5] = [ROBOT, PROFILE, LAYOUT, CONTROLLER, SCENARIO];

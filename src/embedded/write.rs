@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{CONTROLLER, EmbeddedFile, LAYOUT, PROFILE, ROBOT, SCENARIO};
+use super::{CONTROLLER, EmbeddedFile, LAYOUT, PROFILE, ROBOT, SCENARIO, shipped};
 
 /// What `climbsim export` writes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -59,15 +59,15 @@ pub fn export(what: Export, dir: &Path, force: bool) -> Result<Vec<PathBuf>, Exp
 /// scenario on the built-in robot, the reference controller to replace, a pytest test on
 /// climbsim's plugin, CI, and what they need.
 const SKELETON: [(&str, EmbeddedFile); 8] = [
-    ("scenarios/line-follow.toml", EmbeddedFile { path: "hil/init/scenarios/line-follow.toml", text: include_str!("../../hil/init/scenarios/line-follow.toml") }),
+    ("scenarios/line-follow.toml", shipped!("hil/init/scenarios/line-follow.toml")),
     ("controller/line_follower.py", CONTROLLER),
-    ("tests/test_climbsim.py", EmbeddedFile { path: "hil/init/tests/test_climbsim.py", text: include_str!("../../hil/init/tests/test_climbsim.py") }),
-    (".github/workflows/climbsim.yml", EmbeddedFile { path: "hil/init/.github/workflows/climbsim.yml", text: include_str!("../../hil/init/.github/workflows/climbsim.yml") }),
-    ("requirements.txt", EmbeddedFile { path: "hil/init/requirements.txt", text: include_str!("../../hil/init/requirements.txt") }),
-    ("pytest.ini", EmbeddedFile { path: "hil/init/pytest.ini", text: include_str!("../../hil/init/pytest.ini") }),
-    ("README.md", EmbeddedFile { path: "hil/init/README.md", text: include_str!("../../hil/init/README.md") }),
+    ("tests/test_climbsim.py", shipped!("hil/init/tests/test_climbsim.py")),
+    (".github/workflows/climbsim.yml", shipped!("hil/init/.github/workflows/climbsim.yml")),
+    ("requirements.txt", shipped!("hil/init/requirements.txt")),
+    ("pytest.ini", shipped!("hil/init/pytest.ini")),
+    ("README.md", shipped!("hil/init/README.md")),
     // Not `.gitignore` in climbsim's tree, where it would ignore files of climbsim's own.
-    (".gitignore", EmbeddedFile { path: "hil/init/gitignore", text: include_str!("../../hil/init/gitignore") }),
+    (".gitignore", shipped!("hil/init/gitignore")),
 ];
 
 /// The marker in the skeleton's files that becomes this climbsim's version (the one the
