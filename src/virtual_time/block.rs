@@ -11,6 +11,14 @@ use super::abi::{self, Shared};
 /// Names of blocks made by this process: one per run (a sweep runs several at once).
 static NEXT_BLOCK: AtomicU64 = AtomicU64::new(0);
 
+/// What every block's file name starts with.
+const NAME_PREFIX: &str = "climbsim-vt-";
+
+/// Where blocks are made: `/dev/shm`, or the temporary folder where there is none.
+fn block_dir() -> PathBuf {
+    if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() }
+}
+
 /// How many taken names [`Block::create`] passes over before it gives up.
 const NAME_ATTEMPTS: u32 = 16;
 
@@ -30,7 +38,7 @@ unsafe impl Sync for Block {}
 impl Block {
     pub fn create() -> Result<Self, VtError> {
         use std::os::unix::fs::OpenOptionsExt as _;
-        let dir = if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
+        let dir = block_dir();
         static SWEPT: std::sync::Once = std::sync::Once::new();
         SWEPT.call_once(|| remove_blocks_of_dead_processes(&dir));
         // A climbsim killed outright (SIGKILL, a power cut) leaves its block behind in /dev/shm,
@@ -39,7 +47,7 @@ impl Block {
         let mut attempt = 0;
         let (file, path) = loop {
             let nonce = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
-            let path = dir.join(format!("climbsim-vt-{}-{}-{nonce:08x}", std::process::id(), NEXT_BLOCK.fetch_add(1, Ordering::Relaxed)));
+            let path = dir.join(format!("{NAME_PREFIX}{}-{}-{nonce:08x}", std::process::id(), NEXT_BLOCK.fetch_add(1, Ordering::Relaxed)));
             match std::fs::OpenOptions::new().read(true).write(true).create_new(true).mode(0o600).open(&path) {
                 Ok(file) => break (file, path),
                 Err(error) if error.kind() == std::io::ErrorKind::AlreadyExists && attempt < NAME_ATTEMPTS => attempt += 1,
@@ -87,7 +95,7 @@ fn remove_blocks_of_dead_processes(dir: &Path) {
     // SAFETY: getuid cannot fail.
     let me = unsafe { libc::getuid() };
     for entry in entries.flatten() {
-        if !entry.file_name().to_str().is_some_and(|name| name.starts_with("climbsim-vt-")) {
+        if !entry.file_name().to_str().is_some_and(|name| name.starts_with(NAME_PREFIX)) {
             continue;
         }
         let Ok(metadata) = entry.metadata() else { continue };
@@ -123,9 +131,9 @@ mod tests {
     /// the next block would have had without the nonce: it is passed over, not an error.
     #[test]
     fn a_leftover_block_under_this_processs_pid_does_not_stop_a_run() {
-        let dir = if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
+        let dir = block_dir();
         let next = NEXT_BLOCK.load(Ordering::Relaxed);
-        let leftovers: Vec<PathBuf> = (next..next + 4).map(|n| dir.join(format!("climbsim-vt-{}-{n}", std::process::id()))).collect();
+        let leftovers: Vec<PathBuf> = (next..next + 4).map(|n| dir.join(format!("{NAME_PREFIX}{}-{n}", std::process::id()))).collect();
         for leftover in &leftovers {
             std::fs::write(leftover, b"left behind").expect("a leftover");
         }
