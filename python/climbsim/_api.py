@@ -54,13 +54,22 @@ def toml_value(value: Value) -> str:
     raise TypeError(f"cannot write {value!r} ({type(value).__name__}) as a TOML value")
 
 
-def _set_flags(sets: Optional[Mapping[str, Value]], controller: Optional[Sequence[PathLike]]) -> List[str]:
+def _flags(sets: Optional[Mapping[str, Value]], controller: Optional[Sequence[PathLike]], robot: Optional[PathLike], args: Sequence[str]) -> List[str]:
+    """The flags every call shares: `--set` for `sets` (and `controller`), `--robot`, then
+    `args` as given."""
     flags: List[str] = []
     for key, value in (sets or {}).items():
         flags += ["--set", f"{key}={toml_value(value)}"]
     if controller is not None:
         flags += ["--set", f"controller={toml_value({'kind': 'external', 'command': _controller_command(controller)})}"]
-    return flags
+    if robot is not None:
+        flags += ["--robot", os.fspath(robot)]
+    return flags + list(args)
+
+
+def _environment(env: Optional[Mapping[str, str]]) -> Optional[Dict[str, str]]:
+    """climbsim's environment: this process's with `env` on top (None: this process's)."""
+    return None if env is None else {**os.environ, **env}
 
 
 def _controller_command(controller: Sequence[PathLike]) -> List[str]:
@@ -75,11 +84,6 @@ def _controller_command(controller: Sequence[PathLike]) -> List[str]:
             text = os.path.abspath(text)
         command.append(text)
     return command
-
-
-def _common_flags(robot: Optional[PathLike], args: Sequence[str]) -> List[str]:
-    flags = ["--robot", os.fspath(robot)] if robot is not None else []
-    return flags + list(args)
 
 
 def _climbsim_lines(errors: str) -> str:
@@ -152,7 +156,7 @@ def _finish(command: List[str], completed: "subprocess.CompletedProcess[str]", o
 
 def _call(command: List[str], timeout_s: Optional[float], env: Optional[Mapping[str, str]]) -> "subprocess.CompletedProcess[str]":
     try:
-        return subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, env=None if env is None else {**os.environ, **env}, check=False)
+        return subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, env=_environment(env), check=False)
     except subprocess.TimeoutExpired as expired:
         raise ClimbsimError(f"climbsim did not finish within {timeout_s} s: {' '.join(command)}", command=command) from expired
     except OSError as error:
@@ -193,7 +197,7 @@ def run(
     command += ["--out", os.fspath(out_dir)]
     if clock is not None:
         command += ["--clock", clock]
-    command += _set_flags(sets, controller) + _common_flags(robot, args)
+    command += _flags(sets, controller, robot, args)
     return _finish(command, _call(command, timeout_s, env), out_dir)
 
 
@@ -216,7 +220,7 @@ def check(
     scenario_path = Path(os.fspath(scenario))
     out_root = Path(os.fspath(out)) if out is not None else Path("results/check")
     command = [binary or find_binary(), "check", os.fspath(scenario_path), "--out", os.fspath(out_root)]
-    command += _set_flags(sets, controller) + _common_flags(robot, args)
+    command += _flags(sets, controller, robot, args)
     return _finish(command, _call(command, timeout_s, env), out_root / scenario_path.stem)
 
 
@@ -261,10 +265,10 @@ def serve(
         command.append(os.fspath(scenario))
     if link is not None:
         command += ["--link", os.fspath(link)]
-    command += _set_flags(sets, None) + _common_flags(robot, args)
+    command += _flags(sets, None, robot, args)
     errors = tempfile.TemporaryFile(mode="w+", encoding="utf-8")
     try:
-        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=errors, text=True, env=None if env is None else {**os.environ, **env})
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=errors, text=True, env=_environment(env))
     except OSError as error:
         errors.close()
         raise ClimbsimError(f"cannot start {command[0]}: {error}", command=command) from error
@@ -299,6 +303,12 @@ def serve(
         errors.close()
 
 
+# What the wait for `port:` gets when its time is up (None: climbsim closed its output).
+_TIMED_OUT = "\0timed out"
+# How long a climbsim that closed its output gets to exit.
+_EXIT_WAIT_S = 10.0
+
+
 def _wait_until_served(process: "subprocess.Popen[str]", ready: "queue.Queue[Optional[str]]", *, want_sensors: bool, timeout_s: float, command: List[str], stderr_text: Callable[[], str]) -> Tuple[str, Optional[str]]:
     """The `port:` (and in a world `sensors:`) climbsim prints once it serves."""
     deadline = time.monotonic() + timeout_s
@@ -307,15 +317,21 @@ def _wait_until_served(process: "subprocess.Popen[str]", ready: "queue.Queue[Opt
     while port is None or (want_sensors and sensors is None):
         left = deadline - time.monotonic()
         try:
-            line = ready.get(timeout=max(left, 0.0)) if left > 0 else None
+            line = ready.get(timeout=left) if left > 0 else _TIMED_OUT
         except queue.Empty:
-            line = None
+            line = _TIMED_OUT
+        if line is _TIMED_OUT:
+            process.kill()
+            process.wait()
+            raise ClimbsimError(f"climbsim serve did not serve within {timeout_s} s", command=command, errors=stderr_text())
         if line is None:
-            if process.poll() is None:
+            # Its output closed: climbsim is ending (refused its input, say). Whether it has
+            # exited yet is a race, so wait for it, then say why.
+            try:
+                process.wait(timeout=_EXIT_WAIT_S)
+            except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
-                raise ClimbsimError(f"climbsim serve did not serve within {timeout_s} s", command=command, errors=stderr_text())
-            process.wait()
             raise ClimbsimError(_climbsim_lines(stderr_text()), exit_code=process.returncode, command=command, errors=stderr_text())
         if line.startswith("port: "):
             port = line[len("port: "):]
