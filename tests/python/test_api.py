@@ -6,7 +6,9 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 import tomllib
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -48,10 +50,23 @@ def test_serve_on_the_bench_and_in_a_world(follower):
     link = follower / "ttyDXL"
     with climbsim.serve(follower / "scenarios/line-follow.toml", link=link, sets={"world.seed": 3}) as bus:
         assert bus.port == str(link) and link.exists()
-        with urllib.request.urlopen(f"{bus.sensors}/line", timeout=5) as answer:
-            line = json.load(answer)
+        line = first_line_measurement(bus.sensors)
         assert {"t", "d", "psi", "valid"} <= set(line), line
     assert not link.exists(), "the link is removed when climbsim ends"
+
+
+def first_line_measurement(sensors, within_s=30.0):
+    """GET /line until the world has a camera frame: before the first, the sensor server
+    answers 503 (not yet), as it documents."""
+    deadline = time.monotonic() + within_s
+    while True:
+        try:
+            with urllib.request.urlopen(f"{sensors}/line", timeout=5) as answer:
+                return json.load(answer)
+        except urllib.error.HTTPError as error:
+            if error.code != 503 or time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
 
 
 def test_serve_that_cannot_start_raises_climbsims_own_message(follower):
