@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 10;
+pub const ABI: u32 = 11;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -265,6 +265,14 @@ pub struct Header {
     /// S: slots reserved for threads created by a trapped clone and not claimed yet (see
     /// [`RAW_CLONE_TID`]).
     pub raw_clones: AtomicU32,
+    /// S: hand-overs of the turn from a parking thread to the next ready one (see
+    /// [`Shared::next_turn`]) begun, and ended. climbsim reads `hand_ons_ended` before it looks
+    /// at the slots and `hand_ons_begun` after: if they differ, a hand-over overlapped its look,
+    /// and it decides nothing on it, as if a thread ran.
+    pub hand_ons_begun: AtomicU64,
+    pub hand_ons_ended: AtomicU64,
+    /// S: turns a parking thread handed on itself, without climbsim.
+    pub turns_handed: AtomicU64,
     /// C: replies written ahead of their time: the bytes from `HeldRun::start` on become visible
     /// at `HeldRun::due_ns` (and not before the runs ahead of them in the stream). The shim hides
     /// what is not visible yet from reads, polls and FIONREAD, so that a Sync Read's eight
@@ -348,6 +356,9 @@ pub struct Slot {
     /// S: a wait on the port is for bytes past this offset of its stream only (an
     /// edge-triggered epoll registration has reported those before; 0: any unread byte).
     pub port_seen: AtomicU64,
+    /// S: the thread's `pthread_t` (what `pthread_self` returns in it): a join names the
+    /// thread it waits for by it.
+    pub thread: AtomicU64,
 }
 
 /// `SigTimer::state`.
@@ -466,6 +477,37 @@ impl Shared {
             .or_else(|| threads().find(lets_through))
             .or_else(|| threads().find(main))
             .or_else(|| threads().next())
+    }
+
+    /// The ready thread whose turn it is: the one in the lowest slot, one that gave its turn up
+    /// after a quantum after every other (so the order never depends on which thread the host
+    /// happened to schedule first). Both climbsim and a thread handing its turn on pick by it.
+    pub fn next_turn(&self) -> Option<&Slot> {
+        use core::sync::atomic::Ordering::{Acquire, Relaxed};
+        let slots = self.live_slots();
+        let ready = |s: &&Slot| s.state.load(Acquire) == state::READY;
+        slots.iter().filter(ready).find(|s| s.waits.load(Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready))
+    }
+
+    /// `waiter` joins a thread that is followed and has not ended: it is blocked until that
+    /// thread ends, which marks it ready as it goes (so nobody need look at the kernel for it).
+    pub fn joins_live_thread(&self, waiter: &Slot) -> bool {
+        use core::sync::atomic::Ordering::{Acquire, Relaxed};
+        if waiter.waits.load(Relaxed) != waits::PEER {
+            return false;
+        }
+        let (pid, thread) = (waiter.pid.load(Relaxed), waiter.conn_mask.load(Relaxed));
+        self.live_slots().iter().any(|s| {
+            // A reserved slot's thread has not claimed it yet: what it holds is its last one's.
+            !matches!(s.state.load(Acquire), state::FREE | state::EXITED | state::RESERVED) && s.thread.load(Relaxed) == thread && s.pid.load(Relaxed) == pid && !core::ptr::eq(s, waiter)
+        })
+    }
+
+    /// `slot` waits on what the kernel wakes (a descriptor climbsim does not model, a thread
+    /// that is not followed or is going away): only a look tells whether it is still blocked.
+    pub fn must_look(&self, slot: &Slot) -> bool {
+        use core::sync::atomic::Ordering::{Acquire, Relaxed};
+        slot.state.load(Acquire) == state::BLOCKED && slot.waits.load(Relaxed) & (waits::OTHER | waits::PEER) != 0 && !self.joins_live_thread(slot)
     }
 
     /// The signal timers that have ever been taken (those past them are free).

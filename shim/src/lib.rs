@@ -251,6 +251,8 @@ fn my_slot() -> Option<&'static Slot> {
         slot.pid.store(pid, Ordering::Relaxed);
         slot.tid.store(tid, Ordering::Relaxed);
         slot.parent.store(sys::getppid(), Ordering::Relaxed);
+        // SAFETY: pthread_self has no preconditions.
+        slot.thread.store(unsafe { sys::pthread_self() } as u64, Ordering::Relaxed);
         signals::slot_claimed(slot);
         slot.state.store(state::RUNNING, Ordering::Release);
         SLOT.with(|s| s.set(index as u32));
@@ -320,7 +322,11 @@ fn followed(shared: &Shared, pid: i32) -> bool {
 fn start_in_turn(slot: &Slot) {
     match active() {
         Some(shared) => {
+            // Its creator has usually parked by now (in a join, say): the turn is then this
+            // thread's at once, without climbsim.
+            let hand = park::hand_on(shared);
             slot.state.store(state::READY, Ordering::Release);
+            hand.finish(slot);
             await_turn(shared, slot);
         }
         None => slot.state.store(state::RUNNING, Ordering::Release),
@@ -330,9 +336,11 @@ fn start_in_turn(slot: &Slot) {
 /// A trapped clone is about to create a thread whose TLS pointer is `tls` (0: none given): a
 /// slot is reserved for it, so that climbsim counts it as running, and decides nothing, until
 /// the thread has claimed it (at its first followed call) and waits for its turn. Not for a
-/// thread the shim's pthread_create creates, which reserved its own.
-pub(crate) fn reserve_raw_clone(tls: u64) {
+/// thread the shim's pthread_create creates, which reserved its own (`clear_tid`, the word the
+/// thread's end clears, is noted for its joins then: see `sync::learn_clear_tid`).
+pub(crate) fn reserve_raw_clone(tls: u64, clear_tid: usize) {
     if CREATING_THREAD.with(Cell::get) {
+        sync::note_clone_clear_tid(clear_tid);
         return;
     }
     let Some(shared) = active() else { return };
@@ -422,8 +430,12 @@ fn reserve_thread_slot() -> Option<usize> {
 }
 
 fn unreserve_slot(index: usize) {
-    if let Some(slot) = shared().and_then(|s| s.slots.get(index)) {
-        let _ = slot.state.compare_exchange(state::RESERVED, state::FREE, Ordering::AcqRel, Ordering::Relaxed);
+    if let Some(shared) = shared()
+        && let Some(slot) = shared.slots.get(index)
+        && slot.state.compare_exchange(state::RESERVED, state::FREE, Ordering::AcqRel, Ordering::Relaxed).is_ok()
+    {
+        // A thread that parked meanwhile left the decision to this one (see `park::HandOn`).
+        notify_scheduler(shared);
     }
 }
 
@@ -446,6 +458,8 @@ fn claim_reserved(index: usize) {
     slot.pid.store(pid(), Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
     slot.parent.store(sys::getppid(), Ordering::Relaxed);
+    // SAFETY: pthread_self has no preconditions.
+    slot.thread.store(unsafe { sys::pthread_self() } as u64, Ordering::Relaxed);
     signals::slot_claimed(slot);
     SLOT.with(|s| s.set(index as u32));
     park::forget_charges();
@@ -505,10 +519,13 @@ fn leaving_without_atexit() {
 }
 
 fn exit_slot(slot: &Slot) {
+    let Some(shared) = shared() else {
+        slot.state.store(state::EXITED, Ordering::Release);
+        return;
+    };
+    let hand = park::hand_on(shared);
     slot.state.store(state::EXITED, Ordering::Release);
-    if let Some(shared) = shared() {
-        notify_scheduler(shared);
-    }
+    hand.finish(slot);
 }
 
 /// A forked child is a new process: its threads claim slots of their own. It starts in its

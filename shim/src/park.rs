@@ -50,10 +50,10 @@ pub(crate) fn reset_computation(shared: &Shared) {
     }
 }
 
-/// Wait, ready to run, until climbsim gives this thread the turn (it marks it running). After
-/// the run's end (or without climbsim) every thread simply runs.
+/// Wait, ready to run (and climbsim told, or the turn handed: see [`HandOn`]), until climbsim
+/// or a parking thread gives this thread the turn (it marks it running). After the run's end
+/// (or without climbsim) every thread simply runs.
 pub(crate) fn await_turn(shared: &Shared, slot: &Slot) {
-    notify_scheduler(shared);
     spin_while_not_running(shared, slot);
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
@@ -109,7 +109,103 @@ pub(crate) fn resume_after_kernel_wake(shared: &Shared, slot: &Slot) {
         return;
     }
     let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
+    notify_scheduler(shared);
     await_turn(shared, slot);
+}
+
+/// A hand-over of the turn this running thread may make as it parks or ends, begun before it
+/// publishes that (so that climbsim, which sees it begun, decides nothing meanwhile) and ended
+/// by [`HandOn::finish`] after. Without it, every park is two hand-overs through climbsim (this
+/// thread to climbsim, climbsim to the next), each a futex wake-up: most of what a thread's
+/// start and end, or a lock passed between threads, costs in wall time.
+pub(crate) struct HandOn<'a> {
+    shared: &'a Shared,
+    ended: bool,
+}
+
+/// Begin a hand-over (see [`HandOn`]): before this thread publishes itself parked or ended.
+pub(crate) fn hand_on(shared: &Shared) -> HandOn<'_> {
+    shared.header.hand_ons_begun.fetch_add(1, Ordering::SeqCst);
+    HandOn { shared, ended: false }
+}
+
+impl HandOn<'_> {
+    /// This thread (`me`) has published itself parked or ended: the next ready thread takes the
+    /// turn at once, if that is what climbsim would do now; else climbsim is told, and decides.
+    pub(crate) fn finish(mut self, me: &Slot) {
+        let outcome = self.hand_to_next(me);
+        self.end();
+        if outcome == Handing::ClimbsimDecides {
+            notify_scheduler(self.shared);
+        }
+    }
+
+    /// Give the turn to the ready thread climbsim would give it to (`Shared::next_turn`), if
+    /// climbsim would decide nothing else first: no other thread runs or is being created, none
+    /// waits on what only a look at the kernel tells (whose turn comes first then depends on
+    /// that look), none is in the kernel's waitpid, and nothing was refused.
+    fn hand_to_next(&self, me: &Slot) -> Handing {
+        let shared = self.shared;
+        // Against a thread publishing itself at the same moment (a new one ready, say, while this
+        // one parks): with a full fence between each one's store of its state and its look at
+        // the other's, at least one of the two sees the other, so they never both leave it to
+        // the other (see `Handing::OtherRuns`).
+        core::sync::atomic::fence(Ordering::SeqCst);
+        if active().is_none() || shared.header.refused.load(Ordering::Acquire) != 0 || shared.must_look(me) {
+            return Handing::ClimbsimDecides;
+        }
+        let mut other_runs = false;
+        for slot in shared.live_slots() {
+            if core::ptr::eq(slot, me) {
+                continue;
+            }
+            match slot.state.load(Ordering::Acquire) {
+                state::RUNNING | state::RESERVED => other_runs = true,
+                state::BLOCKED if slot.waits.load(Ordering::Relaxed) & abi::waits::CHILD != 0 || shared.must_look(slot) => return Handing::ClimbsimDecides,
+                _ => {}
+            }
+        }
+        if other_runs {
+            return Handing::OtherRuns;
+        }
+        let Some(next) = shared.next_turn() else { return Handing::ClimbsimDecides };
+        if next.state.compare_exchange(state::READY, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_err() {
+            return Handing::ClimbsimDecides;
+        }
+        let header = &shared.header;
+        header.turns_given.fetch_add(1, Ordering::Release);
+        header.turns_handed.fetch_add(1, Ordering::Relaxed);
+        next.wake_word.fetch_add(1, Ordering::AcqRel);
+        sys::futex_wake(&next.wake_word);
+        Handing::Handed
+    }
+
+    fn end(&mut self) {
+        if !self.ended {
+            self.ended = true;
+            self.shared.header.hand_ons_ended.fetch_add(1, Ordering::SeqCst);
+        }
+    }
+}
+
+/// How [`HandOn::hand_to_next`] went.
+#[derive(PartialEq, Eq)]
+enum Handing {
+    /// The next ready thread has the turn.
+    Handed,
+    /// Another thread runs, or is being created: it parks (or starts) later, and hands the turn
+    /// on or tells climbsim then; climbsim, woken now, could only spin meanwhile, on a CPU
+    /// those threads need. (A reservation that is given up tells climbsim.)
+    OtherRuns,
+    /// climbsim decides what comes next: it is told.
+    ClimbsimDecides,
+}
+
+impl Drop for HandOn<'_> {
+    /// Ended without a hand-over (the park did not happen after all).
+    fn drop(&mut self) {
+        self.end();
+    }
 }
 
 pub(crate) fn notify_scheduler(shared: &Shared) {
@@ -202,9 +298,10 @@ pub(crate) fn expect_look(shared: &Shared, slot: &Slot) {
 /// Publish this thread as blocked on what the kernel wakes until `deadline` (simulated ns),
 /// waiting on `waits`, and tell climbsim, which first waits for its look (see [`expect_look`]).
 pub(crate) fn publish_waiting_on_kernel(shared: &Shared, slot: &Slot, deadline: u64, waits: u32, conn_mask: u64) {
+    let hand = hand_on(shared);
     expect_look(shared, slot);
     publish_state(slot, state::BLOCKED, deadline, waits, conn_mask);
-    notify_scheduler(shared);
+    hand.finish(slot);
 }
 
 /// One look at what the kernel wakes (`look`: Some once something is ready), as climbsim asks:
@@ -276,8 +373,9 @@ pub(crate) fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn
     if slot.signals_due.load(Ordering::Acquire) != 0 && crate::signals::take_due(slot) {
         return release::SIGNAL;
     }
+    let hand = hand_on(shared);
     publish_parked(slot, parked, deadline, waits, conn_mask);
-    notify_scheduler(shared);
+    hand.finish(slot);
     await_release(shared, slot, parked, deadline)
 }
 

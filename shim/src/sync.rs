@@ -8,8 +8,9 @@
 //! whenever climbsim asks (climbsim first waits until an ending thread is gone) and every
 //! 200 µs of wall time, so that time cannot move between the two.
 
+use core::cell::Cell;
 use core::ffi::{c_int, c_void};
-use core::sync::atomic::Ordering;
+use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 
 use crate::abi::{NEVER, Shared, call, release, state, waits};
 use crate::sys::{self, clockid_t, real, timespec};
@@ -19,6 +20,64 @@ use crate::{active, my_slot, note_call, pid, reset_computation};
 /// One slice of a real wait (wall time).
 const SLICE_NS: u64 = 200_000;
 const ETIMEDOUT: c_int = 110;
+
+/// Where glibc keeps a thread's id, which the kernel clears (and wakes as a futex) when the
+/// thread ends: as an offset from its `pthread_t` (0: not known yet). A join waits on that word
+/// itself, with the shim's own untrapped calls and a spin first, instead of in glibc's futex
+/// wait, which traps (about 4 µs a trap) twice a join.
+static CLEAR_TID_OFFSET: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    /// The word the clone of the thread being created clears at its end (see `pthread_create`).
+    static CLONE_CLEAR_TID: Cell<usize> = const { Cell::new(0) };
+}
+
+/// The trapped clone of the shim's pthread_create named `clear_tid` as the word the new thread's
+/// end clears.
+pub(crate) fn note_clone_clear_tid(clear_tid: usize) {
+    CLONE_CLEAR_TID.with(|c| c.set(clear_tid));
+}
+
+/// A thread was created as `thread`: where its id word lies from it tells the offset for every
+/// thread of this libc (glibc's `struct pthread` and its `tid` field).
+fn learn_clear_tid(thread: usize) {
+    let clear_tid = CLONE_CLEAR_TID.with(|c| c.replace(0));
+    if let Some(offset) = clear_tid.checked_sub(thread).filter(|&o| o > 0 && o < 4096 && o % 4 == 0) {
+        CLEAR_TID_OFFSET.store(offset, Ordering::Relaxed);
+    }
+}
+
+/// The id word of `thread` that its end clears, once the offset is known.
+fn clear_tid_word(thread: usize) -> Option<&'static AtomicU32> {
+    let offset = CLEAR_TID_OFFSET.load(Ordering::Relaxed);
+    // SAFETY: the word lies inside the caller's live pthread_t (a join of a thread that is not
+    // joinable is undefined behaviour already), 4-aligned (checked when it was learned).
+    (offset != 0 && thread != 0).then(|| unsafe { &*((thread + offset) as *const AtomicU32) })
+}
+
+/// Wait (wall time, until the monotonic `until`) for `word`, a thread's id, to be cleared by its
+/// end: a spin first, as long as climbsim lets parked threads spin (the thread ending usually
+/// has a CPU of its own and is gone within microseconds), then the kernel's futex, which the
+/// kernel wakes when it clears the word. Whether it was cleared.
+fn wait_cleared(shared: &Shared, word: &AtomicU32, until: &timespec) -> bool {
+    let deadline = crate::time::to_ns(until);
+    let spin_until = crate::time::real_monotonic_ns().saturating_add(shared.header.park_spin_ns.load(Ordering::Relaxed));
+    loop {
+        let tid = word.load(Ordering::Acquire);
+        if tid == 0 {
+            return true;
+        }
+        let now = crate::time::real_monotonic_ns();
+        if now >= deadline {
+            return false;
+        }
+        if now < spin_until {
+            core::hint::spin_loop();
+            continue;
+        }
+        sys::futex_wait(word, tid, deadline - now);
+    }
+}
 
 fn real_deadline_after(ns: u64) -> timespec {
     crate::time::from_ns(crate::time::real_monotonic_ns().saturating_add(ns))
@@ -67,6 +126,16 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         if active().is_none() {
             slot.state.store(state::RUNNING, Ordering::Release);
             break slice_until(shared, deadline, slice);
+        }
+        if slot.state.load(Ordering::Acquire) == state::READY || shared.joins_live_thread(slot) {
+            // Marked ready by the thread joined as it ended, or that thread is followed and has
+            // not ended (nothing else can wake this one): nothing to look at until the turn
+            // comes.
+            let seen = slot.wake_word.load(Ordering::Acquire);
+            if slot.state.load(Ordering::Acquire) != state::RUNNING {
+                sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
+            }
+            continue;
         }
         // A look whenever climbsim asks (threads ran: the one joined may have ended), and one
         // every slice of wall time.
@@ -124,7 +193,14 @@ pub unsafe extern "C" fn pthread_join(thread: usize, result: *mut *mut c_void) -
         return unsafe { next(thread, result) };
     };
     let clockjoin = real!(pthread_clockjoin_np: fn(usize, *mut *mut c_void, clockid_t, *const timespec) -> c_int);
+    let cleared = clear_tid_word(thread);
     let mut slice = |until: &timespec| {
+        // Once the id word is clear, glibc's join returns at once, with no futex call.
+        if let Some(word) = cleared
+            && !wait_cleared(shared, word, until)
+        {
+            return ETIMEDOUT;
+        }
         // The slice's futex wait is the kernel's (its deadline is on the wall clock, and the
         // kernel wakes a join itself when the thread's id is cleared at its exit).
         let _own = crate::OwnCalls::enter();
@@ -149,14 +225,10 @@ unsafe extern "C" fn trampoline(start: *mut c_void) -> *mut c_void {
     unsafe { (start.routine)(start.arg) }
 }
 
-unsafe extern "C" {
-    fn pthread_self() -> usize;
-}
-
 /// The thread is ending: whoever joins it runs from now.
 pub(crate) fn thread_ending() {
     // SAFETY: pthread_self has no preconditions.
-    wake_peers(unsafe { pthread_self() });
+    wake_peers(unsafe { sys::pthread_self() });
 }
 
 #[unsafe(no_mangle)]
@@ -169,6 +241,10 @@ pub unsafe extern "C" fn pthread_create(thread: *mut usize, attr: *const c_void,
     let start = Box::into_raw(Box::new(Start { slot, routine, arg }));
     // SAFETY: our trampoline, with the start it frees.
     let rc = crate::creating_thread(|| unsafe { next(thread, attr, trampoline, start.cast()) });
+    if rc == 0 && CLEAR_TID_OFFSET.load(Ordering::Relaxed) == 0 {
+        // SAFETY: the real pthread_create succeeded and wrote the new thread's id there.
+        learn_clear_tid(unsafe { *thread });
+    }
     if rc != 0 {
         // SAFETY: not handed to any thread.
         drop(unsafe { Box::from_raw(start) });

@@ -251,6 +251,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         summary.insert("virtual_time.released_at_deadline".to_owned(), json!(stats.released_at_deadline));
         summary.insert("virtual_time.released_for_data".to_owned(), json!(stats.released_for_data));
         summary.insert("virtual_time.turns".to_owned(), json!(stats.turns));
+        summary.insert("virtual_time.turns_handed".to_owned(), json!(stats.turns_handed));
         summary.insert("virtual_time.timers_fired".to_owned(), json!(stats.timers_fired));
         summary.insert("virtual_time.signals_fired".to_owned(), json!(stats.signals_fired));
         summary.insert("virtual_time.jumps".to_owned(), json!(stats.jumps));

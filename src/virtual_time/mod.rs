@@ -136,6 +136,8 @@ pub struct VtStats {
     pub jumps: u64,
     /// Turns given: a ready thread let run while no other did.
     pub turns: u64,
+    /// Of the turns, those a parking thread handed on itself, without climbsim.
+    pub turns_handed: u64,
     /// Signal timers (alarm, setitimer, timer_create) fired at a controller thread.
     pub signals_fired: u64,
 }
@@ -195,7 +197,9 @@ impl VirtualTime {
     }
 
     pub fn stats(&self) -> VtStats {
-        *lock(&self.stats)
+        let handed = self.shared().header.turns_handed.load(Ordering::Relaxed);
+        let stats = *lock(&self.stats);
+        VtStats { turns: stats.turns + handed, turns_handed: handed, ..stats }
     }
 
     fn shared(&self) -> &abi::Shared {

@@ -9,7 +9,7 @@
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::abi::{SLOTS, Shared, Slot, state, waits};
+use super::abi::{SLOTS, Shared, Slot, state};
 use super::{futex_wait, futex_wake};
 
 /// A process still going away after this long (wall time) is no longer waited for: something
@@ -44,7 +44,7 @@ impl RealWorld {
     /// and climbsim waits a moment for their answers.
     pub(super) fn settled(&mut self, shared: &Shared) -> bool {
         let header = &shared.header;
-        let waiting = || shared.live_slots().iter().filter(|s| s.state.load(Ordering::Acquire) == state::BLOCKED && s.waits.load(Ordering::Relaxed) & (waits::OTHER | waits::PEER) != 0);
+        let waiting = || shared.live_slots().iter().filter(|s| shared.must_look(s));
         if waiting().next().is_none() {
             return true;
         }

@@ -14,9 +14,7 @@ impl VirtualTime {
     /// runs): the order does not depend on which the host happened to schedule first. A
     /// thread that gave its turn up after a quantum comes after every other ready one.
     pub(super) fn give_turn(&self) -> bool {
-        let slots = self.shared().live_slots();
-        let ready = |s: &&Slot| s.state.load(Ordering::Acquire) == state::READY;
-        let ready = slots.iter().filter(ready).find(|s| s.waits.load(Ordering::Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready));
+        let ready = self.shared().next_turn();
         if let Some(slot) = ready {
             lock(&self.stats).turns += 1;
             self.shared().header.turns_given.fetch_add(1, Ordering::Release);
@@ -53,15 +51,21 @@ impl VirtualTime {
         threads.join("; ")
     }
 
+    /// A thread runs, or may: one is being created, is in a waitpid the kernel is about to
+    /// return from, or is handing its turn on (`Header::hand_ons_begun`: climbsim decides
+    /// nothing on a look that such a hand-over overlapped).
     pub(super) fn any_running(&self) -> bool {
+        let header = &self.shared().header;
+        let ended = header.hand_ons_ended.load(Ordering::SeqCst);
         let slots = self.shared().live_slots();
-        slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
+        let running = slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
             state::RUNNING | state::RESERVED => true,
             // In waitpid: blocked only while a followed child it waits for lives; else the
             // kernel is about to return it (its child has just ended).
             state::BLOCKED if s.waits.load(Ordering::Relaxed) == waits::CHILD => !waits_on_live_child(slots, s) && !watchdog::has_unfollowed_child(slots, s),
             _ => false,
-        })
+        });
+        running || header.hand_ons_begun.load(Ordering::SeqCst) != ended
     }
 
 }
