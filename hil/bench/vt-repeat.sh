@@ -20,6 +20,11 @@ for run in $(seq 1 "$runs"); do
     if timeout 120 "$climbsim" run "$scenario" --clock virtual --out "$work/$run" > "$work/$run.out" 2>&1; then
         passed=$((passed + 1))
         md5sum < "$work/$run/controller.log" >> "$work/logs"
+        # The first log that differs from the first run's, shown once.
+        if [[ ! -e "$work/shown" ]] && ! cmp -s "$work/1/controller.log" "$work/$run/controller.log"; then
+            echo "run $run's controller log differs from run 1's:"; diff "$work/1/controller.log" "$work/$run/controller.log" | head -10
+            touch "$work/shown"
+        fi
         md5sum < "$work/$run/timeseries.csv" >> "$work/series"
     else
         echo "run $run failed:"; tail -3 "$work/$run.out"

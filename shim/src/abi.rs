@@ -359,6 +359,10 @@ pub struct Slot {
     /// S: the thread's `pthread_t` (what `pthread_self` returns in it): a join names the
     /// thread it waits for by it.
     pub thread: AtomicU64,
+    /// S: 1 while the thread hands its turn on (see `Header::hand_ons_begun`): set before the
+    /// hand-over is counted as begun, cleared after it is counted as ended, so that a hand-over
+    /// whose thread was killed in it can be found (the slot's thread is gone) and written off.
+    pub handing: AtomicU32,
 }
 
 /// `SigTimer::state`.

@@ -139,7 +139,7 @@ fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, dea
     // still woken at its waker's very instant. The charge may yield (past the horizon) before
     // the word is checked, as a thread preempted on its way into the kernel would.
     charge(shared, header.syscall_ns.load(Ordering::Relaxed));
-    let hand = crate::park::hand_on(shared);
+    let hand = crate::park::hand_on(shared, slot);
     lock(shared);
     let holds = word_holds(args.uaddr, args.val, args.op & FUTEX_PRIVATE_FLAG != 0);
     if holds != 0 {
@@ -159,7 +159,7 @@ fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, dea
     // blocked and marks it running, whenever it comes.
     crate::publish_parked(slot, state::BLOCKED, deadline, waits::FUTEX, key.space);
     unlock(shared);
-    hand.finish(slot);
+    hand.finish();
     let why = crate::await_release(shared, slot, state::BLOCKED, deadline);
     lock(shared);
     let still_queued = slot.futex_queued.swap(0, Ordering::AcqRel) == 1;

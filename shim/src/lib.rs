@@ -324,9 +324,9 @@ fn start_in_turn(slot: &Slot) {
         Some(shared) => {
             // Its creator has usually parked by now (in a join, say): the turn is then this
             // thread's at once, without climbsim.
-            let hand = park::hand_on(shared);
+            let hand = park::hand_on(shared, slot);
             slot.state.store(state::READY, Ordering::Release);
-            hand.finish(slot);
+            hand.finish();
             await_turn(shared, slot);
         }
         None => slot.state.store(state::RUNNING, Ordering::Release),
@@ -382,7 +382,9 @@ pub(crate) fn creating_thread<T>(create: impl FnOnce() -> T) -> T {
 
 /// Take `slot` if nobody uses it (free, or its thread ended), putting it in state `to`.
 fn take_unused(slot: &Slot, to: u32) -> bool {
-    [state::FREE, state::EXITED].into_iter().any(|from| slot.state.compare_exchange(from, to, Ordering::AcqRel, Ordering::Relaxed).is_ok())
+    // Not while its thread hands its turn on as it ends (nor after it died doing so: climbsim
+    // then writes the hand-over off and clears the mark).
+    slot.handing.load(Ordering::SeqCst) == 0 && [state::FREE, state::EXITED].into_iter().any(|from| slot.state.compare_exchange(from, to, Ordering::AcqRel, Ordering::Relaxed).is_ok())
 }
 
 /// Something the controller did cannot be followed (`abi::refused`: a table had no room, an
@@ -523,9 +525,9 @@ fn exit_slot(slot: &Slot) {
         slot.state.store(state::EXITED, Ordering::Release);
         return;
     };
-    let hand = park::hand_on(shared);
+    let hand = park::hand_on(shared, slot);
     slot.state.store(state::EXITED, Ordering::Release);
-    hand.finish(slot);
+    hand.finish();
 }
 
 /// A forked child is a new process: its threads claim slots of their own. It starts in its

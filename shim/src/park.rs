@@ -120,20 +120,24 @@ pub(crate) fn resume_after_kernel_wake(shared: &Shared, slot: &Slot) {
 /// start and end, or a lock passed between threads, costs in wall time.
 pub(crate) struct HandOn<'a> {
     shared: &'a Shared,
+    me: &'a Slot,
     ended: bool,
 }
 
-/// Begin a hand-over (see [`HandOn`]): before this thread publishes itself parked or ended.
-pub(crate) fn hand_on(shared: &Shared) -> HandOn<'_> {
+/// Begin a hand-over by this thread (`me`, see [`HandOn`]): before it publishes itself parked
+/// or ended. Its slot is marked first, so that climbsim can tell a hand-over that will never
+/// end (its thread was killed in it) from one under way.
+pub(crate) fn hand_on<'a>(shared: &'a Shared, me: &'a Slot) -> HandOn<'a> {
+    me.handing.store(1, Ordering::SeqCst);
     shared.header.hand_ons_begun.fetch_add(1, Ordering::SeqCst);
-    HandOn { shared, ended: false }
+    HandOn { shared, me, ended: false }
 }
 
 impl HandOn<'_> {
     /// This thread (`me`) has published itself parked or ended: the next ready thread takes the
     /// turn at once, if that is what climbsim would do now; else climbsim is told, and decides.
-    pub(crate) fn finish(mut self, me: &Slot) {
-        let outcome = self.hand_to_next(me);
+    pub(crate) fn finish(mut self) {
+        let outcome = self.hand_to_next(self.me);
         self.end();
         if outcome == Handing::ClimbsimDecides {
             notify_scheduler(self.shared);
@@ -184,6 +188,7 @@ impl HandOn<'_> {
         if !self.ended {
             self.ended = true;
             self.shared.header.hand_ons_ended.fetch_add(1, Ordering::SeqCst);
+            self.me.handing.store(0, Ordering::SeqCst);
         }
     }
 }
@@ -298,10 +303,10 @@ pub(crate) fn expect_look(shared: &Shared, slot: &Slot) {
 /// Publish this thread as blocked on what the kernel wakes until `deadline` (simulated ns),
 /// waiting on `waits`, and tell climbsim, which first waits for its look (see [`expect_look`]).
 pub(crate) fn publish_waiting_on_kernel(shared: &Shared, slot: &Slot, deadline: u64, waits: u32, conn_mask: u64) {
-    let hand = hand_on(shared);
+    let hand = hand_on(shared, slot);
     expect_look(shared, slot);
     publish_state(slot, state::BLOCKED, deadline, waits, conn_mask);
-    hand.finish(slot);
+    hand.finish();
 }
 
 /// One look at what the kernel wakes (`look`: Some once something is ready), as climbsim asks:
@@ -373,9 +378,9 @@ pub(crate) fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn
     if slot.signals_due.load(Ordering::Acquire) != 0 && crate::signals::take_due(slot) {
         return release::SIGNAL;
     }
-    let hand = hand_on(shared);
+    let hand = hand_on(shared, slot);
     publish_parked(slot, parked, deadline, waits, conn_mask);
-    hand.finish(slot);
+    hand.finish();
     await_release(shared, slot, parked, deadline)
 }
 

@@ -159,6 +159,7 @@ pub struct VirtualTime {
     held: Mutex<held::HeldBytes>,
     quiet: Mutex<quiet::Quiet>,
     real_world: Mutex<real_world::RealWorld>,
+    hand_ons: Mutex<turns::HandOns>,
 }
 
 impl std::fmt::Debug for VirtualTime {
@@ -189,7 +190,7 @@ impl VirtualTime {
         // Slot 0 is the process climbsim starts (reserve_process).
         header.slots_high.store(1, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()), real_world: Mutex::new(real_world::RealWorld::new()) }))
+        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()), real_world: Mutex::new(real_world::RealWorld::new()), hand_ons: Mutex::default() }))
     }
 
     pub fn settings(&self) -> VtSettings {

@@ -5,6 +5,7 @@
 //! may move the clock (the horizon).
 
 use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
 
 use super::abi::{self, NEVER, Slot, release, state, waits};
 use super::{VirtualTime, futex_wake, lock, watchdog};
@@ -56,7 +57,7 @@ impl VirtualTime {
     /// nothing on a look that such a hand-over overlapped).
     pub(super) fn any_running(&self) -> bool {
         let header = &self.shared().header;
-        let ended = header.hand_ons_ended.load(Ordering::SeqCst);
+        let ended = header.hand_ons_ended.load(Ordering::SeqCst) + lock(&self.hand_ons).abandoned;
         let slots = self.shared().live_slots();
         let running = slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
             state::RUNNING | state::RESERVED => true,
@@ -65,9 +66,52 @@ impl VirtualTime {
             state::BLOCKED if s.waits.load(Ordering::Relaxed) == waits::CHILD => !waits_on_live_child(slots, s) && !watchdog::has_unfollowed_child(slots, s),
             _ => false,
         });
-        running || header.hand_ons_begun.load(Ordering::SeqCst) != ended
+        running || {
+            let begun = header.hand_ons_begun.load(Ordering::SeqCst);
+            begun != ended && !lock(&self.hand_ons).write_off_dead(self.shared(), begun, ended)
+        }
     }
 
+}
+
+/// How long (wall time) the hand-over counts may stand unequal and unchanged before climbsim
+/// looks for hand-overs whose threads were killed in them (a pool's worker ended by SIGTERM).
+const HAND_ON_STALL: Duration = Duration::from_millis(20);
+
+/// Hand-overs of the turn between threads that never ended (see `Header::hand_ons_begun`).
+#[derive(Default)]
+pub(super) struct HandOns {
+    /// Written off: their threads died in them.
+    pub(super) abandoned: u64,
+    /// The counts (begun, ended) last seen unequal, and since when.
+    stalled: Option<(u64, u64, Instant)>,
+}
+
+impl HandOns {
+    /// The counts stand unequal at `begun` and `ended`: once they have stood so for a while,
+    /// every hand-over whose thread is gone is written off. Whether none is under way then.
+    fn write_off_dead(&mut self, shared: &abi::Shared, begun: u64, ended: u64) -> bool {
+        match self.stalled {
+            Some((b, e, since)) if (b, e) == (begun, ended) => {
+                if since.elapsed() < HAND_ON_STALL {
+                    return false;
+                }
+            }
+            _ => {
+                self.stalled = Some((begun, ended, Instant::now()));
+                return false;
+            }
+        }
+        self.stalled = None;
+        for slot in shared.live_slots() {
+            let gone = || watchdog::stat_path(slot).is_none_or(|task| !watchdog::lives(&format!("{task}/stat")));
+            if slot.handing.load(Ordering::SeqCst) == 1 && gone() && slot.handing.swap(0, Ordering::SeqCst) == 1 {
+                tracing::debug!(tid = slot.tid.load(Ordering::Relaxed), "a controller thread died handing its turn on");
+                self.abandoned += 1;
+            }
+        }
+        begun == ended + self.abandoned
+    }
 }
 
 /// `parent`, in waitpid, has a followed child that can end (and so wake it).
