@@ -22,7 +22,7 @@ for run in $(seq 1 "$runs"); do
         md5sum < "$work/$run/controller.log" >> "$work/logs"
         # The first log that differs from the first run's, shown once.
         if [[ ! -e "$work/shown" ]] && ! cmp -s "$work/1/controller.log" "$work/$run/controller.log"; then
-            echo "run $run's controller log differs from run 1's:"; diff "$work/1/controller.log" "$work/$run/controller.log" | head -10
+            echo "run $run's controller log differs from run 1's:"; { diff "$work/1/controller.log" "$work/$run/controller.log" || true; } | head -10
             touch "$work/shown"
         fi
         md5sum < "$work/$run/timeseries.csv" >> "$work/series"
