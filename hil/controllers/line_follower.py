@@ -92,6 +92,16 @@ def check(packet, result, error, what):
         raise RuntimeError(f"{what}: {packet.getRxPacketError(error)}")
 
 
+def write1(packet, port, dxl, address, value, what, attempts=3):
+    """A setup write, tried again when no status came back: a real bus loses a packet now and
+    then (noise, a servo still booting), and a controller that gives up on its first write
+    never starts."""
+    for attempt in range(attempts):
+        result, error = packet.write1ByteTxRx(port, dxl, address, value)
+        if result == COMM_SUCCESS or attempt == attempts - 1:
+            return check(packet, result, error, what)
+
+
 def read_line(url):
     """The sensor server's latest line measurement, or None."""
     try:
@@ -118,12 +128,12 @@ def main():
     if not port.openPort() or not port.setBaudRate(baud):
         sys.exit(f"cannot open {port_name} at {baud} bps")
     for dxl in WHEELS:
-        check(packet, *packet.write1ByteTxRx(port, dxl, ADDR_TORQUE_ENABLE, 0), f"torque off {dxl}")
-        check(packet, *packet.write1ByteTxRx(port, dxl, ADDR_OPERATING_MODE, VELOCITY_MODE), f"velocity mode {dxl}")
-        check(packet, *packet.write1ByteTxRx(port, dxl, ADDR_TORQUE_ENABLE, 1), f"torque on {dxl}")
+        write1(packet, port, dxl, ADDR_TORQUE_ENABLE, 0, f"torque off {dxl}")
+        write1(packet, port, dxl, ADDR_OPERATING_MODE, VELOCITY_MODE, f"velocity mode {dxl}")
+        write1(packet, port, dxl, ADDR_TORQUE_ENABLE, 1, f"torque on {dxl}")
     for dxl in MAGNETS:
         # Passive magnets: they follow the surface normal, their encoders read its angle.
-        check(packet, *packet.write1ByteTxRx(port, dxl, ADDR_TORQUE_ENABLE, 0), f"torque off {dxl}")
+        write1(packet, port, dxl, ADDR_TORQUE_ENABLE, 0, f"torque off {dxl}")
 
     if args.read_current:
         reader = GroupSyncRead(port, packet, ADDR_PRESENT_CURRENT, ADDR_PRESENT_POSITION + 4 - ADDR_PRESENT_CURRENT)

@@ -6,14 +6,18 @@ use std::sync::Arc;
 
 use anyhow::Result;
 
+use climbsim::real_bus::compare::Tolerances;
 use climbsim::runner::Console as _;
+use climbsim::runner::compare::CompareOptions;
 use climbsim::runner::tap::{TapOptions, default_report_path, tap};
 use climbsim::runner::tap_view::TapViewOptions;
 use climbsim::runner::view::LiveAddress;
 
-use super::args::{ROBOT_IN_CHECKOUT, load_robot};
+use super::args::{ROBOT_IN_CHECKOUT, load_robot, robot_path};
+use super::compare::{say_report, verdict};
 use super::console::Terminal;
 use super::interrupt;
+use super::run::parse_overrides;
 
 /// Sit between your controller and the real servos and record the bus: the controller opens
 /// `--link` as it would the adapter, every byte is forwarded both ways as soon as it is read,
@@ -51,13 +55,40 @@ pub struct TapArgs {
     /// Record what `--foxglove` shows into FILE (MCAP).
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
-    /// Robot description: the servos' names and control table, for `--foxglove` and `--mcap`.
+    /// Robot description: the servos' names and control table, for `--foxglove` and `--mcap`,
+    /// and the world's robot for `--scenario`.
     #[arg(long, env = "CLIMBSIM_ROBOT", value_name = "FILE", default_value = ROBOT_IN_CHECKOUT)]
     pub robot: PathBuf,
+    /// Re-enact the session live in this scenario's world as it is recorded (each instruction
+    /// at its instant, open loop, as `compare` does), and compare the world's answers with the
+    /// real ones: when the tap ends, compare.json, the plots and compare.mcap go into
+    /// `--compare-out`, and tap exits 1 if a register is past its tolerance (the transcript and
+    /// the timing report are complete either way; `compare` can set other tolerances after).
+    #[arg(long, value_name = "FILE")]
+    pub scenario: Option<PathBuf>,
+    /// Override a key of the world (repeatable, with `--scenario`): the scenario's, the robot
+    /// description's (`robot.…`) or the firmware profile's (`profile.…`).
+    #[arg(long = "set", value_name = "KEY=VALUE", requires = "scenario")]
+    pub set: Vec<String>,
+    /// Where `--scenario`'s comparison goes (default: beside the transcript, NAME.compare).
+    #[arg(long, value_name = "DIR", requires = "scenario")]
+    pub compare_out: Option<PathBuf>,
+}
+
+/// `--scenario`'s comparison: the shipped tolerances, into `--compare-out`.
+fn world_options(args: &TapArgs) -> Result<Option<CompareOptions>> {
+    let Some(scenario) = &args.scenario else { return Ok(None) };
+    let robot = robot_path(&args.robot);
+    let out = args.compare_out.clone().unwrap_or_else(|| {
+        let stem = args.record.file_stem().map_or_else(|| "tap".into(), |s| s.to_string_lossy().into_owned());
+        args.record.with_file_name(format!("{stem}.compare"))
+    });
+    Ok(Some(CompareOptions { scenario: scenario.clone(), overrides: parse_overrides(&args.set)?, robot, tolerances: Tolerances::default(), out }))
 }
 
 pub fn exec(args: TapArgs) -> Result<()> {
     interrupt::install()?;
+    let world = world_options(&args)?;
     let report = args.report.unwrap_or_else(|| default_report_path(&args.record));
     let view = if args.foxglove.is_some() || args.mcap.is_some() {
         let robot = load_robot(&args.robot)?;
@@ -66,7 +97,7 @@ pub fn exec(args: TapArgs) -> Result<()> {
     } else {
         None
     };
-    let options = TapOptions { device: args.device, link: args.link, record: args.record, report, baud: args.baud, low_latency: args.low_latency, view };
+    let options = TapOptions { device: args.device, link: args.link, record: args.record, report, baud: args.baud, low_latency: args.low_latency, view, world };
     let outcome = tap(&options, interrupt::flag(), |port, live| {
         Terminal.say(&format!("port: {}", port.display()));
         if let Some(url) = live {
@@ -82,5 +113,12 @@ pub fn exec(args: TapArgs) -> Result<()> {
         options.report.display()
     ));
     Terminal.note(&outcome.report.table());
-    Ok(())
+    match (&outcome.comparison, &options.world) {
+        (Some(comparison), Some(world)) => {
+            say_report(&options.record, &world.scenario, comparison);
+            Terminal.say(&format!("wrote {}: compare.json, compare.mcap, plots/", world.out.display()));
+            verdict(comparison)
+        }
+        _ => Ok(()),
+    }
 }

@@ -11,6 +11,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
 use serde::Serialize;
@@ -19,8 +20,8 @@ use thiserror::Error;
 use tracing::info_span;
 
 use super::RunError;
-use super::observe::scenario_bus;
-use crate::bus::Timing;
+use super::observe::{Observer, scenario_bus};
+use crate::bus::{Bus, Timing};
 use crate::device::FirmwareProfile;
 use crate::real_bus::compare::{Comparison, RegisterSeries, RegisterStats, Tolerances, fast_blocks, is_fast_read, read_spans, registers_in};
 use crate::runner::view::{ReadingsTopic, ServoReadings, ViewOptions};
@@ -170,104 +171,161 @@ pub fn write_report(report: &CompareReport, out: &Path) -> Result<(), CompareErr
 /// (`recording`, if given: an MCAP of the world, its bus packets and both sides' readings).
 pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOptions, recording: Option<&Path>) -> Result<CompareReport, CompareError> {
     let _span = info_span!("compare", transcript = %path.display(), scenario = %options.scenario.display()).entered();
-    let (overrides, robot_sets) = RobotOverrides::split(&options.overrides);
-    let scenario = Scenario::load_with(&options.scenario, &overrides)?;
-    let robot = RobotDescription::load_with(&options.robot, &robot_sets)?;
-    let (mut bus, mut observer) = scenario_bus(&scenario, &robot, Timing::Wire, None)?;
-    if let Some(recording) = recording {
-        observer.start_view(&ViewOptions { mcap: Some(recording.to_owned()), live: None, packets: true, compare: true }, &mut bus)?;
-    }
-    // The servos' profile decodes the replies; their control period is the world's tick.
-    let Some(servo) = bus.servos().first() else { return Err(CompareError::NothingToCompare { path: path.to_owned() }) };
-    let (profile, tick) = (std::sync::Arc::clone(servo.profile()), servo.control_period());
-    let mut next_tick = tick;
-    let wheels = robot.servo.iter().filter(|servo| servo.role == crate::parts::ServoRole::WheelDrive).map(|servo| servo.id);
-    let mut comparison = Comparison::new(wheels);
-    let (mut instructions, mut compared, mut missed) = (0u64, 0u64, 0u64);
-    let mut latencies: BTreeMap<u8, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
-    let mut last = Duration::ZERO;
-    let record_error = |line: usize, message: String| CompareError::Record { path: path.to_owned(), line, message };
+    let mut world = Reenactor::new(path, options, recording)?;
     for (line, record) in &transcript.records {
-        let RealRecord::Tx { t, end, baud, hex, replies, .. } = record else { continue };
-        let at = Duration::from_nanos(*t);
-        if at < last {
-            return Err(record_error(*line, format!("t = {:.6} s is before the instruction before it ({:.6} s): a tap writes them in order", at.as_secs_f64(), last.as_secs_f64())));
+        world.instruction(*line, record)?;
+    }
+    world.finish()
+}
+
+/// A real session re-enacted in a scenario's world one instruction at a time, as the
+/// instructions come: from a transcript ([`reenact`]), or live, beside the real servos, from
+/// `climbsim tap --scenario` (the same records in the same order give the same report).
+pub struct Reenactor {
+    /// The transcript's path (for errors, and the report).
+    transcript: PathBuf,
+    options: CompareOptions,
+    bus: Bus,
+    observer: Observer,
+    /// The servos' profile decodes the replies; their control period is the world's tick.
+    profile: Arc<FirmwareProfile>,
+    tick: Duration,
+    next_tick: Duration,
+    comparison: Comparison,
+    instructions: u64,
+    compared: u64,
+    missed: u64,
+    /// Per servo: reply latencies (µs), real and in the wire model.
+    latencies: BTreeMap<u8, (Vec<f64>, Vec<f64>)>,
+    /// The last instruction's time: they come in order.
+    last: Duration,
+}
+
+impl Reenactor {
+    /// The scenario's world at the session's start (`transcript` names the session), recorded
+    /// into `recording` if given.
+    pub fn new(transcript: &Path, options: &CompareOptions, recording: Option<&Path>) -> Result<Self, CompareError> {
+        let (overrides, robot_sets) = RobotOverrides::split(&options.overrides);
+        let scenario = Scenario::load_with(&options.scenario, &overrides)?;
+        let robot = RobotDescription::load_with(&options.robot, &robot_sets)?;
+        let (mut bus, mut observer) = scenario_bus(&scenario, &robot, Timing::Wire, None)?;
+        if let Some(recording) = recording {
+            observer.start_view(&ViewOptions { mcap: Some(recording.to_owned()), live: None, packets: true, compare: true }, &mut bus)?;
         }
-        last = at;
-        while next_tick <= at {
-            bus.advance(next_tick);
-            if let Some(error) = observer.on_tick(&mut bus, next_tick).error {
+        let Some(servo) = bus.servos().first() else { return Err(CompareError::NothingToCompare { path: transcript.to_owned() }) };
+        let (profile, tick) = (Arc::clone(servo.profile()), servo.control_period());
+        let wheels = robot.servo.iter().filter(|servo| servo.role == crate::parts::ServoRole::WheelDrive).map(|servo| servo.id);
+        Ok(Self {
+            transcript: transcript.to_owned(),
+            options: options.clone(),
+            bus,
+            observer,
+            profile,
+            tick,
+            next_tick: tick,
+            comparison: Comparison::new(wheels),
+            instructions: 0,
+            compared: 0,
+            missed: 0,
+            latencies: BTreeMap::new(),
+            last: Duration::ZERO,
+        })
+    }
+
+    fn record_error(&self, line: usize, message: String) -> CompareError {
+        CompareError::Record { path: self.transcript.clone(), line, message }
+    }
+
+    /// The next record of the session (at `line` of its transcript): an instruction is handed to
+    /// the world at its recorded instant, after the world has ticked up to it, and the world's
+    /// answers are set beside the real ones. Other records are skipped.
+    pub fn instruction(&mut self, line: usize, record: &RealRecord) -> Result<(), CompareError> {
+        let RealRecord::Tx { t, end, baud, hex, replies, .. } = record else { return Ok(()) };
+        let at = Duration::from_nanos(*t);
+        if at < self.last {
+            return Err(self.record_error(line, format!("t = {:.6} s is before the instruction before it ({:.6} s): a tap writes them in order", at.as_secs_f64(), self.last.as_secs_f64())));
+        }
+        self.last = at;
+        while self.next_tick <= at {
+            self.bus.advance(self.next_tick);
+            if let Some(error) = self.observer.on_tick(&mut self.bus, self.next_tick).error {
                 return Err(CompareError::Run(error));
             }
-            next_tick += tick;
+            self.next_tick += self.tick;
         }
-        let packet = packet_from_hex(hex).map_err(|message| record_error(*line, message))?;
+        let packet = packet_from_hex(hex).map_err(|message| self.record_error(line, message))?;
         let (spans, fast) = (read_spans(&packet), is_fast_read(&packet));
-        let transaction = bus.handle(packet, at, Some(*baud));
-        instructions += 1;
+        let transaction = self.bus.handle(packet, at, Some(*baud));
+        self.instructions += 1;
+        let profile = Arc::clone(&self.profile);
         // Both sides' readings of this instruction, for the recording.
         let mut readings = (Vec::new(), Vec::new());
         if fast {
             // One combined reply each, split per servo; no per-servo latency to set beside the
             // wire model's.
-            let real = replies.first().map(|r| packet_from_hex(&r.hex)).transpose().map_err(|message| record_error(*line, format!("a reply: {message}")))?;
-            let sim = transaction.replies.first().map(|r| packet_from_bytes(&r.bytes)).transpose().map_err(|message| record_error(*line, format!("the world's reply: {message}")))?;
+            let real = replies.first().map(|r| packet_from_hex(&r.hex)).transpose().map_err(|message| self.record_error(line, format!("a reply: {message}")))?;
+            let sim = transaction.replies.first().map(|r| packet_from_bytes(&r.bytes)).transpose().map_err(|message| self.record_error(line, format!("the world's reply: {message}")))?;
             let (Some(real), Some(sim)) = (real, sim) else {
-                missed += u64::from(!replies.is_empty());
-                continue;
+                self.missed += u64::from(!replies.is_empty());
+                return Ok(());
             };
             let simulated = fast_blocks(&sim, &spans);
             let at_s = replies.first().map_or(0.0, |r| Duration::from_nanos(r.t).as_secs_f64());
             for (id, address, real_data) in fast_blocks(&real, &spans) {
                 let Some(&(_, _, sim_data)) = simulated.iter().find(|(of, _, _)| *of == id) else {
-                    missed += 1;
+                    self.missed += 1;
                     continue;
                 };
-                let name = observer.view().and(observer.servo_name(id));
-                add_pair(&mut comparison, &mut readings, &profile, name, (id, address, at_s), (real_data, sim_data));
-                compared += 1;
+                let name = self.observer.view().and(self.observer.servo_name(id));
+                add_pair(&mut self.comparison, &mut readings, &profile, name, (id, address, at_s), (real_data, sim_data));
+                self.compared += 1;
             }
         }
         for reply in replies.iter().filter(|_| !fast) {
-            let real = packet_from_hex(&reply.hex).map_err(|message| record_error(*line, format!("a reply: {message}")))?;
-            let sim = transaction.replies.iter().find(|r| r.from == [reply.id]);
-            let Some(sim) = sim else {
-                missed += 1;
+            let real = packet_from_hex(&reply.hex).map_err(|message| self.record_error(line, format!("a reply: {message}")))?;
+            let Some(sim) = transaction.replies.iter().find(|r| r.from == [reply.id]) else {
+                self.missed += 1;
                 continue;
             };
-            let entry = latencies.entry(reply.id).or_default();
+            let entry = self.latencies.entry(reply.id).or_default();
             entry.0.push(Duration::from_nanos(reply.t.saturating_sub(*end)).as_secs_f64() * 1e6);
             entry.1.push(sim.start.saturating_sub(transaction.instruction_end).as_secs_f64() * 1e6);
             let Some(&(_, address, _)) = spans.iter().find(|(id, _, _)| *id == reply.id) else { continue };
-            let sim_packet = packet_from_bytes(&sim.bytes).map_err(|message| record_error(*line, format!("the world's reply: {message}")))?;
+            let sim_packet = packet_from_bytes(&sim.bytes).map_err(|message| self.record_error(line, format!("the world's reply: {message}")))?;
             if let (Ok(real_data), Ok(sim_data)) = (real.status_data(), sim_packet.status_data()) {
-                let name = observer.view().and(observer.servo_name(reply.id));
-                add_pair(&mut comparison, &mut readings, &profile, name, (reply.id, address, Duration::from_nanos(reply.t).as_secs_f64()), (real_data, sim_data));
-                compared += 1;
+                let name = self.observer.view().and(self.observer.servo_name(reply.id));
+                add_pair(&mut self.comparison, &mut readings, &profile, name, (reply.id, address, Duration::from_nanos(reply.t).as_secs_f64()), (real_data, sim_data));
+                self.compared += 1;
             }
         }
-        if let Some(view) = observer.view() {
+        if let Some(view) = self.observer.view() {
             view.readings(ReadingsTopic::Robot, at, &readings.0);
             view.readings(ReadingsTopic::World, at, &readings.1);
         }
+        Ok(())
     }
-    if compared == 0 {
-        return Err(CompareError::NothingToCompare { path: path.to_owned() });
+
+    /// The session is over: the recording gets its final name, and the comparison is made.
+    pub fn finish(mut self) -> Result<CompareReport, CompareError> {
+        if self.compared == 0 {
+            return Err(CompareError::NothingToCompare { path: self.transcript });
+        }
+        self.observer.finish_view()?;
+        let latency = std::mem::take(&mut self.latencies).into_iter().map(|(id, (mut real, mut model))| LatencyComparison { id, replies: real.len(), real_median_us: median(&mut real), model_median_us: median(&mut model) }).collect();
+        let options = &self.options;
+        Ok(CompareReport {
+            transcript: self.transcript.clone(),
+            scenario: options.scenario.clone(),
+            robot: options.robot.clone(),
+            overrides: options.overrides.iter().map(|o| o.to_string()).collect(),
+            instructions: self.instructions,
+            replies_compared: self.compared,
+            replies_the_world_missed: self.missed,
+            registers: self.comparison.stats(&self.profile, &options.tolerances),
+            latency,
+            series: self.comparison.series().cloned().collect(),
+        })
     }
-    observer.finish_view()?;
-    let latency = latencies.into_iter().map(|(id, (mut real, mut model))| LatencyComparison { id, replies: real.len(), real_median_us: median(&mut real), model_median_us: median(&mut model) }).collect();
-    Ok(CompareReport {
-        transcript: path.to_owned(),
-        scenario: options.scenario.clone(),
-        robot: options.robot.clone(),
-        overrides: options.overrides.iter().map(|o| o.to_string()).collect(),
-        instructions,
-        replies_compared: compared,
-        replies_the_world_missed: missed,
-        registers: comparison.stats(&profile, &options.tolerances),
-        latency,
-        series: comparison.series().cloned().collect(),
-    })
 }
 
 /// One servo's answer to a read, as the robot and the world gave it: compared register by

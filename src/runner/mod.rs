@@ -27,6 +27,7 @@ pub mod signals;
 pub mod sweep;
 pub mod tap;
 pub mod tap_view;
+pub mod tap_world;
 pub mod ticks;
 pub mod view;
 

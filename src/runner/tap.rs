@@ -2,8 +2,9 @@
 //! controller opens a pseudo-terminal as it would the adapter; every byte is forwarded to the
 //! serial device as soon as it is read, and every byte back, unaltered (nothing dropped, added
 //! or reordered). Both directions are framed and paired ([`crate::real_bus`]) and written as a
-//! real bus's transcript, with a timing report of the servos at the end, and shown in Foxglove
-//! if asked ([`super::tap_view`]).
+//! real bus's transcript, with a timing report of the servos at the end, shown in Foxglove
+//! if asked ([`super::tap_view`]), and re-enacted live in a scenario's world if asked
+//! ([`super::tap_world`]).
 //!
 //! One thread polls both descriptors with poll(2) (no reactor between the two: a byte read is
 //! written to the other side within the same wake-up). The controller's rate is followed: when
@@ -24,7 +25,9 @@ use crate::transcript::{Recorder, nanos};
 use crate::transport::latency::{self, LowLatencyGuard};
 use crate::transport::{DeviceSettings, Echo, LineSettings, SerialDevice, VirtualPort, queued_bytes};
 
+use super::compare::{CompareOptions, CompareReport};
 use super::tap_view::{TapView, TapViewOptions};
+use super::tap_world::TapWorld;
 use super::{Result, RunnerError};
 
 /// How often the loop looks at the stop flag while both sides are quiet.
@@ -51,6 +54,9 @@ pub struct TapOptions {
     pub low_latency: bool,
     /// Show the real servos in Foxglove, live or recorded (`--foxglove`, `--mcap`).
     pub view: Option<TapViewOptions>,
+    /// Re-enact the session live in a scenario's world, and compare (`--scenario`; the
+    /// comparison goes into the options' `out`).
+    pub world: Option<CompareOptions>,
 }
 
 /// How the session went.
@@ -61,6 +67,8 @@ pub struct TapOutcome {
     pub from_controller: u64,
     pub from_servos: u64,
     pub report: TimingReport,
+    /// The live comparison with the world (`--scenario`).
+    pub comparison: Option<CompareReport>,
 }
 
 /// The default timing report's path: beside the transcript, `NAME.timing.json`.
@@ -91,10 +99,11 @@ pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path, Op
     let header = RealHeader::new(&options.device, &options.link, options.baud, started_unix_ns);
     let recorder = Recorder::create(&options.record, &header).map_err(|e| RunnerError::during("tap --record", e))?;
     let view = options.view.as_ref().map(TapView::start).transpose()?;
+    let world = options.world.as_ref().map(|compare| TapWorld::start(&options.record, compare)).transpose()?;
     info!(device = %options.device.display(), link = %port.path().display(), baud = options.baud, "tap ready");
     ready(port.path(), view.as_ref().and_then(TapView::live_url));
 
-    let mut bridge = Bridge { device: &device, port: &port, recorder: &recorder, view, pairing: Pairing::default(), tally: TimingTally::default(), started: Instant::now(), baud: options.baud, from_controller: 0, from_servos: 0 };
+    let mut bridge = Bridge { device: &device, port: &port, recorder: &recorder, view, world, pairing: Pairing::default(), tally: TimingTally::default(), started: Instant::now(), baud: options.baud, from_controller: 0, from_servos: 0 };
     let ended = bridge.run(stop);
     let at = bridge.started.elapsed();
     for event in bridge.pairing.finish(at) {
@@ -107,7 +116,9 @@ pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path, Op
     write_report(&options.report, &report)?;
     finished.map_err(|e| RunnerError::during("tap --record", e))?;
     view_finished?;
-    Ok(TapOutcome { ended, from_controller, from_servos, report })
+    // Last: the transcript and the timing report are complete whatever the world makes of it.
+    let comparison = bridge.world.take().map(TapWorld::finish).transpose()?;
+    Ok(TapOutcome { ended, from_controller, from_servos, report, comparison })
 }
 
 fn write_report(path: &Path, report: &TimingReport) -> Result<()> {
@@ -121,6 +132,8 @@ struct Bridge<'a> {
     recorder: &'a Recorder,
     /// Where the events are shown too, if anywhere.
     view: Option<TapView>,
+    /// The world re-enacting the session, if asked: it gets every record written.
+    world: Option<TapWorld>,
     pairing: Pairing,
     tally: TimingTally,
     started: Instant,
@@ -217,7 +230,7 @@ impl Bridge<'_> {
             Ok(()) => {
                 info!(baud, "the controller switched its port's rate; the device follows");
                 self.baud = baud;
-                self.recorder.append(&RealRecord::Baud { t: nanos(at), baud });
+                self.append(&RealRecord::Baud { t: nanos(at), baud });
             }
             Err(error) => warn!(%error, "cannot follow the controller's rate"),
         }
@@ -225,9 +238,17 @@ impl Bridge<'_> {
 
     fn record(&mut self, event: &Event) {
         self.tally.add(event);
-        self.recorder.append(&RealRecord::from_event(event));
+        self.append(&RealRecord::from_event(event));
         if let Some(view) = &mut self.view {
             view.send(event);
+        }
+    }
+
+    /// A record into the transcript, and to the world.
+    fn append(&self, record: &RealRecord) {
+        self.recorder.append(record);
+        if let Some(world) = &self.world {
+            world.send(record);
         }
     }
 }
