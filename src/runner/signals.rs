@@ -78,11 +78,15 @@ pub struct SignalsComparison {
     pub rms_difference_m: Option<f64>,
 }
 
+/// One of the step's metrics, if the step has it.
+type Metric = fn(&StepCharacteristics) -> Option<f64>;
+
 impl SignalsComparison {
     /// A table for the terminal: each metric, the robot's, the world's and their difference.
     pub fn table(&self) -> String {
-        let pick = |side: &OffsetStep, f: fn(&StepCharacteristics) -> Option<f64>| side.step.as_ref().and_then(f);
-        let rows: [(&str, fn(&StepCharacteristics) -> Option<f64>, f64, &str); 4] = [
+        let pick = |side: &OffsetStep, f: Metric| side.step.as_ref().and_then(f);
+        // (name, the metric, its scale to the unit shown, the unit)
+        let rows: [(&str, Metric, f64, &str); 4] = [
             ("rise time", |s| s.rise_time, 1.0, "s"),
             ("settling time", |s| s.settling_time, 1.0, "s"),
             ("overshoot", |s| Some(s.overshoot_pct), 1.0, "%"),
