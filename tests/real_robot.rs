@@ -102,6 +102,9 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     // The live comparison with the shipped world fails, as `compare` does below.
     assert_eq!(tap.wait(Duration::from_secs(30)).code(), Some(1), "{}", tap.stderr());
     assert!(tap.stderr().contains("the world differs from the robot past tolerance"), "{}", tap.stderr());
+    // Both live views were served: the real servos, and the world re-enacting them.
+    let said = tap.stdout();
+    assert!(said.contains("foxglove: ws://127.0.0.1:") && said.contains("foxglove (the world re-enacting the session): ws://127.0.0.1:"), "{said}");
     drop(real_robot);
     drop(live);
 

@@ -11,6 +11,7 @@ use climbsim::runner::Console as _;
 use climbsim::runner::compare::CompareOptions;
 use climbsim::runner::tap::{TapOptions, default_report_path, tap};
 use climbsim::runner::tap_view::TapViewOptions;
+use climbsim::runner::tap_world::TapWorldOptions;
 use climbsim::runner::view::LiveAddress;
 
 use super::args::{ROBOT_IN_CHECKOUT, load_robot, robot_path};
@@ -49,7 +50,8 @@ pub struct TapArgs {
     pub low_latency: bool,
     /// Show the real servos live in Foxglove: their registers as their read replies say, on
     /// `/servos` (the shipped layout's plots), every record on `/bus/packets`, missed replies
-    /// and errors on `/log`; at 127.0.0.1:8765 or `--foxglove=ADDR`.
+    /// and errors on `/log`; at 127.0.0.1:8765 or `--foxglove=ADDR`. With `--scenario`, the
+    /// world re-enacting the session is served too, on the next port (its URL is printed).
     #[arg(long = "foxglove", value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
     pub foxglove: Option<LiveAddress>,
     /// Record what `--foxglove` shows into FILE (MCAP).
@@ -75,15 +77,18 @@ pub struct TapArgs {
     pub compare_out: Option<PathBuf>,
 }
 
-/// `--scenario`'s comparison: the shipped tolerances, into `--compare-out`.
-fn world_options(args: &TapArgs) -> Result<Option<CompareOptions>> {
+/// `--scenario`'s comparison (the shipped tolerances, into `--compare-out`), and where the
+/// world is served live with `--foxglove`: on the next port (the kernel's pick for port 0).
+fn world_options(args: &TapArgs) -> Result<Option<TapWorldOptions>> {
     let Some(scenario) = &args.scenario else { return Ok(None) };
     let robot = robot_path(&args.robot);
     let out = args.compare_out.clone().unwrap_or_else(|| {
         let stem = args.record.file_stem().map_or_else(|| "tap".into(), |s| s.to_string_lossy().into_owned());
         args.record.with_file_name(format!("{stem}.compare"))
     });
-    Ok(Some(CompareOptions { scenario: scenario.clone(), overrides: parse_overrides(&args.set)?, robot, tolerances: Tolerances::default(), out }))
+    let compare = CompareOptions { scenario: scenario.clone(), overrides: parse_overrides(&args.set)?, robot, tolerances: Tolerances::default(), out };
+    let live = args.foxglove.as_ref().map(|servos| LiveAddress { host: servos.host.clone(), port: if servos.port == 0 { 0 } else { servos.port.saturating_add(1) } });
+    Ok(Some(TapWorldOptions { compare, live }))
 }
 
 pub fn exec(args: TapArgs) -> Result<()> {
@@ -98,10 +103,13 @@ pub fn exec(args: TapArgs) -> Result<()> {
         None
     };
     let options = TapOptions { device: args.device, link: args.link, record: args.record, report, baud: args.baud, low_latency: args.low_latency, view, world };
-    let outcome = tap(&options, interrupt::flag(), |port, live| {
-        Terminal.say(&format!("port: {}", port.display()));
-        if let Some(url) = live {
+    let outcome = tap(&options, interrupt::flag(), |ready| {
+        Terminal.say(&format!("port: {}", ready.port.display()));
+        if let Some(url) = ready.servos_url {
             Terminal.say(&format!("foxglove: {url}"));
+        }
+        if let Some(url) = ready.world_url {
+            Terminal.say(&format!("foxglove (the world re-enacting the session): {url}"));
         }
     })?;
     Terminal.note(&format!(
@@ -115,8 +123,8 @@ pub fn exec(args: TapArgs) -> Result<()> {
     Terminal.note(&outcome.report.table());
     match (&outcome.comparison, &options.world) {
         (Some(comparison), Some(world)) => {
-            say_report(&options.record, &world.scenario, comparison);
-            Terminal.say(&format!("wrote {}: compare.json, compare.mcap, plots/", world.out.display()));
+            say_report(&options.record, &world.compare.scenario, comparison);
+            Terminal.say(&format!("wrote {}: compare.json, compare.mcap, plots/", world.compare.out.display()));
             verdict(comparison)
         }
         _ => Ok(()),

@@ -24,7 +24,7 @@ use super::observe::{Observer, scenario_bus};
 use crate::bus::{Bus, Timing};
 use crate::device::FirmwareProfile;
 use crate::real_bus::compare::{Comparison, RegisterSeries, RegisterStats, Tolerances, fast_blocks, is_fast_read, read_spans, registers_in};
-use crate::runner::view::{ReadingsTopic, ServoReadings, ViewOptions};
+use crate::runner::view::{LiveAddress, ReadingsTopic, ServoReadings, ViewOptions};
 use crate::report::{PlotLabels, PlotSeries, plot_series};
 use crate::real_bus::{RealRecord, RealTranscript};
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
@@ -171,7 +171,7 @@ pub fn write_report(report: &CompareReport, out: &Path) -> Result<(), CompareErr
 /// (`recording`, if given: an MCAP of the world, its bus packets and both sides' readings).
 pub fn reenact(transcript: &RealTranscript, path: &Path, options: &CompareOptions, recording: Option<&Path>) -> Result<CompareReport, CompareError> {
     let _span = info_span!("compare", transcript = %path.display(), scenario = %options.scenario.display()).entered();
-    let mut world = Reenactor::new(path, options, recording)?;
+    let mut world = Reenactor::new(path, options, recording, None)?;
     for (line, record) in &transcript.records {
         world.instruction(*line, record)?;
     }
@@ -199,19 +199,19 @@ pub struct Reenactor {
     latencies: BTreeMap<u8, (Vec<f64>, Vec<f64>)>,
     /// The last instruction's time: they come in order.
     last: Duration,
+    /// Where a live viewer sees the world, when it is served live.
+    live_url: Option<String>,
 }
 
 impl Reenactor {
     /// The scenario's world at the session's start (`transcript` names the session), recorded
-    /// into `recording` if given.
-    pub fn new(transcript: &Path, options: &CompareOptions, recording: Option<&Path>) -> Result<Self, CompareError> {
+    /// into `recording` and served live at `live` if given.
+    pub fn new(transcript: &Path, options: &CompareOptions, recording: Option<&Path>, live: Option<LiveAddress>) -> Result<Self, CompareError> {
         let (overrides, robot_sets) = RobotOverrides::split(&options.overrides);
         let scenario = Scenario::load_with(&options.scenario, &overrides)?;
         let robot = RobotDescription::load_with(&options.robot, &robot_sets)?;
         let (mut bus, mut observer) = scenario_bus(&scenario, &robot, Timing::Wire, None)?;
-        if let Some(recording) = recording {
-            observer.start_view(&ViewOptions { mcap: Some(recording.to_owned()), live: None, packets: true, compare: true }, &mut bus)?;
-        }
+        let live_url = observer.start_view(&ViewOptions { mcap: recording.map(Path::to_owned), live, packets: true, compare: true }, &mut bus)?;
         let Some(servo) = bus.servos().first() else { return Err(CompareError::NothingToCompare { path: transcript.to_owned() }) };
         let (profile, tick) = (Arc::clone(servo.profile()), servo.control_period());
         let wheels = robot.servo.iter().filter(|servo| servo.role == crate::parts::ServoRole::WheelDrive).map(|servo| servo.id);
@@ -229,7 +229,13 @@ impl Reenactor {
             missed: 0,
             latencies: BTreeMap::new(),
             last: Duration::ZERO,
+            live_url,
         })
+    }
+
+    /// Where a live viewer sees the world (`ws://…`), when it is served live.
+    pub fn live_url(&self) -> Option<&str> {
+        self.live_url.as_deref()
     }
 
     fn record_error(&self, line: usize, message: String) -> CompareError {

@@ -25,9 +25,9 @@ use crate::transcript::{Recorder, nanos};
 use crate::transport::latency::{self, LowLatencyGuard};
 use crate::transport::{DeviceSettings, Echo, LineSettings, SerialDevice, VirtualPort, queued_bytes};
 
-use super::compare::{CompareOptions, CompareReport};
+use super::compare::CompareReport;
 use super::tap_view::{TapView, TapViewOptions};
-use super::tap_world::TapWorld;
+use super::tap_world::{TapWorld, TapWorldOptions};
 use super::{Result, RunnerError};
 
 /// How often the loop looks at the stop flag while both sides are quiet.
@@ -56,7 +56,7 @@ pub struct TapOptions {
     pub view: Option<TapViewOptions>,
     /// Re-enact the session live in a scenario's world, and compare (`--scenario`; the
     /// comparison goes into the options' `out`).
-    pub world: Option<CompareOptions>,
+    pub world: Option<TapWorldOptions>,
 }
 
 /// How the session went.
@@ -77,11 +77,19 @@ pub fn default_report_path(record: &Path) -> PathBuf {
     record.with_file_name(format!("{stem}.timing.json"))
 }
 
-/// Run the bridge until `stop` is set or the device goes away; `ready` is called with the
-/// controller's port once it can be opened, and the live view's URL if there is one. The
+/// Where the tap shows what it does, once it is ready: the port the controller opens, and the
+/// live views' URLs (the real servos; the world re-enacting them).
+pub struct TapReady<'a> {
+    pub port: &'a Path,
+    pub servos_url: Option<&'a str>,
+    pub world_url: Option<&'a str>,
+}
+
+/// Run the bridge until `stop` is set or the device goes away; `ready` is called once the
+/// controller's port can be opened, with where everything is shown. The
 /// transcript ends with an `end` line and the timing report is written whichever way the
 /// session ends.
-pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path, Option<&str>)) -> Result<TapOutcome> {
+pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&TapReady<'_>)) -> Result<TapOutcome> {
     // The device and the port register with a reactor when opened; this thread never polls it
     // (it polls the descriptors itself), but they need one to exist.
     let runtime = tokio::runtime::Builder::new_current_thread().enable_io().build().map_err(|e| RunnerError::during("cannot start the tap's runtime", e))?;
@@ -101,7 +109,7 @@ pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&Path, Op
     let view = options.view.as_ref().map(TapView::start).transpose()?;
     let world = options.world.as_ref().map(|compare| TapWorld::start(&options.record, compare)).transpose()?;
     info!(device = %options.device.display(), link = %port.path().display(), baud = options.baud, "tap ready");
-    ready(port.path(), view.as_ref().and_then(TapView::live_url));
+    ready(&TapReady { port: port.path(), servos_url: view.as_ref().and_then(TapView::live_url), world_url: world.as_ref().and_then(TapWorld::live_url) });
 
     let mut bridge = Bridge { device: &device, port: &port, recorder: &recorder, view, world, pairing: Pairing::default(), tally: TimingTally::default(), started: Instant::now(), baud: options.baud, from_controller: 0, from_servos: 0 };
     let ended = bridge.run(stop);

@@ -15,6 +15,7 @@ use std::thread::JoinHandle;
 
 use crate::real_bus::RealRecord;
 use crate::runner::compare::{COMPARE_MCAP, CompareError, CompareOptions, CompareReport, Reenactor, write_report};
+use crate::runner::view::LiveAddress;
 
 use super::{Result, RunnerError};
 
@@ -23,26 +24,43 @@ pub struct TapWorld {
     queue: Sender<RealRecord>,
     thread: JoinHandle<std::result::Result<CompareReport, CompareError>>,
     out: std::path::PathBuf,
+    live_url: Option<String>,
+}
+
+/// What `tap --scenario` re-enacts the session in, and where it shows it.
+#[derive(Debug, Clone)]
+pub struct TapWorldOptions {
+    /// The world, and where the comparison goes (`out`).
+    pub compare: CompareOptions,
+    /// Serve the world live to Foxglove there (`--foxglove` with `--scenario`), beside the
+    /// tap's own view of the real servos.
+    pub live: Option<LiveAddress>,
 }
 
 impl TapWorld {
     /// Start the world's thread for the session recorded into `transcript`; the world (the
     /// scenario, the robot, the recording) is made there, and a failure to make it is returned
     /// here, before the session starts.
-    pub fn start(transcript: &Path, options: &CompareOptions) -> Result<Self> {
-        std::fs::create_dir_all(&options.out).map_err(|e| RunnerError::during(format!("tap --scenario: creating {}", options.out.display()), e))?;
+    pub fn start(transcript: &Path, options: &TapWorldOptions) -> Result<Self> {
+        let out = options.compare.out.clone();
+        std::fs::create_dir_all(&out).map_err(|e| RunnerError::during(format!("tap --scenario: creating {}", out.display()), e))?;
         let (queue, records) = channel::<RealRecord>();
-        let (started, start_result) = sync_channel::<std::result::Result<(), CompareError>>(1);
-        let (transcript, compare) = (transcript.to_owned(), options.clone());
+        let (started, start_result) = sync_channel::<std::result::Result<Option<String>, CompareError>>(1);
+        let (transcript, world) = (transcript.to_owned(), options.clone());
         let thread = std::thread::Builder::new()
             .name("tap-world".to_owned())
-            .spawn(move || reenact_live(&transcript, &compare, &records, &started))
+            .spawn(move || reenact_live(&transcript, &world, &records, &started))
             .map_err(|e| RunnerError::during("cannot start the tap's world", e))?;
         match start_result.recv() {
-            Ok(Ok(())) => Ok(Self { queue, thread, out: options.out.clone() }),
+            Ok(Ok(live_url)) => Ok(Self { queue, thread, out, live_url }),
             Ok(Err(error)) => Err(RunnerError::during("tap --scenario", error)),
             Err(_) => Err(RunnerError::during("tap --scenario", std::io::Error::other("the world's thread ended before it started"))),
         }
+    }
+
+    /// Where a live viewer sees the world (`ws://…`), when it is served live.
+    pub fn live_url(&self) -> Option<&str> {
+        self.live_url.as_deref()
     }
 
     /// Hand the next record of the transcript to the world, never waiting.
@@ -66,16 +84,17 @@ impl TapWorld {
 
 /// The world's thread: make the world, then re-enact each record until the queue closes. The
 /// transcript's first line is its header, so the records are its lines from 2 on.
-fn reenact_live(transcript: &Path, options: &CompareOptions, records: &Receiver<RealRecord>, started: &SyncSender<std::result::Result<(), CompareError>>) -> std::result::Result<CompareReport, CompareError> {
-    let mut world = match Reenactor::new(transcript, options, Some(&options.out.join(COMPARE_MCAP))) {
+fn reenact_live(transcript: &Path, options: &TapWorldOptions, records: &Receiver<RealRecord>, started: &SyncSender<std::result::Result<Option<String>, CompareError>>) -> std::result::Result<CompareReport, CompareError> {
+    let out = &options.compare.out;
+    let mut world = match Reenactor::new(transcript, &options.compare, Some(&out.join(COMPARE_MCAP)), options.live.clone()) {
         Ok(world) => world,
         Err(error) => {
             let message = error.to_string();
             let _ = started.send(Err(error));
-            return Err(CompareError::Write { path: options.out.clone(), source: std::io::Error::other(message) });
+            return Err(CompareError::Write { path: out.clone(), source: std::io::Error::other(message) });
         }
     };
-    let _ = started.send(Ok(()));
+    let _ = started.send(Ok(world.live_url().map(str::to_owned)));
     for (index, record) in records.iter().enumerate() {
         world.instruction(index + 2, &record)?;
     }

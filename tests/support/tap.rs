@@ -11,6 +11,8 @@ pub struct TapProcess {
     /// The port the controller opens (`--link`).
     pub port: PathBuf,
     stderr: PathBuf,
+    /// What it printed after its port, read as it comes.
+    stdout: std::sync::Arc<std::sync::Mutex<String>>,
 }
 
 impl TapProcess {
@@ -30,11 +32,25 @@ impl TapProcess {
             .stderr(std::fs::File::create(&stderr).expect("stderr file"))
             .spawn()
             .expect("start climbsim tap");
-        let stdout = child.stdout.take().expect("stdout");
+        let mut stdout = BufReader::new(child.stdout.take().expect("stdout"));
         let mut line = String::new();
-        BufReader::new(stdout).read_line(&mut line).expect("tap's first line");
+        stdout.read_line(&mut line).expect("tap's first line");
         let port = line.trim().strip_prefix("port: ").unwrap_or_else(|| panic!("tap announced {line:?}; stderr: {}", std::fs::read_to_string(&stderr).unwrap_or_default())).into();
-        Self { child, port, stderr }
+        let rest = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+        let sink = std::sync::Arc::clone(&rest);
+        std::thread::spawn(move || {
+            for line in stdout.lines().map_while(Result::ok) {
+                let mut text = sink.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                text.push_str(&line);
+                text.push('\n');
+            }
+        });
+        Self { child, port, stderr, stdout: rest }
+    }
+
+    /// What it printed after its port line, so far.
+    pub fn stdout(&self) -> String {
+        self.stdout.lock().unwrap_or_else(std::sync::PoisonError::into_inner).clone()
     }
 
     pub fn stderr(&self) -> String {
