@@ -257,10 +257,8 @@ fn my_slot() -> Option<&'static Slot> {
         slot.state.store(state::RUNNING, Ordering::Release);
         SLOT.with(|s| s.set(index as u32));
         took_turn(shared);
-        let key = EXIT_KEY.load(Ordering::Relaxed);
-        if key != u32::MAX && tid != pid {
-            // SAFETY: a key from pthread_key_create; the value only has to be non-null.
-            unsafe { sys::pthread_setspecific(key, 1 as *const c_void) };
+        if tid != pid {
+            watch_thread_exit();
         }
         Some(slot)
     };
@@ -465,13 +463,19 @@ fn claim_reserved(index: usize) {
     signals::slot_claimed(slot);
     SLOT.with(|s| s.set(index as u32));
     park::forget_charges();
+    watch_thread_exit();
+    // It starts in its turn: its creator runs on until it parks.
+    start_in_turn(slot);
+}
+
+/// This thread's end runs `thread_exited` (the exit key's destructor runs only for a thread
+/// that set a value for it).
+fn watch_thread_exit() {
     let key = EXIT_KEY.load(Ordering::Relaxed);
     if key != u32::MAX {
         // SAFETY: a key from pthread_key_create; the value only has to be non-null.
-        unsafe { sys::pthread_setspecific(key, 1 as *const c_void) };
+        unsafe { sys::pthread_setspecific(key, core::ptr::dangling::<c_void>()) };
     }
-    // It starts in its turn: its creator runs on until it parks.
-    start_in_turn(slot);
 }
 
 /// The process is ending (exit or return from main): every thread of it stops with it.

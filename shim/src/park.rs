@@ -346,7 +346,7 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
     let mut slices = 0u32;
     loop {
         slices = slices.wrapping_add(1);
-        if slices % 100 == 0 {
+        if slices.is_multiple_of(100) {
             climbsim_gone(shared);
         }
         if slot.state.load(Ordering::Acquire) == state::RUNNING {

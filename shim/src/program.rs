@@ -70,11 +70,13 @@ pub(crate) fn inspect(envp: *const *const c_char, followed: bool) {
         }
         index += 1;
     }
-    if phdr != 0 && phnum > 0 && phnum < 256 {
-        if let Some((start, end)) = go_program_text(phdr, phnum as usize) {
-            GO_TEXT[0].store(start, Ordering::Relaxed);
-            GO_TEXT[1].store(end, Ordering::Relaxed);
-        }
+    if phdr != 0
+        && phnum > 0
+        && phnum < 256
+        && let Some((start, end)) = go_program_text(phdr, phnum as usize)
+    {
+        GO_TEXT[0].store(start, Ordering::Relaxed);
+        GO_TEXT[1].store(end, Ordering::Relaxed);
     }
 }
 

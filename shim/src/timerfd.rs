@@ -178,7 +178,7 @@ pub(crate) fn read(fd: c_int, buf: *mut c_void, len: usize) -> Option<isize> {
         let (expiry, now) = (timer.expiry.load(Ordering::Acquire), sim_now(shared));
         if expiry <= now {
             let interval = timer.interval.load(Ordering::Relaxed);
-            let count = if interval == 0 { 1 } else { 1 + (now - expiry) / interval };
+            let count = 1 + (now - expiry).checked_div(interval).unwrap_or(0);
             timer.expiry.store(if interval == 0 { NEVER } else { expiry + count * interval }, Ordering::Release);
             // Take back what the kernel's timer showed (its count is not the simulated one).
             if timer.shown.swap(false, Ordering::AcqRel) {

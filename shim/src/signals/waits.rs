@@ -99,7 +99,7 @@ pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout:
         }
         sim_now(shared).saturating_add(ns)
     };
-    let Some(slot) = crate::my_slot() else { return None };
+    let slot = crate::my_slot()?;
     slot.sig_waiting.store(set_bits, Ordering::Relaxed);
     let why = wait_for_signal(shared, deadline, |pending| pending & set_bits != 0);
     slot.sig_waiting.store(0, Ordering::Relaxed);
