@@ -57,5 +57,5 @@ for name in "${names[@]}"; do
         *) echo "unknown runtime: $name" >&2; exit 2 ;;
     esac
     echo "== $name"
-    hil/bench/vt-repeat.sh "$work/$name.toml" "$runs" $loaded | tail -4
+    hil/bench/vt-repeat.sh "$work/$name.toml" "$runs" $loaded
 done
