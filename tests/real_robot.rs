@@ -93,7 +93,7 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
         .stderr(std::fs::File::create(dir.join("controller.log")).expect("log"))
         .spawn()
         .expect("start the reference controller");
-    std::thread::sleep(Duration::from_secs(5));
+    std::thread::sleep(Duration::from_secs(8));
     nix::sys::signal::kill(nix::unistd::Pid::from_raw(controller.id() as i32), nix::sys::signal::Signal::SIGINT).expect("SIGINT");
     let ended = controller.wait().expect("the controller ends");
     let log = std::fs::read_to_string(dir.join("controller.log")).unwrap_or_default();
