@@ -57,8 +57,7 @@ impl VirtualTime {
     /// nothing on a look that such a hand-over overlapped).
     pub(super) fn any_running(&self) -> bool {
         let header = &self.shared().header;
-        let mut hand_ons = lock(&self.hand_ons);
-        let ended = header.hand_ons_ended.load(Ordering::SeqCst);
+        let ended = header.hand_ons_ended.load(Ordering::SeqCst) + lock(&self.hand_ons).abandoned;
         let slots = self.shared().live_slots();
         let running = slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
             state::RUNNING | state::RESERVED => true,
@@ -69,7 +68,7 @@ impl VirtualTime {
         });
         running || {
             let begun = header.hand_ons_begun.load(Ordering::SeqCst);
-            begun != ended + hand_ons.abandoned && !hand_ons.write_off_dead(self.shared(), begun, ended)
+            begun != ended && !lock(&self.hand_ons).write_off_dead(self.shared(), begun, ended)
         }
     }
 
@@ -89,9 +88,8 @@ pub(super) struct HandOns {
 }
 
 impl HandOns {
-    /// The counts (`begun`, and `ended` as the block has it) stand unequal with the ones
-    /// written off: once they have stood so for a while, every hand-over whose thread is gone
-    /// is written off. Whether none is under way then.
+    /// The counts stand unequal at `begun` and `ended`: once they have stood so for a while,
+    /// every hand-over whose thread is gone is written off. Whether none is under way then.
     fn write_off_dead(&mut self, shared: &abi::Shared, begun: u64, ended: u64) -> bool {
         match self.stalled {
             Some((b, e, since)) if (b, e) == (begun, ended) => {
