@@ -247,7 +247,13 @@ fn my_slot() -> Option<&'static Slot> {
     }
     let (tid, pid) = (sys::gettid(), sys::getpid());
     let claim = |index: usize, slot: &'static Slot| {
-        take_ownership(slot, pid, tid);
+        slot.futex_queued.store(0, Ordering::Release);
+        slot.pid.store(pid, Ordering::Relaxed);
+        slot.tid.store(tid, Ordering::Relaxed);
+        slot.parent.store(sys::getppid(), Ordering::Relaxed);
+        // SAFETY: pthread_self has no preconditions.
+        slot.thread.store(unsafe { sys::pthread_self() } as u64, Ordering::Relaxed);
+        signals::slot_claimed(slot);
         slot.state.store(state::RUNNING, Ordering::Release);
         SLOT.with(|s| s.set(index as u32));
         took_turn(shared);
@@ -447,24 +453,19 @@ fn claim_reserved(index: usize) {
         old.futex_queued.store(0, Ordering::Release);
         old.state.store(state::EXITED, Ordering::Release);
     }
-    take_ownership(slot, pid(), sys::gettid());
-    SLOT.with(|s| s.set(index as u32));
-    park::forget_charges();
-    watch_thread_exit();
-    // It starts in its turn: its creator runs on until it parks.
-    start_in_turn(slot);
-}
-
-/// `slot` is this thread's (`tid` of process `pid`) from now: who it is, with no futex wait
-/// and no signal state left from its last thread. Its state is the caller's to set.
-fn take_ownership(slot: &Slot, pid: i32, tid: i32) {
     slot.futex_queued.store(0, Ordering::Release);
-    slot.pid.store(pid, Ordering::Relaxed);
+    let tid = sys::gettid();
+    slot.pid.store(pid(), Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
     slot.parent.store(sys::getppid(), Ordering::Relaxed);
     // SAFETY: pthread_self has no preconditions.
     slot.thread.store(unsafe { sys::pthread_self() } as u64, Ordering::Relaxed);
     signals::slot_claimed(slot);
+    SLOT.with(|s| s.set(index as u32));
+    park::forget_charges();
+    watch_thread_exit();
+    // It starts in its turn: its creator runs on until it parks.
+    start_in_turn(slot);
 }
 
 /// This thread's end runs `thread_exited` (the exit key's destructor runs only for a thread

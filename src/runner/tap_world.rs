@@ -10,7 +10,7 @@
 //! before the comparison is written). Nothing is dropped, or the comparison would be wrong.
 
 use std::path::Path;
-use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::mpsc::{Receiver, Sender, SyncSender, channel, sync_channel};
 use std::thread::JoinHandle;
 
 use crate::real_bus::RealRecord;
@@ -38,20 +38,24 @@ pub struct TapWorldOptions {
 }
 
 impl TapWorld {
-    /// Make the world (the scenario, the robot, the recording) for the session recorded into
-    /// `transcript`, before the session starts (a failure to make it is returned here), and
-    /// start its thread.
+    /// Start the world's thread for the session recorded into `transcript`; the world (the
+    /// scenario, the robot, the recording) is made there, and a failure to make it is returned
+    /// here, before the session starts.
     pub fn start(transcript: &Path, options: &TapWorldOptions) -> Result<Self> {
         let out = options.compare.out.clone();
         std::fs::create_dir_all(&out).map_err(|e| RunnerError::during(format!("tap --scenario: creating {}", out.display()), e))?;
-        let world = Reenactor::new(transcript, &options.compare, Some(&out.join(COMPARE_MCAP)), options.live.clone()).map_err(|e| RunnerError::during("tap --scenario", e))?;
-        let live_url = world.live_url().map(str::to_owned);
         let (queue, records) = channel::<RealRecord>();
+        let (started, start_result) = sync_channel::<std::result::Result<Option<String>, CompareError>>(1);
+        let (transcript, world) = (transcript.to_owned(), options.clone());
         let thread = std::thread::Builder::new()
             .name("tap-world".to_owned())
-            .spawn(move || reenact_live(world, &records))
+            .spawn(move || reenact_live(&transcript, &world, &records, &started))
             .map_err(|e| RunnerError::during("cannot start the tap's world", e))?;
-        Ok(Self { queue, thread, out, live_url })
+        match start_result.recv() {
+            Ok(Ok(live_url)) => Ok(Self { queue, thread, out, live_url }),
+            Ok(Err(error)) => Err(RunnerError::during("tap --scenario", error)),
+            Err(_) => Err(RunnerError::during("tap --scenario", std::io::Error::other("the world's thread ended before it started"))),
+        }
     }
 
     /// Where a live viewer sees the world (`ws://…`), when it is served live.
@@ -78,9 +82,19 @@ impl TapWorld {
     }
 }
 
-/// The world's thread: re-enact each record until the queue closes. The transcript's first
-/// line is its header, so the records are its lines from 2 on.
-fn reenact_live(mut world: Reenactor, records: &Receiver<RealRecord>) -> std::result::Result<CompareReport, CompareError> {
+/// The world's thread: make the world, then re-enact each record until the queue closes. The
+/// transcript's first line is its header, so the records are its lines from 2 on.
+fn reenact_live(transcript: &Path, options: &TapWorldOptions, records: &Receiver<RealRecord>, started: &SyncSender<std::result::Result<Option<String>, CompareError>>) -> std::result::Result<CompareReport, CompareError> {
+    let out = &options.compare.out;
+    let mut world = match Reenactor::new(transcript, &options.compare, Some(&out.join(COMPARE_MCAP)), options.live.clone()) {
+        Ok(world) => world,
+        Err(error) => {
+            let message = error.to_string();
+            let _ = started.send(Err(error));
+            return Err(CompareError::Write { path: out.clone(), source: std::io::Error::other(message) });
+        }
+    };
+    let _ = started.send(Ok(world.live_url().map(str::to_owned)));
     for (index, record) in records.iter().enumerate() {
         world.instruction(index + 2, &record)?;
     }
