@@ -57,7 +57,7 @@ impl VirtualTime {
     /// nothing on a look that such a hand-over overlapped).
     pub(super) fn any_running(&self) -> bool {
         let header = &self.shared().header;
-        let ended = header.hand_ons_ended.load(Ordering::SeqCst) + lock(&self.hand_ons).abandoned;
+        let ended = header.hand_ons_ended.load(Ordering::SeqCst);
         let slots = self.shared().live_slots();
         let running = slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
             state::RUNNING | state::RESERVED => true,
@@ -68,7 +68,8 @@ impl VirtualTime {
         });
         running || {
             let begun = header.hand_ons_begun.load(Ordering::SeqCst);
-            begun != ended && !lock(&self.hand_ons).write_off_dead(self.shared(), begun, ended)
+            let mut hand_ons = lock(&self.hand_ons);
+            begun != ended.wrapping_add(hand_ons.written_off) && !hand_ons.write_off_dead(self.shared(), begun, ended)
         }
     }
 
@@ -81,15 +82,21 @@ const HAND_ON_STALL: Duration = Duration::from_millis(20);
 /// Hand-overs of the turn between threads that never ended (see `Header::hand_ons_begun`).
 #[derive(Default)]
 pub(super) struct HandOns {
-    /// Written off: their threads died in them.
-    pub(super) abandoned: u64,
+    /// What the counts differ by with no hand-over under way (`begun == ended + written_off`):
+    /// hand-overs whose threads died in them. A thread can die (a `multiprocessing` worker
+    /// ended by SIGTERM, a thread the program's `exit` ends) between its mark and its count
+    /// on either side, so this is not counted up per dead mark but taken from the counts once
+    /// no live thread is marked.
+    pub(super) written_off: u64,
     /// The counts (begun, ended) last seen unequal, and since when.
     stalled: Option<(u64, u64, Instant)>,
 }
 
 impl HandOns {
-    /// The counts stand unequal at `begun` and `ended`: once they have stood so for a while,
-    /// every hand-over whose thread is gone is written off. Whether none is under way then.
+    /// The counts stand at `begun` and `ended` (read before this), further apart than what was
+    /// written off: once they have stood so for a while, the marks of threads that are gone are
+    /// cleared, and if no thread is marked then, whatever the counts differ by is written off.
+    /// Whether no hand-over is under way.
     fn write_off_dead(&mut self, shared: &abi::Shared, begun: u64, ended: u64) -> bool {
         match self.stalled {
             Some((b, e, since)) if (b, e) == (begun, ended) => {
@@ -103,14 +110,28 @@ impl HandOns {
             }
         }
         self.stalled = None;
+        let mut marked = false;
         for slot in shared.live_slots() {
+            if slot.handing.load(Ordering::SeqCst) == 0 {
+                continue;
+            }
             let gone = || watchdog::stat_path(slot).is_none_or(|task| !watchdog::lives(&format!("{task}/stat")));
-            if slot.handing.load(Ordering::SeqCst) == 1 && gone() && slot.handing.swap(0, Ordering::SeqCst) == 1 {
+            if gone() {
+                // Its mark kept the slot from being taken again.
                 tracing::debug!(tid = slot.tid.load(Ordering::Relaxed), "a controller thread died handing its turn on");
-                self.abandoned += 1;
+                slot.handing.store(0, Ordering::SeqCst);
+            } else {
+                marked = true;
             }
         }
-        begun == ended + self.abandoned
+        // The counts were read before the marks: a hand-over that began since is not in them,
+        // and one in them that has ended since ends up counted twice (the counts then differ
+        // again, and are taken afresh after the next stall: climbsim waits, never decides early).
+        if marked {
+            return false;
+        }
+        self.written_off = begun.wrapping_sub(ended);
+        true
     }
 }
 
@@ -250,5 +271,43 @@ mod tests {
         assert!(plan.released, "a ready thread runs at this instant: no jump to {}", plan.next);
         assert_eq!(ready.state.load(Ordering::Acquire), state::RUNNING, "it has the turn");
         assert_eq!(blocked.state.load(Ordering::Acquire), state::BLOCKED, "the other waits on");
+    }
+
+    /// A thread killed inside a hand-over (between its mark and its count, on either side)
+    /// leaves counts that never meet: once they have stood apart for a while with no live
+    /// thread marked, the difference is written off, and nothing runs. A live thread's mark
+    /// keeps it under way however long it takes.
+    #[test]
+    fn hand_overs_of_killed_threads_are_written_off_and_a_live_ones_is_not() {
+        let vt = VirtualTime::create(VtSettings::default()).expect("a block");
+        let header = &vt.shared().header;
+        header.hand_ons_begun.store(7, Ordering::SeqCst);
+        header.hand_ons_ended.store(5, Ordering::SeqCst);
+        let slot = &vt.shared().slots[0];
+        slot.pid.store(std::process::id() as i32, Ordering::Relaxed);
+        // SAFETY: gettid has no arguments and cannot fail.
+        slot.tid.store(unsafe { libc::gettid() }, Ordering::Relaxed);
+        slot.state.store(state::BLOCKED, Ordering::Release);
+        slot.handing.store(1, Ordering::SeqCst);
+        for _ in 0..3 {
+            assert!(vt.any_running(), "a live thread is handing its turn on");
+            std::thread::sleep(HAND_ON_STALL + Duration::from_millis(5));
+        }
+        // The thread dies: its mark stays, and the counts stay apart.
+        slot.pid.store(i32::MAX, Ordering::Relaxed);
+        let mut running = vt.any_running();
+        for _ in 0..2 {
+            if !running {
+                break;
+            }
+            std::thread::sleep(HAND_ON_STALL + Duration::from_millis(5));
+            running = vt.any_running();
+        }
+        assert!(!running, "written off within two stalls");
+        assert_eq!(slot.handing.load(Ordering::SeqCst), 0, "the dead thread's mark is cleared");
+        header.hand_ons_begun.store(8, Ordering::SeqCst);
+        assert!(vt.any_running(), "a new hand-over is under way");
+        header.hand_ons_ended.store(6, Ordering::SeqCst);
+        assert!(!vt.any_running(), "and has ended");
     }
 }
