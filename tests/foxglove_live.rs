@@ -2,16 +2,13 @@
 //! server's SDK) connects after the run has started, subscribes, and receives the robot's
 //! transforms, a camera image, the terrain (sent to a late subscriber) and the server's clock.
 
-use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use foxglove::Decode;
 use foxglove::messages::{CompressedImage, FrameTransforms, SceneUpdate};
-use serde_json::{Value, json};
-use tungstenite::client::IntoClientRequest;
-use tungstenite::{Message, http::HeaderValue};
+use serde_json::json;
 
 mod support;
 
@@ -43,61 +40,14 @@ fn a_late_viewer_gets_the_scene_transforms_images_and_time() {
     // Join late: the terrain was sent long before.
     std::thread::sleep(Duration::from_millis(500));
 
-    let mut request = url.as_str().into_client_request().expect("request");
-    request.headers_mut().insert("Sec-WebSocket-Protocol", HeaderValue::from_static("foxglove.sdk.v1"));
-    let (mut socket, _) = tungstenite::connect(request).expect("connect");
-    if let tungstenite::stream::MaybeTlsStream::Plain(stream) = socket.get_ref() {
-        stream.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
-    }
-
-    let mut channels: HashMap<u64, String> = HashMap::new();
-    let mut subscriptions: HashMap<u32, String> = HashMap::new();
-    let mut received: HashMap<String, Vec<(u64, Vec<u8>)>> = HashMap::new();
-    let mut server_time = None;
-    let mut server_info = None;
     let wanted = ["/tf", "/camera/image", "/scene/terrain", "/scene/robot"];
-    let deadline = Instant::now() + Duration::from_secs(15);
-    while Instant::now() < deadline && !(wanted.iter().all(|t| received.get(*t).is_some_and(|m| m.len() >= 3 || (t.starts_with("/scene") && !m.is_empty()))) && server_time.is_some()) {
-        match socket.read().expect("read") {
-            Message::Text(text) => {
-                let message: Value = serde_json::from_str(&text).expect("JSON");
-                match message["op"].as_str() {
-                    Some("serverInfo") => server_info = Some(message),
-                    Some("advertise") => {
-                        let mut subscribe = Vec::new();
-                        for channel in message["channels"].as_array().expect("channels") {
-                            let (id, topic) = (channel["id"].as_u64().expect("id"), channel["topic"].as_str().expect("topic").to_owned());
-                            if wanted.contains(&topic.as_str()) {
-                                let subscription = u32::try_from(subscriptions.len() + 1).expect("few");
-                                subscribe.push(json!({ "id": subscription, "channelId": id }));
-                                subscriptions.insert(subscription, topic.clone());
-                            }
-                            channels.insert(id, topic);
-                        }
-                        socket.send(Message::text(json!({ "op": "subscribe", "subscriptions": subscribe }).to_string())).expect("subscribe");
-                    }
-                    _ => {}
-                }
-            }
-            Message::Binary(bytes) => match bytes.first() {
-                // Message data: opcode, subscription id (u32 LE), log time (u64 LE), payload.
-                Some(1) => {
-                    let subscription = u32::from_le_bytes(bytes[1..5].try_into().expect("id"));
-                    let log_time = u64::from_le_bytes(bytes[5..13].try_into().expect("time"));
-                    received.entry(subscriptions[&subscription].clone()).or_default().push((log_time, bytes[13..].to_vec()));
-                }
-                // Time: the simulated clock.
-                Some(2) => server_time = Some(u64::from_le_bytes(bytes[1..9].try_into().expect("time"))),
-                _ => {}
-            },
-            _ => {}
-        }
-    }
-    let info = server_info.expect("serverInfo");
+    let seen = support::foxglove::watch(&url, &wanted, Duration::from_secs(15), |seen| wanted.iter().all(|t| seen.count(t) >= 3 || (t.starts_with("/scene") && seen.count(t) > 0)) && seen.server_time.is_some());
+    let (received, server_time) = (&seen.received, seen.server_time);
+    let info = seen.server_info.as_ref().expect("serverInfo");
     assert_eq!(info["name"], "climbsim");
     assert!(info["capabilities"].as_array().expect("capabilities").contains(&json!("time")), "{info}");
     for topic in ["/tf", "/scene/terrain", "/scene/robot", "/scene/magnets", "/signals", "/servos", "/log", "/camera/image"] {
-        assert!(channels.values().any(|t| t == topic), "{topic} advertised: {channels:?}");
+        assert!(seen.advertised(topic), "{topic} advertised: {:?}", seen.channels);
     }
 
     let transforms = &received["/tf"];

@@ -145,7 +145,7 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
         assert!(servo["present_temperature"].as_i64().is_some() && servo["hardware_error_status"] == 0, "{name}: {servo}");
     }
     assert_eq!(servos["magnet_front_left"]["id"], 5);
-    shipped_layout_names_only_what_the_recording_has(&by_topic);
+    support::layout::names_only_what_the_recording_has(&support::repo().join("hil/foxglove/climbsim-layout.json"), &bytes);
     assert!(!by_topic.contains_key("/bus/packets"), "bus packets only when asked");
 
     // The camera's frames at its 30 Hz, each a PNG.
@@ -154,38 +154,6 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     let image = foxglove::messages::CompressedImage::decode(&images[0].data[..]).expect("CompressedImage");
     assert_eq!(image.format, "png");
     assert!(image.data.starts_with(b"\x89PNG\r\n\x1a\n"), "a PNG");
-}
-
-/// The Foxglove layout in hil/ shows topics and message fields by name: a misspelled one would
-/// show an empty panel. Every topic it names is in the recording, and every plotted field is in
-/// the topic's last message.
-fn shipped_layout_names_only_what_the_recording_has(by_topic: &BTreeMap<String, Vec<mcap::Message>>) {
-    let text = std::fs::read_to_string(support::repo().join("hil/foxglove/climbsim-layout.json")).expect("layout");
-    let layout: serde_json::Value = serde_json::from_str(&text).expect("the layout is JSON");
-    let panels = layout["configById"].as_object().expect("configById");
-    let mut topics: Vec<String> = Vec::new();
-    let mut fields: Vec<String> = Vec::new();
-    for (id, config) in panels {
-        // Foxglove reads a panel's title from `foxglovePanelTitle` (only Plot still converts an
-        // old `title`): every panel is named the one way.
-        assert!(config["foxglovePanelTitle"].is_string() && config.get("title").is_none(), "{id} has no foxglovePanelTitle");
-        topics.extend(config["topics"].as_object().into_iter().flat_map(|t| t.keys().cloned()));
-        topics.extend([&config["imageMode"]["imageTopic"], &config["imageMode"]["calibrationTopic"], &config["topicToRender"]].into_iter().filter_map(|v| v.as_str().map(str::to_owned)));
-        fields.extend(config["paths"].as_array().into_iter().flatten().filter_map(|p| p["value"].as_str().map(str::to_owned)));
-    }
-    assert!(topics.len() >= 5 && fields.len() >= 10, "{topics:?} {fields:?}");
-    for topic in &topics {
-        assert!(by_topic.contains_key(topic), "the layout shows {topic}, which the recording does not have");
-    }
-    for field in &fields {
-        let (topic, path) = field.split_once('.').expect("topic.field");
-        let last: serde_json::Value = serde_json::from_slice(&by_topic[topic].last().expect("messages").data).expect("JSON");
-        let value = path.split('.').fold(&last, |v, key| &v[key]);
-        assert!(value.is_number(), "the layout plots {field}, not in {topic}'s messages: {last}");
-    }
-    // Each panel in the arrangement is configured, and each configured panel is placed.
-    let placed = text.matches("\"first\": \"").count() + text.matches("\"second\": \"").count();
-    assert_eq!(placed, panels.len(), "panels placed in the layout tree");
 }
 
 /// Where frame `name` is in `world`, from the tree of transforms.

@@ -76,8 +76,8 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     let cable = NullModem::new();
     // Its gearboxes too: twice the shipped profile's Coulomb friction.
     let real_robot = support::Options::default().stderr_log().sensors().start(&["scenarios/external-line-follower.toml", "--robot", robot.to_str().expect("utf-8"), "--set", HIDDEN_GEARBOX, "--device", cable.b().to_str().expect("utf-8")]);
-    // Shown live (on a port the kernel picks) and recorded for Foxglove as it goes, and
-    // re-enacted live in the shipped world.
+    // Re-enacted live in the shipped world, shown live beside the real servos (on a port the
+    // kernel picks), and the real servos recorded for Foxglove as they go.
     let tap_mcap = dir.join("tap.mcap");
     let mut tap = TapProcess::start(cable.a(), &dir, &["--baud", "1000000", "--foxglove=127.0.0.1:0", "--mcap", tap_mcap.to_str().expect("utf-8"), "--scenario", "scenarios/external-line-follower.toml"]);
 
@@ -93,6 +93,10 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
         .stderr(std::fs::File::create(dir.join("controller.log")).expect("log"))
         .spawn()
         .expect("start the reference controller");
+    // One viewer, on the one connection, sees the world and the real servos beside it.
+    let url = tap.foxglove_url(Duration::from_secs(10));
+    let wanted = ["/tf", "/compare/robot", "/compare/world"];
+    let viewer = std::thread::spawn(move || support::foxglove::watch(&url, &wanted, Duration::from_secs(6), |seen| wanted.iter().all(|topic| seen.count(topic) >= 20)));
     std::thread::sleep(Duration::from_secs(8));
     nix::sys::signal::kill(nix::unistd::Pid::from_raw(controller.id() as i32), nix::sys::signal::Signal::SIGINT).expect("SIGINT");
     let ended = controller.wait().expect("the controller ends");
@@ -102,9 +106,20 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     // The live comparison with the shipped world fails, as `compare` does below.
     assert_eq!(tap.wait(Duration::from_secs(30)).code(), Some(1), "{}", tap.stderr());
     assert!(tap.stderr().contains("the world differs from the robot past tolerance"), "{}", tap.stderr());
-    // Both live views were served: the real servos, and the world re-enacting them.
+    // One live view was served: the world re-enacting the session beside the real servos.
     let said = tap.stdout();
-    assert!(said.contains("foxglove: ws://127.0.0.1:") && said.contains("foxglove (the world re-enacting the session): ws://127.0.0.1:"), "{said}");
+    assert_eq!(said.matches("foxglove: ws://127.0.0.1:").count(), 1, "{said}");
+    assert!(said.contains("climbsim-compare-layout.json"), "the layout to import named: {said}");
+    let seen = viewer.join().expect("the viewer");
+    for topic in ["/tf", "/scene/robot", "/servos", "/log", "/bus/packets", "/compare/robot", "/compare/world"] {
+        assert!(seen.advertised(topic), "{topic} on the one connection: {:?}", seen.channels);
+    }
+    for topic in wanted {
+        assert!(seen.count(topic) >= 20, "{} messages of {topic} in 6 s", seen.count(topic));
+    }
+    let last = |topic: &str| -> serde_json::Value { serde_json::from_slice(&seen.received[topic].last().expect("one").1).expect("JSON") };
+    let (real_reply, world_reply) = (last("/compare/robot"), last("/compare/world"));
+    assert!(real_reply["magnet_front_left"]["present_position"].is_number() && world_reply["magnet_front_left"]["present_position"].is_number(), "{real_reply} {world_reply}");
     drop(real_robot);
     drop(live);
 
@@ -129,6 +144,8 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     }
 
     compare_recording_holds_both_sides(&dir.join("shipped/compare.mcap"));
+    let recording = std::fs::read(dir.join("shipped/compare.mcap")).expect("compare.mcap");
+    support::layout::names_only_what_the_recording_has(&support::repo().join("hil/foxglove/climbsim-compare-layout.json"), &recording);
     // The world that re-enacted the session live, beside the "real robot", made the same
     // comparison as `compare` made of the finished transcript: the same records, in order.
     let live: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("real.compare/compare.json")).expect("tap's compare.json")).expect("JSON");

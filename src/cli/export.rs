@@ -11,10 +11,11 @@ use climbsim::runner::Console as _;
 use super::console::Terminal;
 
 /// Write out the files climbsim has built in and uses when none is given: the robot
-/// description (with its firmware profile beside it), the firmware profile, the Foxglove layout,
-/// the reference controller (Python, the official SDK), `run`'s default scenario, or all of them. Edit them and pass them
-/// back (`--robot DIR/robot.toml`; a scenario's `[controller] command`). Existing files are
-/// not overwritten without --force.
+/// description (with its firmware profile beside it), the firmware profile, the Foxglove
+/// layouts (a run's, and a real session's beside the world's), the reference controller
+/// (Python, the official SDK), `run`'s default scenario, or all of them. Edit them and pass
+/// them back (`--robot DIR/robot.toml`; a scenario's `[controller] command`). Existing files
+/// are not overwritten without --force.
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {
     /// What to write: robot, profile, layout, controller, scenario or all.

@@ -6,6 +6,7 @@ use std::sync::Arc;
 
 use anyhow::Result;
 
+use climbsim::embedded::COMPARE_LAYOUT;
 use climbsim::real_bus::compare::Tolerances;
 use climbsim::runner::Console as _;
 use climbsim::runner::compare::CompareOptions;
@@ -50,8 +51,10 @@ pub struct TapArgs {
     pub low_latency: bool,
     /// Show the real servos live in Foxglove: their registers as their read replies say, on
     /// `/servos` (the shipped layout's plots), every record on `/bus/packets`, missed replies
-    /// and errors on `/log`; at 127.0.0.1:8765 or `--foxglove=ADDR`. With `--scenario`, the
-    /// world re-enacting the session is served too, on the next port (its URL is printed).
+    /// and errors on `/log`; at 127.0.0.1:8765 or `--foxglove=ADDR`. With `--scenario`, that
+    /// one connection shows the world re-enacting the session beside the real servos instead:
+    /// the world's scene and servos, the real replies on `/compare/robot` and the world's
+    /// answers to the same reads on `/compare/world` (the compare layout plots both).
     #[arg(long = "foxglove", value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
     pub foxglove: Option<LiveAddress>,
     /// Record what `--foxglove` shows into FILE (MCAP).
@@ -78,7 +81,7 @@ pub struct TapArgs {
 }
 
 /// `--scenario`'s comparison (the shipped tolerances, into `--compare-out`), and where the
-/// world is served live with `--foxglove`: on the next port (the kernel's pick for port 0).
+/// world is served live with `--foxglove`: at its address, the one connection of the session.
 fn world_options(args: &TapArgs) -> Result<Option<TapWorldOptions>> {
     let Some(scenario) = &args.scenario else { return Ok(None) };
     let robot = robot_path(&args.robot);
@@ -87,18 +90,20 @@ fn world_options(args: &TapArgs) -> Result<Option<TapWorldOptions>> {
         args.record.with_file_name(format!("{stem}.compare"))
     });
     let compare = CompareOptions { scenario: scenario.clone(), overrides: parse_overrides(&args.set)?, robot, tolerances: Tolerances::default(), out };
-    let live = args.foxglove.as_ref().map(|servos| LiveAddress { host: servos.host.clone(), port: if servos.port == 0 { 0 } else { servos.port.saturating_add(1) } });
-    Ok(Some(TapWorldOptions { compare, live }))
+    Ok(Some(TapWorldOptions { compare, live: args.foxglove.clone() }))
 }
 
 pub fn exec(args: TapArgs) -> Result<()> {
     interrupt::install()?;
     let world = world_options(&args)?;
     let report = args.report.unwrap_or_else(|| default_report_path(&args.record));
-    let view = if args.foxglove.is_some() || args.mcap.is_some() {
+    // With a world, the live connection is the world's (which shows the real replies too);
+    // the tap's own view of the real servos is then only recorded (`--mcap`).
+    let live = if world.is_some() { None } else { args.foxglove };
+    let view = if live.is_some() || args.mcap.is_some() {
         let robot = load_robot(&args.robot)?;
         let names = robot.servo.iter().map(|s| (s.id, s.name.clone())).collect();
-        Some(TapViewOptions { live: args.foxglove, mcap: args.mcap, names, profile: Arc::new(robot.profile()?) })
+        Some(TapViewOptions { live, mcap: args.mcap, names, profile: Arc::new(robot.profile()?) })
     } else {
         None
     };
@@ -109,7 +114,7 @@ pub fn exec(args: TapArgs) -> Result<()> {
             Terminal.say(&format!("foxglove: {url}"));
         }
         if let Some(url) = ready.world_url {
-            Terminal.say(&format!("foxglove (the world re-enacting the session): {url}"));
+            Terminal.say(&format!("foxglove: {url} (the world re-enacting the session beside the real servos: layout {})", COMPARE_LAYOUT.file_name()));
         }
     })?;
     Terminal.note(&format!(

@@ -1,5 +1,5 @@
 //! The data files climbsim ships, compiled into the binary: the robot description, the firmware
-//! profile, the Foxglove layout, the reference controller and `run`'s default scenario. A binary installed anywhere
+//! profile, the Foxglove layouts, the reference controller and `run`'s default scenario. A binary installed anywhere
 //! (`cargo install`, `pip install`) runs without its source tree: when no file is given and the
 //! checkout's is not there, these are used, under paths that say so (`embedded:hil/robot.toml`
 //! in errors and in `settings.json`). `climbsim export` writes them out to edit.
@@ -39,6 +39,9 @@ pub const ROBOT: EmbeddedFile = shipped!("hil/robot.toml");
 pub const PROFILE: EmbeddedFile = shipped!("firmware-profiles/xm540-w270-r.toml");
 /// Foxglove's layout for a run's topics.
 pub const LAYOUT: EmbeddedFile = shipped!("hil/foxglove/climbsim-layout.json");
+/// Foxglove's layout for a real session re-enacted in the world (`compare`, `tap --scenario`):
+/// the robot's replies and the world's answers side by side.
+pub const COMPARE_LAYOUT: EmbeddedFile = shipped!("hil/foxglove/climbsim-compare-layout.json");
 /// The reference external controller (Python, the official SDK).
 pub const CONTROLLER: EmbeddedFile = shipped!("hil/controllers/line_follower.py");
 
@@ -46,7 +49,7 @@ pub const CONTROLLER: EmbeddedFile = shipped!("hil/controllers/line_follower.py"
 pub const SCENARIO: EmbeddedFile = shipped!("scenarios/flat-line.toml");
 
 /// Every shipped file.
-pub const FILES: [EmbeddedFile; 5] = [ROBOT, PROFILE, LAYOUT, CONTROLLER, SCENARIO];
+pub const FILES: [EmbeddedFile; 6] = [ROBOT, PROFILE, LAYOUT, COMPARE_LAYOUT, CONTROLLER, SCENARIO];
 
 impl EmbeddedFile {
     /// The path that names it (`embedded:hil/robot.toml`).

@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{CONTROLLER, EmbeddedFile, LAYOUT, PROFILE, ROBOT, SCENARIO, shipped};
+use super::{COMPARE_LAYOUT, CONTROLLER, EmbeddedFile, LAYOUT, PROFILE, ROBOT, SCENARIO, shipped};
 
 /// What `climbsim export` writes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -46,10 +46,10 @@ pub fn export(what: Export, dir: &Path, force: bool) -> Result<Vec<PathBuf>, Exp
     let files: Vec<(EmbeddedFile, String)> = match what {
         Export::Robot => vec![(ROBOT, robot_beside_its_profile()), (PROFILE, PROFILE.text.to_owned())],
         Export::Profile => vec![(PROFILE, PROFILE.text.to_owned())],
-        Export::Layout => vec![(LAYOUT, LAYOUT.text.to_owned())],
+        Export::Layout => vec![(LAYOUT, LAYOUT.text.to_owned()), (COMPARE_LAYOUT, COMPARE_LAYOUT.text.to_owned())],
         Export::Controller => vec![(CONTROLLER, CONTROLLER.text.to_owned())],
         Export::Scenario => vec![(SCENARIO, SCENARIO.text.to_owned())],
-        Export::All => vec![(ROBOT, robot_beside_its_profile()), (PROFILE, PROFILE.text.to_owned()), (LAYOUT, LAYOUT.text.to_owned()), (CONTROLLER, CONTROLLER.text.to_owned()), (SCENARIO, SCENARIO.text.to_owned())],
+        Export::All => vec![(ROBOT, robot_beside_its_profile()), (PROFILE, PROFILE.text.to_owned()), (LAYOUT, LAYOUT.text.to_owned()), (COMPARE_LAYOUT, COMPARE_LAYOUT.text.to_owned()), (CONTROLLER, CONTROLLER.text.to_owned()), (SCENARIO, SCENARIO.text.to_owned())],
     };
     let files: Vec<(PathBuf, String)> = files.into_iter().map(|(file, text)| (dir.join(file.file_name()), text)).collect();
     write_all(dir, &files, force)
@@ -161,7 +161,7 @@ mod tests {
         assert!(error.to_string().contains("robot.toml") && error.to_string().contains("--force"), "{error}");
         assert!(!dir.join("line_follower.py").exists(), "nothing written when refused");
         export(Export::All, &dir, true).expect("forced");
-        assert!(dir.join("line_follower.py").exists() && dir.join("climbsim-layout.json").exists());
+        assert!(dir.join("line_follower.py").exists() && dir.join("climbsim-layout.json").exists() && dir.join("climbsim-compare-layout.json").exists());
         let _ = std::fs::remove_dir_all(&dir);
     }
 

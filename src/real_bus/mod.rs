@@ -13,4 +13,4 @@ pub mod transcript;
 
 pub use pairing::{Event, Pairing, Seen, SeenReply};
 pub use timing::{TimingReport, TimingTally};
-pub use transcript::{FORMAT, RealHeader, RealRecord, RealTranscript, VERSION};
+pub use transcript::{FORMAT, RealHeader, RealRecord, RealTranscript, Side, VERSION};

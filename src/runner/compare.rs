@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
+use foxglove::messages::log::Level as LogLevel;
 use serde::Serialize;
 use serde_json::json;
 use thiserror::Error;
@@ -26,7 +27,7 @@ use crate::device::FirmwareProfile;
 use crate::real_bus::compare::{Comparison, RegisterSeries, RegisterStats, Tolerances, fast_blocks, is_fast_read, read_spans, registers_in};
 use crate::runner::view::{LiveAddress, ReadingsTopic, ServoReadings, ViewOptions};
 use crate::report::{PlotLabels, PlotSeries, plot_series};
-use crate::real_bus::{RealRecord, RealTranscript};
+use crate::real_bus::{RealRecord, RealTranscript, Side};
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
 use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::transcript::{TranscriptError, packet_from_bytes, packet_from_hex};
@@ -246,7 +247,13 @@ impl Reenactor {
     /// the world at its recorded instant, after the world has ticked up to it, and the world's
     /// answers are set beside the real ones. Other records are skipped.
     pub fn instruction(&mut self, line: usize, record: &RealRecord) -> Result<(), CompareError> {
-        let RealRecord::Tx { t, end, baud, hex, replies, .. } = record else { return Ok(()) };
+        let (t, end, baud, hex, replies, real_missed) = match record {
+            RealRecord::Tx { t, end, baud, hex, replies, missed } => (t, end, baud, hex, replies, missed),
+            other => {
+                self.log_real_bus(other);
+                return Ok(());
+            }
+        };
         let at = Duration::from_nanos(*t);
         if at < self.last {
             return Err(self.record_error(line, format!("t = {:.6} s is before the instruction before it ({:.6} s): a tap writes them in order", at.as_secs_f64(), self.last.as_secs_f64())));
@@ -291,6 +298,7 @@ impl Reenactor {
             let real = packet_from_hex(&reply.hex).map_err(|message| self.record_error(line, format!("a reply: {message}")))?;
             let Some(sim) = transaction.replies.iter().find(|r| r.from == [reply.id]) else {
                 self.missed += 1;
+                self.log(at, LogLevel::Warning, format!("the world did not answer {} where the robot did", self.servo(reply.id)));
                 continue;
             };
             let entry = self.latencies.entry(reply.id).or_default();
@@ -308,7 +316,42 @@ impl Reenactor {
             view.readings(ReadingsTopic::Robot, at, &readings.0);
             view.readings(ReadingsTopic::World, at, &readings.1);
         }
+        if !real_missed.is_empty() {
+            let missed: Vec<String> = real_missed.iter().map(|id| self.servo(*id)).collect();
+            self.log(at, LogLevel::Warning, format!("the robot: no reply from {}", missed.join(", ")));
+        }
         Ok(())
+    }
+
+    /// What the real bus said besides its transactions (a framing error, a reply to nothing),
+    /// on the view's log beside the world's own lines.
+    fn log_real_bus(&self, record: &RealRecord) {
+        match record {
+            RealRecord::FrameError { from, t, what } => {
+                let side = match from {
+                    Side::Controller => "controller",
+                    Side::Servos => "servos",
+                };
+                self.log(Duration::from_nanos(*t), LogLevel::Error, format!("the robot's bus, from the {side}: {what}"));
+            }
+            RealRecord::Unpaired { t, hex } => {
+                let from = packet_from_hex(hex).map_or_else(|_| "a servo".to_owned(), |packet| self.servo(packet.id));
+                self.log(Duration::from_nanos(*t), LogLevel::Warning, format!("the robot: a status packet from {from} that answered nothing pending (late?)"));
+            }
+            _ => {}
+        }
+    }
+
+    /// A line on the view's log at `at`, when there is a view.
+    fn log(&self, at: Duration, level: LogLevel, message: String) {
+        if let Some(view) = self.observer.view() {
+            view.log(at, level, message);
+        }
+    }
+
+    /// A servo as the log names it: its name in the robot description, and its ID.
+    fn servo(&self, id: u8) -> String {
+        self.observer.servo_name(id).map_or_else(|| format!("ID {id}"), |name| format!("{name} ({id})"))
     }
 
     /// The session is over: the recording gets its final name, and the comparison is made.

@@ -405,6 +405,10 @@ pub mod vt;
 pub mod null_modem;
 /// A `climbsim tap` process.
 pub mod tap;
+/// A Foxglove layout checked against a recording.
+pub mod layout;
+/// A viewer on Foxglove's WebSocket protocol.
+pub mod foxglove;
 
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
 /// controller (`command = ["python", ...]`) runs in the venv.

@@ -53,6 +53,19 @@ impl TapProcess {
         self.stdout.lock().unwrap_or_else(std::sync::PoisonError::into_inner).clone()
     }
 
+    /// The URL of its Foxglove server (`foxglove: ws://…`), once it has printed it (panics
+    /// after `within`).
+    pub fn foxglove_url(&self, within: Duration) -> String {
+        let deadline = Instant::now() + within;
+        loop {
+            if let Some(url) = self.stdout().lines().find_map(|line| line.strip_prefix("foxglove: ")).and_then(|rest| rest.split_whitespace().next()) {
+                return url.to_owned();
+            }
+            assert!(Instant::now() < deadline, "no `foxglove:` line within {within:?}: {}", self.stdout());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     pub fn stderr(&self) -> String {
         std::fs::read_to_string(&self.stderr).unwrap_or_default()
     }
