@@ -137,7 +137,7 @@ impl HandOn<'_> {
     /// This thread (`me`) has published itself parked or ended: the next ready thread takes the
     /// turn at once, if that is what climbsim would do now; else climbsim is told, and decides.
     pub(crate) fn finish(mut self) {
-        let outcome = self.hand_to_next(self.me);
+        let outcome = self.hand_to_next();
         self.end();
         if outcome == Handing::ClimbsimDecides {
             notify_scheduler(self.shared);
@@ -148,8 +148,8 @@ impl HandOn<'_> {
     /// climbsim would decide nothing else first: no other thread runs or is being created, none
     /// waits on what only a look at the kernel tells (whose turn comes first then depends on
     /// that look), none is in the kernel's waitpid, and nothing was refused.
-    fn hand_to_next(&self, me: &Slot) -> Handing {
-        let shared = self.shared;
+    fn hand_to_next(&self) -> Handing {
+        let (shared, me) = (self.shared, self.me);
         // Against a thread publishing itself at the same moment (a new one ready, say, while this
         // one parks): with a full fence between each one's store of its state and its look at
         // the other's, at least one of the two sees the other, so they never both leave it to

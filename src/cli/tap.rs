@@ -10,7 +10,7 @@ use climbsim::embedded::COMPARE_LAYOUT;
 use climbsim::real_bus::compare::Tolerances;
 use climbsim::runner::Console as _;
 use climbsim::runner::compare::CompareOptions;
-use climbsim::runner::tap::{TapOptions, default_report_path, tap};
+use climbsim::runner::tap::{TapOptions, beside_transcript, default_report_path, tap};
 use climbsim::runner::tap_view::TapViewOptions;
 use climbsim::runner::tap_world::TapWorldOptions;
 use climbsim::runner::view::LiveAddress;
@@ -85,10 +85,7 @@ pub struct TapArgs {
 fn world_options(args: &TapArgs) -> Result<Option<TapWorldOptions>> {
     let Some(scenario) = &args.scenario else { return Ok(None) };
     let robot = robot_path(&args.robot);
-    let out = args.compare_out.clone().unwrap_or_else(|| {
-        let stem = args.record.file_stem().map_or_else(|| "tap".into(), |s| s.to_string_lossy().into_owned());
-        args.record.with_file_name(format!("{stem}.compare"))
-    });
+    let out = args.compare_out.clone().unwrap_or_else(|| beside_transcript(&args.record, "compare"));
     let compare = CompareOptions { scenario: scenario.clone(), overrides: parse_overrides(&args.set)?, robot, tolerances: Tolerances::default(), out };
     Ok(Some(TapWorldOptions { compare, live: args.foxglove.clone() }))
 }

@@ -73,8 +73,13 @@ pub struct TapOutcome {
 
 /// The default timing report's path: beside the transcript, `NAME.timing.json`.
 pub fn default_report_path(record: &Path) -> PathBuf {
+    beside_transcript(record, "timing.json")
+}
+
+/// `NAME.suffix` beside the transcript `record` (NAME: its name without its extension).
+pub fn beside_transcript(record: &Path, suffix: &str) -> PathBuf {
     let stem = record.file_stem().map_or_else(|| "tap".into(), |s| s.to_string_lossy().into_owned());
-    record.with_file_name(format!("{stem}.timing.json"))
+    record.with_file_name(format!("{stem}.{suffix}"))
 }
 
 /// Where the tap shows what it does, once it is ready: the port the controller opens, and the
