@@ -40,8 +40,9 @@ pub struct TapWorldOptions {
 impl TapWorld {
     /// Start the world's thread for the session recorded into `transcript`; the world (the
     /// scenario, the robot, the recording) is made there, and a failure to make it is returned
-    /// here, before the session starts. (Made here and moved there, its live view reset every
-    /// viewer's connection: the view stays on the thread that feeds it.)
+    /// here, before the session starts. (Not made here: `tap` runs inside a runtime that its
+    /// thread never polls, and a live view started here would serve its viewers from that
+    /// runtime, which never answers them: the connection was reset.)
     pub fn start(transcript: &Path, options: &TapWorldOptions) -> Result<Self> {
         let out = options.compare.out.clone();
         std::fs::create_dir_all(&out).map_err(|e| RunnerError::during(format!("tap --scenario: creating {}", out.display()), e))?;
