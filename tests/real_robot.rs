@@ -441,6 +441,52 @@ fn a_fast_sync_read_session_is_compared_per_servo() {
     assert_eq!(magnet["bias"], -6.0, "{magnet}");
 }
 
+/// What the real bus said besides its readings is on the compare recording's log beside the
+/// world's own lines: a servo that did not answer, a framing error, a reply to nothing (a
+/// session written by hand: Sync Reads of the magnet shafts, servo 8 silent once).
+#[test]
+fn the_robots_missed_replies_and_bus_errors_are_on_the_compare_recordings_log() {
+    use climbsim::protocol::{encode_instruction, encode_status};
+    use climbsim::real_bus::{RealHeader, Side};
+    use climbsim::transcript::Recorder;
+    use foxglove::Decode;
+
+    let dir = support::scratch_dir("compare-log");
+    let path = dir.join("session.jsonl");
+    let recorder = Recorder::create(&path, &RealHeader::new(std::path::Path::new("/dev/null"), &dir.join("ttyDXL"), 57_600, 0)).expect("a transcript");
+    let hex = |bytes: &[u8]| bytes.iter().map(|b| format!("{b:02x}")).collect::<String>();
+    let request = encode_instruction(0xFE, 0x82, &[132, 0, 4, 0, 5, 6, 7, 8]);
+    for period in 0..50u64 {
+        let t = 50_000_000 + period * 20_000_000;
+        let silent = period == 10;
+        let answering: Vec<u8> = (5..=8).filter(|&id| !(silent && id == 8)).collect();
+        let replies = answering.iter().enumerate().map(|(k, &id)| {
+            let at = t + 3_000_000 + k as u64 * 3_000_000;
+            RealReply { id, t: at, end: at + 2_600_000, hex: hex(&encode_status(id, 0, &2048i32.to_le_bytes())) }
+        });
+        recorder.append(&RealRecord::Tx { t, end: t + 2_000_000, baud: 57_600, hex: hex(&request), replies: replies.collect(), missed: if silent { vec![8] } else { Vec::new() } });
+        if period == 20 {
+            recorder.append(&RealRecord::FrameError { from: Side::Servos, t: t + 15_000_000, what: "a byte without its stop bit".into() });
+            recorder.append(&RealRecord::Unpaired { t: t + 16_000_000, hex: hex(&encode_status(6, 0, &2048i32.to_le_bytes())) });
+        }
+    }
+    recorder.finish_with(&RealRecord::End { t: 1_100_000_000, why: "written by the test".into(), from_controller: 0, from_servos: 0 }).expect("complete");
+    let out = dir.join("compared");
+    let compared = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(["compare"]).arg(&path).args(["--scenario", "scenarios/flat-line.toml", "--out"]).arg(&out).current_dir(support::repo()).output().expect("run climbsim compare");
+    let text = support::output_text(&compared);
+    let bytes = std::fs::read(out.join("compare.mcap")).unwrap_or_else(|e| panic!("compare.mcap: {e}: {text}"));
+    let mut lines = Vec::new();
+    for message in mcap::MessageStream::new(&bytes).expect("an MCAP") {
+        let message = message.expect("a complete message");
+        if message.channel.topic == "/log" {
+            lines.push(foxglove::messages::Log::decode(&message.data[..]).expect("a Log").message);
+        }
+    }
+    for expected in ["the robot: no reply from magnet_rear_right (8)", "the robot's bus, from the servos: a byte without its stop bit", "the robot: a status packet from magnet_front_right (6) that answered nothing pending (late?)"] {
+        assert!(lines.iter().any(|line| line == expected), "{expected:?} on /log: {lines:?}\n{text}");
+    }
+}
+
 /// A real session written by hand at `path`: 2 s of a Fast Sync Read of Present Position
 /// (132) from servos `ids` every 20 ms, servo N answering `position(N)`.
 fn fast_read_session(path: &std::path::Path, ids: &[u8], position: impl Fn(u8) -> i32) {
