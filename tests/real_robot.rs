@@ -482,7 +482,7 @@ fn the_robots_missed_replies_and_bus_errors_are_on_the_compare_recordings_log() 
             lines.push(foxglove::messages::Log::decode(&message.data[..]).expect("a Log").message);
         }
     }
-    for expected in ["the robot: no reply from magnet_rear_right (8)", "the robot's bus, from the servos: a byte without its stop bit", "the robot: a status packet from magnet_front_right (6) that answered nothing pending (late?)"] {
+    for expected in ["the robot: no reply from magnet_rear_right (8)", "the robot: from the servos: a byte without its stop bit", "the robot: a status packet from magnet_front_right (6) that answered nothing pending (late?)"] {
         assert!(lines.iter().any(|line| line == expected), "{expected:?} on /log: {lines:?}\n{text}");
     }
 }

@@ -87,6 +87,14 @@ pub enum RealRecord {
 }
 
 impl RealRecord {
+    /// When it happened (ns since the session's start): an instruction's first byte, the
+    /// other records' own instant.
+    pub fn t(&self) -> u64 {
+        match self {
+            Self::Tx { t, .. } | Self::Raw { t, .. } | Self::Unpaired { t, .. } | Self::FrameError { t, .. } | Self::Baud { t, .. } | Self::End { t, .. } => *t,
+        }
+    }
+
     /// The record for something the pairing saw.
     pub fn from_event(event: &Event) -> Self {
         match event {

@@ -247,13 +247,8 @@ impl Reenactor {
     /// the world at its recorded instant, after the world has ticked up to it, and the world's
     /// answers are set beside the real ones. Other records are skipped.
     pub fn instruction(&mut self, line: usize, record: &RealRecord) -> Result<(), CompareError> {
-        let (t, end, baud, hex, replies, real_missed) = match record {
-            RealRecord::Tx { t, end, baud, hex, replies, missed } => (t, end, baud, hex, replies, missed),
-            other => {
-                self.log_real_bus(other);
-                return Ok(());
-            }
-        };
+        self.log_real_bus(record);
+        let RealRecord::Tx { t, end, baud, hex, replies, .. } = record else { return Ok(()) };
         let at = Duration::from_nanos(*t);
         if at < self.last {
             return Err(self.record_error(line, format!("t = {:.6} s is before the instruction before it ({:.6} s): a tap writes them in order", at.as_secs_f64(), self.last.as_secs_f64())));
@@ -316,29 +311,17 @@ impl Reenactor {
             view.readings(ReadingsTopic::Robot, at, &readings.0);
             view.readings(ReadingsTopic::World, at, &readings.1);
         }
-        if !real_missed.is_empty() {
-            let missed: Vec<String> = real_missed.iter().map(|id| self.servo(*id)).collect();
-            self.log(at, LogLevel::Warning, format!("the robot: no reply from {}", missed.join(", ")));
-        }
         Ok(())
     }
 
-    /// What the real bus said besides its transactions (a framing error, a reply to nothing),
-    /// on the view's log beside the world's own lines.
+    /// What the real bus said besides its readings ([`real_bus_note`]), on the view's log
+    /// beside the world's own lines, when there is a view.
     fn log_real_bus(&self, record: &RealRecord) {
-        match record {
-            RealRecord::FrameError { from, t, what } => {
-                let side = match from {
-                    Side::Controller => "controller",
-                    Side::Servos => "servos",
-                };
-                self.log(Duration::from_nanos(*t), LogLevel::Error, format!("the robot's bus, from the {side}: {what}"));
-            }
-            RealRecord::Unpaired { t, hex } => {
-                let from = packet_from_hex(hex).map_or_else(|_| "a servo".to_owned(), |packet| self.servo(packet.id));
-                self.log(Duration::from_nanos(*t), LogLevel::Warning, format!("the robot: a status packet from {from} that answered nothing pending (late?)"));
-            }
-            _ => {}
+        if self.observer.view().is_none() {
+            return;
+        }
+        if let Some((level, note)) = real_bus_note(record, |id| self.servo(id)) {
+            self.log(Duration::from_nanos(record.t()), level, format!("the robot: {note}"));
         }
     }
 
@@ -374,6 +357,30 @@ impl Reenactor {
             latency,
             series: self.comparison.series().cloned().collect(),
         })
+    }
+}
+
+/// What a real bus's record says besides its readings, as a log line: the servos that did not
+/// answer, a framing error, a status packet that answered nothing (`servo` names a servo). What
+/// `tap --foxglove` shows as the session goes, and the world's view of it beside its own lines.
+pub(super) fn real_bus_note(record: &RealRecord, servo: impl Fn(u8) -> String) -> Option<(LogLevel, String)> {
+    match record {
+        RealRecord::Tx { missed, .. } if !missed.is_empty() => {
+            let missed: Vec<String> = missed.iter().map(|id| servo(*id)).collect();
+            Some((LogLevel::Warning, format!("no reply from {}", missed.join(", "))))
+        }
+        RealRecord::Unpaired { hex, .. } => {
+            let from = packet_from_hex(hex).map_or_else(|_| "a servo".to_owned(), |packet| servo(packet.id));
+            Some((LogLevel::Warning, format!("a status packet from {from} that answered nothing pending (late?)")))
+        }
+        RealRecord::FrameError { from, what, .. } => {
+            let side = match from {
+                Side::Controller => "controller",
+                Side::Servos => "servos",
+            };
+            Some((LogLevel::Error, format!("from the {side}: {what}")))
+        }
+        _ => None,
     }
 }
 

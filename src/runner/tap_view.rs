@@ -21,6 +21,7 @@ use crate::protocol::RawPacket;
 use crate::real_bus::compare::{fast_blocks, is_fast_read, read_spans, registers_in};
 use crate::transcript::packet_from_bytes;
 use crate::real_bus::{Event, RealRecord};
+use crate::runner::compare::real_bus_note;
 use crate::runner::view::{LiveAddress, ReadingsTopic, ServoReadings, Setup, View, ViewError, ViewOptions};
 
 use super::{Result, RunnerError};
@@ -112,35 +113,27 @@ fn show(options: &ViewOptions, servos: &TapViewOptions, events: &Receiver<Event>
 }
 
 fn show_event(view: &View, servos: &TapViewOptions, event: &Event) {
-    let at = match event {
-        Event::Transaction(seen) => seen.t,
-        Event::Raw { at, .. } | Event::Unpaired { at, .. } | Event::FrameError { at, .. } => *at,
-    };
-    if let Ok(line) = serde_json::to_string(&RealRecord::from_event(event)) {
+    let record = RealRecord::from_event(event);
+    let at = Duration::from_nanos(record.t());
+    if let Ok(line) = serde_json::to_string(&record) {
         view.packet_line(at, &line);
     }
     let name = |id: u8| servos.names.iter().find(|(of, _)| *of == id).map_or_else(|| format!("id{id}"), |(_, name)| name.clone());
-    match event {
-        Event::Transaction(seen) => {
-            let spans = read_spans(&seen.instruction);
-            let packets: Vec<RawPacket> = seen.replies.iter().filter_map(|reply| packet_from_bytes(&reply.bytes).ok()).collect();
-            // (ID, first address, data) of each servo's answer: a Fast read's one reply split.
-            let blocks: Vec<(u8, u16, &[u8])> = if is_fast_read(&seen.instruction) {
-                packets.first().map(|packet| fast_blocks(packet, &spans)).unwrap_or_default()
-            } else {
-                packets.iter().filter_map(|packet| Some((packet.id, spans.iter().find(|(of, _, _)| *of == packet.id)?.1, packet.status_data().ok()?))).collect()
-            };
-            let names: Vec<String> = blocks.iter().map(|(id, _, _)| name(*id)).collect();
-            let readings: Vec<ServoReadings<'_>> = blocks.iter().zip(&names).map(|(&(id, address, data), name)| ServoReadings { name, id, registers: registers_in(&servos.profile, address, data) }).collect();
-            view.readings(ReadingsTopic::Servos, seen.t, &readings);
-            if !seen.missed.is_empty() {
-                let missed: Vec<String> = seen.missed.iter().map(|id| format!("{} ({id})", name(*id))).collect();
-                view.log(seen.t, LogLevel::Warning, format!("no reply from {}", missed.join(", ")));
-            }
-        }
-        Event::Unpaired { at, packet } => view.log(*at, LogLevel::Warning, format!("a status packet from {} that answered nothing pending (late?)", name(packet.id))),
-        Event::FrameError { from_servos, at, error } => view.log(*at, LogLevel::Error, format!("from the {}: {error}", if *from_servos { "servos" } else { "controller" })),
-        Event::Raw { .. } => {}
+    if let Event::Transaction(seen) = event {
+        let spans = read_spans(&seen.instruction);
+        let packets: Vec<RawPacket> = seen.replies.iter().filter_map(|reply| packet_from_bytes(&reply.bytes).ok()).collect();
+        // (ID, first address, data) of each servo's answer: a Fast read's one reply split.
+        let blocks: Vec<(u8, u16, &[u8])> = if is_fast_read(&seen.instruction) {
+            packets.first().map(|packet| fast_blocks(packet, &spans)).unwrap_or_default()
+        } else {
+            packets.iter().filter_map(|packet| Some((packet.id, spans.iter().find(|(of, _, _)| *of == packet.id)?.1, packet.status_data().ok()?))).collect()
+        };
+        let names: Vec<String> = blocks.iter().map(|(id, _, _)| name(*id)).collect();
+        let readings: Vec<ServoReadings<'_>> = blocks.iter().zip(&names).map(|(&(id, address, data), name)| ServoReadings { name, id, registers: registers_in(&servos.profile, address, data) }).collect();
+        view.readings(ReadingsTopic::Servos, seen.t, &readings);
+    }
+    if let Some((level, note)) = real_bus_note(&record, |id| format!("{} ({id})", name(id))) {
+        view.log(at, level, note);
     }
     view.time(at);
 }

@@ -32,8 +32,8 @@ pub struct TapWorld {
 pub struct TapWorldOptions {
     /// The world, and where the comparison goes (`out`).
     pub compare: CompareOptions,
-    /// Serve the world live to Foxglove there (`--foxglove` with `--scenario`), beside the
-    /// tap's own view of the real servos.
+    /// Serve the world live to Foxglove there (`--foxglove` with `--scenario`): the session's
+    /// one connection, the real servos' replies beside the world's.
     pub live: Option<LiveAddress>,
 }
 
