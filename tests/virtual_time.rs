@@ -103,6 +103,26 @@ fn the_official_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_servos_
     assert_latencies(log, "ping 42 ", 2, 34_100.0..34_300.0);
 }
 
+#[test]
+fn the_servos_answer_a_controllers_clean_up_after_the_run_and_it_is_not_counted_in_the_run() {
+    let dir = support::scratch_dir("vt-clean-up");
+    let path = scenario_1mbps(&dir, "clean-up", 1.0, &["tests/vt/clean_up.py"]);
+    let out = dir.join("out");
+    let (output, _) = run_virtual(&path, &out);
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
+    // On SIGTERM it turns four wheels' torque off, each write waiting for its status: every
+    // one answered (before, after the run nothing answered, and each waited out its timeout).
+    for dxl in 1..=4 {
+        assert!(log.contains(&format!("torque off {dxl}: [TxRxResult] Communication success! error 0 in")), "{log}");
+    }
+    // The run's timing report holds the run's pings only: one a period, none of the writes.
+    let periods: u64 = log.lines().find_map(|line| line.strip_prefix("periods: ")).and_then(|n| n.parse().ok()).expect("periods line");
+    let timing: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("timing.json")).expect("timing.json")).expect("timing JSON");
+    assert!(timing["latency_us"].get("Write").is_none(), "{timing}");
+    assert!(timing["requests"].as_u64().is_some_and(|requests| requests == periods || requests == periods + 1), "{} requests for {periods} periods", timing["requests"]);
+}
+
 /// Two processes that keep both cores busy while they live.
 struct Load(Vec<std::process::Child>);
 

@@ -223,7 +223,7 @@ int main(int argc, char **argv) {
     while (running) {
         double now = now_s();
         auto positions = sync_read_positions(all);
-        if (!running) break;  // stopped during the transaction: the bus is no longer answered
+        if (!running) break;  // stopped during the transaction (the run ended): not a period of the run
         if (!positions) {
             std::fprintf(stderr, "sync read failed\n");
         } else {

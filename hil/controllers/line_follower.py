@@ -160,7 +160,7 @@ def main():
         now = time.monotonic()
         result = reader.txRxPacket()
         if not running:
-            # Stopped during the transaction (the run ended): the bus is no longer answered.
+            # Stopped during the transaction (the run ended): not a period of the run.
             break
         if result != COMM_SUCCESS:
             print(f"sync read failed: {packet.getTxRxResult(result)}", file=sys.stderr)

@@ -26,7 +26,7 @@ use super::outputs::{RunOutcome, failures, fault_summary, finish_timing_report, 
 use super::process::{Controller, Launch, param_env, resolve_command};
 use super::recording::{RecordSpec, finish_recording, record_sensor_reads, start_recording};
 use super::feed::{WorldFailed, observer_hook, start_sensor_server};
-use super::serve::pty::{drive_pty, serve_pty};
+use super::serve::pty::{drive_pty, serve_after_the_run, serve_pty};
 use super::ticks::{HandleTicks, Ticked, run_ticks};
 use super::{Console, During as _, Result, RunnerError};
 
@@ -216,12 +216,24 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     let sim_s = clock.now().as_secs_f64();
     // The controller's clean-up runs on the wall clock: it can neither hang nor move the world.
     // It is asked to stop first, while parked at the run's last instant.
+    let mut clean_up = None;
     if let Some(vt) = &virtual_time {
         controller.ask_to_stop()?;
         vt.end();
+        // The servos still answer while it cleans up (they do on a real robot): on the wall
+        // clock, recorded nowhere.
+        let session = serve_after_the_run(Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal);
+        clean_up = Some(pty_runtime.spawn(async move {
+            if let Err(error) = session.await {
+                warn!(%error, "the pty session after the run ended");
+            }
+        }));
     }
     // Stopped either way: a controller that ended by itself may have left children running.
     let stopped = controller.stop()?;
+    if let Some(session) = clean_up {
+        session.abort();
+    }
     let exit = early_exit.unwrap_or(Exit { status: stopped, at_s: sim_s, early: false });
     pty_runtime.block_on(port.drain(Duration::from_millis(200)));
     port.remove_link();

@@ -17,6 +17,8 @@ use tracing::warn;
 
 /// How long a controller gets to stop after SIGTERM before it is killed.
 const STOP_GRACE: Duration = Duration::from_secs(3);
+/// How long after SIGTERM stopping looks each millisecond whether the controller has gone.
+const STOP_LOOKS_CLOSELY: Duration = Duration::from_millis(100);
 /// The controller's niceness (see [`Controller::start`]).
 const CONTROLLER_NICE: libc::c_int = 10;
 /// How long stopping waits for the controller's log to be complete.
@@ -161,7 +163,11 @@ impl Controller {
                 if status.is_some() && !self.any_left(pgid) {
                     break;
                 }
-                std::thread::sleep(Duration::from_millis(20));
+                // Most controllers are gone within a few milliseconds, and every run waits for
+                // this: looked at each millisecond at first, then less often (a look may scan
+                // /proc).
+                let pause = if asked.elapsed() < STOP_LOOKS_CLOSELY { Duration::from_millis(1) } else { Duration::from_millis(20) };
+                std::thread::sleep(pause);
             }
             if status.is_none() || self.any_left(pgid) {
                 warn!("the controller or what it started ignored SIGTERM for {STOP_GRACE:?}; killing them");

@@ -1,6 +1,7 @@
 //! What every transport shares with the bus: [`BusHandle`] (the bus under one lock, its trace,
 //! statistics, transcript and [`Clock`]) and the clock itself.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
@@ -42,6 +43,13 @@ impl Clock {
         Self { origin: Instant::now(), speed: 1.0, virtual_time: Some(virtual_time) }
     }
 
+    /// A clock on the wall's time that reads `now` at once and goes on from there: for what
+    /// happens after a run on virtual time has ended (the controller's clean-up).
+    pub fn wall_from(now: Duration) -> Self {
+        let started = Instant::now();
+        Self { origin: started.checked_sub(now).unwrap_or(started), speed: 1.0, virtual_time: None }
+    }
+
     /// The scheduler, if time is virtual: reply timing waits on its timers, not the wall's.
     pub fn virtual_time(&self) -> Option<&Arc<VirtualTime>> {
         self.virtual_time.as_ref()
@@ -78,6 +86,9 @@ pub struct BusHandle {
     /// `--record`: packets and ticks, appended under the bus lock so that their order in the
     /// transcript is the order the bus saw them in.
     recorder: Option<Arc<Recorder>>,
+    /// Cleared once the run is over ([`BusHandle::stop_recording`]): what the servos answer
+    /// after it is left out of the run's statistics, trace and recordings.
+    recording: AtomicBool,
 }
 
 impl BusHandle {
@@ -92,7 +103,7 @@ impl BusHandle {
 
     /// Like [`BusHandle::recording`], on `clock` (e.g. [`Clock::scaled`] for `--speed`).
     pub fn with_clock(bus: Bus, trace: Option<TraceWriter>, recorder: Option<Arc<Recorder>>, clock: Clock) -> Arc<Self> {
-        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock, recorder })
+        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock, recorder, recording: AtomicBool::new(true) })
     }
 
     pub fn recorder(&self) -> Option<&Arc<Recorder>> {
@@ -129,6 +140,22 @@ impl BusHandle {
         f(&mut stats)
     }
 
+    /// Count something that happened on the line into the statistics, while the run lasts.
+    pub(super) fn count(&self, f: impl FnOnce(&mut LineStats)) {
+        if self.recording.load(Ordering::Acquire) {
+            self.with_stats(f);
+        }
+    }
+
+    /// The run is over: the servos go on answering (a controller's clean-up: wheels stopped,
+    /// torque off), but nothing more is counted, traced, recorded or shown. The world no
+    /// longer moves, so none of it belongs to the run, and under virtual time it happens on
+    /// the wall clock, where it would differ from run to run.
+    pub fn stop_recording(&self) {
+        self.recording.store(false, Ordering::Release);
+        self.with_bus(|bus| bus.set_transaction_tap(None));
+    }
+
     /// The timing report so far; `pace` is the pacer's, if a world runs on the wall clock.
     pub fn timing_report(&self, pace: &PhysicsPace) -> TimingReport {
         let watchdog_expiries = self.with_bus(|bus| bus.servos().iter().map(|s| s.watchdog_expiries()).sum());
@@ -139,13 +166,17 @@ impl BusHandle {
 
     pub(super) fn handle(&self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>, physical_wire: bool) -> Transaction {
         let key = LoopKey { instruction: packet.instruction, id: packet.id };
+        let recording = self.recording.load(Ordering::Acquire);
         let transaction = self.with_bus(|bus| {
             let transaction = if physical_wire { bus.handle_from_physical_wire(packet, received_at, line_baud) } else { bus.handle(packet, received_at, line_baud) };
-            if let Some(recorder) = &self.recorder {
+            if let Some(recorder) = self.recorder.as_ref().filter(|_| recording) {
                 recorder.packet(&transaction, line_baud);
             }
             transaction
         });
+        if !recording {
+            return transaction;
+        }
         self.with_stats(|stats| stats.request(received_at, key, transaction.wire_busy, transaction.baud_mismatch));
         let mut trace = self.trace.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(writer) = trace.as_mut()

@@ -3,7 +3,7 @@
 use std::sync::Arc;
 
 use crate::bus::Timing;
-use crate::transport::{Adapter, AdapterModel, BusHandle, TransportError, VirtualPort, serve_stream_through};
+use crate::transport::{Adapter, AdapterModel, BusHandle, Clock, TransportError, VirtualPort, serve_stream_on, serve_stream_through};
 
 use crate::runner::{During as _, Result};
 use crate::virtual_time::{Serves, VirtualTime};
@@ -18,6 +18,17 @@ pub async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: 
     }
     let spin_for_requests = handle.with_bus(|bus| bus.timing()) == Timing::Off;
     serve_stream_through(port.stream(spin_for_requests)?, handle, &line, AdapterModel::new(adapter)).await
+}
+
+/// Serve `port` on the wall clock once a run on virtual time is over, for as long as the
+/// controller cleans up (the caller aborts it): its last writes (wheels stopped, torque off)
+/// are answered at once, from the world as the run left it, rather than each waiting out its
+/// timeout. The bus records none of it (see [`BusHandle::stop_recording`]).
+pub async fn serve_after_the_run(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) -> Result<(), TransportError> {
+    handle.stop_recording();
+    let line = port.line();
+    let clock = Clock::wall_from(handle.clock().now());
+    serve_stream_on(port.stream(false)?, handle, &line, AdapterModel::new(adapter), clock).await
 }
 
 /// Serve `port` inside the virtual-time scheduler: the session acts only at exact simulated

@@ -1,0 +1,41 @@
+#!/usr/bin/env python3
+"""A controller that cleans up on SIGTERM as the reference controllers do: a period of pings
+until the run ends, then the wheels' torque turned off, each write waiting for its status.
+Prints each clean-up write's result and how long it took on the clock the clean-up runs on
+(the wall's): the servos still answer after the run, at once, not after the SDK's timeout."""
+import os
+import signal
+import sys
+import time
+
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+ADDR_TORQUE_ENABLE = 64
+port = PortHandler(os.environ["DXL_PORT"])
+packet = PacketHandler(2.0)
+if not port.openPort() or not port.setBaudRate(int(os.environ.get("DXL_BAUD", "57600"))):
+    sys.exit("cannot open the port")
+
+running = True
+
+
+def stop(_signum, _frame):
+    global running
+    running = False
+
+
+signal.signal(signal.SIGTERM, stop)
+periods = 0
+while running:
+    _, result, _ = packet.ping(port, 1)
+    if not running:
+        break
+    assert result == COMM_SUCCESS, packet.getTxRxResult(result)
+    periods += 1
+    time.sleep(0.02)
+print(f"periods: {periods}", flush=True)
+for dxl in (1, 2, 3, 4):
+    started = time.monotonic()
+    result, error = packet.write1ByteTxRx(port, dxl, ADDR_TORQUE_ENABLE, 0)
+    print(f"torque off {dxl}: {packet.getTxRxResult(result)} error {error} in {(time.monotonic() - started) * 1e3:.1f} ms", flush=True)
+port.closePort()
