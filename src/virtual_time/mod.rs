@@ -481,19 +481,33 @@ impl VirtualTime {
             if stop.load(Ordering::Relaxed) || header.mode.load(Ordering::Acquire) != mode::VIRTUAL {
                 return Err(VtError::Interrupted);
             }
+            if self.ran_past(due) {
+                return Ok(());
+            }
             // A controller thread usually parks again within tens of microseconds: spin that
             // long before sleeping on the futex (its wake-up costs more on a VM).
             let spin = if self.spin && lock(&self.quiet).now() { SPIN } else { Duration::ZERO };
             header.park_spin_ns.store(spin.as_nanos() as u64, Ordering::Relaxed);
             let spin_until = std::time::Instant::now() + spin;
-            while header.sched_word.load(Ordering::Acquire) == seen && std::time::Instant::now() < spin_until {
+            while header.sched_word.load(Ordering::Acquire) == seen && !self.ran_past(due) && std::time::Instant::now() < spin_until {
                 std::hint::spin_loop();
             }
-            if header.sched_word.load(Ordering::Acquire) != seen {
+            if header.sched_word.load(Ordering::Acquire) != seen || self.ran_past(due) {
                 continue;
             }
             futex_wait(&header.sched_word, seen, Duration::from_millis(10));
         }
+    }
+
+    /// A running thread has moved the clock itself to the world's next tick `due` or past it
+    /// (through replies written ahead, within the horizon): the tick runs now, beside it, rather
+    /// than after it parks. Nothing it does can reach the world before the world is there: it
+    /// sees the world only through replies made while it was parked, and what it sends is read
+    /// once the world has caught up with its instant. (Not with a refusal pending: that is
+    /// judged with the thread parked, once it has said why.)
+    fn ran_past(&self, due: u64) -> bool {
+        let header = &self.shared().header;
+        self.now_ns() >= due && header.refused.load(Ordering::Acquire) == 0
     }
 
     fn last_poll_long_ago(&self) -> bool {
