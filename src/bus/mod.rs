@@ -129,6 +129,11 @@ impl Bus {
         self.plant.as_any_mut().downcast_mut()
     }
 
+    /// The rate of a servo that was never told one (`--baud`'s default).
+    pub fn default_baud(&self) -> u32 {
+        self.default_baud
+    }
+
     pub fn timing(&self) -> Timing {
         self.timing
     }

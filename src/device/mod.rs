@@ -13,7 +13,7 @@ pub mod shaft;
 
 pub use control_table::{ControlTable, StagedWrite, WriteContext, decode as decode_item};
 pub use error::DeviceError;
-pub use plant::{BenchPlant, Plant};
+pub use plant::{BenchPlant, Plant, StillPlant};
 pub use profile::{FirmwareProfile, ProfileError};
 pub use servo::{Addressing, AfterReply, Outcome, Request, Servo};
 pub use shaft::{BenchLoad, ShaftDrive, ShaftLoad, ShaftState};

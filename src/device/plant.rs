@@ -19,6 +19,23 @@ pub trait Plant: Send {
     }
 }
 
+/// A plant that no longer moves: the servos keep what they last sensed. For servos answering
+/// after their world has stopped (a controller's clean-up after a run).
+#[derive(Debug, Default)]
+pub struct StillPlant;
+
+impl Plant for StillPlant {
+    fn advance(&mut self, _servos: &mut [Servo], _until: Duration) {}
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
+
 /// Each servo on the bench, driving only its own rotor (and an optional extra inertia).
 #[derive(Debug, Default)]
 pub struct BenchPlant {

@@ -18,7 +18,7 @@ use crate::runner::view::{LiveAddress, ViewOptions};
 use crate::scenario::{ExternalController, Scenario};
 use crate::sensor_server::SensorFeed;
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, VirtualPort};
-use crate::virtual_time::VirtualTime;
+use crate::virtual_time::{VirtualTime, VtError};
 
 use super::clock::{Pace, TimeBase, VirtualClock, WallClock};
 use super::observe::{require_line, scenario_bus};
@@ -26,7 +26,7 @@ use super::outputs::{RunOutcome, failures, fault_summary, finish_timing_report, 
 use super::process::{Controller, Launch, param_env, resolve_command};
 use super::recording::{RecordSpec, finish_recording, record_sensor_reads, start_recording};
 use super::feed::{WorldFailed, observer_hook, start_sensor_server};
-use super::serve::pty::{drive_pty, serve_after_the_run, serve_pty};
+use super::serve::pty::{after_the_run, drive_pty, serve_after_the_run, serve_pty};
 use super::ticks::{HandleTicks, Ticked, run_ticks};
 use super::{Console, During as _, Result, RunnerError};
 
@@ -206,12 +206,24 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         error: None,
         unfollowed: false,
     };
-    let ended = match &virtual_time {
+    let mut ended = match &virtual_time {
         Some(vt) => run_ticks(&mut VirtualClock::new(Arc::clone(vt), stop), &mut ticks, stop),
         None => run_ticks(&mut WallClock::on(clock.clone()), &mut ticks, stop),
     };
     let (early_exit, error) = (ticks.exit.take(), ticks.error.take());
     drop(ticks);
+    // A controller thread may have run on past the world's last tick: the time the run ended
+    // at and the stop signal wait for it to park, so that neither depends on the race. (Not
+    // after a failure or an interruption: the threads may never park then.)
+    if let Some(vt) = &virtual_time
+        && ended.clock_failure.is_none()
+        && !ended.interrupted
+    {
+        match vt.await_parked(stop) {
+            Ok(()) | Err(VtError::Interrupted) => {}
+            Err(stuck) => ended.clock_failure = Some(stuck.to_string()),
+        }
+    }
     let pace = ended.pace;
     let sim_s = clock.now().as_secs_f64();
     // The controller's clean-up runs on the wall clock: it can neither hang nor move the world.
@@ -221,13 +233,18 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         controller.ask_to_stop()?;
         vt.end();
         // The servos still answer while it cleans up (they do on a real robot): on the wall
-        // clock, recorded nowhere.
-        let session = serve_after_the_run(Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal);
-        clean_up = Some(pty_runtime.spawn(async move {
-            if let Err(error) = session.await {
-                warn!(%error, "the pty session after the run ended");
+        // clock, on a bus of their own, so that nothing of it reaches the run's outputs.
+        match after_the_run(&handle) {
+            Ok(servos) => {
+                let session = serve_after_the_run(Arc::clone(&port), servos);
+                clean_up = Some(pty_runtime.spawn(async move {
+                    if let Err(error) = session.await {
+                        warn!(%error, "the pty session after the run ended");
+                    }
+                }));
             }
-        }));
+            Err(error) => warn!(%error, "the controller's clean-up goes unanswered"),
+        }
     }
     // Stopped either way: a controller that ended by itself may have left children running.
     let stopped = controller.stop()?;

@@ -1,7 +1,6 @@
 //! What every transport shares with the bus: [`BusHandle`] (the bus under one lock, its trace,
 //! statistics, transcript and [`Clock`]) and the clock itself.
 
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
@@ -21,6 +20,8 @@ use super::stats::{LineStats, LoopKey, PhysicsPace, ReportExtras, TimingReport};
 #[derive(Debug, Clone)]
 pub struct Clock {
     origin: Instant,
+    /// Simulated time at `origin` (zero but for [`Clock::wall_from`]).
+    offset: Duration,
     speed: f64,
     virtual_time: Option<Arc<VirtualTime>>,
 }
@@ -35,19 +36,18 @@ impl Clock {
     /// A clock starting now whose time runs `speed` (> 0, finite) times the wall clock's rate.
     pub fn scaled(speed: f64) -> Self {
         let speed = if speed.is_finite() && speed > 0.0 { speed } else { 1.0 };
-        Self { origin: Instant::now(), speed, virtual_time: None }
-    }
-
-    /// Simulated time as `virtual_time`'s scheduler moves it (`--clock virtual`).
-    pub fn on_virtual_time(virtual_time: Arc<VirtualTime>) -> Self {
-        Self { origin: Instant::now(), speed: 1.0, virtual_time: Some(virtual_time) }
+        Self { origin: Instant::now(), offset: Duration::ZERO, speed, virtual_time: None }
     }
 
     /// A clock on the wall's time that reads `now` at once and goes on from there: for what
     /// happens after a run on virtual time has ended (the controller's clean-up).
     pub fn wall_from(now: Duration) -> Self {
-        let started = Instant::now();
-        Self { origin: started.checked_sub(now).unwrap_or(started), speed: 1.0, virtual_time: None }
+        Self { offset: now, ..Self::scaled(1.0) }
+    }
+
+    /// Simulated time as `virtual_time`'s scheduler moves it (`--clock virtual`).
+    pub fn on_virtual_time(virtual_time: Arc<VirtualTime>) -> Self {
+        Self { origin: Instant::now(), offset: Duration::ZERO, speed: 1.0, virtual_time: Some(virtual_time) }
     }
 
     /// The scheduler, if time is virtual: reply timing waits on its timers, not the wall's.
@@ -62,13 +62,13 @@ impl Clock {
     pub fn now(&self) -> Duration {
         match &self.virtual_time {
             Some(virtual_time) => virtual_time.now(),
-            None => self.origin.elapsed().mul_f64(self.speed),
+            None => self.offset + self.origin.elapsed().mul_f64(self.speed),
         }
     }
 
     /// The wall-clock instant at which simulated time reaches `at`.
     pub fn instant(&self, at: Duration) -> Instant {
-        self.origin + self.wall(at)
+        self.origin + self.wall(at.saturating_sub(self.offset))
     }
 
     /// How long a span of simulated time lasts on the wall clock.
@@ -86,9 +86,6 @@ pub struct BusHandle {
     /// `--record`: packets and ticks, appended under the bus lock so that their order in the
     /// transcript is the order the bus saw them in.
     recorder: Option<Arc<Recorder>>,
-    /// Cleared once the run is over ([`BusHandle::stop_recording`]): what the servos answer
-    /// after it is left out of the run's statistics, trace and recordings.
-    recording: AtomicBool,
 }
 
 impl BusHandle {
@@ -103,7 +100,7 @@ impl BusHandle {
 
     /// Like [`BusHandle::recording`], on `clock` (e.g. [`Clock::scaled`] for `--speed`).
     pub fn with_clock(bus: Bus, trace: Option<TraceWriter>, recorder: Option<Arc<Recorder>>, clock: Clock) -> Arc<Self> {
-        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock, recorder, recording: AtomicBool::new(true) })
+        Arc::new(Self { bus: Mutex::new(bus), trace: Mutex::new(trace), stats: Mutex::new(LineStats::default()), clock, recorder })
     }
 
     pub fn recorder(&self) -> Option<&Arc<Recorder>> {
@@ -140,22 +137,6 @@ impl BusHandle {
         f(&mut stats)
     }
 
-    /// Count something that happened on the line into the statistics, while the run lasts.
-    pub(super) fn count(&self, f: impl FnOnce(&mut LineStats)) {
-        if self.recording.load(Ordering::Acquire) {
-            self.with_stats(f);
-        }
-    }
-
-    /// The run is over: the servos go on answering (a controller's clean-up: wheels stopped,
-    /// torque off), but nothing more is counted, traced, recorded or shown. The world no
-    /// longer moves, so none of it belongs to the run, and under virtual time it happens on
-    /// the wall clock, where it would differ from run to run.
-    pub fn stop_recording(&self) {
-        self.recording.store(false, Ordering::Release);
-        self.with_bus(|bus| bus.set_transaction_tap(None));
-    }
-
     /// The timing report so far; `pace` is the pacer's, if a world runs on the wall clock.
     pub fn timing_report(&self, pace: &PhysicsPace) -> TimingReport {
         let watchdog_expiries = self.with_bus(|bus| bus.servos().iter().map(|s| s.watchdog_expiries()).sum());
@@ -166,17 +147,13 @@ impl BusHandle {
 
     pub(super) fn handle(&self, packet: RawPacket, received_at: Duration, line_baud: Option<u32>, physical_wire: bool) -> Transaction {
         let key = LoopKey { instruction: packet.instruction, id: packet.id };
-        let recording = self.recording.load(Ordering::Acquire);
         let transaction = self.with_bus(|bus| {
             let transaction = if physical_wire { bus.handle_from_physical_wire(packet, received_at, line_baud) } else { bus.handle(packet, received_at, line_baud) };
-            if let Some(recorder) = self.recorder.as_ref().filter(|_| recording) {
+            if let Some(recorder) = &self.recorder {
                 recorder.packet(&transaction, line_baud);
             }
             transaction
         });
-        if !recording {
-            return transaction;
-        }
         self.with_stats(|stats| stats.request(received_at, key, transaction.wire_busy, transaction.baud_mismatch));
         let mut trace = self.trace.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(writer) = trace.as_mut()

@@ -22,7 +22,7 @@ use thiserror::Error;
 
 pub use adapter::{Adapter, AdapterModel};
 pub use handle::{BusHandle, Clock};
-pub use session::{serve_stream, serve_stream_on, serve_stream_through, sleep_until_precise};
+pub use session::{serve_stream, serve_stream_through, sleep_until_precise};
 pub use echo::{Echo, EchoFilter};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort, VirtualTimeStream};
 pub use serial::{DeviceLine, DeviceSettings, DeviceStream, SerialDevice, SerialError, majority_baud};

@@ -50,23 +50,13 @@ pub async fn serve_stream_through<S>(stream: S, handle: Arc<BusHandle>, line: &d
 where
     S: AsyncRead + AsyncWrite + Unpin,
 {
-    let clock = handle.clock();
-    serve_stream_on(stream, handle, line, adapter, clock).await
-}
-
-/// [`serve_stream_through`] on `clock` rather than the bus's own (the wall's, after a run on
-/// virtual time has ended).
-pub async fn serve_stream_on<S>(stream: S, handle: Arc<BusHandle>, line: &dyn LineSettings, adapter: Option<AdapterModel>, clock: Clock) -> Result<(), TransportError>
-where
-    S: AsyncRead + AsyncWrite + Unpin,
-{
     let (servos_gap, timing) = handle.with_bus(|bus| (bus.inter_byte_timeout(), bus.timing()));
     // A line's own timeout (TCP's) is wall time, for wall-clock causes (delayed ACKs, an
     // emulator's UART); the session's gaps are simulated time, N x the wall at --speed N.
-    let gap = line.inter_byte_timeout().map_or(servos_gap, |wall| wall.mul_f64(clock.speed()));
+    let gap = line.inter_byte_timeout().map_or(servos_gap, |wall| wall.mul_f64(handle.clock().speed()));
     let mut session = Session {
         stream,
-        clock,
+        clock: handle.clock(),
         handle: Arc::clone(&handle),
         line,
         timing,
@@ -210,9 +200,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
                 Err(error) => {
                     // A packet cut by a quiet line is both: lost to framing, and by a gap.
                     if let FrameError::InterByteTimeout(_) = error {
-                        self.handle.count(LineStats::inter_byte_gap);
+                        self.handle.with_stats(LineStats::inter_byte_gap);
                     }
-                    self.handle.count(LineStats::frame_error);
+                    self.handle.with_stats(LineStats::frame_error);
                     log_frame_error(&error);
                 }
             }
@@ -251,7 +241,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             replies += 1;
             left = left.saturating_sub(len);
         }
-        self.handle.count(|stats| stats.unread(replies.max(1), bytes as u64));
+        self.handle.with_stats(|stats| stats.unread(replies.max(1), bytes as u64));
         debug!(bytes, "request sent while earlier replies were unread");
     }
 
@@ -316,7 +306,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         // Handed over at its start on a physical wire, its bytes still have to cross it.
         let complete = if self.physical_wire { latency + byte_time * replies[last_reply].bytes.len() as u32 } else { latency };
         let answer = Answered { instruction: name, replies: replies.len(), latency, late, at, complete, replies_wire };
-        self.handle.count(|stats| stats.answered(answer));
+        self.handle.with_stats(|stats| stats.answered(answer));
         self.last_reply_lens = replies.iter().map(|r| r.bytes.len()).collect();
         self.replies_since_unread_check = true;
     }
@@ -529,7 +519,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         self.controller_tx_free_at = on_wire + byte_time * bytes.len() as u32;
         let collided = wire::collide_in_time(bytes, on_wire, replies, byte_time);
         if collided > 0 {
-            self.handle.count(|stats| stats.collision(collided));
+            self.handle.with_stats(|stats| stats.collision(collided));
             debug!(bytes = bytes.len(), collided, "controller sent while a reply was on the wire: both corrupted");
         }
         collided

@@ -102,6 +102,15 @@ const SPIN: Duration = Duration::from_micros(400);
 /// clients climbsim does not follow.
 const UNFOLLOWED_CLIENTS_EVERY: Duration = Duration::from_millis(5);
 
+/// How [`VirtualTime::settle`] returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Settled {
+    /// Every thread parked, with nothing left to read.
+    Parked,
+    /// A thread still runs, past the world's next tick (see [`VirtualTime::ran_past`]).
+    RanPast,
+}
+
 /// A future climbsim runs inside the scheduler, and what it serves.
 type Driven = (Serves, Pin<Box<dyn Future<Output = ()> + Send>>);
 
@@ -380,11 +389,13 @@ impl VirtualTime {
             if self.now_ns() >= due {
                 return Ok(());
             }
-            self.settle(&mut watchdog, stop, due)?;
+            let settled = self.settle(&mut watchdog, stop, due)?;
             // Judged with every thread parked: the thread that met the refusal has printed
             // what it makes of it (a run failed at once lost the io_uring test's line, once,
             // under load: climbsim had let the thread go and looked before it wrote).
-            if let Some(refusal) = abi::refused::describe(header.refused.load(Ordering::Acquire)) {
+            if settled == Settled::Parked
+                && let Some(refusal) = abi::refused::describe(header.refused.load(Ordering::Acquire))
+            {
                 return Err(VtError::Stuck(refusal));
             }
             let now = self.now_ns();
@@ -434,7 +445,7 @@ impl VirtualTime {
     /// next tick `due`: that tick runs first, and what the controller sent is read after it (a
     /// tick precedes whatever happens at its instant, and bytes sent at T meet the world as it
     /// is at T, however the two threads raced there).
-    fn settle(&self, watchdog: &mut watchdog::Watchdog, stop: &AtomicBool, due: u64) -> Result<(), VtError> {
+    fn settle(&self, watchdog: &mut watchdog::Watchdog, stop: &AtomicBool, due: u64) -> Result<Settled, VtError> {
         let header = &self.shared().header;
         loop {
             // Every 10 ms of this loop, whichever way it goes round: the threads are judged.
@@ -453,7 +464,7 @@ impl VirtualTime {
                     continue;
                 }
                 if self.now_ns() >= due {
-                    return Ok(());
+                    return Ok(Settled::Parked);
                 }
                 // The driven futures have something to do only when the controller sent bytes
                 // (and after timers, which poll them themselves); clients climbsim does not
@@ -467,7 +478,7 @@ impl VirtualTime {
                     self.poll_driven(Some(Serves::Sensors));
                 }
                 if !self.held() {
-                    return Ok(());
+                    return Ok(Settled::Parked);
                 }
                 if stop.load(Ordering::Relaxed) {
                     return Err(VtError::Interrupted);
@@ -482,7 +493,7 @@ impl VirtualTime {
                 return Err(VtError::Interrupted);
             }
             if self.ran_past(due) {
-                return Ok(());
+                return Ok(Settled::RanPast);
             }
             // A controller thread usually parks again within tens of microseconds: spin that
             // long before sleeping on the futex (its wake-up costs more on a VM).
@@ -499,15 +510,37 @@ impl VirtualTime {
         }
     }
 
-    /// A running thread has moved the clock itself to the world's next tick `due` or past it
-    /// (through replies written ahead, within the horizon): the tick runs now, beside it, rather
-    /// than after it parks. Nothing it does can reach the world before the world is there: it
-    /// sees the world only through replies made while it was parked, and what it sends is read
-    /// once the world has caught up with its instant. (Not with a refusal pending: that is
-    /// judged with the thread parked, once it has said why.)
+    /// A running thread has moved the clock itself past the world's next tick `due` (through
+    /// replies written ahead, within the horizon): the tick runs now, beside it, rather than
+    /// after it parks. Nothing it does can reach the world before the world is there: it sees
+    /// the world only through replies made while it was parked, and what it sends is read once
+    /// the world has caught up with its instant. Past, not at: a thread that ends at the tick's
+    /// own instant must be seen ended by that tick. (Not with a refusal pending: that is judged
+    /// with the thread parked, once it has said why.)
     fn ran_past(&self, due: u64) -> bool {
         let header = &self.shared().header;
-        self.now_ns() >= due && header.refused.load(Ordering::Acquire) == 0
+        self.now_ns() > due && header.refused.load(Ordering::Acquire) == 0
+    }
+
+    /// Wait until no controller thread runs, without moving time or letting any go: at the
+    /// run's end, so that the time it ended at and the stop signal find every thread parked
+    /// (one may have run on past the world's last tick).
+    pub fn await_parked(&self, stop: &AtomicBool) -> Result<(), VtError> {
+        let header = &self.shared().header;
+        let mut watchdog = watchdog::Watchdog::new(watchdog::Limits { stuck_after: self.settings.stuck_after, compute_limit: self.settings.compute_limit, livelock_after: LIVELOCK_AFTER });
+        loop {
+            if watchdog.due() {
+                watchdog.check(self.shared())?;
+            }
+            let seen = header.sched_word.load(Ordering::Acquire);
+            if !self.any_running() {
+                return Ok(());
+            }
+            if stop.load(Ordering::Relaxed) {
+                return Err(VtError::Interrupted);
+            }
+            futex_wait(&header.sched_word, seen, Duration::from_millis(1));
+        }
     }
 
     fn last_poll_long_ago(&self) -> bool {

@@ -2,8 +2,9 @@
 
 use std::sync::Arc;
 
-use crate::bus::Timing;
-use crate::transport::{Adapter, AdapterModel, BusHandle, Clock, TransportError, VirtualPort, serve_stream_on, serve_stream_through};
+use crate::bus::{Bus, Timing};
+use crate::device::StillPlant;
+use crate::transport::{Adapter, AdapterModel, BusHandle, Clock, TransportError, VirtualPort, serve_stream_through};
 
 use crate::runner::{During as _, Result};
 use crate::virtual_time::{Serves, VirtualTime};
@@ -20,15 +21,21 @@ pub async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: 
     serve_stream_through(port.stream(spin_for_requests)?, handle, &line, AdapterModel::new(adapter)).await
 }
 
-/// Serve `port` on the wall clock once a run on virtual time is over, for as long as the
-/// controller cleans up (the caller aborts it): its last writes (wheels stopped, torque off)
-/// are answered at once, from the world as the run left it, rather than each waiting out its
-/// timeout. The bus records none of it (see [`BusHandle::stop_recording`]).
-pub async fn serve_after_the_run(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) -> Result<(), TransportError> {
-    handle.stop_recording();
+/// The servos as the run left them, on a bus of their own that answers at once and moves
+/// nothing: what a controller's clean-up talks to after a run on virtual time (wheels stopped,
+/// torque off), as a real robot's servos would answer it. The run's own bus (its world, faults,
+/// statistics and recordings) stays as the run ended: nothing after the run is part of it.
+pub fn after_the_run(handle: &BusHandle) -> Result<Arc<BusHandle>> {
+    let (servos, baud) = handle.with_bus(|bus| (bus.servos().to_vec(), bus.default_baud()));
+    let bus = Bus::new(servos, Box::new(StillPlant), Timing::Off, baud).during(|| "cannot set up the servos for the controller's clean-up".to_owned())?;
+    Ok(BusHandle::with_clock(bus, None, None, Clock::wall_from(handle.clock().now())))
+}
+
+/// Serve `port` on the wall clock for as long as the caller lets it (it aborts the task), the
+/// servos behind `handle` (see [`after_the_run`]).
+pub async fn serve_after_the_run(port: Arc<VirtualPort>, handle: Arc<BusHandle>) -> Result<(), TransportError> {
     let line = port.line();
-    let clock = Clock::wall_from(handle.clock().now());
-    serve_stream_on(port.stream(false)?, handle, &line, AdapterModel::new(adapter), clock).await
+    serve_stream_through(port.stream(false)?, handle, &line, None).await
 }
 
 /// Serve `port` inside the virtual-time scheduler: the session acts only at exact simulated
