@@ -111,16 +111,24 @@ fn the_servos_answer_a_controllers_clean_up_after_the_run_and_it_is_not_counted_
     let (output, _) = run_virtual(&path, &out);
     assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
     let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
+    // Its clean-up sleeps on the wall clock, the whole of it (CPython sleeps to an absolute
+    // deadline read from the shim's clock, which the kernel's clock once took as long past).
+    let slept: f64 = log.lines().find_map(|line| line.strip_prefix("slept ")?.strip_suffix(" s")?.parse().ok()).expect("slept line");
+    assert!(slept >= 0.29, "{log}");
     // On SIGTERM it turns four wheels' torque off, each write waiting for its status: every
     // one answered (before, after the run nothing answered, and each waited out its timeout).
     for dxl in 1..=4 {
         assert!(log.contains(&format!("torque off {dxl}: [TxRxResult] Communication success! error 0 in")), "{log}");
     }
-    // The run's timing report holds the run's pings only: one a period, none of the writes.
+    // The run's timing report holds the run's own requests only: none of the clean-up's.
     let periods: u64 = log.lines().find_map(|line| line.strip_prefix("periods: ")).and_then(|n| n.parse().ok()).expect("periods line");
     let timing: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("timing.json")).expect("timing.json")).expect("timing JSON");
-    assert!(timing["latency_us"].get("Write").is_none(), "{timing}");
-    assert!(timing["requests"].as_u64().is_some_and(|requests| requests == periods || requests == periods + 1), "{} requests for {periods} periods", timing["requests"]);
+    // Two writes set servo 5's Bus Watchdog up before the pings.
+    assert_eq!(timing["latency_us"]["Write"]["count"], 2, "{timing}");
+    assert!(timing["requests"].as_u64().is_some_and(|requests| requests == periods + 2 || requests == periods + 3), "{} requests for {periods} periods", timing["requests"]);
+    // The clean-up came 300 ms of wall time after the run's last ping: had it reached the run's
+    // own servos, servo 5's 100 ms Bus Watchdog would have expired after the run.
+    assert_eq!(timing["watchdog_expiries"], 0, "{timing}");
 }
 
 /// Two processes that keep both cores busy while they live.

@@ -95,7 +95,7 @@ pub(crate) fn real_sleep_ns(ns: u64) {
 /// (0 for done), or None where the kernel's clock answers (a CPU-time clock, or no run).
 /// Interrupted by a signal: EINTR, and what was left of a relative sleep in `remain`.
 pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec) -> Option<c_int> {
-    let shared = active()?;
+    let Some(shared) = active() else { return absolute_sleep_after_the_run(clock, flags, request) };
     if request.is_null() || clock_at(shared, clock, 0).is_none() {
         return None;
     }
@@ -112,6 +112,30 @@ pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *
         unsafe { *remain = from_ns(left) };
     }
     Some(sys::EINTR)
+}
+
+/// After the run's end (or with climbsim gone) the clocks the shim answers still read simulated
+/// time, going on at the wall's rate, so an absolute deadline a program took from one is
+/// simulated too: given to the kernel as it is, it lies in the past (the monotonic family) or
+/// years off (the time of day), and a clean-up's `time.sleep` (CPython sleeps to a deadline)
+/// returned at once. What is left of it is slept on the wall clock instead. None for what goes
+/// to the kernel as it is: a relative sleep, a clock the shim does not answer, no run.
+fn absolute_sleep_after_the_run(clock: clockid_t, flags: c_int, request: *const timespec) -> Option<c_int> {
+    let shared = shared()?;
+    if flags & sys::TIMER_ABSTIME == 0 || request.is_null() || clock_at(shared, clock, 0).is_none() {
+        return None;
+    }
+    // SAFETY: the caller's timespec (non-null).
+    let request = unsafe { &*request };
+    if request.tv_nsec < 0 || request.tv_nsec >= 1_000_000_000 || request.tv_sec < 0 {
+        return Some(sys::EINVAL);
+    }
+    let left = sim_time_of(shared, clock, to_ns(request)).unwrap_or(0).saturating_sub(sim_now(shared));
+    let _own = crate::OwnCalls::enter();
+    let next = real!(clock_nanosleep: fn(clockid_t, c_int, *const timespec, *mut timespec) -> c_int);
+    // SAFETY: a valid relative timespec; a signal's interruption returns EINTR, as the caller's
+    // absolute sleep would (it has no remainder to report).
+    Some(unsafe { next(sys::CLOCK_MONOTONIC, 0, &from_ns(left), core::ptr::null_mut()) })
 }
 
 #[unsafe(no_mangle)]
