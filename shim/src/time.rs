@@ -74,29 +74,40 @@ pub(crate) fn sleep_until(shared: &Shared, deadline: u64) -> Option<u64> {
         return None;
     }
     match park(shared, state::BLOCKED, deadline, 0, 0) {
-        release::ENDING => real_sleep_ns(deadline.saturating_sub(sim_now(shared))),
+        release::ENDING => {
+            real_sleep_ns(deadline.saturating_sub(sim_now(shared)));
+        }
         release::SIGNAL => return Some(deadline.saturating_sub(sim_now(shared))),
         _ => {}
     }
     None
 }
 
-/// Sleep `ns` of wall time.
-pub(crate) fn real_sleep_ns(ns: u64) {
-    // glibc's nanosleep is the clock_nanosleep system call, which would trap: this sleep is the
-    // shim's own, on the wall clock.
+/// Sleep `ns` of wall time: the error number (0, or EINTR for a signal).
+pub(crate) fn real_sleep_ns(ns: u64) -> c_int {
+    // glibc's clock_nanosleep is the system call, which would trap: this sleep is the shim's
+    // own, on the wall clock.
     let _own = crate::OwnCalls::enter();
-    let nanosleep = real!(nanosleep: fn(*const timespec, *mut timespec) -> c_int);
-    // SAFETY: a valid timespec; the remainder is not wanted.
-    unsafe { nanosleep(&from_ns(ns), core::ptr::null_mut()) };
+    let clock_nanosleep = real!(clock_nanosleep: fn(clockid_t, c_int, *const timespec, *mut timespec) -> c_int);
+    // SAFETY: a valid relative timespec; the remainder is not wanted.
+    unsafe { clock_nanosleep(sys::CLOCK_MONOTONIC, 0, &from_ns(ns), core::ptr::null_mut()) }
 }
 
 /// clock_nanosleep on simulated time, for the interposer and the trap alike: the error number
 /// (0 for done), or None where the kernel's clock answers (a CPU-time clock, or no run).
 /// Interrupted by a signal: EINTR, and what was left of a relative sleep in `remain`.
+///
+/// After the run's end (or with climbsim gone) the clocks the shim answers still read simulated
+/// time, going on at the wall's rate, so an absolute deadline a program took from one is
+/// simulated too: given to the kernel as it is, it lies in the past (the monotonic family) or
+/// years off (the time of day), and a clean-up's `time.sleep` (CPython sleeps to a deadline)
+/// returned at once. What is left of it is slept on the wall clock instead; a relative sleep
+/// then goes to the kernel as it is.
 pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec) -> Option<c_int> {
-    let Some(shared) = active() else { return absolute_sleep_after_the_run(clock, flags, request) };
-    if request.is_null() || clock_at(shared, clock, 0).is_none() {
+    let shared = shared()?;
+    let running = active().is_some();
+    let absolute = flags & sys::TIMER_ABSTIME != 0;
+    if request.is_null() || clock_at(shared, clock, 0).is_none() || (!running && !absolute) {
         return None;
     }
     // SAFETY: the caller's timespec (non-null).
@@ -105,37 +116,17 @@ pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *
         return Some(sys::EINVAL);
     }
     let asked = to_ns(request);
-    let deadline = if flags & sys::TIMER_ABSTIME != 0 { sim_time_of(shared, clock, asked).unwrap_or(0) } else { sim_now(shared).saturating_add(asked) };
+    let deadline = if absolute { sim_time_of(shared, clock, asked).unwrap_or(0) } else { sim_now(shared).saturating_add(asked) };
+    if !running {
+        // The caller's sleep was absolute: it has no remainder to report.
+        return Some(real_sleep_ns(deadline.saturating_sub(sim_now(shared))));
+    }
     let Some(left) = sleep_until(shared, deadline) else { return Some(0) };
-    if flags & sys::TIMER_ABSTIME == 0 && !remain.is_null() {
+    if !absolute && !remain.is_null() {
         // SAFETY: the caller's timespec.
         unsafe { *remain = from_ns(left) };
     }
     Some(sys::EINTR)
-}
-
-/// After the run's end (or with climbsim gone) the clocks the shim answers still read simulated
-/// time, going on at the wall's rate, so an absolute deadline a program took from one is
-/// simulated too: given to the kernel as it is, it lies in the past (the monotonic family) or
-/// years off (the time of day), and a clean-up's `time.sleep` (CPython sleeps to a deadline)
-/// returned at once. What is left of it is slept on the wall clock instead. None for what goes
-/// to the kernel as it is: a relative sleep, a clock the shim does not answer, no run.
-fn absolute_sleep_after_the_run(clock: clockid_t, flags: c_int, request: *const timespec) -> Option<c_int> {
-    let shared = shared()?;
-    if flags & sys::TIMER_ABSTIME == 0 || request.is_null() || clock_at(shared, clock, 0).is_none() {
-        return None;
-    }
-    // SAFETY: the caller's timespec (non-null).
-    let request = unsafe { &*request };
-    if request.tv_nsec < 0 || request.tv_nsec >= 1_000_000_000 || request.tv_sec < 0 {
-        return Some(sys::EINVAL);
-    }
-    let left = sim_time_of(shared, clock, to_ns(request)).unwrap_or(0).saturating_sub(sim_now(shared));
-    let _own = crate::OwnCalls::enter();
-    let next = real!(clock_nanosleep: fn(clockid_t, c_int, *const timespec, *mut timespec) -> c_int);
-    // SAFETY: a valid relative timespec; a signal's interruption returns EINTR, as the caller's
-    // absolute sleep would (it has no remainder to report).
-    Some(unsafe { next(sys::CLOCK_MONOTONIC, 0, &from_ns(left), core::ptr::null_mut()) })
 }
 
 #[unsafe(no_mangle)]

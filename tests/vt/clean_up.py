@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """A controller that cleans up on SIGTERM as the reference controllers do: a period of pings
-(of servo 5) until the run ends, then the wheels' torque turned off, each write waiting for its status.
-Prints each clean-up write's result and how long it took on the clock the clean-up runs on
-(the wall's): the servos still answer after the run, at once, not after the SDK's timeout.
+(of servo 5) until the run ends, then the wheels' torque turned off, each write waiting for
+its status. Prints each clean-up write's result and how long it took on the clock the clean-up
+runs on (the wall's): the servos still answer after the run, at once, not after the SDK's
+timeout.
 Servo 5 holds torque with its Bus Watchdog at 100 ms, fed by the run's pings; the clean-up
 first sleeps 300 ms (on the wall clock, as clean-ups do), so a clean-up that reached the run's
 own servos would trip it after the run."""
