@@ -23,7 +23,8 @@ fn start() -> (SocketAddr, Arc<SensorFeed>) {
     (rx.recv_timeout(Duration::from_secs(5)).expect("server started"), feed)
 }
 
-/// GET `path`; (status line, headers, body) of a `Connection: close` response.
+/// GET `path` as a client that reads to the end of the stream (it does not ask to keep the
+/// connection); (status line, headers, body).
 fn get(addr: SocketAddr, path: &str) -> (String, String, Vec<u8>) {
     let mut stream = TcpStream::connect(addr).expect("connect");
     stream.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
@@ -111,4 +112,47 @@ fn mjpeg_stream_sends_a_jpeg_part_per_frame() {
     assert!(text.starts_with("HTTP/1.1 200"), "{}", &text[..40.min(text.len())]);
     assert!(text.contains("multipart/x-mixed-replace; boundary=climbsimframe"));
     assert_eq!(text.matches("--climbsimframe\r\nContent-Type: image/jpeg").count(), 2);
+}
+
+/// One answer off a kept connection: (status line, headers, body), read by its Content-Length.
+fn read_answer(reader: &mut std::io::BufReader<TcpStream>) -> (String, String, Vec<u8>) {
+    use std::io::BufRead as _;
+    let mut head = String::new();
+    while !head.ends_with("\r\n\r\n") {
+        assert!(reader.read_line(&mut head).expect("head line") > 0, "the connection ended inside a head: {head:?}");
+    }
+    let (status, headers) = head.trim_end().split_once("\r\n").unwrap_or((head.trim_end(), ""));
+    let length: usize = headers.lines().find_map(|l| l.strip_prefix("Content-Length: ")).expect("Content-Length").parse().expect("a length");
+    let mut body = vec![0; length];
+    reader.read_exact(&mut body).expect("body");
+    (status.to_owned(), headers.to_owned(), body)
+}
+
+#[test]
+fn a_client_that_asks_keeps_its_connection_for_request_after_request_and_a_close_ends_it() {
+    let (addr, feed) = start();
+    feed.publish_line(1.5, -0.012, 0.05, true);
+    let stream = TcpStream::connect(addr).expect("connect");
+    stream.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
+    let mut writer = stream.try_clone().expect("clone");
+    let mut reader = std::io::BufReader::new(stream);
+    // One at a time, then two sent at once (pipelined): each answered, in order, on the one
+    // connection, which the server says it keeps.
+    write!(writer, "GET /line HTTP/1.1\r\nHost: localhost\r\nConnection: keep-alive\r\n\r\n").expect("request");
+    let (status, headers, body) = read_answer(&mut reader);
+    assert!(status.contains("200") && headers.contains("Connection: keep-alive"), "{status} {headers}");
+    assert_eq!(serde_json::from_slice::<serde_json::Value>(&body).expect("JSON")["t"], 1.5);
+    feed.publish_line(2.0, 0.0, 0.0, false);
+    write!(writer, "GET /line HTTP/1.1\r\nconnection: Keep-Alive\r\n\r\nGET /nothing HTTP/1.1\r\nConnection: keep-alive\r\n\r\n").expect("two requests");
+    let (status, _, body) = read_answer(&mut reader);
+    assert!(status.contains("200"), "{status}");
+    assert_eq!(serde_json::from_slice::<serde_json::Value>(&body).expect("JSON")["t"], 2.0, "the latest line, not the first");
+    assert!(read_answer(&mut reader).0.contains("404"));
+    // A request without the ask is the connection's last: answered, then the end of the stream.
+    write!(writer, "GET /line HTTP/1.1\r\nHost: localhost\r\n\r\n").expect("request");
+    let (status, headers, _) = read_answer(&mut reader);
+    assert!(status.contains("200") && headers.contains("Connection: close"), "{status} {headers}");
+    let mut rest = Vec::new();
+    reader.read_to_end(&mut rest).expect("the end of the stream");
+    assert!(rest.is_empty(), "{rest:?}");
 }

@@ -2,7 +2,8 @@
 // algorithm) in C++, on the official C++ SDK's port pattern without the SDK: the port opened
 // O_NONBLOCK with VMIN = VTIME = 0, flushed before each transaction (the SDK's clearPort), and
 // read in a spin until a packet is whole or its timeout passes (the SDK's isPacketTimeout on
-// the monotonic clock). The line comes from the sensor server over plain HTTP (GET /line).
+// the monotonic clock). The line comes from the sensor server over plain HTTP (GET /line), on one
+// kept connection.
 // Like the Python one it knows nothing of climbsim but DXL_PORT, DXL_BAUD and CLIMBSIM_SENSORS.
 //
 //   c++ -O2 -std=c++17 -o line_follower hil/controllers/line_follower.cpp
@@ -27,6 +28,7 @@
 #include <deque>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -128,26 +130,89 @@ std::optional<double> json_number(const std::string &json, const char *key) {
     return end == start ? std::nullopt : std::optional<double>(value);
 }
 
-// GET /line from the sensor server at `host:port_number`: the robot relative to the line, if valid.
-std::optional<Line> read_line(const std::string &host, uint16_t port_number) {
-    int sock = socket(AF_INET, SOCK_STREAM, 0);
-    if (sock < 0) return std::nullopt;
-    sockaddr_in address{};
-    address.sin_family = AF_INET;
-    address.sin_port = htons(port_number);
-    inet_pton(AF_INET, host.c_str(), &address.sin_addr);
-    std::string response;
-    if (connect(sock, reinterpret_cast<sockaddr *>(&address), sizeof address) == 0) {
-        std::string request = "GET /line HTTP/1.1\r\nHost: " + host + "\r\nConnection: close\r\n\r\n";
-        if (write(sock, request.data(), request.size()) == ssize_t(request.size())) {
-            char buffer[1024];
-            ssize_t n;
-            while ((n = read(sock, buffer, sizeof buffer)) > 0) response.append(buffer, size_t(n));
+// The sensor server over one kept connection (`Connection: keep-alive`), as an HTTP client
+// library would keep it: no new TCP connection each period. Opened again after any failure.
+class SensorClient {
+  public:
+    struct Answer {
+        int status;
+        std::string body;
+    };
+    SensorClient(std::string host, uint16_t port) : host_(std::move(host)), port_(port) {}
+    SensorClient(const SensorClient &) = delete;
+    SensorClient &operator=(const SensorClient &) = delete;
+    ~SensorClient() { drop(); }
+
+    // GET `path`; on a kept connection the server has closed meanwhile, once more on a new one.
+    std::optional<Answer> get(const char *path) {
+        for (int attempt = 0; attempt < 2; attempt++) {
+            if (sock_ < 0 && !open()) return std::nullopt;
+            if (auto answer = exchange(path)) return answer;
+            drop();
         }
+        return std::nullopt;
     }
-    close(sock);
-    if (response.find("\"valid\":true") == std::string::npos) return std::nullopt;
-    auto d = json_number(response, "d"), psi = json_number(response, "psi");
+
+  private:
+    bool open() {
+        sock_ = socket(AF_INET, SOCK_STREAM, 0);
+        if (sock_ < 0) return false;
+        sockaddr_in address{};
+        address.sin_family = AF_INET;
+        address.sin_port = htons(port_);
+        inet_pton(AF_INET, host_.c_str(), &address.sin_addr);
+        if (connect(sock_, reinterpret_cast<sockaddr *>(&address), sizeof address) != 0) {
+            drop();
+            return false;
+        }
+        return true;
+    }
+
+    void drop() {
+        if (sock_ >= 0) close(sock_);
+        sock_ = -1;
+        buffer_.clear();
+    }
+
+    // More bytes of the answer; false at the end of the stream or on an error.
+    bool fill() {
+        char chunk[1024];
+        ssize_t n = read(sock_, chunk, sizeof chunk);
+        if (n <= 0) return false;
+        buffer_.append(chunk, size_t(n));
+        return true;
+    }
+
+    std::optional<Answer> exchange(const char *path) {
+        std::string request = std::string("GET ") + path + " HTTP/1.1\r\nHost: " + host_ + "\r\nConnection: keep-alive\r\n\r\n";
+        if (write(sock_, request.data(), request.size()) != ssize_t(request.size())) return std::nullopt;
+        size_t end;
+        while ((end = buffer_.find("\r\n\r\n")) == std::string::npos)
+            if (!fill()) return std::nullopt;
+        std::string head = buffer_.substr(0, end);
+        buffer_.erase(0, end + 4);
+        size_t length_at = head.find("Content-Length:");
+        if (head.compare(0, 9, "HTTP/1.1 ") != 0 || length_at == std::string::npos) return std::nullopt;
+        size_t length = std::strtoul(head.c_str() + length_at + 15, nullptr, 10);
+        while (buffer_.size() < length)
+            if (!fill()) return std::nullopt;
+        Answer answer{std::atoi(head.c_str() + 9), buffer_.substr(0, length)};
+        buffer_.erase(0, length);
+        if (head.find("Connection: close") != std::string::npos) drop();
+        return answer;
+    }
+
+    std::string host_;
+    uint16_t port_;
+    int sock_ = -1;
+    std::string buffer_;  // received and not yet taken
+};
+
+// GET /line: the robot relative to the line, if valid.
+std::optional<Line> read_line(SensorClient &sensors) {
+    auto answer = sensors.get("/line");
+    if (!answer || answer->status != 200 || answer->body.find("\"valid\":true") == std::string::npos) return std::nullopt;
+    auto d = json_number(answer->body, "d"), psi = json_number(answer->body, "psi");
     if (!d || !psi) return std::nullopt;
     return Line{*d, *psi};
 }
@@ -196,6 +261,7 @@ int main(int argc, char **argv) {
         host = rest.substr(0, colon);
         sensor_port = uint16_t(std::atoi(rest.c_str() + colon + 1));
     }
+    SensorClient sensor_client(host, sensor_port);
 
     port = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK);
     if (port < 0) {
@@ -240,7 +306,7 @@ int main(int argc, char **argv) {
             }
             double command = target + (target - speed);  // feedforward + kp = 1, as the reference
             double yaw_rate = 0;
-            auto line = sensor_port ? read_line(host, sensor_port) : std::nullopt;
+            auto line = sensor_port ? read_line(sensor_client) : std::nullopt;
             blind += !line;
             if (line && target > 0) {
                 double damping = 2 * zeta * omega_n;

@@ -33,7 +33,8 @@ import os
 import signal
 import sys
 import time
-import urllib.request
+import http.client
+import urllib.parse
 
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
 
@@ -102,14 +103,42 @@ def write1(packet, port, dxl, address, value, what, attempts=3):
             return check(packet, result, error, what)
 
 
-def read_line(url):
-    """The sensor server's latest line measurement, or None."""
-    try:
-        with urllib.request.urlopen(url + "/line", timeout=0.05) as response:
-            line = json.load(response)
-    except (OSError, ValueError):
+class SensorClient:
+    """The sensor server over one kept connection (``Connection: keep-alive``), as an HTTP client
+    library keeps it: no new TCP connection each period. Opened again after any failure."""
+
+    def __init__(self, url):
+        parts = urllib.parse.urlsplit(url)
+        self.host, self.port = parts.hostname, parts.port
+        self.connection = None
+
+    def get_json(self, path):
+        """The JSON of a 200 answer to GET ``path``, or None. A kept connection the server has
+        closed meanwhile is tried once more, on a new one."""
+        for _ in range(2):
+            if self.connection is None:
+                self.connection = http.client.HTTPConnection(self.host, self.port, timeout=0.05)
+            try:
+                self.connection.request("GET", path, headers={"Connection": "keep-alive"})
+                response = self.connection.getresponse()
+                body = response.read()
+            except (OSError, http.client.HTTPException):
+                self.connection.close()
+                self.connection = None
+                continue
+            if response.status != 200:
+                return None
+            try:
+                return json.loads(body)
+            except ValueError:
+                return None
         return None
-    return line if line.get("valid") else None
+
+
+def read_line(sensors):
+    """The sensor server's latest line measurement, or None."""
+    line = sensors.get_json("/line")
+    return line if isinstance(line, dict) and line.get("valid") else None
 
 
 def main():
@@ -120,6 +149,7 @@ def main():
     if not port_name:
         sys.exit("DXL_PORT is not set")
     sensors = os.environ.get("CLIMBSIM_SENSORS", "")
+    sensor_client = SensorClient(sensors) if sensors else None
     baud = int(os.environ.get("DXL_BAUD", "57600"))
     target = float(os.environ.get("CLIMBSIM_TARGET_SPEED_MM_MIN", "250")) / 60000.0
 
@@ -190,7 +220,7 @@ def main():
             command = (0.0 if args.no_feedforward else target) + args.kp * error + args.ki * integral + args.kd * derivative
 
             yaw_rate = 0.0
-            line = read_line(sensors) if sensors else None
+            line = read_line(sensor_client) if sensor_client else None
             blind += line is None
             if line is not None and target > 0:
                 # /line gives the robot relative to the line (d > 0: the robot is left of it),

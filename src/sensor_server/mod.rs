@@ -205,37 +205,64 @@ impl SensorServer {
 }
 
 async fn serve_client(mut stream: TcpStream, feed: &SensorFeed) -> std::io::Result<()> {
-    let mut head = Vec::with_capacity(512);
+    let mut buffer = Vec::with_capacity(512);
     let mut chunk = [0u8; 1024];
-    while !head_complete(&head) {
-        let n = stream.read(&mut chunk).await?;
-        if n == 0 {
-            return Ok(());
+    loop {
+        let head = loop {
+            if let Some(head) = take_request(&mut buffer) {
+                break head;
+            }
+            let n = stream.read(&mut chunk).await?;
+            if n == 0 {
+                return Ok(());
+            }
+            buffer.extend_from_slice(&chunk[..n]);
+        };
+        match answer(&head, feed, true) {
+            Answer::Mjpeg => return stream_mjpeg(stream, feed).await,
+            Answer::Reply { status, content_type, body, keep_alive } => {
+                stream.write_all(&response(status, content_type, &body, keep_alive)).await?;
+                if !keep_alive {
+                    return stream.shutdown().await;
+                }
+            }
         }
-        head.extend_from_slice(&chunk[..n]);
-    }
-    match answer(&head, feed, true) {
-        Answer::Mjpeg => stream_mjpeg(stream, feed).await,
-        Answer::Reply { status, content_type, body } => respond(&mut stream, status, content_type, &body).await,
     }
 }
 
-/// The request head is whole (or too long to wait for more).
-fn head_complete(head: &[u8]) -> bool {
-    head.windows(4).any(|w| w == b"\r\n\r\n") || head.len() > MAX_REQUEST_BYTES
+/// The first whole request head in `buffer`, taken out of it (what follows it stays, for the
+/// next request on a kept connection); or all of it, when it is too long to be one.
+fn take_request(buffer: &mut Vec<u8>) -> Option<Vec<u8>> {
+    if let Some(end) = buffer.windows(4).position(|w| w == b"\r\n\r\n") {
+        let rest = buffer.split_off(end + 4);
+        return Some(std::mem::replace(buffer, rest));
+    }
+    (buffer.len() > MAX_REQUEST_BYTES).then(|| std::mem::take(buffer))
+}
+
+/// Whether the client asked to keep the connection (`Connection: keep-alive`). Only then is it
+/// kept: a server may close after any answer, and a client written to read an answer to the
+/// end of the stream, as many hand-written ones are, then still gets its end.
+fn asks_keep_alive(head: &[u8]) -> bool {
+    String::from_utf8_lossy(head).split("\r\n").skip(1).filter_map(|line| line.split_once(':')).any(|(name, value)| {
+        name.trim().eq_ignore_ascii_case("connection") && value.split(',').any(|option| option.trim().eq_ignore_ascii_case("keep-alive"))
+    })
 }
 
 /// What the server sends back for a request head.
 enum Answer {
     /// The camera's MJPEG stream, frame after frame.
     Mjpeg,
-    Reply { status: &'static str, content_type: &'static str, body: Vec<u8> },
+    /// `keep_alive`: the connection stays open for the client's next request.
+    Reply { status: &'static str, content_type: &'static str, body: Vec<u8>, keep_alive: bool },
 }
 
 /// Answer a whole request head from the feed's latest snapshot (`streams`: the MJPEG stream
 /// can be served).
 fn answer(head: &[u8], feed: &SensorFeed, streams: bool) -> Answer {
-    let text = |status, body: &[u8]| Answer::Reply { status, content_type: "text/plain", body: body.to_vec() };
+    // A refused request is the connection's last: what follows it cannot be trusted to start a
+    // request (a body, the rest of an over-long head).
+    let text = |status, body: &[u8]| Answer::Reply { status, content_type: "text/plain", body: body.to_vec(), keep_alive: false };
     if head.len() > MAX_REQUEST_BYTES {
         return text("431 Request Header Fields Too Large", b"request too large\n");
     }
@@ -281,17 +308,15 @@ fn answer(head: &[u8], feed: &SensorFeed, streams: bool) -> Answer {
         503 => "503 Service Unavailable",
         _ => "404 Not Found",
     };
-    Answer::Reply { status, content_type, body }
+    Answer::Reply { status, content_type, body, keep_alive: asks_keep_alive(head) }
 }
 
-fn response_head(status: &str, content_type: &str, length: usize) -> String {
-    format!("HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {length}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n")
-}
-
-async fn respond(stream: &mut TcpStream, status: &str, content_type: &str, body: &[u8]) -> std::io::Result<()> {
-    stream.write_all(response_head(status, content_type, body.len()).as_bytes()).await?;
-    stream.write_all(body).await?;
-    stream.shutdown().await
+/// A whole response, head and body, to be written at once.
+fn response(status: &str, content_type: &str, body: &[u8], keep_alive: bool) -> Vec<u8> {
+    let connection = if keep_alive { "keep-alive" } else { "close" };
+    let mut bytes = format!("HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: {connection}\r\n\r\n", body.len()).into_bytes();
+    bytes.extend_from_slice(body);
+    bytes
 }
 
 mod virtual_time;

@@ -13,7 +13,7 @@ use std::task::{Context, Poll};
 
 use tracing::debug;
 
-use super::{Answer, SensorFeed, SensorServerError, answer, head_complete, response_head};
+use super::{Answer, SensorFeed, SensorServerError, answer, response, take_request};
 use crate::virtual_time::VirtualTime;
 
 pub struct VirtualSensorServer {
@@ -26,7 +26,8 @@ pub struct VirtualSensorServer {
 struct Client {
     stream: TcpStream,
     port: u16,
-    head: Vec<u8>,
+    /// What the client sent that is not answered yet.
+    buffer: Vec<u8>,
 }
 
 impl VirtualSensorServer {
@@ -46,7 +47,7 @@ impl VirtualSensorServer {
     fn step(&mut self) {
         while let Ok((stream, peer)) = self.listener.accept() {
             if stream.set_nonblocking(true).is_ok() {
-                self.clients.push(Client { stream, port: peer.port(), head: Vec::new() });
+                self.clients.push(Client { stream, port: peer.port(), buffer: Vec::new() });
             }
         }
         let (feed, virtual_time) = (&self.feed, &self.virtual_time);
@@ -54,16 +55,17 @@ impl VirtualSensorServer {
     }
 }
 
-/// Read what the client sent and answer a whole request; whether to keep the connection.
+/// Read what the client sent and answer every whole request in it; whether to keep the
+/// connection.
 fn serve(client: &mut Client, feed: &SensorFeed, virtual_time: &VirtualTime) -> bool {
     let mut chunk = [0u8; 2048];
     let mut read = 0;
-    let keep = loop {
+    let mut keep = loop {
         match client.stream.read(&mut chunk) {
             Ok(0) => break false,
             Ok(n) => {
                 read += n;
-                client.head.extend_from_slice(&chunk[..n]);
+                client.buffer.extend_from_slice(&chunk[..n]);
             }
             Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => break true,
             Err(error) => {
@@ -72,24 +74,39 @@ fn serve(client: &mut Client, feed: &SensorFeed, virtual_time: &VirtualTime) -> 
             }
         }
     };
-    if keep && head_complete(&client.head) {
-        let (status, content_type, body) = match answer(&client.head, feed, false) {
-            Answer::Reply { status, content_type, body } => (status, content_type, body),
-            Answer::Mjpeg => ("501 Not Implemented", "text/plain", b"not under --clock virtual\n".to_vec()),
+    while keep {
+        let Some(head) = take_request(&mut client.buffer) else { break };
+        let (status, content_type, body, keep_alive) = match answer(&head, feed, false) {
+            Answer::Reply { status, content_type, body, keep_alive } => (status, content_type, body, keep_alive),
+            Answer::Mjpeg => ("501 Not Implemented", "text/plain", b"not under --clock virtual\n".to_vec(), false),
         };
-        let mut response = response_head(status, content_type, body.len()).into_bytes();
-        response.extend_from_slice(&body);
-        // The answer is small; written whole, then the end, before anything else happens.
-        let written = client.stream.set_nonblocking(false).and_then(|()| client.stream.write_all(&response)).and_then(|()| client.stream.shutdown(std::net::Shutdown::Write));
-        if let Err(error) = written {
+        let bytes = response(status, content_type, &body, keep_alive);
+        // Written whole (and the end, when it is the last) before anything else happens.
+        let written = write_whole(&mut client.stream, &bytes).and_then(|()| if keep_alive { Ok(()) } else { client.stream.shutdown(std::net::Shutdown::Write) });
+        if let Err(error) = &written {
             debug!(%error, "sensor client gone before its answer");
         }
-        virtual_time.sensor_response_written(client.port, response.len(), true);
-        virtual_time.sensor_request_read(client.port, read);
-        return false;
+        virtual_time.sensor_response_written(client.port, bytes.len(), !keep_alive);
+        keep = keep_alive && written.is_ok();
     }
     virtual_time.sensor_request_read(client.port, read);
     keep
+}
+
+/// `bytes` written whole to a non-blocking stream: at once when the socket's buffer takes them
+/// (an answer of a few hundred bytes always fits), else the rest blocking.
+fn write_whole(stream: &mut TcpStream, bytes: &[u8]) -> std::io::Result<()> {
+    let done = match stream.write(bytes) {
+        Ok(n) => n,
+        Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => 0,
+        Err(error) => return Err(error),
+    };
+    if done < bytes.len() {
+        stream.set_nonblocking(false)?;
+        stream.write_all(&bytes[done..])?;
+        stream.set_nonblocking(true)?;
+    }
+    Ok(())
 }
 
 impl Future for VirtualSensorServer {
