@@ -14,8 +14,7 @@ repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 target="${CARGO_TARGET_DIR:-$repo/target}"
 work="$(mktemp -d "${TMPDIR:-/tmp}/climbsim-outside.XXXXXX")"
 trap 'rm -rf "$work"' EXIT
-cargo_config=(--config 'profile.dev.package.climbsim.codegen-units=16')
-export CARGO_INCREMENTAL=0
+source "$repo/scripts/fresh-build.sh"
 
 step() { echo "==> $*"; }
 
@@ -23,7 +22,7 @@ step "maturin build (the wheel, from $target)"
 started=$SECONDS
 # --strip false: maturin strips by passing `-C strip=symbols` to rustc, which would link the
 # binary again under another name (a minute on 2 cores) rather than pack the one cargo test made.
-(cd "$repo" && "$repo/.venv/bin/maturin" build --locked --profile dev --strip false --target-dir "$target" "${cargo_config[@]}" --out "$work/wheels" --quiet)
+(cd "$repo" && "$repo/.venv/bin/maturin" build --locked --profile dev --strip false --target-dir "$target" "${fresh_build_config[@]}" --out "$work/wheels" --quiet)
 wheel="$(ls "$work"/wheels/climbsim-*.whl)"
 echo "    $(basename "$wheel"), $(du -h "$wheel" | cut -f1), built in $((SECONDS - started)) s"
 
@@ -54,7 +53,7 @@ cd "$work/api-tests"
 "${user_env[@]}" pytest -q -p no:cacheprovider test_api.py
 
 step "cargo install --path . --root DIR, and the installed binary from an empty folder"
-(cd "$repo" && cargo install --quiet --locked --debug --path . --root "$work/cargo-root" --target-dir "$target" "${cargo_config[@]}")
+(cd "$repo" && cargo install --quiet --locked --debug --path . --root "$work/cargo-root" --target-dir "$target" "${fresh_build_config[@]}")
 mkdir "$work/empty-2"
 cd "$work/empty-2"
 "$work/cargo-root/bin/climbsim" init . > /dev/null

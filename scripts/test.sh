@@ -63,13 +63,9 @@ need_debian_package libjssc-java "/usr/share/java/jssc.jar" "the Java controller
 # The Go controller of the virtual-time tests (built with and without cgo).
 need_debian_package golang-go "/usr/bin/go" "the Go controller of the virtual-time tests"
 stage_done "Debian packages"
-# This script builds climbsim once, from scratch on a fresh machine, and runs it: no
-# incremental compilation (its bookkeeping is ~7 % more work when there is nothing to reuse) and
-# climbsim's own crates in 16 code-generation units instead of the dev profile's 256 (~11 % less
-# work for the optimiser: measured on the library, 162 against 144 CPU-s). `cargo test` run by
-# hand keeps the dev profile's incremental builds; the two builds sit side by side in target/.
-export CARGO_INCREMENTAL=0
-cargo() { command cargo "$1" --config 'profile.dev.package.climbsim.codegen-units=16' "${@:2}"; }
+# One build from scratch, with the settings scripts/test-outside.sh packs it with.
+source "$repo/scripts/fresh-build.sh"
+cargo() { command cargo "$1" "${fresh_build_config[@]}" "${@:2}"; }
 echo "==> cargo test"
 cargo test --locked --no-run "$@"
 stage_done "cargo test: build"
