@@ -114,7 +114,8 @@ class SensorClient:
 
     def get_json(self, path):
         """The JSON of a 200 answer to GET ``path``, or None. A kept connection the server has
-        closed meanwhile is tried once more, on a new one."""
+        closed meanwhile is tried once more, on a new one; an answer that took too long is not
+        (a second try would cost the period another timeout)."""
         for _ in range(2):
             if self.connection is None:
                 self.connection = http.client.HTTPConnection(self.host, self.port, timeout=0.05)
@@ -122,6 +123,10 @@ class SensorClient:
                 self.connection.request("GET", path, headers={"Connection": "keep-alive"})
                 response = self.connection.getresponse()
                 body = response.read()
+            except TimeoutError:
+                self.connection.close()
+                self.connection = None
+                return None
             except (OSError, http.client.HTTPException):
                 self.connection.close()
                 self.connection = None
