@@ -14,12 +14,13 @@ fn main() -> std::process::ExitCode {
     // RUST_LOG as a list of `target=level` (`climbsim=debug`, `warn,climbsim::bus=trace`):
     // `Targets`, not `EnvFilter`, whose span and field filters need a regex engine that was
     // 4 % of a fresh clone's build for a syntax nobody used here.
+    let warnings_only = || Targets::new().with_default(LevelFilter::WARN);
     let (filter, bad_filter) = match std::env::var("RUST_LOG") {
         Ok(text) if !text.trim().is_empty() => match text.parse::<Targets>() {
             Ok(targets) => (targets, None),
-            Err(error) => (Targets::new().with_default(LevelFilter::WARN), Some(format!("RUST_LOG={text:?} ignored ({error}): give target=level pairs, such as climbsim=debug"))),
+            Err(error) => (warnings_only(), Some(format!("RUST_LOG={text:?} ignored ({error}): give target=level pairs, such as climbsim=debug"))),
         },
-        _ => (Targets::new().with_default(LevelFilter::WARN), None),
+        _ => (warnings_only(), None),
     };
     tracing_subscriber::registry()
         .with(

@@ -124,12 +124,10 @@ class SensorClient:
                 response = self.connection.getresponse()
                 body = response.read()
             except TimeoutError:
-                self.connection.close()
-                self.connection = None
+                self.drop()
                 return None
             except (OSError, http.client.HTTPException):
-                self.connection.close()
-                self.connection = None
+                self.drop()
                 continue
             if response.status != 200:
                 return None
@@ -138,6 +136,11 @@ class SensorClient:
             except ValueError:
                 return None
         return None
+
+    def drop(self):
+        """Close the connection; the next request opens a new one."""
+        self.connection.close()
+        self.connection = None
 
 
 def read_line(sensors):
