@@ -80,10 +80,22 @@ pub(crate) fn took_turn(shared: &Shared) {
 /// once climbsim has given another thread the turn (this one's CPU is that thread's then).
 pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
     let header = &shared.header;
-    let spin_until = real_monotonic_ns().saturating_add(header.park_spin_ns.load(Ordering::Relaxed));
+    let now = real_monotonic_ns();
+    let mut spin_until = now.saturating_add(header.park_spin_ns.load(Ordering::Relaxed));
+    // One thread at a time spins longer (see `Header::long_spin_ns`): several would take the
+    // CPUs from climbsim and from the thread that has the turn.
+    let long_until = now.saturating_add(header.long_spin_ns.load(Ordering::Relaxed));
+    let taken = header.long_spin_until.load(Ordering::Acquire);
+    let long = long_until > spin_until && taken <= now && header.long_spin_until.compare_exchange(taken, long_until, Ordering::AcqRel, Ordering::Relaxed).is_ok();
+    if long {
+        spin_until = long_until;
+    }
     let turns = header.turns_given.load(Ordering::Acquire);
     while slot.state.load(Ordering::Acquire) != state::RUNNING && real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
         core::hint::spin_loop();
+    }
+    if long {
+        let _ = header.long_spin_until.compare_exchange(long_until, 0, Ordering::AcqRel, Ordering::Relaxed);
     }
 }
 

@@ -98,6 +98,15 @@ const BATCH_NS: u64 = 1_000;
 /// machine is quiet ([`quiet::Quiet`]).
 const SPIN: Duration = Duration::from_micros(400);
 
+/// How long (wall time) one parked controller thread at a time may spin (see
+/// `Header::long_spin_ns`): longer than the world's ticks between a request and its replies
+/// usually take, which is how long a single-threaded controller waits for them.
+const LONG_SPIN: Duration = Duration::from_millis(2);
+
+/// How long (wall time) the scheduler looks for bytes the controller wrote to the port without
+/// sleeping, while the machine is quiet, before it waits for them in the kernel.
+const IN_FLIGHT_SPIN: Duration = Duration::from_micros(100);
+
 /// How often (wall time) the driven futures are polled when the controller sent nothing: for
 /// clients climbsim does not follow.
 const UNFOLLOWED_CLIENTS_EVERY: Duration = Duration::from_millis(5);
@@ -499,6 +508,8 @@ impl VirtualTime {
             // long before sleeping on the futex (its wake-up costs more on a VM).
             let spin = if self.spin && lock(&self.quiet).now() { SPIN } else { Duration::ZERO };
             header.park_spin_ns.store(spin.as_nanos() as u64, Ordering::Relaxed);
+            let long_spin = if spin.is_zero() { Duration::ZERO } else { LONG_SPIN };
+            header.long_spin_ns.store(long_spin.as_nanos() as u64, Ordering::Relaxed);
             let spin_until = std::time::Instant::now() + spin;
             while header.sched_word.load(Ordering::Acquire) == seen && !self.ran_past(due) && std::time::Instant::now() < spin_until {
                 std::hint::spin_loop();
@@ -566,6 +577,20 @@ impl VirtualTime {
         match port {
             Some(port) if self.held_by().0 => {
                 let mut fds = [libc::pollfd { fd: port.master, events: libc::POLLIN, revents: 0 }];
+                // The pty's worker hands bytes over within microseconds while both CPUs are
+                // busy, and a sleep here lets this vCPU halt, whose wake-up costs tens of them:
+                // looks without waiting first, giving the CPU up between them (the worker may
+                // be queued on it), while the machine is quiet.
+                if self.spin && lock(&self.quiet).now() {
+                    let until = std::time::Instant::now() + IN_FLIGHT_SPIN;
+                    while std::time::Instant::now() < until {
+                        // SAFETY: one valid pollfd; a zero timeout never blocks.
+                        if unsafe { libc::poll(fds.as_mut_ptr(), 1, 0) } != 0 {
+                            return;
+                        }
+                        std::thread::yield_now();
+                    }
+                }
                 // SAFETY: one valid pollfd.
                 unsafe { libc::poll(fds.as_mut_ptr(), 1, 1) };
             }
