@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 12;
+pub const ABI: u32 = 13;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -30,6 +30,11 @@ pub const SIG_TIMERS: usize = 256;
 /// before it gives up its turn, as a kernel's time slice: a loop that polls what is ready and
 /// never blocks would otherwise keep every other thread from running.
 pub const TURN_QUANTUM_NS: u64 = 1_000_000;
+/// How long (wall time) one parked thread at a time spins, where `Header::park_spin_ns` lets
+/// threads spin at all, instead of that: a single-threaded controller's wait for its replies
+/// outlasts the world's ticks up to them (half a millisecond or more), and a thread woken from
+/// its futex then costs tens of microseconds more than one that spun.
+pub const LONG_PARK_SPIN_NS: u64 = 2_000_000;
 /// `Slot::tid` of a slot reserved for a thread that a trapped clone creates (libc's own thread
 /// creation, a runtime's raw clone): the thread claims it at its first followed call, finding
 /// it by its TLS pointer (`Slot::conn_mask` meanwhile; 0: any such thread of the process).
@@ -242,12 +247,8 @@ pub struct Header {
     /// CPU or where the machine is busy (a spin would take the CPU from the very thread it waits
     /// for). climbsim alone decides, for both sides.
     pub park_spin_ns: AtomicU64,
-    /// C: how long (wall time) one parked thread at a time may spin instead (0 where the machine
-    /// is busy): a single-threaded controller's wait for its replies outlasts the world's ticks
-    /// up to them (half a millisecond or more), and a thread woken from its futex then costs
-    /// tens of microseconds more than one that spun.
-    pub long_spin_ns: AtomicU64,
-    /// S: until when (CLOCK_MONOTONIC, ns) the thread that took the long spin spins; a thread
+    /// S: until when (CLOCK_MONOTONIC, ns) the thread that took the long spin
+    /// ([`LONG_PARK_SPIN_NS`]) spins; a thread
     /// that parks takes it when this has passed, and gives it back (0) when it stops spinning.
     /// A thread killed while it spins holds it only until then.
     pub long_spin_until: AtomicU64,

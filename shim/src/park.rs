@@ -81,12 +81,13 @@ pub(crate) fn took_turn(shared: &Shared) {
 pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
     let header = &shared.header;
     let now = real_monotonic_ns();
-    let mut spin_until = now.saturating_add(header.park_spin_ns.load(Ordering::Relaxed));
-    // One thread at a time spins longer (see `Header::long_spin_ns`): several would take the
+    let spin = header.park_spin_ns.load(Ordering::Relaxed);
+    let mut spin_until = now.saturating_add(spin);
+    // One thread at a time spins longer (see `abi::LONG_PARK_SPIN_NS`): several would take the
     // CPUs from climbsim and from the thread that has the turn.
-    let long_until = now.saturating_add(header.long_spin_ns.load(Ordering::Relaxed));
+    let long_until = now.saturating_add(abi::LONG_PARK_SPIN_NS);
     let taken = header.long_spin_until.load(Ordering::Acquire);
-    let long = long_until > spin_until && taken <= now && header.long_spin_until.compare_exchange(taken, long_until, Ordering::AcqRel, Ordering::Relaxed).is_ok();
+    let long = spin > 0 && taken <= now && header.long_spin_until.compare_exchange(taken, long_until, Ordering::AcqRel, Ordering::Relaxed).is_ok();
     if long {
         spin_until = long_until;
     }

@@ -11,6 +11,7 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::task::{Context, Poll};
 
+use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use tracing::debug;
 
 use super::{Answer, SensorFeed, SensorServerError, answer, response, take_request};
@@ -61,12 +62,9 @@ impl VirtualSensorServer {
 
 /// Whether a connection waits to be accepted (the listener is readable), asked without waiting.
 fn connection_waiting(listener: &TcpListener) -> bool {
-    use std::os::fd::AsRawFd as _;
-    let mut fds = [libc::pollfd { fd: listener.as_raw_fd(), events: libc::POLLIN, revents: 0 }];
-    // SAFETY: one valid pollfd, for the length given; a zero timeout never blocks.
-    let ready = unsafe { libc::poll(fds.as_mut_ptr(), 1, 0) };
+    use std::os::fd::AsFd as _;
     // An error (none is expected on a listener) falls back to trying the accept.
-    ready != 0
+    poll(&mut [PollFd::new(listener.as_fd(), PollFlags::POLLIN)], PollTimeout::ZERO) != Ok(0)
 }
 
 /// Read what the client sent and answer every whole request in it; whether to keep the

@@ -98,11 +98,6 @@ const BATCH_NS: u64 = 1_000;
 /// machine is quiet ([`quiet::Quiet`]).
 const SPIN: Duration = Duration::from_micros(400);
 
-/// How long (wall time) one parked controller thread at a time may spin (see
-/// `Header::long_spin_ns`): longer than the world's ticks between a request and its replies
-/// usually take, which is how long a single-threaded controller waits for them.
-const LONG_SPIN: Duration = Duration::from_millis(2);
-
 /// How long (wall time) the scheduler looks for bytes the controller wrote to the port without
 /// sleeping, while the machine is quiet, before it waits for them in the kernel.
 const IN_FLIGHT_SPIN: Duration = Duration::from_micros(100);
@@ -508,8 +503,6 @@ impl VirtualTime {
             // long before sleeping on the futex (its wake-up costs more on a VM).
             let spin = if self.spin && lock(&self.quiet).now() { SPIN } else { Duration::ZERO };
             header.park_spin_ns.store(spin.as_nanos() as u64, Ordering::Relaxed);
-            let long_spin = if spin.is_zero() { Duration::ZERO } else { LONG_SPIN };
-            header.long_spin_ns.store(long_spin.as_nanos() as u64, Ordering::Relaxed);
             let spin_until = std::time::Instant::now() + spin;
             while header.sched_word.load(Ordering::Acquire) == seen && !self.ran_past(due) && std::time::Instant::now() < spin_until {
                 std::hint::spin_loop();
