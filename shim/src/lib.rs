@@ -28,6 +28,7 @@ mod maps;
 mod native;
 mod net;
 mod now;
+mod outbox;
 mod park;
 mod program;
 mod seccomp;
