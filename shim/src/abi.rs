@@ -6,12 +6,12 @@
 //! trust one another's timing. A zero-filled file is a valid, empty block. Who writes what:
 //! C = climbsim, S = the shim.
 
-use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, AtomicU64};
+use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 14;
+pub const ABI: u32 = 13;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -39,13 +39,6 @@ pub const LONG_PARK_SPIN_NS: u64 = 2_000_000;
 /// creation, a runtime's raw clone): the thread claims it at its first followed call, finding
 /// it by its TLS pointer (`Slot::conn_mask` meanwhile; 0: any such thread of the process).
 pub const RAW_CLONE_TID: i32 = -2;
-/// The most reply bytes climbsim hands a parked controller thread to write to the port for it
-/// (`Header::outbox`); a longer write climbsim makes itself.
-pub const OUTBOX_BYTES: usize = 2048;
-/// The descriptor number the port's pty master has in the processes climbsim starts
-/// (`Header::port_master_fd`): far above what a program opens first, below the usual limit of
-/// 1024 open files.
-pub const CONTROLLER_MASTER_FD: i32 = 1000;
 /// "No deadline" / "nothing due".
 pub const NEVER: u64 = u64::MAX;
 /// Reply bytes written to the port ahead of their time, in at most this many runs (each
@@ -95,18 +88,6 @@ pub mod refused {
         };
         Some(format!("virtual time follows at most {limit} {what}, and the controller needed more: the one past them could not be followed (run it with --clock wall)"))
     }
-}
-
-/// `Header::outbox_state`.
-pub mod outbox {
-    /// Nothing to write.
-    pub const EMPTY: u32 = 0;
-    /// climbsim put `outbox_len` bytes there for a parked thread to write.
-    pub const QUEUED: u32 = 1;
-    /// A thread (or climbsim itself, taking them back) is writing them.
-    pub const CLAIMED: u32 = 2;
-    /// Written: `outbox_written` says how many made it (the rest is climbsim's to write).
-    pub const DONE: u32 = 3;
 }
 
 /// `Slot::state`.
@@ -307,25 +288,6 @@ pub struct Header {
     /// what is not visible yet from reads, polls and FIONREAD, so that a Sync Read's eight
     /// replies cost one write and no hand-over each. Unused runs have `due_ns` 0.
     pub held_runs: [HeldRun; HELD_RUNS],
-    /// C: the port's pty master in the processes climbsim started ([`CONTROLLER_MASTER_FD`];
-    /// -1: none), and its pty number (TIOCGPTN), which a shim checks before it writes to it:
-    /// a program may have closed that descriptor and opened something else under its number.
-    pub port_master_fd: AtomicI32,
-    pub port_pty_number: AtomicU32,
-    /// S: parked threads spinning now that can write to the port's master (see `outbox`).
-    pub outbox_writers: AtomicU32,
-    /// Reply bytes for a parked controller thread to write to the port's master for climbsim
-    /// (see [`outbox`]): the kernel wakes the pty's worker on the CPU of the thread that writes,
-    /// and on this VM a wake-up on the other CPU costs climbsim's write 20 µs more. The
-    /// controller's own CPU, which waits for the replies anyway, takes it at no cost.
-    pub outbox_state: AtomicU32,
-    /// C: how many bytes of `outbox` to write.
-    pub outbox_len: AtomicU32,
-    /// S: how many the thread wrote.
-    pub outbox_written: AtomicU32,
-    /// S: the process of the thread that claimed them (climbsim waits for a stopped one).
-    pub outbox_claimer: AtomicI32,
-    pub outbox: [AtomicU8; OUTBOX_BYTES],
 }
 
 impl Header {

@@ -28,7 +28,6 @@ mod maps;
 mod native;
 mod net;
 mod now;
-mod outbox;
 mod park;
 mod program;
 mod seccomp;

@@ -92,19 +92,8 @@ pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
         spin_until = long_until;
     }
     let turns = header.turns_given.load(Ordering::Acquire);
-    // A spinning thread writes climbsim's replies to the port for it (see outbox.rs).
-    let writer = spin > 0 && crate::outbox::can_write(shared);
-    if writer {
-        header.outbox_writers.fetch_add(1, Ordering::AcqRel);
-    }
     while slot.state.load(Ordering::Acquire) != state::RUNNING && real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
-        if writer {
-            crate::outbox::write_if_queued(shared);
-        }
         core::hint::spin_loop();
-    }
-    if writer {
-        header.outbox_writers.fetch_sub(1, Ordering::AcqRel);
     }
     if long {
         let _ = header.long_spin_until.compare_exchange(long_until, 0, Ordering::AcqRel, Ordering::Relaxed);

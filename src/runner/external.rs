@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use serde_json::json;
-use tracing::{debug, info, warn};
+use tracing::{info, warn};
 
 use crate::bus::Timing;
 use crate::robot::RobotDescription;
@@ -175,8 +175,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         vt.reserve_process();
     }
     let speed = if virtual_time.is_some() { 1.0 } else { options.pace.speed };
-    let pass_fd = virtual_time.as_ref().and_then(|vt| vt.master_for_controller());
-    let launch = Launch { command: &command, env, speed, virtual_time: virtual_time.is_some(), pass_fd, log_path: &log_path };
+    let launch = Launch { command: &command, env, speed, virtual_time: virtual_time.is_some(), log_path: &log_path };
     // The world starts with the controller: a controller that cannot start leaves no half run.
     let capture_errors = Arc::new(Mutex::new(None::<String>));
     let mut controller = match Controller::start(&launch) {
@@ -288,8 +287,6 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         summary.insert("virtual_time.signals_fired".to_owned(), json!(stats.signals_fired));
         summary.insert("virtual_time.jumps".to_owned(), json!(stats.jumps));
         summary.insert("virtual_time.controller_cpu".to_owned(), json!(vt.settings().controller_cpu));
-        // Not in the summary, which repeats exactly: who wrote the replies depends on the host.
-        debug!(by_controller = stats.outbox_written, not_taken = stats.outbox_untaken, "reply writes made by parked controller threads");
     }
     // Under virtual time nothing is late by construction: there is no pace to keep.
     let pace_problems = if virtual_time.is_some() { Vec::new() } else { report.pace_problems(options.pace.tolerance) };

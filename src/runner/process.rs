@@ -40,9 +40,6 @@ pub struct Launch<'a> {
     pub speed: f64,
     /// The program runs on virtual time (the shim's preload is in `env`).
     pub virtual_time: bool,
-    /// A descriptor of climbsim's the program gets, under the second number (virtual time's
-    /// port master: `VirtualTime::master_for_controller`).
-    pub pass_fd: Option<(std::os::fd::RawFd, std::os::fd::RawFd)>,
     pub log_path: &'a Path,
 }
 
@@ -121,17 +118,6 @@ impl Controller {
             unsafe {
                 command.pre_exec(|| {
                     libc::setpriority(libc::PRIO_PROCESS, 0, CONTROLLER_NICE);
-                    Ok(())
-                });
-            }
-        }
-        if let Some((ours, theirs)) = launch.pass_fd {
-            // SAFETY: dup2 is async-signal-safe and touches only the child being started; the
-            // copy is inherited (dup2 clears close-on-exec). If it fails the program simply
-            // does not have it, which it checks before use.
-            unsafe {
-                command.pre_exec(move || {
-                    libc::dup2(ours, theirs);
                     Ok(())
                 });
             }

@@ -196,43 +196,27 @@ impl AsyncRead for VirtualTimeStream {
     }
 }
 
-impl VirtualTimeStream {
-    /// Write to the master, waiting up to [`PTY_FULL_FOR`] while the terminal's buffer is full:
-    /// how many bytes were written (None: the buffer stayed full).
-    fn write_master(&self, data: &[u8]) -> io::Result<Option<usize>> {
-        let mut fds = [PollFd::new(self.port.master_fd(), PollFlags::POLLOUT)];
-        let deadline = Instant::now() + PTY_FULL_FOR;
-        loop {
-            match nix::unistd::write(self.port.master_fd(), data) {
-                Ok(n) => return Ok(Some(n)),
-                Err(nix::errno::Errno::EAGAIN) if Instant::now() > deadline => return Ok(None),
-                Err(nix::errno::Errno::EAGAIN) => {
-                    let _ = poll(&mut fds, PollTimeout::from(10u8));
-                }
-                Err(e) => return Err(e.into()),
-            }
-        }
-    }
-}
-
 impl AsyncWrite for VirtualTimeStream {
     fn poll_write(self: Pin<&mut Self>, _cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
         let slave = self.port.slave.as_raw_fd();
         let before = queued_bytes(slave).unwrap_or(0);
         let taken_before = self.virtual_time.port_taken_total();
-        // A parked controller thread writes them if one spins (see virtual_time/outbox.rs).
-        let written = match self.virtual_time.write_through_controller(data) {
-            Some(n) if n > 0 => n,
-            _ => match self.write_master(data) {
-                Ok(Some(n)) => n,
-                Ok(None) => {
-                    // The terminal's buffer stayed full: a controller that does not read. As an
-                    // adapter's buffer would, it loses what does not fit.
+        let mut fds = [PollFd::new(self.port.master_fd(), PollFlags::POLLOUT)];
+        let deadline = Instant::now() + PTY_FULL_FOR;
+        let written = loop {
+            match nix::unistd::write(self.port.master_fd(), data) {
+                Ok(n) => break n,
+                // The terminal's buffer is full: a controller that does not read. As an
+                // adapter's buffer would, it loses what does not fit.
+                Err(nix::errno::Errno::EAGAIN) if Instant::now() > deadline => {
                     warn!(bytes = data.len(), "reply bytes lost: the controller does not read the port and its buffer is full");
                     return Poll::Ready(Ok(data.len()));
                 }
-                Err(e) => return Poll::Ready(Err(e)),
-            },
+                Err(nix::errno::Errno::EAGAIN) => {
+                    let _ = poll(&mut fds, PollTimeout::from(10u8));
+                }
+                Err(e) => return Poll::Ready(Err(e.into())),
+            }
         };
         let handing_over = Instant::now();
         // What the controller took meanwhile (a read or a flush the shim counted) was handed over.

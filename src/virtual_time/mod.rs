@@ -16,7 +16,6 @@
 pub mod abi;
 mod block;
 mod held;
-mod outbox;
 mod quiet;
 mod real_world;
 mod shim_file;
@@ -154,10 +153,6 @@ pub struct VtStats {
     pub turns_handed: u64,
     /// Signal timers (alarm, setitimer, timer_create) fired at a controller thread.
     pub signals_fired: u64,
-    /// Reply writes a parked controller thread made for climbsim (outbox.rs), and those no
-    /// thread took in time (climbsim wrote them itself).
-    pub outbox_written: u64,
-    pub outbox_untaken: u64,
 }
 
 /// climbsim's side of virtual time for one run.
@@ -202,7 +197,6 @@ impl VirtualTime {
         header.batch_ns.store(BATCH_NS, Ordering::Relaxed);
         header.spin_cap_ns.store(settings.spin_cap_ns, Ordering::Relaxed);
         header.port_next_due_ns.store(NEVER, Ordering::Relaxed);
-        header.port_master_fd.store(-1, Ordering::Relaxed);
         header.climbsim_pid.store(std::process::id() as i32, Ordering::Relaxed);
         header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
