@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 13;
+pub const ABI: u32 = 14;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -373,6 +373,10 @@ pub struct Slot {
     /// hand-over is counted as begun, cleared after it is counted as ended, so that a hand-over
     /// whose thread was killed in it can be found (the slot's thread is gone) and written off.
     pub handing: AtomicU32,
+    /// S: the simulated time the thread ended at, written before `state` says EXITED: climbsim
+    /// sees a controller's end at the first world tick after it, on every run (a tick at that
+    /// very instant may run beside the thread, which ends while it does or after).
+    pub exited_ns: AtomicU64,
 }
 
 /// `SigTimer::state`.

@@ -530,6 +530,7 @@ fn exit_slot(slot: &Slot) {
         return;
     };
     let hand = park::hand_on(shared, slot);
+    slot.exited_ns.store(now::sim_now(shared), Ordering::Relaxed);
     slot.state.store(state::EXITED, Ordering::Release);
     hand.finish();
 }

@@ -88,7 +88,10 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     let Some(shared) = shared() else { return run() };
     let mine = shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED));
     // Exited, and no longer this process's: a parent waiting for it waits on the real world.
-    let before = mine.map(|s| (s.state.swap(state::EXITED, Ordering::AcqRel), s.pid.swap(0, Ordering::AcqRel)));
+    let before = mine.map(|s| {
+        s.exited_ns.store(crate::now::sim_now(shared), Ordering::Relaxed);
+        (s.state.swap(state::EXITED, Ordering::AcqRel), s.pid.swap(0, Ordering::AcqRel))
+    });
     crate::notify_scheduler(shared);
     let result = run();
     if let (Some(slot), Some((state_before, pid_before))) = (mine, before) {

@@ -83,9 +83,9 @@ impl Ticked for WatchedTicks<'_> {
         // every run), not whenever the kernel's reaping comes round on the wall clock.
         let status = match self.clock.virtual_time() {
             Some(_) if self.unfollowed => self.controller.try_wait(),
-            // Seen at the first tick at or after the exit's own simulated time (the world may
-            // be catching up with a controller that ran ahead).
-            Some(vt) if vt.first_process_ended() && vt.now() <= at => {
+            // Seen at the first tick after the exit's own simulated time (the world may be
+            // catching up with a controller that ran ahead).
+            Some(vt) if vt.first_process_ended_before(at) => {
                 let status = self.controller.wait_briefly();
                 self.unfollowed = matches!(status, Ok(None));
                 status

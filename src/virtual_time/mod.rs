@@ -258,10 +258,14 @@ impl VirtualTime {
         slot.tid.store(pid as i32, Ordering::Relaxed);
     }
 
-    /// The process climbsim started (slot 0's) has ended, as far as the shim saw it: its exit
-    /// happened at the current simulated time.
-    pub fn first_process_ended(&self) -> bool {
-        self.shared().slots[0].state.load(Ordering::Acquire) == state::EXITED
+    /// The process climbsim started (slot 0's) has ended, as far as the shim saw it, at a
+    /// simulated instant before `at`. Not at `at` itself: a world tick at the instant a thread
+    /// is let go runs beside it, and whether that thread has ended by the tick's look is the
+    /// host's race; every run sees such an end at the next tick.
+    pub fn first_process_ended_before(&self, at: Duration) -> bool {
+        let slot = &self.shared().slots[0];
+        let at = u64::try_from(at.as_nanos()).unwrap_or(NEVER);
+        slot.state.load(Ordering::Acquire) == state::EXITED && slot.exited_ns.load(Ordering::Relaxed) < at
     }
 
     /// The servo port the controller opens: its writes are counted, its reads waited for.
