@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Runs one scenario N times on virtual time, optionally beside two busy loops that keep both
 # cores loaded, and counts the runs that passed and the distinct controller logs and time
-# series among them: a deterministic controller run gives N passed, 1 distinct of each.
+# series and end instants among them: a deterministic controller run gives N passed, 1
+# distinct of each.
 # Usage: hil/bench/vt-repeat.sh SCENARIO [RUNS=20] [--loaded] (from the checkout; climbsim is
 # $CLIMBSIM or target/debug/climbsim).
 set -euo pipefail
@@ -26,6 +27,8 @@ for run in $(seq 1 "$runs"); do
             touch "$work/shown"
         fi
         md5sum < "$work/$run/timeseries.csv" >> "$work/series"
+        # The simulated instant the controller's end was seen at (the run's length).
+        grep -o '"controller_exited_at_s": [^,}]*' "$work/$run/summary.json" >> "$work/ends" || echo none >> "$work/ends"
     else
         echo "run $run failed:"; tail -3 "$work/$run.out"
     fi
@@ -33,4 +36,4 @@ done
 # A run can pass with its controller stuck (a controller killed at the scenario's end exits 0):
 # the last line it printed says how far it got.
 echo "last line of the first run's controller log: $(tail -n 1 "$work/1/controller.log" 2>/dev/null)"
-echo "$scenario: $passed of $runs passed${loaded:+ (both cores loaded)}; distinct controller logs: $(sort -u "$work/logs" 2>/dev/null | wc -l), distinct time series: $(sort -u "$work/series" 2>/dev/null | wc -l); $((SECONDS - started)) s"
+echo "$scenario: $passed of $runs passed${loaded:+ (both cores loaded)}; distinct controller logs: $(sort -u "$work/logs" 2>/dev/null | wc -l), distinct time series: $(sort -u "$work/series" 2>/dev/null | wc -l), distinct end instants: $(sort -u "$work/ends" 2>/dev/null | wc -l); $((SECONDS - started)) s"

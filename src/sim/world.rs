@@ -103,7 +103,7 @@ impl WorldConfig {
 /// rapier's defaults are 4 and 1.
 ///
 /// `cargo bench --bench solver_fidelity` measures what each setting buys against an 8 × 2
-/// reference stepping every tick (table in docs/performance.md). The default, 3 × 3 every 2
+/// reference stepping every tick (table in docs/performance-world.md). The default, 3 × 3 every 2
 /// ticks, stays inside every physics test's tolerance and settles the flat-line scenarios as
 /// 3 × 2 every tick does; 3 × 2 every 2 ticks holds the physics tests too but settles a
 /// line-following robot a third slower (its yaw stick–slip converges less per simulated
