@@ -420,6 +420,31 @@ fn the_official_cpp_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_ser
 }
 
 #[test]
+fn a_shell_that_forks_keeps_time_still_while_it_waits_for_its_children_on_a_loaded_machine() {
+    // Each forked child gets a slot reserved by its parent. climbsim once looked for such a
+    // child under its parent's pid, judged it gone while it started, and let the world tick on
+    // while the shell waited for its output: 1 to 100 ms more in one loaded run of five.
+    let dir = support::scratch_dir("vt-subshells");
+    let path = scenario(&dir, "subshells", 2.0, &["tests/vt/subshells.sh"], true);
+    let load = Load::both_cores();
+    let mut ends = Vec::new();
+    for run in ["a", "b", "c"] {
+        let (output, _) = run_virtual(&path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+        let log = std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log");
+        assert!(log.starts_with("40 subshells, the last printed 40; "), "{log}");
+        // "END - START s simulated": 40 children's calls, about 84 µs. (Whether a child's
+        // SIGCHLD interrupts the shell's read, one call more, is still the host's race.)
+        let times: Vec<f64> = log.trim_end().trim_end_matches(" s simulated").rsplit("; ").next().unwrap_or("").split(" - ").filter_map(|t| t.parse().ok()).collect();
+        assert_eq!(times.len(), 2, "{log}");
+        assert!(times[0] - times[1] < 0.0005, "{log}");
+        ends.push(summary(&dir.join(run))["controller_exited_at_s"].clone());
+    }
+    drop(load);
+    assert!(ends.iter().all(|end| *end == ends[0]), "{ends:?}");
+}
+
+#[test]
 fn a_non_blocking_read_loop_as_the_cpp_sdks_sees_zero_not_eagain_and_each_reply_at_its_instant() {
     let dir = support::scratch_dir("vt-nonblocking");
     let program = compiled_c(&dir, "nonblocking_port");

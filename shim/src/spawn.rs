@@ -173,11 +173,22 @@ pub unsafe extern "C" fn fork() -> c_int {
     // SAFETY: libc's fork; in the child the atfork handler claims the reserved slot.
     let child = unsafe { next() };
     match reserved {
-        Some(slot) if child > 0 => slot.tid.store(child, Ordering::Release),
+        Some(slot) if child > 0 => known_child(slot, child),
         Some(_) if child == 0 => {}
         other => unreserve(other),
     }
     child
+}
+
+/// The child a slot was reserved for is `child`: its task, and its process (until then the
+/// parent's, by which a child that looks before this finds it). The task first: a child that
+/// looks in between finds the slot by it. climbsim looks the task up as /proc/PID/task/TID,
+/// and with the parent's pid it found no such task: it judged the child gone and its slot
+/// exited, and the child ran unfollowed (seen under load: a shell's `$(…)` let time move while
+/// the shell waited for the output).
+fn known_child(slot: &Slot, child: c_int) {
+    slot.tid.store(child, Ordering::Release);
+    slot.pid.store(child, Ordering::Release);
 }
 
 type SpawnFn = unsafe extern "C" fn(*mut c_int, *const c_char, *const c_void, *const c_void, *const *const c_char, *const *const c_char) -> c_int;
@@ -187,7 +198,7 @@ fn spawn_with(pid: *mut c_int, run: impl FnOnce() -> c_int) -> c_int {
     let result = run();
     match reserved {
         // SAFETY: posix_spawn wrote the child's pid where the caller asked, if it asked.
-        Some(slot) if result == 0 && !pid.is_null() => slot.tid.store(unsafe { *pid }, Ordering::Release),
+        Some(slot) if result == 0 && !pid.is_null() => known_child(slot, unsafe { *pid }),
         other => unreserve(other),
     }
     result
