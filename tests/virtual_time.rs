@@ -423,7 +423,7 @@ fn the_official_cpp_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_ser
 fn a_shell_that_forks_keeps_time_still_while_it_waits_for_its_children_on_a_loaded_machine() {
     // Each forked child gets a slot reserved by its parent. climbsim once looked for such a
     // child under its parent's pid, judged it gone while it started, and let the world tick on
-    // while the shell waited for its output: 1 to 100 ms more in one loaded run of five.
+    // while the shell waited for its output: 25 to 135 ms more in about one loaded run of five.
     let dir = support::scratch_dir("vt-subshells");
     let path = scenario(&dir, "subshells", 2.0, &["tests/vt/subshells.sh"], true);
     let load = Load::both_cores();

@@ -9,7 +9,7 @@ use std::time::Duration;
 mod support;
 
 use support::output_text;
-use support::vt::{compiled_c, controller_log_repeated, run_virtual, run_virtual_with, scenario, summary};
+use support::vt::{compiled_c, compiled_c_source, controller_log_repeated, run_virtual, run_virtual_with, scenario, summary};
 
 #[test]
 fn a_busy_loop_fails_the_run_naming_the_thread_past_the_compute_limit() {
@@ -100,10 +100,7 @@ fn threads_that_only_hand_a_lock_back_and_forth_move_the_clock() {
 fn a_controller_that_starts_a_thread_every_period_keeps_its_periods() {
     // hil/bench/vt-thread-rate.sh's controller: a thread created and joined every millisecond.
     let dir = support::scratch_dir("vt-thread-rate");
-    let program = dir.join("thread_per_period");
-    let source = support::repo().join("hil/bench/thread_per_period.c");
-    let compiled = std::process::Command::new("cc").args(["-O2", "-pthread"]).arg(&source).arg("-o").arg(&program).output().expect("run cc");
-    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    let program = compiled_c_source(&dir, "hil/bench/thread_per_period.c");
     let path = scenario(&dir, "thread-rate", 1.0, &[program.to_str().expect("utf-8 path"), "1000", "0.3", "1"], true);
     let log = controller_log_repeated(&path, &dir);
     assert!(log.contains("300 periods of 1000 us, a thread created and joined in each"), "{log}");

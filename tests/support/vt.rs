@@ -86,8 +86,14 @@ pub fn controller_log_repeated(path: &Path, dir: &Path) -> String {
 /// `tests/vt/NAME.c` compiled into `dir` with the system's C compiler (Rust links with it, so
 /// it is there wherever these tests build).
 pub fn compiled_c(dir: &Path, name: &str) -> PathBuf {
+    compiled_c_source(dir, &format!("tests/vt/{name}.c"))
+}
+
+/// The C file at `source` (relative to the repository) compiled into `dir`, named as the file.
+pub fn compiled_c_source(dir: &Path, source: &str) -> PathBuf {
+    let name = Path::new(source).file_stem().expect("a file name");
     let program = dir.join(name);
-    let compiled = Command::new("cc").arg(repo().join(format!("tests/vt/{name}.c"))).arg("-o").arg(&program).output().expect("run cc");
+    let compiled = Command::new("cc").arg(repo().join(source)).arg("-o").arg(&program).output().expect("run cc");
     assert!(compiled.status.success(), "{}", output_text(&compiled));
     program
 }
