@@ -131,6 +131,22 @@ fn the_servos_answer_a_controllers_clean_up_after_the_run_and_it_is_not_counted_
     assert_eq!(timing["watchdog_expiries"], 0, "{timing}");
 }
 
+#[test]
+fn a_request_sent_at_the_runs_last_instant_is_answered_after_the_run() {
+    // The controller's writes to the port reach climbsim through the block's ring, not the pty:
+    // one written after the world's last look must still reach the servos that answer the
+    // clean-up (before, it was lost, and the controller waited out its timeout).
+    let dir = support::scratch_dir("vt-request-at-the-end");
+    let program = compiled_c(&dir, "request_at_the_end");
+    let program = program.display().to_string();
+    let path = support::vt::scenario_with(&dir, "request-at-the-end", 0.2, &[&program, "0.2"], false, "\n[bus]\nbaud_bps = 1000000\n");
+    let out = dir.join("out");
+    let (output, _) = run_virtual(&path, &out);
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
+    assert!(log.contains("ping at the end: 14 bytes"), "{log}");
+}
+
 /// Two processes that keep both cores busy while they live.
 struct Load(Vec<std::process::Child>);
 

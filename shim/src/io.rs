@@ -38,6 +38,9 @@ fn count_written(fd: c_int, written: isize) {
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize {
+    if let Some(written) = crate::port_ring::write(fd, &[iovec { iov_base: buf.cast_mut().cast(), iov_len: count }]) {
+        return written;
+    }
     let next = real!(write: fn(c_int, *const u8, usize) -> isize);
     // SAFETY: passing the caller's arguments through.
     let written = unsafe { next(fd, buf, count) };
@@ -47,6 +50,13 @@ pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn writev(fd: c_int, iov: *const iovec, count: c_int) -> isize {
+    if !iov.is_null() && (1..=IOV_MAX).contains(&count) {
+        // SAFETY: writev's contract: `count` valid iovecs at `iov`.
+        let parts = unsafe { core::slice::from_raw_parts(iov, count as usize) };
+        if let Some(written) = crate::port_ring::write(fd, parts) {
+            return written;
+        }
+    }
     let next = real!(writev: fn(c_int, *const iovec, c_int) -> isize);
     // SAFETY: passing the caller's arguments through.
     let written = unsafe { next(fd, iov, count) };
@@ -55,6 +65,8 @@ pub unsafe extern "C" fn writev(fd: c_int, iov: *const iovec, count: c_int) -> i
 }
 
 const EAGAIN: c_int = 11;
+/// The most iovecs a writev takes (UIO_MAXIOV); past it the kernel answers EINVAL.
+const IOV_MAX: c_int = 1024;
 /// Also TIOCINQ.
 const FIONREAD: u64 = 0x541B;
 const TCGETS: u64 = 0x5401;
