@@ -479,8 +479,8 @@ pub struct Shared {
 
 impl Shared {
     /// Counted bytes the controller wrote to the port through the pty that climbsim has not
-    /// read. The ring and the pty are never both in use: the shim writes to the ring only when
-    /// this is 0, and to the pty only when the ring is empty, so the stream stays in order.
+    /// read: the shim writes to the ring only when this is 0, so the stream stays in order (in a
+    /// run, every counted write goes to the ring: this guards a count left from elsewhere).
     pub fn port_tx_pty_unread(&self) -> u64 {
         use core::sync::atomic::Ordering::Acquire;
         let header = &self.header;

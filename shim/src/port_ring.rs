@@ -5,8 +5,8 @@
 //! at once. What this does not see (stdio's writes, a process without the shim) still goes
 //! through the pty, which climbsim reads too, as before.
 //!
-//! The stream stays in order: a write goes to the ring only when every counted byte written
-//! through the pty has been read, and to the pty only when the ring is empty.
+//! The stream stays in order: a counted write goes to the ring only when every counted byte
+//! written through the pty (before the run, or by a build that had no ring) has been read.
 
 use core::ffi::c_int;
 use core::sync::atomic::Ordering;
@@ -14,31 +14,32 @@ use core::sync::atomic::Ordering;
 use crate::abi::{PORT_TX_RING, Shared, call, state};
 use crate::sys::iovec;
 use crate::time::sim_now;
-use crate::wait::is_port;
 use crate::{active, charge, note_call, park};
 
-/// Write `parts` (a write's buffer, or a writev's) to the ring if `fd` is the port and the
+/// Write `parts` (a write's buffer, or a writev's) to the port `fd` through the ring if the
 /// stream's order allows it: the bytes written (or -1 with EAGAIN), or `None` for the kernel.
-pub(crate) fn write(fd: c_int, parts: &[iovec]) -> Option<isize> {
-    let shared = active()?;
+/// At most what the ring has room for: a larger write is a partial one, as the kernel's can be.
+pub(crate) fn write(shared: &'static Shared, fd: c_int, parts: &[iovec]) -> Option<isize> {
     let wanted: usize = parts.iter().map(|part| part.iov_len).fold(0, usize::saturating_add);
-    if wanted == 0 || !is_port(shared, fd) || shared.port_tx_pty_unread() > 0 {
+    if wanted == 0 || shared.port_tx_pty_unread() > 0 {
         return None;
     }
     let mut room = ring_room(shared);
-    if wanted > room && shared.port_tx_ring_unread() == 0 {
-        // Larger than the whole ring: the pty takes it, as before.
-        return None;
-    }
     while room == 0 {
         // A controller that wrote a whole ring without waiting once: climbsim takes the bytes
-        // when every thread is parked, so this one yields until it has.
+        // when every thread is parked, so this one yields until it has. (Through the pty, such
+        // a write blocked in the kernel, where climbsim could not take it: the run failed.)
         // SAFETY: fcntl F_GETFL on the caller's descriptor.
         if unsafe { crate::sys::fcntl(fd, crate::sys::F_GETFL) } & crate::sys::O_NONBLOCK != 0 {
             crate::sys::set_errno(crate::sys::EAGAIN);
             return Some(-1);
         }
         park(shared, state::YIELDED, sim_now(shared), 0, 0);
+        if active().is_none() {
+            // The run ended meanwhile: nobody takes the ring now (what is in it goes to the
+            // clean-up's servos first, then this, through the pty).
+            return None;
+        }
         room = ring_room(shared);
     }
     let count = wanted.min(room);
