@@ -16,6 +16,7 @@
 pub mod abi;
 mod block;
 mod held;
+mod port;
 mod quiet;
 mod real_world;
 mod shim_file;
@@ -266,48 +267,6 @@ impl VirtualTime {
         let slot = &self.shared().slots[0];
         let at = u64::try_from(at.as_nanos()).unwrap_or(NEVER);
         slot.state.load(Ordering::Acquire) == state::EXITED && slot.exited_ns.load(Ordering::Relaxed) < at
-    }
-
-    /// The servo port the controller opens: its writes are counted, its reads waited for.
-    pub fn attach_port(&self, master: RawFd, slave: RawFd) {
-        let mut stat: libc::stat = unsafe { std::mem::zeroed() };
-        // SAFETY: fstat of climbsim's own descriptor into a valid struct.
-        if unsafe { libc::fstat(slave, &mut stat) } == 0 {
-            self.shared().header.port_rdev.store(stat.st_rdev, Ordering::Release);
-        }
-        *lock(&self.port) = Some(PortFds { master, slave });
-    }
-
-    /// climbsim has read `bytes` more from the port (and so time-stamped them).
-    pub fn port_read(&self, bytes: usize) {
-        self.shared().header.port_tx_read.fetch_add(bytes as u64, Ordering::AcqRel);
-    }
-
-    /// Take what the controller wrote to the port through the block's ring (see
-    /// `abi::Shared::port_tx_ring`) into `out`, counted as read; how many bytes (0: none is
-    /// there, the pty may have some).
-    pub fn take_port_ring(&self, out: &mut [u8]) -> usize {
-        let shared = self.shared();
-        let header = &shared.header;
-        let start = header.port_tx_ring_read.load(Ordering::Acquire);
-        // Never more than a ring's worth: the count is the shim's, which climbsim does not trust.
-        let unread = shared.port_tx_ring_unread().min(abi::PORT_TX_RING as u64);
-        let count = usize::try_from(unread).unwrap_or(usize::MAX).min(out.len());
-        for (index, byte) in out[..count].iter_mut().enumerate() {
-            *byte = shared.port_tx_ring[((start + index as u64) % abi::PORT_TX_RING as u64) as usize].load(Ordering::Relaxed);
-        }
-        header.port_tx_ring_read.store(start + count as u64, Ordering::Release);
-        self.port_read(count);
-        count
-    }
-
-    /// Everything left in the port's ring (after the run's end: the shim writes to the pty
-    /// then), counted as read.
-    pub fn take_port_ring_rest(&self) -> Vec<u8> {
-        let mut rest = vec![0; abi::PORT_TX_RING];
-        let taken = self.take_port_ring(&mut rest);
-        rest.truncate(taken);
-        rest
     }
 
     /// The sensor server controllers connect to: connections to it are followed.

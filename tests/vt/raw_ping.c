@@ -1,51 +1,26 @@
 /* A controller in plain C on a blocking port (termios VMIN/VTIME, read(2)), for the
  * virtual-time tests: pings servo 1 and an absent ID with the terminal's own timeouts and
  * prints what its monotonic clock saw. Built by tests/virtual_time.rs with the system's cc. */
-#include <fcntl.h>
-#include <stdint.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <termios.h>
-#include <time.h>
-#include <unistd.h>
-
 #include "protocol2.h"
 
 /* Ping `id`, then read up to 14 bytes with blocking reads until one returns 0 (VTIME ran out)
  * or the status is whole. */
 static void ping(int fd, uint8_t id, const char *what) {
-    uint8_t packet[10] = {0xFF, 0xFF, 0xFD, 0x00, id, 0x03, 0x00, 0x01, 0, 0};
-    uint16_t crc = crc16(packet, 8);
-    packet[8] = crc & 0xFF;
-    packet[9] = crc >> 8;
+    uint8_t packet[10], reply[64];
+    ping_packet(id, packet);
     double started = now_us(CLOCK_MONOTONIC);
     if (write(fd, packet, sizeof packet) != (ssize_t)sizeof packet) { perror("write"); exit(1); }
-    uint8_t reply[64];
-    size_t got = 0;
-    while (got < 14) {
-        ssize_t n = read(fd, reply + got, sizeof reply - got);
-        if (n < 0) { perror("read"); exit(1); }
-        if (n == 0) break;
-        got += (size_t)n;
-    }
+    size_t got = read_status(fd, reply, 14);
     printf("%s: %.1f us, %zu bytes\n", what, now_us(CLOCK_MONOTONIC) - started, got);
     fflush(stdout);
 }
 
 int main(void) {
-    const char *path = getenv("DXL_PORT");
-    if (!path) return 2;
-    int fd = open(path, O_RDWR | O_NOCTTY);
-    if (fd < 0) { perror("open"); return 1; }
-    struct termios tio;
-    tcgetattr(fd, &tio);
-    cfmakeraw(&tio);
-    cfsetspeed(&tio, B1000000);
-    tio.c_cc[VMIN] = 0;
-    tio.c_cc[VTIME] = 2; /* 200 ms */
-    tcsetattr(fd, TCSANOW, &tio);
+    int fd = open_port_raw(0, 2); /* VTIME 200 ms */
     ping(fd, 1, "vtime ping 1");
     ping(fd, 42, "vtime ping 42");
+    struct termios tio;
+    tcgetattr(fd, &tio);
     tio.c_cc[VMIN] = 1;
     tio.c_cc[VTIME] = 0;
     tcsetattr(fd, TCSANOW, &tio);
