@@ -149,7 +149,7 @@ fn a_request_sent_at_the_runs_last_instant_is_answered_after_the_run() {
 
 #[test]
 fn writes_far_larger_than_the_shared_ring_go_through_in_order_and_nothing_hangs() {
-    // 1.5 MiB in one write (a partial one: the ring holds 1 MiB), then 32 writes of 64 KiB that
+    // 1.5 MiB in one blocking write (the ring holds 1 MiB: it waits for room), then 32 writes of 64 KiB that
     // fill it (the writer waits for climbsim), then a ping whose status must come. Through the
     // pty, the first write blocked in the kernel and the run failed.
     let dir = support::scratch_dir("vt-big-writes");

@@ -297,6 +297,10 @@ pub struct Header {
     pub port_tx_ring_written: AtomicU64,
     /// C: of those, the bytes climbsim has taken from the ring.
     pub port_tx_ring_read: AtomicU64,
+    /// S: threads writing into the ring now. A writer counts itself, then looks at `mode`;
+    /// climbsim sets [`mode::ENDING`], then waits for this to be 0 before it takes what the
+    /// ring holds for the clean-up's servos.
+    pub port_tx_ring_writers: AtomicU32,
 }
 
 impl Header {
@@ -478,19 +482,6 @@ pub struct Shared {
 }
 
 impl Shared {
-    /// Counted bytes the controller wrote to the port through the pty that climbsim has not
-    /// read: the shim writes to the ring only when this is 0, so the stream stays in order (in a
-    /// run, every counted write goes to the ring: this guards a count left from elsewhere).
-    pub fn port_tx_pty_unread(&self) -> u64 {
-        use core::sync::atomic::Ordering::Acquire;
-        let header = &self.header;
-        let ring_read = header.port_tx_ring_read.load(Acquire);
-        let read = header.port_tx_read.load(Acquire);
-        let ring_written = header.port_tx_ring_written.load(Acquire);
-        let total = header.port_tx_total.load(Acquire);
-        total.saturating_sub(ring_written).saturating_sub(read.saturating_sub(ring_read))
-    }
-
     /// Bytes in the port's ring that climbsim has not taken.
     pub fn port_tx_ring_unread(&self) -> u64 {
         use core::sync::atomic::Ordering::Acquire;

@@ -8,6 +8,9 @@ use std::sync::atomic::Ordering;
 use super::abi;
 use super::{PortFds, VirtualTime, lock};
 
+/// How long the run's end waits for writers into the ring that are under way.
+const RING_WRITERS_FINISH_WITHIN: std::time::Duration = std::time::Duration::from_millis(100);
+
 impl VirtualTime {
     /// The servo port the controller opens: its writes are counted, its reads waited for.
     pub fn attach_port(&self, master: RawFd, slave: RawFd) {
@@ -35,17 +38,24 @@ impl VirtualTime {
         let unread = shared.port_tx_ring_unread().min(abi::PORT_TX_RING as u64);
         let count = usize::try_from(unread).unwrap_or(usize::MAX).min(out.len());
         for (index, byte) in out[..count].iter_mut().enumerate() {
-            *byte = shared.port_tx_ring[((start + index as u64) % abi::PORT_TX_RING as u64) as usize].load(Ordering::Relaxed);
+            *byte = shared.port_tx_ring[(start.wrapping_add(index as u64) % abi::PORT_TX_RING as u64) as usize].load(Ordering::Relaxed);
         }
-        header.port_tx_ring_read.store(start + count as u64, Ordering::Release);
+        header.port_tx_ring_read.store(start.wrapping_add(count as u64), Ordering::Release);
         self.port_read(count);
         count
     }
 
-    /// Everything left in the port's ring (after the run's end: the shim writes to the pty
-    /// then), counted as read.
+    /// Everything left in the port's ring once the run has ended (the shim writes to the pty
+    /// then), counted as read. Writers already under way finish first (a few microseconds; at
+    /// most [`RING_WRITERS_FINISH_WITHIN`], for one killed in its write).
     pub fn take_port_ring_rest(&self) -> Vec<u8> {
-        let mut rest = vec![0; abi::PORT_TX_RING];
+        let shared = self.shared();
+        let since = std::time::Instant::now();
+        while shared.header.port_tx_ring_writers.load(Ordering::SeqCst) != 0 && since.elapsed() < RING_WRITERS_FINISH_WITHIN {
+            std::thread::yield_now();
+        }
+        let unread = shared.port_tx_ring_unread().min(abi::PORT_TX_RING as u64);
+        let mut rest = vec![0; usize::try_from(unread).unwrap_or(abi::PORT_TX_RING)];
         let taken = self.take_port_ring(&mut rest);
         rest.truncate(taken);
         rest

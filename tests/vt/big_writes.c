@@ -1,5 +1,5 @@
 /* A controller that writes far more to the port than the shared block's ring holds without
- * waiting once: 1.5 MiB of zeros in one write (larger than the ring: through the pty), then
+ * waiting once: 1.5 MiB of zeros in one blocking write (larger than the ring: it waits for room), then
  * 2 MiB in writes of 64 KiB (through the ring, which fills: the writer waits for climbsim to
  * take it), then a ping of servo 1, whose status must still come: the stream stays in order
  * and nothing hangs. Prints what it wrote and the ping's result. Built by tests/virtual_time.rs. */
