@@ -29,7 +29,6 @@ mod native;
 mod net;
 mod now;
 mod park;
-mod port_ring;
 mod program;
 mod seccomp;
 #[cfg(target_arch = "x86_64")]
