@@ -55,12 +55,13 @@ static inline void ping_packet(uint8_t id, uint8_t packet[10]) {
 }
 
 /* Read up to `want` bytes into `buf` until a read returns nothing (the terminal's timeout); how
- * many came. */
+ * many came. A failed read ends the process. */
 static inline size_t read_status(int fd, uint8_t *buf, size_t want) {
     size_t got = 0;
     while (got < want) {
         ssize_t n = read(fd, buf + got, want - got);
-        if (n <= 0) break;
+        if (n < 0) { perror("read"); exit(1); }
+        if (n == 0) break;
         got += (size_t)n;
     }
     return got;

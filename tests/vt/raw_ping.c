@@ -24,8 +24,9 @@ int main(void) {
     tio.c_cc[VMIN] = 1;
     tio.c_cc[VTIME] = 0;
     tcsetattr(fd, TCSANOW, &tio);
+    uint8_t packet[10];
+    ping_packet(1, packet);
     double started = now_us(CLOCK_MONOTONIC);
-    uint8_t packet[10] = {0xFF, 0xFF, 0xFD, 0x00, 1, 0x03, 0x00, 0x01, 0x19, 0x4E};
     if (write(fd, packet, sizeof packet) != (ssize_t)sizeof packet) return 1;
     uint8_t reply[14];
     size_t got = 0;
