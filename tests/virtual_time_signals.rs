@@ -86,3 +86,14 @@ fn an_alarm_nobody_handles_kills_the_controller_at_its_instant_and_fails_the_run
     let exited_at = summary["controller_exited_at_s"].as_f64().unwrap_or(f64::NAN);
     assert!((1.0..=1.001).contains(&exited_at), "exited at {exited_at} s, not at the alarm's 1 s (or the world tick after it): {summary:?}");
 }
+
+#[test]
+fn a_posix_timer_survives_a_spawned_childs_exec_and_goes_with_its_own() {
+    let dir = support::scratch_dir("vt-timer-spawn");
+    let program = compiled_c(&dir, "posix_timer_spawn");
+    let path = scenario(&dir, "timer-spawn", 1.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    // The child's exec (from a clone sharing the parent's memory) had deleted the parent's
+    // timer: no tick came after the spawn.
+    assert_log_has(&log, &["ticks before the spawn 5, in the 100 ms after it 10", "after the exec: 0 ticks in 100 ms"]);
+}

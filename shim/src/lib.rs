@@ -40,6 +40,7 @@ mod signals {
         false
     }
     pub(crate) fn slot_claimed(_: &crate::abi::Slot) {}
+    pub(crate) fn delete_posix_timers_of(_: i32) {}
 }
 mod spawn;
 mod sync;
@@ -173,6 +174,8 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
         sys::__register_atfork(None, None, Some(forked_child), core::ptr::null_mut());
         sys::__cxa_atexit(process_exiting, core::ptr::null_mut(), core::ptr::null_mut());
     }
+    // A new program (after an exec) has no POSIX timers: those its earlier image made go.
+    signals::delete_posix_timers_of(sys::getpid());
     spawn::resolve_exec_functions();
     spawn::remember_shim_environment();
     program::inspect(envp, true);

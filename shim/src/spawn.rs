@@ -86,6 +86,9 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
         return result;
     }
     let Some(shared) = shared() else { return run() };
+    // The new program will not delete its earlier image's timers itself (see `init`). (Should
+    // the exec fail, they are gone: an edge left as it is.)
+    crate::signals::delete_posix_timers_of(sys::getpid());
     let mine = shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED));
     // Exited, and no longer this process's: a parent waiting for it waits on the real world.
     let before = mine.map(|s| {
@@ -344,8 +347,6 @@ fn fresh_pages(bytes: usize) -> Option<*mut u8> {
 /// in its environment, and a slot for the program to come; what the system call returns.
 pub(crate) fn exec_trapped(path: usize, argv: usize, envp: usize, at: Option<(i64, i64)>) -> i64 {
     let envp = with_shim(envp as *const *const c_char);
-    #[cfg(target_arch = "x86_64")]
-    crate::signals::exec_deletes_posix_timers();
     let mut result = 0;
     crate::tsc::around_exec(true);
     exec_with(envp, || {

@@ -23,7 +23,7 @@ use crate::sys::{self, nr};
 mod timers;
 mod waits;
 
-pub(crate) use timers::exec_deletes_posix_timers;
+pub(crate) use timers::delete_posix_timers_of;
 
 const ITIMER_REAL: i64 = 0;
 /// The signals whose default action is to do nothing.

@@ -216,12 +216,17 @@ pub(super) fn timer_gettime(shared: &Shared, timer: &SigTimer, out: *mut [timesp
     0
 }
 
-/// An exec deletes the process's POSIX timers (its ITIMER_REAL goes on, as the kernel's does).
-pub(crate) fn exec_deletes_posix_timers() {
+/// A new program in process `pid` (after an exec, which the kernel makes delete the process's
+/// POSIX timers; its ITIMER_REAL goes on, as the kernel's does): the timers its earlier image
+/// made go. Called by the new program itself, or before an exec that leaves the followed world
+/// (never from a vfork child, which shares the memory of its parent but not its timers: it
+/// passes its own pid, which no timer holds).
+pub(crate) fn delete_posix_timers_of(pid: i32) {
     let Some(shared) = crate::shared() else { return };
-    let pid = crate::pid();
     for timer in shared.live_sig_timers() {
         if timer.pid.load(Ordering::Relaxed) == pid && timer.kind.load(Ordering::Relaxed) == timer_kind::POSIX {
+            // An expiry fired for the earlier image is not sent to the new one.
+            timer.fired.store(0, Ordering::Relaxed);
             timer.state.store(timer_state::FREE, Ordering::Release);
         }
     }
