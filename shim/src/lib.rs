@@ -63,7 +63,7 @@ use core::sync::atomic::{AtomicPtr, AtomicU32, Ordering};
 use abi::{Shared, Slot, mode, state};
 use sys::real;
 use park::{
-    Looked, advance_within_horizon, await_release, await_turn, charge, look_at_kernel, note_call, notify_scheduler, park, publish_parked, publish_waiting_on_kernel,
+    Look, Looked, advance_within_horizon, await_release, await_turn, charge, look_at_kernel, note_call, notify_scheduler, park, publish_parked, publish_waiting_on_kernel,
     reset_computation, resume_after_kernel_wake, took_turn, wait_looking, yield_turn,
 };
 

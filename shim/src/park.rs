@@ -26,6 +26,9 @@ thread_local! {
     static CPU_SEEN: Cell<u64> = const { Cell::new(0) };
     /// Simulated time when this thread last got the turn (see [`charge`]).
     static TURN_FROM: Cell<u64> = const { Cell::new(0) };
+    /// The check epoch when this thread last began to wait on what the kernel wakes (see
+    /// [`look_at_kernel`]).
+    static WAIT_EPOCH: Cell<u32> = const { Cell::new(0) };
 }
 
 /// With `--controller-cpu F`: the CPU time this thread used since it was last charged, × F.
@@ -310,7 +313,9 @@ pub(crate) fn advance_within_horizon(shared: &Shared, now: u64, target: u64) -> 
 /// thread's end): climbsim waits for its first look before it decides anything (see
 /// `wait::wait_on_real_world`).
 pub(crate) fn expect_look(shared: &Shared, slot: &Slot) {
-    slot.checked_epoch.store(shared.header.check_epoch.load(Ordering::Acquire).wrapping_sub(1), Ordering::Relaxed);
+    let epoch = shared.header.check_epoch.load(Ordering::Acquire);
+    WAIT_EPOCH.with(|e| e.set(epoch));
+    slot.checked_epoch.store(epoch.wrapping_sub(1), Ordering::Relaxed);
 }
 
 /// Publish this thread as blocked on what the kernel wakes until `deadline` (simulated ns),
@@ -322,21 +327,63 @@ pub(crate) fn publish_waiting_on_kernel(shared: &Shared, slot: &Slot, deadline: 
     hand.finish();
 }
 
-/// One look at what the kernel wakes (`look`: Some once something is ready), as climbsim asks:
-/// if nothing is ready, say so for the epoch the look was made in, and sleep until climbsim
-/// asks again (it bumps the wake word) or for `slice_ns` of wall time.
-pub(crate) fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, look: impl FnOnce() -> Option<T>) -> Option<T> {
+/// What a look at the kernel found (see [`look_at_kernel`]).
+pub(crate) enum Look<T> {
+    /// Nothing ready.
+    Nothing,
+    /// Something is ready, and was left there.
+    Peeked,
+    /// This, taken (a join that succeeded, an epoll wait's events).
+    Took(T),
+}
+
+/// One look at what the kernel wakes, as climbsim asks: if nothing is ready, say so for the
+/// epoch the look was made in, and sleep until climbsim asks again (it bumps the wake word) or
+/// for `slice_ns` of wall time. `look(take)` says what is ready; with `take` false it should
+/// only peek where it can (an epoll wait's look would take its edge-triggered events).
+///
+/// Only a look climbsim asked for, with every thread parked (an epoch begun since this wait
+/// began, not yet answered), makes this thread ready: its instant is then the same in every
+/// run. A look of its own (the first after the thread parked, or one after a slice of wall
+/// time) may come while another thread runs: had it taken that thread's events, or made this
+/// one ready there (the other's next yield, or the turn it hands on as it parks, depends on who
+/// is ready), the run would have depended on the host (a Go program's runs differed, about one
+/// in 36 beside two busy loops). Such a look peeks, and if something is there, climbsim is told
+/// (once: `told`) and asks every waiter once all threads have parked. What a look had to take
+/// (a join) is `held`, returned when climbsim asks (or the wait ends otherwise).
+pub(crate) fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, told: &mut bool, held: &mut Option<T>, look: impl FnOnce(bool) -> Look<T>) -> Option<T> {
     let epoch = shared.header.check_epoch.load(Ordering::Acquire);
     let seen = slot.wake_word.load(Ordering::Acquire);
-    let found = look();
-    if found.is_none() {
-        if slot.checked_epoch.swap(epoch, Ordering::AcqRel) != epoch {
-            shared.header.checks_word.fetch_add(1, Ordering::AcqRel);
-            sys::futex_wake(&shared.header.checks_word);
+    let asked = epoch != WAIT_EPOCH.with(Cell::get) && slot.checked_epoch.load(Ordering::Acquire) != epoch;
+    if asked {
+        if held.is_some() {
+            return held.take();
         }
-        sys::futex_wait(&slot.wake_word, seen, slice_ns);
+        if let Look::Took(found) = look(true) {
+            return Some(found);
+        }
+        *told = false;
+    } else if !*told && held.is_none() {
+        match look(false) {
+            Look::Nothing => {}
+            Look::Peeked => *told = true,
+            Look::Took(found) => {
+                *held = Some(found);
+                *told = true;
+            }
+        }
+        if *told {
+            // As when a thread has run: climbsim asks every waiter again before it decides
+            // (told before this look is answered, so that it cannot decide on the answer alone).
+            notify_scheduler(shared);
+        }
     }
-    found
+    if slot.checked_epoch.swap(epoch, Ordering::AcqRel) != epoch {
+        shared.header.checks_word.fetch_add(1, Ordering::AcqRel);
+        sys::futex_wake(&shared.header.checks_word);
+    }
+    sys::futex_wait(&slot.wake_word, seen, slice_ns);
+    None
 }
 
 /// How a wait on what the kernel wakes ended (see [`wait_looking`]).
@@ -354,9 +401,10 @@ pub(crate) enum Looked<T> {
 /// millisecond of wall time, see [`look_at_kernel`]) finds what the kernel has woken: a pipe,
 /// an eventfd, a signal. A signal climbsim let it go for that interrupts nothing is sent, and
 /// the wait goes on.
-pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), mut look: impl FnMut() -> Option<T>) -> Looked<T> {
+pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), mut look: impl FnMut(bool) -> Look<T>) -> Looked<T> {
     const SLICE_NS: u64 = 1_000_000;
     let mut slices = 0u32;
+    let (mut told, mut held) = (false, None);
     loop {
         slices = slices.wrapping_add(1);
         if slices.is_multiple_of(100) {
@@ -368,13 +416,22 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
                 publish();
                 continue;
             }
-            return Looked::Released(why);
+            return held.map_or(Looked::Released(why), Looked::Found);
         }
         if active().is_none() {
             slot.state.store(state::RUNNING, Ordering::Release);
-            return Looked::Ended;
+            return held.map_or(Looked::Ended, Looked::Found);
         }
-        if let Some(found) = look_at_kernel(shared, slot, SLICE_NS, &mut look) {
+        if slot.state.load(Ordering::Acquire) == state::READY {
+            // Let go, waiting for its turn: it looks no more (a look now would race the thread
+            // that runs).
+            let seen = slot.wake_word.load(Ordering::Acquire);
+            if slot.state.load(Ordering::Acquire) == state::READY {
+                sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
+            }
+            continue;
+        }
+        if let Some(found) = look_at_kernel(shared, slot, SLICE_NS, &mut told, &mut held, &mut look) {
             // Woken by the kernel: this thread runs again in its turn.
             resume_after_kernel_wake(shared, slot);
             return Looked::Found(found);

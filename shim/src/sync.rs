@@ -100,10 +100,12 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
     let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::PEER, addr as u64);
     shared.header.peer_waiters.fetch_add(1, Ordering::AcqRel);
     publish();
+    let (mut told, mut held) = (false, None);
     let result = loop {
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
             match slot.release.load(Ordering::Acquire) {
-                release::DEADLINE => break ETIMEDOUT,
+                // (A join a look of its own made is the wait's result.)
+                release::DEADLINE => break held.unwrap_or(ETIMEDOUT),
                 release::ENDING => break slice_until(shared, deadline, slice),
                 // A signal's handler runs (the thread sends it to itself); the wait goes on.
                 release::SIGNAL => {
@@ -125,6 +127,9 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         }
         if active().is_none() {
             slot.state.store(state::RUNNING, Ordering::Release);
+            if let Some(rc) = held {
+                break rc;
+            }
             break slice_until(shared, deadline, slice);
         }
         if slot.state.load(Ordering::Acquire) == state::READY || shared.joins_live_thread(slot) {
@@ -139,9 +144,10 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         }
         // A look whenever climbsim asks (threads ran: the one joined may have ended), and one
         // every slice of wall time.
-        let look = crate::look_at_kernel(shared, slot, SLICE_NS, || {
-            let rc = slice(&real_deadline_after(0));
-            (rc != ETIMEDOUT).then_some(rc)
+        // (A look that finds the thread ended has joined it.)
+        let look = crate::look_at_kernel(shared, slot, SLICE_NS, &mut told, &mut held, |_| match slice(&real_deadline_after(0)) {
+            ETIMEDOUT => crate::Look::Nothing,
+            rc => crate::Look::Took(rc),
         });
         if let Some(rc) = look {
             crate::resume_after_kernel_wake(shared, slot);

@@ -207,12 +207,22 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
     let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER | interest.waits(), interest.conns);
     publish();
     loop {
-        let looked = crate::wait_looking(shared, slot, &publish, || {
+        let looked = crate::wait_looking(shared, slot, &publish, |take| {
+            if let (Some(call), false) = (interest.epoll, take) {
+                // A peek (see `look_at_kernel`): an epoll instance is readable while events
+                // wait in it, and they stay there.
+                return if readable_now(call.epfd) { crate::Look::Peeked } else { crate::Look::Nothing };
+            }
+            // (poll and select take nothing.)
             let ready = real_wait(Some(0));
             // The port masked as empty (bytes not visible yet) costs nothing here: the kernel
             // is never waited in.
             crate::held::take_masked();
-            (ready != 0).then_some(ready)
+            match (ready, take) {
+                (0, _) => crate::Look::Nothing,
+                (_, false) => crate::Look::Peeked,
+                (ready, true) => crate::Look::Took(ready),
+            }
         });
         let ready = match looked {
             Looked::Released(release::SIGNAL) => return interrupted(),
@@ -238,6 +248,15 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
     }
 }
 
+/// Whether `fd` is readable now, or the poll failed (the caller's own call then says why): a
+/// poll that does not wait.
+fn readable_now(fd: c_int) -> bool {
+    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
+    let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
+    // SAFETY: one pollfd of ours; a zero timeout.
+    unsafe { poll(&mut entry, 1, 0) != 0 }
+}
+
 /// A blocking read (or receive) of a descriptor other than the port, about to be made: if the
 /// kernel has nothing for it yet, wait for that on simulated time first, so that the thread
 /// counts as blocked (a pipe's reader: a shell's `$(…)`, Python's `subprocess`, a pipe to a
@@ -247,8 +266,7 @@ pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) {
     let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
     let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
     let saved = crate::sys::errno();
-    // SAFETY: one pollfd of ours; a zero timeout.
-    let ready = unsafe { poll(&mut entry, 1, 0) } != 0;
+    let ready = readable_now(fd);
     // A descriptor in non-blocking mode (or none at all: fcntl fails, -1 has the bit) never
     // waits in the kernel: the read itself says what there is.
     // SAFETY: fcntl F_GETFL on the caller's descriptor.
