@@ -86,7 +86,7 @@ impl Ticked for WatchedTicks<'_> {
             // Seen at the first tick after the exit's own simulated time (the world may be
             // catching up with a controller that ran ahead).
             Some(vt) if vt.first_process_ended_before(at) => {
-                let status = self.controller.wait_briefly();
+                let status = self.controller.wait_for_ending();
                 self.unfollowed = matches!(status, Ok(None));
                 status
             }

@@ -15,6 +15,11 @@ use super::capped_log::CappedLog;
 use super::{During as _, Result, RunnerError};
 use tracing::warn;
 
+/// How long a controller that has said it ends may stay idle before it is no longer waited for
+/// (see [`Controller::wait_for_ending`]).
+const ENDING_IDLE: Duration = Duration::from_secs(1);
+/// How long a controller that has said it ends is waited for at most, busy or not.
+const ENDING_AT_MOST: Duration = Duration::from_secs(30);
 /// How long a controller gets to stop after SIGTERM before it is killed.
 const STOP_GRACE: Duration = Duration::from_secs(3);
 /// How long after SIGTERM stopping looks each millisecond whether the controller has gone.
@@ -136,16 +141,14 @@ impl Controller {
     }
 
     /// The exit of a controller known to be ending (its last handlers have run): waits for the
-    /// kernel to finish it, a second at most; `None` if it is still there then.
-    pub fn wait_briefly(&mut self) -> Result<Option<ExitStatus>> {
-        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1);
-        loop {
-            let status = self.try_wait()?;
-            if status.is_some() || std::time::Instant::now() > deadline {
-                return Ok(status);
-            }
-            std::thread::sleep(std::time::Duration::from_micros(200));
-        }
+    /// kernel to finish it while it gets on with that (a thread runnable or in the disk, or its
+    /// CPU time growing: a JVM's teardown took more than a second at the controller's
+    /// niceness beside two busy loops, and the exit was then seen at a later simulated instant
+    /// than in other runs), [`ENDING_AT_MOST`] at most; `None` if it is still there, idle, for
+    /// [`ENDING_IDLE`] (something keeps it: a thread that does not end).
+    pub fn wait_for_ending(&mut self) -> Result<Option<ExitStatus>> {
+        let pid = self.child.id();
+        wait_while_busy(pid, || self.try_wait())
     }
 
     /// Stop the controller and everything it started: SIGTERM to its process group and to every
@@ -480,6 +483,23 @@ mod tests {
     }
 
     #[test]
+    fn an_ending_process_is_waited_for_while_it_works_and_not_while_it_idles() {
+        // Computes for 2 to 3 s before it exits (after a second, the wait used to give up).
+        let mut busy = std::process::Command::new("bash").args(["-c", "while (( SECONDS < 3 )); do :; done"]).spawn().expect("bash");
+        let pid = busy.id();
+        let status = wait_while_busy(pid, || busy.try_wait()).expect("try_wait");
+        assert!(status.is_some_and(|s| s.success()), "{status:?}");
+        let mut idle = std::process::Command::new("sleep").arg("10").spawn().expect("sleep");
+        let started = Instant::now();
+        let pid = idle.id();
+        let status = wait_while_busy(pid, || idle.try_wait()).expect("try_wait");
+        assert!(status.is_none(), "{status:?}");
+        assert!(started.elapsed() < Duration::from_secs(5), "given up after {:?} idle", started.elapsed());
+        let _ = idle.kill();
+        let _ = idle.wait();
+    }
+
+    #[test]
     fn missing_and_unexecutable_programs_are_named() {
         let error = find_program("./no-such-controller").expect_err("missing");
         assert!(error.to_string().contains("./no-such-controller: not found"), "{error}");
@@ -509,4 +529,45 @@ mod tests {
         let tail = log_tail(&log, 3);
         assert_eq!(tail, "line 38\nline 39\nline 40");
     }
+}
+
+/// `try_wait` process `pid` until it has ended, while it works (see
+/// [`Controller::wait_for_ending`]); `None` if it is still there after [`ENDING_IDLE`] without
+/// working, or after [`ENDING_AT_MOST`].
+fn wait_while_busy<E>(pid: u32, mut try_wait: impl FnMut() -> std::result::Result<Option<ExitStatus>, E>) -> std::result::Result<Option<ExitStatus>, E> {
+    let started = Instant::now();
+    let mut progress = (process_cpu_ticks(pid), Instant::now());
+    loop {
+        let status = try_wait()?;
+        if status.is_some() || started.elapsed() > ENDING_AT_MOST {
+            return Ok(status);
+        }
+        let cpu = process_cpu_ticks(pid);
+        if cpu != progress.0 || any_thread_busy(pid) {
+            progress = (cpu, Instant::now());
+        } else if progress.1.elapsed() > ENDING_IDLE {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+}
+
+/// The CPU time (utime + stime, in clock ticks) of process `pid` and its threads, if it can be
+/// read.
+fn process_cpu_ticks(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The fields after the command's closing parenthesis (the command may hold any byte):
+    // state is the first, utime and stime the 12th and 13th.
+    let mut fields = stat.get(stat.rfind(')')? + 1..)?.split_whitespace();
+    let utime: u64 = fields.nth(11)?.parse().ok()?;
+    let stime: u64 = fields.next()?.parse().ok()?;
+    Some(utime + stime)
+}
+
+/// Whether a thread of process `pid` is runnable or waiting for the disk (R, D).
+fn any_thread_busy(pid: u32) -> bool {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
+    tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("stat")).ok()).any(|stat| {
+        stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| matches!(state, 'R' | 'D'))
+    })
 }
