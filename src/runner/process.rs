@@ -447,6 +447,47 @@ fn elf_has_interpreter(bytes: &[u8]) -> Option<bool> {
     Some(false)
 }
 
+/// `try_wait` process `pid` until it has ended, while it works (see
+/// [`Controller::wait_for_ending`]); `None` if it is still there after [`ENDING_IDLE`] without
+/// working, or after [`ENDING_AT_MOST`].
+fn wait_while_busy<E>(pid: u32, mut try_wait: impl FnMut() -> std::result::Result<Option<ExitStatus>, E>) -> std::result::Result<Option<ExitStatus>, E> {
+    let started = Instant::now();
+    let mut progress = (process_cpu_ticks(pid), Instant::now());
+    loop {
+        let status = try_wait()?;
+        if status.is_some() || started.elapsed() > ENDING_AT_MOST {
+            return Ok(status);
+        }
+        let cpu = process_cpu_ticks(pid);
+        if cpu != progress.0 || any_thread_busy(pid) {
+            progress = (cpu, Instant::now());
+        } else if progress.1.elapsed() > ENDING_IDLE {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+}
+
+/// The CPU time (utime + stime, in clock ticks) of process `pid` and its threads, if it can be
+/// read.
+fn process_cpu_ticks(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The fields after the command's closing parenthesis (the command may hold any byte):
+    // state is the first, utime and stime the 12th and 13th.
+    let mut fields = stat.get(stat.rfind(')')? + 1..)?.split_whitespace();
+    let utime: u64 = fields.nth(11)?.parse().ok()?;
+    let stime: u64 = fields.next()?.parse().ok()?;
+    Some(utime + stime)
+}
+
+/// Whether a thread of process `pid` is runnable or waiting for the disk (R, D).
+fn any_thread_busy(pid: u32) -> bool {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
+    tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("stat")).ok()).any(|stat| {
+        stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| matches!(state, 'R' | 'D'))
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -529,45 +570,4 @@ mod tests {
         let tail = log_tail(&log, 3);
         assert_eq!(tail, "line 38\nline 39\nline 40");
     }
-}
-
-/// `try_wait` process `pid` until it has ended, while it works (see
-/// [`Controller::wait_for_ending`]); `None` if it is still there after [`ENDING_IDLE`] without
-/// working, or after [`ENDING_AT_MOST`].
-fn wait_while_busy<E>(pid: u32, mut try_wait: impl FnMut() -> std::result::Result<Option<ExitStatus>, E>) -> std::result::Result<Option<ExitStatus>, E> {
-    let started = Instant::now();
-    let mut progress = (process_cpu_ticks(pid), Instant::now());
-    loop {
-        let status = try_wait()?;
-        if status.is_some() || started.elapsed() > ENDING_AT_MOST {
-            return Ok(status);
-        }
-        let cpu = process_cpu_ticks(pid);
-        if cpu != progress.0 || any_thread_busy(pid) {
-            progress = (cpu, Instant::now());
-        } else if progress.1.elapsed() > ENDING_IDLE {
-            return Ok(None);
-        }
-        std::thread::sleep(Duration::from_micros(200));
-    }
-}
-
-/// The CPU time (utime + stime, in clock ticks) of process `pid` and its threads, if it can be
-/// read.
-fn process_cpu_ticks(pid: u32) -> Option<u64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // The fields after the command's closing parenthesis (the command may hold any byte):
-    // state is the first, utime and stime the 12th and 13th.
-    let mut fields = stat.get(stat.rfind(')')? + 1..)?.split_whitespace();
-    let utime: u64 = fields.nth(11)?.parse().ok()?;
-    let stime: u64 = fields.next()?.parse().ok()?;
-    Some(utime + stime)
-}
-
-/// Whether a thread of process `pid` is runnable or waiting for the disk (R, D).
-fn any_thread_busy(pid: u32) -> bool {
-    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
-    tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("stat")).ok()).any(|stat| {
-        stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| matches!(state, 'R' | 'D'))
-    })
 }
