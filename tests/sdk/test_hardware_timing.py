@@ -10,6 +10,7 @@ while the reply is coming back, and both packets arrive corrupted, as on a real 
 
 import json
 
+import dynamixel_sdk
 from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
 
 from conftest import A_PRESENT_POS, BAUD, SERVO_IDS, describe
@@ -33,7 +34,12 @@ def _stop_and_read(emu, port, report):
     return json.loads(report.read_text())
 
 
-def test_a_loop_that_waits_for_every_reply_has_no_collisions(start_emulator, tmp_path):
+def test_a_loop_that_waits_for_every_reply_has_no_collisions(start_emulator, tmp_path, monkeypatch):
+    # The SDK gives up on a reply 2 x LATENCY_TIMER (16 ms) after the request: a client
+    # descheduled that long on a loaded CI host (seen once: "There is no status packet!") times
+    # out on a reply that came on time. The wire's timing is judged from the emulator's report
+    # below, not from the client's clock; a longer timer keeps this test about the emulator.
+    monkeypatch.setattr(dynamixel_sdk.port_handler, "LATENCY_TIMER", 250)
     emu, port, ph, report = _start(start_emulator, tmp_path)
     for _ in range(LOOPS):
         for dxl_id in SERVO_IDS:
