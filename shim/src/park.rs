@@ -337,6 +337,18 @@ pub(crate) enum Look<T> {
     Took(T),
 }
 
+impl<T> Look<T> {
+    /// A look that takes nothing (poll, select, pending signals) and found `found`: taken only
+    /// when the look may `take`.
+    pub(crate) fn taking_nothing(found: Option<T>, take: bool) -> Self {
+        match (found, take) {
+            (None, _) => Look::Nothing,
+            (Some(_), false) => Look::Peeked,
+            (Some(found), true) => Look::Took(found),
+        }
+    }
+}
+
 /// One look at what the kernel wakes, as climbsim asks: if nothing is ready, say so for the
 /// epoch the look was made in, and sleep until climbsim asks again (it bumps the wake word) or
 /// for `slice_ns` of wall time. `look(take)` says what is ready; with `take` false it should

@@ -222,16 +222,11 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
                 };
                 return if !port_bytes_in_kernel && readable_now(call.epfd) { crate::Look::Peeked } else { crate::Look::Nothing };
             }
-            // (poll and select take nothing.)
             let ready = real_wait(Some(0));
             // The port masked as empty (bytes not visible yet) costs nothing here: the kernel
             // is never waited in.
             crate::held::take_masked();
-            match (ready, take) {
-                (0, _) => crate::Look::Nothing,
-                (_, false) => crate::Look::Peeked,
-                (ready, true) => crate::Look::Took(ready),
-            }
+            crate::Look::taking_nothing((ready != 0).then_some(ready), take)
         });
         let ready = match looked {
             Looked::Released(release::SIGNAL) => return interrupted(),

@@ -268,10 +268,12 @@ fn processes() -> impl Iterator<Item = (i32, String)> {
         .filter_map(|pid| Some((pid, std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?)))
 }
 
-/// /proc/PID/stat's fields we read (proc(5) numbers them from 1): the state (`Z`: a zombie) and
-/// the process group.
+/// /proc/PID/stat's fields we read (proc(5) numbers them from 1): the state (`Z`: a zombie),
+/// the process group, and the CPU time in user and kernel mode (clock ticks).
 const STATE: usize = 3;
 const PGRP: usize = 5;
+const UTIME: usize = 14;
+const STIME: usize = 15;
 
 /// Field `n` (1-based, as proc(5) numbers them) of a /proc/PID/stat line; the command name (2)
 /// may hold spaces and parentheses, so fields after it are counted from its closing one.
@@ -472,20 +474,16 @@ fn wait_while_busy<E>(pid: u32, mut try_wait: impl FnMut() -> std::result::Resul
 /// read.
 fn process_cpu_ticks(pid: u32) -> Option<u64> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // The fields after the command's closing parenthesis (the command may hold any byte):
-    // state is the first, utime and stime the 12th and 13th.
-    let mut fields = stat.get(stat.rfind(')')? + 1..)?.split_whitespace();
-    let utime: u64 = fields.nth(11)?.parse().ok()?;
-    let stime: u64 = fields.next()?.parse().ok()?;
-    Some(utime + stime)
+    let ticks = |n| stat_field(&stat, n)?.parse::<u64>().ok();
+    Some(ticks(UTIME)? + ticks(STIME)?)
 }
 
 /// Whether a thread of process `pid` is runnable or waiting for the disk (R, D).
 fn any_thread_busy(pid: u32) -> bool {
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
-    tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("stat")).ok()).any(|stat| {
-        stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()).is_some_and(|state| matches!(state, 'R' | 'D'))
-    })
+    tasks
+        .filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("stat")).ok())
+        .any(|stat| stat_field(&stat, STATE).is_some_and(|state| matches!(state, "R" | "D")))
 }
 
 #[cfg(test)]

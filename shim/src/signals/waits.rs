@@ -23,11 +23,7 @@ fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -
     let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER, 0);
     publish();
     loop {
-        match crate::wait_looking(shared, slot, &publish, |take| match (ends(pending()), take) {
-            (false, _) => crate::Look::Nothing,
-            (true, false) => crate::Look::Peeked,
-            (true, true) => crate::Look::Took(()),
-        }) {
+        match crate::wait_looking(shared, slot, &publish, |take| crate::Look::taking_nothing(ends(pending()).then_some(()), take)) {
             // Let go before its deadline for a wait it had ended itself: it waits on.
             Looked::Released(release::DEADLINE) if sim_now(shared) < deadline => publish(),
             Looked::Released(why) => return why,
