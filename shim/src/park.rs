@@ -417,9 +417,12 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
     const SLICE_NS: u64 = 1_000_000;
     let mut slices = 0u32;
     let (mut told, mut held) = (false, None);
+    // The pause between looks of its own: 1 ms, doubling while climbsim neither asks nor lets
+    // the thread go (see [`OWN_LOOKS_AT_MOST_EVERY_NS`]).
+    let mut pause_ns = SLICE_NS;
     loop {
         slices = slices.wrapping_add(1);
-        if slices.is_multiple_of(100) {
+        if slices.is_multiple_of(100) || pause_ns == OWN_LOOKS_AT_MOST_EVERY_NS {
             climbsim_gone(shared);
         }
         if slot.state.load(Ordering::Acquire) == state::RUNNING {
@@ -443,13 +446,25 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
             }
             continue;
         }
-        if let Some(found) = look_at_kernel(shared, slot, SLICE_NS, &mut told, &mut held, &mut look) {
+        let word = slot.wake_word.load(Ordering::Acquire);
+        if let Some(found) = look_at_kernel(shared, slot, pause_ns, &mut told, &mut held, &mut look) {
             // Woken by the kernel: this thread runs again in its turn.
             resume_after_kernel_wake(shared, slot);
             return Looked::Found(found);
         }
+        pause_ns = if slot.wake_word.load(Ordering::Acquire) == word { (pause_ns * 2).min(OWN_LOOKS_AT_MOST_EVERY_NS) } else { SLICE_NS };
     }
 }
+
+/// The longest pause between a waiting thread's looks of its own at the kernel, reached by
+/// doubling from 1 ms while nothing happens (climbsim asks whenever it matters, with every
+/// thread parked; these looks only catch what wakes a thread from outside, on the wall clock).
+/// Each look wakes the thread for microseconds, and many threads doing so every millisecond
+/// beside busy cores starved other tasks on Linux 6.18's scheduler for seconds (measured: the
+/// kernel's pty worker, which carries the replies to the controller, waited up to 30 s; eight
+/// threads sleeping 1 ms in a loop beside two busy loops starve a kworker 5 s, eight sleeping
+/// 50 ms do not).
+const OWN_LOOKS_AT_MOST_EVERY_NS: u64 = 64_000_000;
 
 /// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on
 /// `waits`, and sleep until climbsim releases it; why it did (`abi::release`). A thread without

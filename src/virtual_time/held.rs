@@ -43,10 +43,12 @@ const COPY_LIMIT: usize = 64 * 1024;
 /// How long bytes climbsim writes to the pty may take to reach the controller's side before it
 /// goes on without them. The kernel's pty worker usually hands them over within microseconds.
 /// On a loaded machine it was seen to take seconds (once more than 30 s), with every controller
-/// thread parked and nothing read meanwhile (about one run in 70 of a Java controller beside two
-/// busy loops): climbsim's own looks (FIONREAD every 20 µs) kept the worker out, since each takes
-/// the terminal's termios lock for writing. With growing pauses between looks, the slowest of
-/// 100 such runs took 0.12 s. A controller let go before the bytes are there loses the replies
+/// thread parked and nothing read meanwhile. The worker is a kernel thread that Linux 6.18's
+/// scheduler left runnable and unrun for seconds beside busy cores while many threads woke for
+/// microseconds every millisecond (traced with the workqueue and sched events; a plain program
+/// of eight such threads beside two busy loops does it too): the controller's parked threads
+/// looking at the kernel, and climbsim's own looks here. Both now look less often the longer
+/// nothing happens. A controller let go before the bytes are there loses the replies
 /// and the run no longer repeats, so the wait is long: it costs only wall time. A controller
 /// that does not read the port fills the terminal's buffer instead, which is handled apart.
 pub const PTY_HAND_OVER_WITHIN: Duration = Duration::from_secs(30);
@@ -59,13 +61,14 @@ pub const PTY_FULL_FOR: Duration = Duration::from_millis(100);
 const HAND_OVER_SPIN: Duration = Duration::from_micros(50);
 
 /// The longest pause between two looks at a hand-over in progress.
-const HAND_OVER_LOOK_AT_MOST_EVERY: Duration = Duration::from_millis(2);
+const HAND_OVER_LOOK_AT_MOST_EVERY: Duration = Duration::from_millis(16);
 
 /// Wait until `handed_over` says the kernel's pty worker has handed bytes climbsim wrote over
 /// to the controller's side, up to [`PTY_HAND_OVER_WITHIN`]; whether it did. After a short spin
-/// the looks come with growing pauses (20 µs doubling to 2 ms): each look (FIONREAD) takes the
-/// terminal's termios lock for writing, which the worker needs to hand the bytes over, and
-/// looks every 20 µs on a loaded machine were seen to keep it out for seconds.
+/// the looks come with growing pauses (20 µs doubling to 16 ms): each look (FIONREAD) takes the
+/// terminal's termios lock for writing, which the worker needs to hand the bytes over, and each
+/// wake-up of climbsim's is one more short sleeper for the kernel's scheduler (see
+/// [`PTY_HAND_OVER_WITHIN`]).
 pub fn await_pty_hand_over(mut handed_over: impl FnMut() -> bool) -> bool {
     let started = Instant::now();
     let mut pause = Duration::from_micros(20);
