@@ -133,8 +133,9 @@ fn the_servos_answer_a_controllers_clean_up_after_the_run_and_it_is_not_counted_
 
 #[test]
 fn a_request_sent_at_the_runs_last_instant_is_answered_after_the_run() {
-    // A request written after the world's last look must still reach the servos that answer
-    // the clean-up (else the controller waits out its timeout).
+    // The controller's writes to the port reach climbsim through the block's ring, not the pty:
+    // one written after the world's last look must still reach the servos that answer the
+    // clean-up (before, it was lost, and the controller waited out its timeout).
     let dir = support::scratch_dir("vt-request-at-the-end");
     let program = compiled_c(&dir, "request_at_the_end");
     let program = program.display().to_string();
@@ -144,6 +145,21 @@ fn a_request_sent_at_the_runs_last_instant_is_answered_after_the_run() {
     assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
     let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
     assert!(log.contains("ping at the end: 14 bytes"), "{log}");
+}
+
+#[test]
+fn writes_far_larger_than_the_shared_ring_go_through_in_order_and_nothing_hangs() {
+    // 1.5 MiB in one blocking write (the ring holds 1 MiB: it waits for room), then 32 writes of 64 KiB that
+    // fill it (the writer waits for climbsim), then a ping whose status must come. Through the
+    // pty, the first write blocked in the kernel and the run failed.
+    let dir = support::scratch_dir("vt-big-writes");
+    let program = compiled_c(&dir, "big_writes");
+    let path = support::vt::scenario_with(&dir, "big-writes", 5.0, &[&program.display().to_string()], true, "\n[bus]\nbaud_bps = 1000000\n");
+    let out = dir.join("out");
+    let (output, _) = run_virtual(&path, &out);
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(out.join("controller.log")).expect("controller.log");
+    assert!(log.contains("wrote 3670026 bytes; ping: 14 bytes"), "{log}");
 }
 
 /// Two processes that keep both cores busy while they live.

@@ -6,12 +6,12 @@
 //! trust one another's timing. A zero-filled file is a valid, empty block. Who writes what:
 //! C = climbsim, S = the shim.
 
-use core::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
+use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, AtomicU64};
 
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 14;
+pub const ABI: u32 = 15;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -44,6 +44,10 @@ pub const NEVER: u64 = u64::MAX;
 /// Reply bytes written to the port ahead of their time, in at most this many runs (each
 /// visible from its own instant).
 pub const HELD_RUNS: usize = 64;
+/// Bytes the controller has written to the port that climbsim has not taken yet, at most (see
+/// `Shared::port_tx_ring`). At 1 Mbps a second of the wire is 100 KB; a controller runs into it
+/// only by writing that much without ever waiting, and its write then waits for climbsim.
+pub const PORT_TX_RING: usize = 1 << 20;
 
 /// `Header::mode`.
 pub mod mode {
@@ -288,6 +292,15 @@ pub struct Header {
     /// what is not visible yet from reads, polls and FIONREAD, so that a Sync Read's eight
     /// replies cost one write and no hand-over each. Unused runs have `due_ns` 0.
     pub held_runs: [HeldRun; HELD_RUNS],
+    /// S: of `port_tx_total`, the bytes that went through `Shared::port_tx_ring` (the ring's
+    /// stream offset).
+    pub port_tx_ring_written: AtomicU64,
+    /// C: of those, the bytes climbsim has taken from the ring.
+    pub port_tx_ring_read: AtomicU64,
+    /// S: threads writing into the ring now. A writer counts itself, then looks at `mode`;
+    /// climbsim sets [`mode::ENDING`], then waits for this to be 0 before it takes what the
+    /// ring holds for the clean-up's servos.
+    pub port_tx_ring_writers: AtomicU32,
 }
 
 impl Header {
@@ -460,9 +473,22 @@ pub struct Shared {
     pub slots: [Slot; SLOTS],
     pub conns: [Conn; CONNS],
     pub sig_timers: [SigTimer; SIG_TIMERS],
+    /// S writes, C takes: what the controller writes to the port, where the shim sees the write
+    /// (byte `i` of the ring's stream at `i % PORT_TX_RING`). Through the pty each request
+    /// woke the kernel's pty worker, whose hand-over climbsim then waited for with the world
+    /// stopped; here climbsim finds the bytes in memory. Writes the shim does not see (stdio's,
+    /// a process not followed) still go through the pty, which climbsim reads as well.
+    pub port_tx_ring: [AtomicU8; PORT_TX_RING],
 }
 
 impl Shared {
+    /// Bytes in the port's ring that climbsim has not taken.
+    pub fn port_tx_ring_unread(&self) -> u64 {
+        use core::sync::atomic::Ordering::Acquire;
+        let read = self.header.port_tx_ring_read.load(Acquire);
+        self.header.port_tx_ring_written.load(Acquire).saturating_sub(read)
+    }
+
     /// The slots that have ever been taken (those past them are free): what every scan looks at.
     pub fn live_slots(&self) -> &[Slot] {
         let high = self.header.slots_high.load(core::sync::atomic::Ordering::Acquire) as usize;

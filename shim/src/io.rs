@@ -16,20 +16,26 @@ use crate::time::sim_now;
 use crate::wait::{await_readable, is_port, park_blocked};
 use crate::{active, charge, note_call};
 
-fn count_written(fd: c_int, written: isize) {
+/// The block, if `fd` is the servo port while virtual time runs: one `fstat` a write, for both
+/// the ring and the count.
+fn port_of(fd: c_int) -> Option<&'static Shared> {
+    active().filter(|shared| is_port(shared, fd))
+}
+
+/// A write the kernel made (`port`: to the servo port, see [`port_of`]) is counted.
+fn count_written(fd: c_int, written: isize, port: Option<&'static Shared>) {
     if written <= 0 {
         let errno = crate::sys::errno();
         if written < 0 && errno == EAGAIN {
-            if let Some(shared) = active().filter(|shared| is_port(shared, fd)) {
+            if let Some(shared) = port {
                 crate::epoll::port_was_full(shared);
             }
             crate::sys::set_errno(errno);
         }
         return;
     }
-    let Some(shared) = active() else { return };
     crate::net::count_sent(fd, written);
-    if is_port(shared, fd) {
+    if let Some(shared) = port {
         note_call(shared, call::WRITE);
         shared.header.port_tx_total.fetch_add(written as u64, Ordering::AcqRel);
         charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
@@ -38,23 +44,40 @@ fn count_written(fd: c_int, written: isize) {
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize {
+    let port = port_of(fd);
+    if let Some(written) = port.and_then(|shared| crate::port_ring::write(shared, fd, &[iovec { iov_base: buf.cast_mut().cast(), iov_len: count }])) {
+        return written;
+    }
     let next = real!(write: fn(c_int, *const u8, usize) -> isize);
     // SAFETY: passing the caller's arguments through.
     let written = unsafe { next(fd, buf, count) };
-    count_written(fd, written);
+    count_written(fd, written, port);
     written
 }
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn writev(fd: c_int, iov: *const iovec, count: c_int) -> isize {
+    let port = port_of(fd);
+    if let Some(shared) = port
+        && !iov.is_null()
+        && (1..=IOV_MAX).contains(&count)
+    {
+        // SAFETY: writev's contract: `count` valid iovecs at `iov`.
+        let parts = unsafe { core::slice::from_raw_parts(iov, count as usize) };
+        if let Some(written) = crate::port_ring::write(shared, fd, parts) {
+            return written;
+        }
+    }
     let next = real!(writev: fn(c_int, *const iovec, c_int) -> isize);
     // SAFETY: passing the caller's arguments through.
     let written = unsafe { next(fd, iov, count) };
-    count_written(fd, written);
+    count_written(fd, written, port);
     written
 }
 
 const EAGAIN: c_int = 11;
+/// The most iovecs a writev takes (UIO_MAXIOV); past it the kernel answers EINVAL.
+const IOV_MAX: c_int = 1024;
 /// Also TIOCINQ.
 const FIONREAD: u64 = 0x541B;
 const TCGETS: u64 = 0x5401;

@@ -29,6 +29,7 @@ mod native;
 mod net;
 mod now;
 mod park;
+mod port_ring;
 mod program;
 mod seccomp;
 #[cfg(target_arch = "x86_64")]

@@ -67,6 +67,7 @@ pub const TIMER_ABSTIME: c_int = 1;
 
 pub const EINVAL: c_int = 22;
 pub const EINTR: c_int = 4;
+pub const EAGAIN: c_int = 11;
 
 const RTLD_NEXT: *mut c_void = -1isize as *mut c_void;
 

@@ -238,7 +238,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
         // clock, on a bus of their own, so that nothing of it reaches the run's outputs.
         match after_the_run(&handle) {
             Ok(servos) => {
-                let session = serve_after_the_run(Arc::clone(&port), servos);
+                let session = serve_after_the_run(Arc::clone(&port), servos, vt.take_port_ring_rest());
                 clean_up = Some(pty_runtime.spawn(async move {
                     if let Err(error) = session.await {
                         warn!(%error, "the pty session after the run ended");

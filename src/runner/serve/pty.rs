@@ -1,6 +1,7 @@
 //! The pty transport: the servos on a pseudo-terminal whose name the controller opens.
 
 use std::sync::Arc;
+use tokio::io::AsyncReadExt as _;
 
 use crate::bus::{Bus, Timing};
 use crate::device::StillPlant;
@@ -33,9 +34,13 @@ pub fn after_the_run(handle: &BusHandle) -> Result<Arc<BusHandle>> {
 
 /// Serve `port` on the wall clock for as long as the caller lets it (it aborts the task), the
 /// servos behind `handle` (see [`after_the_run`]).
-pub async fn serve_after_the_run(port: Arc<VirtualPort>, handle: Arc<BusHandle>) -> Result<(), TransportError> {
+pub async fn serve_after_the_run(port: Arc<VirtualPort>, handle: Arc<BusHandle>, written_before: Vec<u8>) -> Result<(), TransportError> {
     let line = port.line();
-    serve_stream_through(port.stream(false)?, handle, &line, None).await
+    // What the controller wrote through the block's ring that the run did not read (a request
+    // sent at the run's last instant, which it still waits for) comes first, then the pty.
+    let (read, write) = tokio::io::split(port.stream(false)?);
+    let stream = tokio::io::join(std::io::Cursor::new(written_before).chain(read), write);
+    serve_stream_through(stream, handle, &line, None).await
 }
 
 /// Serve `port` inside the virtual-time scheduler: the session acts only at exact simulated
