@@ -237,6 +237,10 @@ impl AsyncWrite for VirtualTimeStream {
                 threads = self.virtual_time.threads_now(),
                 "reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?} (is it reading the port?)"
             );
+            self.virtual_time.cannot_repeat(format!(
+                "the kernel did not hand {written} reply bytes over to the controller's side of the pty within {} s (a starved machine: its pty worker did not run); the run cannot repeat, so it fails",
+                PTY_HAND_OVER_WITHIN.as_secs()
+            ));
         }
         if handing_over.elapsed() > SLOW_HAND_OVER {
             warn!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the kernel took this long to hand reply bytes over to the controller's side of the pty (a loaded machine)");

@@ -49,7 +49,8 @@ const COPY_LIMIT: usize = 64 * 1024;
 /// of eight such threads beside two busy loops does it too): the controller's parked threads
 /// looking at the kernel, and climbsim's own looks here. Both now look less often the longer
 /// nothing happens. A controller let go before the bytes are there loses the replies
-/// and the run no longer repeats, so the wait is long: it costs only wall time. A controller
+/// and the run no longer repeats, so the wait is long: it costs only wall time, and past it the
+/// run fails ([`VirtualTime::cannot_repeat`]) rather than going on without them. A controller
 /// that does not read the port fills the terminal's buffer instead, which is handled apart.
 pub const PTY_HAND_OVER_WITHIN: Duration = Duration::from_secs(30);
 
@@ -232,6 +233,7 @@ impl VirtualTime {
         }
         if !await_pty_hand_over(|| queued(port.slave) >= written) {
             warn!(written, queued = queued(port.slave), "rewritten reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?}");
+            self.cannot_repeat(format!("the kernel did not hand {written} rewritten reply bytes over to the controller's side of the pty within {} s (a starved machine); the run cannot repeat, so it fails", PTY_HAND_OVER_WITHIN.as_secs()));
         }
     }
 }

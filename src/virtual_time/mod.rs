@@ -173,6 +173,9 @@ pub struct VirtualTime {
     held: Mutex<held::HeldBytes>,
     quiet: Mutex<quiet::Quiet>,
     real_world: Mutex<real_world::RealWorld>,
+    /// Why the run can no longer repeat (reply bytes that did not reach the controller's side
+    /// of the pty in time): the run fails with it at the next step of the scheduler.
+    cannot_repeat: Mutex<Option<String>>,
     hand_ons: Mutex<turns::HandOns>,
 }
 
@@ -204,7 +207,7 @@ impl VirtualTime {
         // Slot 0 is the process climbsim starts (reserve_process).
         header.slots_high.store(1, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()), real_world: Mutex::new(real_world::RealWorld::new()), hand_ons: Mutex::default() }))
+        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()), real_world: Mutex::new(real_world::RealWorld::new()), hand_ons: Mutex::default(), cannot_repeat: Mutex::default() }))
     }
 
     pub fn settings(&self) -> VtSettings {
@@ -358,6 +361,12 @@ impl VirtualTime {
         }
     }
 
+    /// The run can no longer repeat, for `why` (the first reason is kept): it fails at the
+    /// scheduler's next step, rather than going on with what the controller did not see.
+    pub fn cannot_repeat(&self, why: String) {
+        lock(&self.cannot_repeat).get_or_insert(why);
+    }
+
     /// The scheduler: bring simulated time to `due` (a world tick), letting the controller run
     /// everything it has due before then, in order. Returns with every controller thread parked.
     pub fn advance_to(&self, due: Duration, stop: &AtomicBool) -> Result<(), VtError> {
@@ -377,6 +386,9 @@ impl VirtualTime {
             }
         }
         loop {
+            if let Some(why) = lock(&self.cannot_repeat).take() {
+                return Err(VtError::Stuck(why));
+            }
             // The world catches up with the controller before climbsim looks at anything the
             // controller sent: ticks may run while it runs, since it can see the world only
             // through replies and answers, which climbsim makes only here, with it parked.

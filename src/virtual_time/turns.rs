@@ -273,6 +273,22 @@ mod tests {
         assert_eq!(blocked.state.load(Ordering::Acquire), state::BLOCKED, "the other waits on");
     }
 
+    /// Reply bytes that never reached the controller's side of the pty make the run fail at
+    /// the scheduler's next step, with the reason, instead of going on without them (the run
+    /// would no longer repeat); the first reason is the one given.
+    #[test]
+    fn a_run_that_cannot_repeat_fails_at_the_next_step_with_its_reason() {
+        let vt = VirtualTime::create(VtSettings::default()).expect("a block");
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        vt.cannot_repeat("the reply did not reach the controller".to_owned());
+        vt.cannot_repeat("a later reason".to_owned());
+        match vt.advance_to(Duration::from_millis(2), &stop) {
+            Err(crate::virtual_time::VtError::Stuck(why)) => assert_eq!(why, "the reply did not reach the controller"),
+            other => panic!("the run went on: {other:?}"),
+        }
+        assert!(vt.advance_to(Duration::from_millis(2), &stop).is_ok(), "said once; with no thread, time then reaches the tick");
+    }
+
     /// A thread killed inside a hand-over (between its mark and its count, on either side)
     /// leaves counts that never meet: once they have stood apart for a while with no live
     /// thread marked, the difference is written off, and nothing runs. A live thread's mark
