@@ -19,6 +19,7 @@ mod held;
 mod port;
 mod quiet;
 mod real_world;
+mod sensors;
 mod shim_file;
 mod signals;
 mod timer;
@@ -272,34 +273,6 @@ impl VirtualTime {
         slot.state.load(Ordering::Acquire) == state::EXITED && slot.exited_ns.load(Ordering::Relaxed) < at
     }
 
-    /// The sensor server controllers connect to: connections to it are followed.
-    pub fn attach_sensor_server(&self, address: std::net::SocketAddrV4) {
-        let header = &self.shared().header;
-        header.sensor_ip.store(u32::from_ne_bytes(address.ip().octets()), Ordering::Relaxed);
-        header.sensor_port.store(u32::from(address.port()), Ordering::Release);
-    }
-
-    /// The followed connection whose controller end is `client_port`, if any.
-    fn conn(&self, client_port: u16) -> Option<&abi::Conn> {
-        self.shared().conns.iter().find(|c| c.client_port.load(Ordering::Acquire) == u32::from(client_port))
-    }
-
-    /// The sensor server has read (and, a request being whole, answered) `bytes` more from
-    /// the connection from `client_port`.
-    pub fn sensor_request_read(&self, client_port: u16, bytes: usize) {
-        if let Some(conn) = self.conn(client_port) {
-            conn.read.fetch_add(bytes as u64, Ordering::AcqRel);
-        }
-    }
-
-    /// The sensor server wrote `bytes` of response to `client_port` (`closed`: and then closed
-    /// its end, which the controller reads as one more "byte", the end of the stream).
-    pub fn sensor_response_written(&self, client_port: u16, bytes: usize, closed: bool) {
-        if let Some(conn) = self.conn(client_port) {
-            conn.resp_written.fetch_add(bytes as u64 + u64::from(closed), Ordering::AcqRel);
-        }
-    }
-
     /// Bytes the controller sent that climbsim has not read yet (on the port or to the sensor
     /// server): simulated time cannot move until it has.
     fn held(&self) -> bool {
@@ -314,11 +287,6 @@ impl VirtualTime {
         let port = header.port_tx_read.load(Ordering::Acquire) != header.port_tx_total.load(Ordering::Acquire);
         let sensors = shared.conns.iter().any(|c| c.client_port.load(Ordering::Acquire) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire));
         (port, sensors)
-    }
-
-    /// A response waits on one of the connections in `mask`.
-    fn response_waiting(&self, mask: u64) -> bool {
-        self.shared().conns.iter().enumerate().any(|(i, c)| mask & (1 << i) != 0 && c.resp_written.load(Ordering::Acquire) > c.resp_taken.load(Ordering::Acquire))
     }
 
     /// Run `future` inside the scheduler: polled whenever the controller is parked, never on a

@@ -145,3 +145,11 @@ pub fn assert_log_has(log: &str, expected: &[&str]) {
         assert!(log.contains(line), "missing {line:?} in:\n{log}");
     }
 }
+
+/// A test program `cargo test` built (examples are built with the tests).
+pub fn example(name: &str) -> PathBuf {
+    let deps = std::env::current_exe().expect("the test's path");
+    let path = deps.parent().and_then(Path::parent).expect("target/<profile>").join("examples").join(name);
+    assert!(path.is_file(), "{} is missing: `cargo test` builds the examples", path.display());
+    path
+}
