@@ -235,7 +235,7 @@ impl AsyncWrite for VirtualTimeStream {
                 queued = queued_bytes(slave).unwrap_or(0),
                 taken_meanwhile = self.virtual_time.port_taken_total() - taken_before,
                 threads = self.virtual_time.threads_now(),
-                "reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?} (is it reading the port?)"
+                "reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?} (the kernel's pty worker did not run)"
             );
             self.virtual_time.cannot_repeat(format!(
                 "the kernel did not hand {written} reply bytes over to the controller's side of the pty within {} s (a starved machine: its pty worker did not run); the run cannot repeat, so it fails",
