@@ -10,6 +10,7 @@ pub mod source_location;
 pub mod overrides;
 pub mod parts;
 pub mod rng;
+pub mod proc_stat;
 pub mod device;
 pub mod fault;
 pub mod bus;

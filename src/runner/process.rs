@@ -12,6 +12,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use super::capped_log::CappedLog;
+use crate::proc_stat::{PGRP, STATE, cpu_ticks, stat_field};
 use super::{During as _, Result, RunnerError};
 use tracing::warn;
 
@@ -268,24 +269,6 @@ fn processes() -> impl Iterator<Item = (i32, String)> {
         .filter_map(|pid| Some((pid, std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?)))
 }
 
-/// /proc/PID/stat's fields we read (proc(5) numbers them from 1): the state (`Z`: a zombie),
-/// the process group, and the CPU time in user and kernel mode (clock ticks).
-const STATE: usize = 3;
-const PGRP: usize = 5;
-const UTIME: usize = 14;
-const STIME: usize = 15;
-
-/// Field `n` (1-based, as proc(5) numbers them) of a /proc/PID/stat line; the command name (2)
-/// may hold spaces and parentheses, so fields after it are counted from its closing one.
-fn stat_field(stat: &str, n: usize) -> Option<&str> {
-    let close = stat.rfind(')')?;
-    match n {
-        1 => stat.split(' ').next(),
-        2 => stat.get(stat.find('(')? + 1..close),
-        _ => stat[close + 1..].split_whitespace().nth(n - 3),
-    }
-}
-
 /// The environment that runs a dynamically linked program's clocks (time, gettimeofday,
 /// clock_gettime including the monotonic ones) and its sleeps, selects and polls `speed` times
 /// as fast, starting at the real time: an unchanged program sees the same time course as at 1x.
@@ -473,9 +456,7 @@ fn wait_while_busy<E>(pid: u32, mut try_wait: impl FnMut() -> std::result::Resul
 /// The CPU time (utime + stime, in clock ticks) of process `pid` and its threads, if it can be
 /// read.
 fn process_cpu_ticks(pid: u32) -> Option<u64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    let ticks = |n| stat_field(&stat, n)?.parse::<u64>().ok();
-    Some(ticks(UTIME)? + ticks(STIME)?)
+    cpu_ticks(&std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?)
 }
 
 /// Whether a thread of process `pid` is runnable or waiting for the disk (R, D).
@@ -549,15 +530,6 @@ mod tests {
         std::fs::write(&script, "print(1)\n").expect("write");
         let error = find_program(&script.display().to_string()).expect_err("not executable");
         assert!(error.to_string().contains("not executable"), "{error}");
-    }
-
-    #[test]
-    fn stat_fields_are_counted_after_the_command_name() {
-        let stat = "4242 (a (b) c) S 1 4240 4240 0 -1";
-        assert_eq!(stat_field(stat, 1), Some("4242"));
-        assert_eq!(stat_field(stat, 2), Some("a (b) c"));
-        assert_eq!(stat_field(stat, STATE), Some("S"));
-        assert_eq!(stat_field(stat, PGRP), Some("4240"));
     }
 
     #[test]

@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use super::VtError;
 use super::abi::{Shared, Slot, call, state};
+use crate::proc_stat::{STATE, cpu_ticks, stat_field};
 
 /// How often running slots are checked for threads that died without saying so (killed).
 const LIVENESS_EVERY: Duration = Duration::from_millis(50);
@@ -216,8 +217,7 @@ pub(super) fn stat_path(slot: &Slot) -> Option<String> {
 /// no such task, Ok(None) if the file does not parse.
 fn state_letter(path: &str) -> Result<Option<char>, std::io::Error> {
     let stat = std::fs::read_to_string(path)?;
-    // The state is the field after the command's closing parenthesis (the command may hold any byte).
-    Ok(stat.rfind(')').and_then(|at| stat[at + 1..].trim_start().chars().next()))
+    Ok(stat_field(&stat, STATE).and_then(|state| state.chars().next()))
 }
 
 /// The task whose `stat` file is at `path` exists and is neither a zombie nor dead.
@@ -358,9 +358,7 @@ fn cpu_ns(slot: &Slot) -> Option<u64> {
     if let Some(ns) = std::fs::read_to_string(format!("{task}/schedstat")).ok().and_then(|s| s.split_whitespace().next()?.parse().ok()) {
         return Some(ns);
     }
-    let stat = std::fs::read_to_string(format!("{task}/stat")).ok()?;
-    let fields: Vec<&str> = stat[stat.rfind(')')? + 1..].split_whitespace().collect();
-    let ticks = fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
+    let ticks = cpu_ticks(&std::fs::read_to_string(format!("{task}/stat")).ok()?)?;
     Some(ticks * 10_000_000)
 }
 
