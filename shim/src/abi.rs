@@ -489,6 +489,12 @@ impl Shared {
         self.header.port_tx_ring_written.load(Acquire).saturating_sub(read)
     }
 
+    /// The ring's place for byte `offset` of its stream (both sides count the stream, the ring
+    /// wraps it).
+    pub fn port_tx_ring_at(&self, offset: u64) -> &AtomicU8 {
+        &self.port_tx_ring[(offset % PORT_TX_RING as u64) as usize]
+    }
+
     /// The slots that have ever been taken (those past them are free): what every scan looks at.
     pub fn live_slots(&self) -> &[Slot] {
         let high = self.header.slots_high.load(core::sync::atomic::Ordering::Acquire) as usize;

@@ -26,7 +26,7 @@ fn port_of(fd: c_int) -> Option<&'static Shared> {
 fn count_written(fd: c_int, written: isize, port: Option<&'static Shared>) {
     if written <= 0 {
         let errno = crate::sys::errno();
-        if written < 0 && errno == EAGAIN {
+        if written < 0 && errno == crate::sys::EAGAIN {
             if let Some(shared) = port {
                 crate::epoll::port_was_full(shared);
             }
@@ -75,7 +75,6 @@ pub unsafe extern "C" fn writev(fd: c_int, iov: *const iovec, count: c_int) -> i
     written
 }
 
-const EAGAIN: c_int = 11;
 /// The most iovecs a writev takes (UIO_MAXIOV); past it the kernel answers EINVAL.
 const IOV_MAX: c_int = 1024;
 /// Also TIOCINQ.
@@ -128,7 +127,7 @@ fn empty_nonblocking_read(fd: c_int) -> isize {
     if vmin_vtime(fd) == Some((0, 0)) {
         return 0;
     }
-    crate::sys::set_errno(EAGAIN);
+    crate::sys::set_errno(crate::sys::EAGAIN);
     -1
 }
 

@@ -86,7 +86,7 @@ fn copy_in(shared: &Shared, parts: &[iovec], skip: usize, count: usize) {
         // take` stays within it.
         let bytes = unsafe { core::slice::from_raw_parts(part.iov_base.cast::<u8>().add(skip), take) };
         for &byte in bytes {
-            shared.port_tx_ring[(offset % PORT_TX_RING as u64) as usize].store(byte, Ordering::Relaxed);
+            shared.port_tx_ring_at(offset).store(byte, Ordering::Relaxed);
             offset = offset.wrapping_add(1);
         }
         skip = 0;

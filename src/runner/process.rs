@@ -12,8 +12,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use super::capped_log::CappedLog;
-use crate::proc_stat::{PGRP, STATE, cpu_ticks, stat_field};
 use super::{During as _, Result, RunnerError};
+use crate::proc_stat::{PGRP, STATE, cpu_ticks, stat_field};
 use tracing::warn;
 
 /// How long a controller that has said it ends may stay idle before it is no longer waited for

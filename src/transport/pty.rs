@@ -237,10 +237,7 @@ impl AsyncWrite for VirtualTimeStream {
                 threads = self.virtual_time.threads_now(),
                 "reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?} (the kernel's pty worker did not run)"
             );
-            self.virtual_time.cannot_repeat(format!(
-                "the kernel did not hand {written} reply bytes over to the controller's side of the pty within {} s (a starved machine: its pty worker did not run); the run cannot repeat, so it fails",
-                PTY_HAND_OVER_WITHIN.as_secs()
-            ));
+            self.virtual_time.hand_over_never_came(written, "reply");
         }
         if handing_over.elapsed() > SLOW_HAND_OVER {
             warn!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the kernel took this long to hand reply bytes over to the controller's side of the pty (a loaded machine)");

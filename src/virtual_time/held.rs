@@ -203,6 +203,15 @@ impl VirtualTime {
         (unread, visible)
     }
 
+    /// `bytes` of `what` climbsim wrote to the port never reached the controller's side within
+    /// [`PTY_HAND_OVER_WITHIN`]: the run fails ([`VirtualTime::cannot_repeat`]).
+    pub fn hand_over_never_came(&self, bytes: usize, what: &str) {
+        self.cannot_repeat(format!(
+            "the kernel did not hand {bytes} {what} bytes over to the controller's side of the pty within {} s (a starved machine: its pty worker did not run); the run cannot repeat, so it fails",
+            PTY_HAND_OVER_WITHIN.as_secs()
+        ));
+    }
+
     /// Replace held bytes from stream offset `start` with `bytes` (a reply corrupted on its
     /// way). Called with every controller thread parked: the pty's input is flushed and written
     /// again from the controller's position.
@@ -233,7 +242,7 @@ impl VirtualTime {
         }
         if !await_pty_hand_over(|| queued(port.slave) >= written) {
             warn!(written, queued = queued(port.slave), "rewritten reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?}");
-            self.cannot_repeat(format!("the kernel did not hand {written} rewritten reply bytes over to the controller's side of the pty within {} s (a starved machine); the run cannot repeat, so it fails", PTY_HAND_OVER_WITHIN.as_secs()));
+            self.hand_over_never_came(written, "rewritten reply");
         }
     }
 }

@@ -38,7 +38,7 @@ impl VirtualTime {
         let unread = shared.port_tx_ring_unread().min(abi::PORT_TX_RING as u64);
         let count = usize::try_from(unread).unwrap_or(usize::MAX).min(out.len());
         for (index, byte) in out[..count].iter_mut().enumerate() {
-            *byte = shared.port_tx_ring[(start.wrapping_add(index as u64) % abi::PORT_TX_RING as u64) as usize].load(Ordering::Relaxed);
+            *byte = shared.port_tx_ring_at(start.wrapping_add(index as u64)).load(Ordering::Relaxed);
         }
         header.port_tx_ring_read.store(start.wrapping_add(count as u64), Ordering::Release);
         self.port_read(count);
