@@ -318,6 +318,18 @@ fn pipes_subprocesses_and_multiprocessing_follow_simulated_time() {
 }
 
 #[test]
+fn an_exec_of_a_program_on_the_wall_clock_is_waited_for_and_takes_no_simulated_time() {
+    let log = &command_log_repeated("popen-wall-clock", 5.0, &["tests/vt/popen_wall_clock.py"]);
+    // The parent waits on a pipe that the exec closes, which the kernel releases only once the
+    // exec is over: time moved on meanwhile, by as long as the host took (0.1 s on average,
+    // different in every run, for a forked child).
+    for how in ["forked", "vforked"] {
+        let longest_ms: f64 = log.split(&format!("{how}: 20 execs, the longest ")).nth(1).and_then(|rest| rest.split(' ').next()).and_then(|ms| ms.parse().ok()).unwrap_or_else(|| panic!("{log}"));
+        assert!(longest_ms < 1.0, "{log}");
+    }
+}
+
+#[test]
 fn a_forked_child_runs_in_its_turn_after_its_parent_parks() {
     let log = &command_log_repeated("fork", 2.0, &["tests/vt/fork_print.py"]);
     // Their lines interleaved as the host scheduled the two processes (4 different logs in 6

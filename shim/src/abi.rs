@@ -11,7 +11,7 @@ use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 15;
+pub const ABI: u32 = 16;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -390,7 +390,18 @@ pub struct Slot {
     /// sees a controller's end at the first world tick after it, on every run (a tick at that
     /// very instant may run beside the thread, which ends while it does or after).
     pub exited_ns: AtomicU64,
+    /// S: while the thread's task execs a program that will not load the shim (it leaves the
+    /// followed world; its state says EXITED): a descriptor of its own, close-on-exec, named
+    /// [`EXEC_MARKER_NAME`], that the exec closes after the task's other close-on-exec
+    /// descriptors. climbsim waits until it is gone before it asks the threads waiting on the
+    /// real world to look again: the end of a pipe the exec closes then wakes its reader at the
+    /// exec's simulated instant (0: none).
+    pub exec_marker_fd: AtomicI32,
 }
+
+/// The name of an exec's marker descriptor (`Slot::exec_marker_fd`), a memfd: its link in
+/// /proc reads `/memfd:` and this name.
+pub const EXEC_MARKER_NAME: &core::ffi::CStr = c"climbsim-exec";
 
 /// `SigTimer::state`.
 pub mod timer_state {

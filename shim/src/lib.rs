@@ -153,6 +153,8 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
         // Dormant; but a program exec'd by a followed one that dropped CLIMBSIM_VT (to run on
         // the wall clock) inherits the seccomp filter, and its trapped calls need the handler.
         if seccomp::inherited() {
+            // First: climbsim holds time until the exec that started this program is over.
+            spawn::close_inherited_exec_marker();
             program::inspect(envp, false);
             spawn::remember_shim_environment();
             if let Err(why) = seccomp::install_passthrough() {
@@ -386,7 +388,11 @@ pub(crate) fn creating_thread<T>(create: impl FnOnce() -> T) -> T {
 fn take_unused(slot: &Slot, to: u32) -> bool {
     // Not while its thread hands its turn on as it ends (nor after it died doing so: climbsim
     // then writes the hand-over off and clears the mark).
-    slot.handing.load(Ordering::SeqCst) == 0 && [state::FREE, state::EXITED].into_iter().any(|from| slot.state.compare_exchange(from, to, Ordering::AcqRel, Ordering::Relaxed).is_ok())
+    let taken = slot.handing.load(Ordering::SeqCst) == 0 && [state::FREE, state::EXITED].into_iter().any(|from| slot.state.compare_exchange(from, to, Ordering::AcqRel, Ordering::Relaxed).is_ok());
+    if taken {
+        slot.exec_marker_fd.store(0, Ordering::Relaxed);
+    }
+    taken
 }
 
 /// Something the controller did cannot be followed (`abi::refused`: a table had no room, an
@@ -403,7 +409,7 @@ fn refuse(which: u32) {
 /// a thread unfollowed without a word.
 fn take_free_slot(shared: &Shared, to: u32) -> Option<(usize, &Slot)> {
     for (index, slot) in shared.slots.iter().enumerate().skip(1) {
-        if !matches!(slot.state.load(Ordering::Acquire), state::FREE | state::EXITED) {
+        if !matches!(slot.state.load(Ordering::Acquire), state::FREE | state::EXITED) || !spawn::exec_over(slot) {
             continue;
         }
         // Scans stop at the high-water mark: it is raised before the slot is taken.

@@ -122,6 +122,10 @@ pub mod nr {
     pub const RT_TGSIGQUEUEINFO: i64 = 297;
     pub const SECCOMP: i64 = 317;
     pub const EXECVEAT: i64 = 322;
+    pub const MEMFD_CREATE: i64 = 319;
+    pub const PRLIMIT64: i64 = 302;
+    pub const FCNTL: i64 = 72;
+    pub const READLINKAT: i64 = 267;
     pub const IO_URING_SETUP: i64 = 425;
     pub const CLONE3: i64 = 435;
     /// struct stat: st_mode's and st_rdev's offsets.
@@ -152,6 +156,10 @@ pub mod nr {
     pub const MMAP: i64 = 222;
     pub const SECCOMP: i64 = 277;
     pub const EXECVEAT: i64 = 281;
+    pub const MEMFD_CREATE: i64 = 279;
+    pub const PRLIMIT64: i64 = 261;
+    pub const FCNTL: i64 = 25;
+    pub const READLINKAT: i64 = 78;
     pub const IO_URING_SETUP: i64 = 425;
     pub const ST_MODE: usize = 16;
     pub const ST_RDEV: usize = 32;

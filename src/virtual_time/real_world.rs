@@ -4,12 +4,14 @@
 //! whenever the host gets round to it, climbsim asks each of them to look again (the shim's
 //! `wait_on_real_world`) after threads ran and before it gives a turn or moves time, and waits
 //! until they have. A followed process that has said it exits but is still going away (its
-//! last buffered output, the end of its pipes) is waited for the same way.
+//! last buffered output, the end of its pipes) is waited for the same way, and so is one that
+//! execs a program that will not load the shim, until the exec has closed its close-on-exec
+//! descriptors (the pipe through which a parent learns that the exec succeeded).
 
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::abi::{SLOTS, Shared, Slot, state};
+use super::abi::{EXEC_MARKER_NAME, SLOTS, Shared, Slot, state};
 use super::{futex_wait, futex_wake};
 
 /// A process still going away after this long (wall time) is no longer waited for: something
@@ -95,7 +97,9 @@ impl RealWorld {
             if tid <= 0 || self.gone[index] == tid {
                 continue;
             }
-            if !alive(slot) || followed_elsewhere(shared, index, tid) {
+            let marker = slot.exec_marker_fd.load(Ordering::Acquire);
+            let left = if marker > 0 { exec_over(tid, marker) } else { !alive(slot) || followed_elsewhere(shared, index, tid) };
+            if left {
                 self.gone[index] = tid;
                 self.exiting_since[index] = None;
                 continue;
@@ -105,7 +109,11 @@ impl RealWorld {
                 _ => self.exiting_since[index].insert((tid, Instant::now())).1,
             };
             if since.elapsed() > EXIT_GRACE {
-                tracing::warn!(tid, "a controller thread has been exiting for {} s; no longer waited for", EXIT_GRACE.as_secs());
+                if marker > 0 {
+                    tracing::warn!(tid, "a controller process's exec of a program without climbsim's clock has not finished within {} s (a statically linked program, or one that ignores LD_PRELOAD, never says it has); no longer waited for", EXIT_GRACE.as_secs());
+                } else {
+                    tracing::warn!(tid, "a controller thread has been exiting for {} s; no longer waited for", EXIT_GRACE.as_secs());
+                }
                 self.gone[index] = tid;
                 continue;
             }
@@ -113,6 +121,14 @@ impl RealWorld {
         }
         exiting
     }
+}
+
+/// The exec of task `tid` into a program that will not load the shim, whose marker is
+/// descriptor `fd` (`Slot::exec_marker_fd`), is over: the kernel has closed the marker, and
+/// with it the task's other close-on-exec descriptors (or the task is gone).
+fn exec_over(tid: i32, fd: i32) -> bool {
+    let marker = format!("/memfd:{}", EXEC_MARKER_NAME.to_string_lossy());
+    std::fs::read_link(format!("/proc/{tid}/fd/{fd}")).map_or(true, |link| !link.to_string_lossy().starts_with(&marker))
 }
 
 /// The slot's thread exists and is not a zombie.
@@ -125,3 +141,4 @@ fn alive(slot: &Slot) -> bool {
 fn followed_elsewhere(shared: &Shared, index: usize, tid: i32) -> bool {
     shared.live_slots().iter().enumerate().any(|(other, s)| other != index && s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
 }
+
