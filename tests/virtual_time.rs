@@ -326,6 +326,7 @@ fn an_exec_of_a_program_on_the_wall_clock_is_waited_for_and_takes_no_simulated_t
     for how in ["forked", "vforked"] {
         let longest_ms: f64 = log.split(&format!("{how}: 20 execs, the longest ")).nth(1).and_then(|rest| rest.split(' ').next()).and_then(|ms| ms.parse().ok()).unwrap_or_else(|| panic!("{log}"));
         assert!(longest_ms < 1.0, "{log}");
+        assert!(log.contains(&format!("{how}: a missing program refused after ")), "{log}");
     }
 }
 

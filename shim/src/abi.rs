@@ -395,7 +395,8 @@ pub struct Slot {
     /// [`EXEC_MARKER_NAME`], that the exec closes after the task's other close-on-exec
     /// descriptors. climbsim waits until it is gone before it asks the threads waiting on the
     /// real world to look again: the end of a pipe the exec closes then wakes its reader at the
-    /// exec's simulated instant (0: none).
+    /// exec's simulated instant. climbsim takes it back to 0 once it has seen the exec over; an
+    /// exec that failed does so itself before it closes the marker (0: none).
     pub exec_marker_fd: AtomicI32,
 }
 

@@ -526,11 +526,13 @@ pub unsafe extern "C" fn _Exit(status: c_int) -> ! {
 }
 
 fn leaving_without_atexit() {
-    // A vfork child shares its parent's memory (this thread's slot is its parent's): it says
-    // nothing, and its parent goes on as the kernel resumes it.
+    // A vfork child shares its parent's memory (this thread's slot is its parent's): its
+    // parent goes on as the kernel resumes it; the child says it goes in a slot of its own.
     if pid() == sys::getpid() {
         // SAFETY: the same callback atexit would have run.
         unsafe { process_exiting(core::ptr::null_mut()) };
+    } else {
+        spawn::vfork_child_exits();
     }
 }
 

@@ -7,7 +7,7 @@
 use core::ffi::{c_char, c_int, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{Slot, state};
+use crate::abi::{Shared, Slot, state};
 use crate::native;
 use crate::sys::{self, real};
 use crate::shared;
@@ -101,23 +101,18 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     // A task without a slot (a vfork child, which runs on its parent's) takes one to say so.
     let leaving = match mine {
         Some(slot) => Some((slot, slot.state.load(Ordering::Acquire), slot.pid.swap(0, Ordering::AcqRel))),
-        None if marker > 0 => crate::take_free_slot(shared, state::RESERVED).map(|(_, slot)| {
-            slot.parent.store(0, Ordering::Relaxed);
-            slot.tid.store(tid, Ordering::Relaxed);
-            (slot, state::FREE, 0)
-        }),
+        None if marker > 0 => slot_of_its_own(shared, tid, 0).map(|slot| (slot, state::FREE, 0)),
         None => None,
     };
     if let Some((slot, _, _)) = leaving {
-        slot.exec_marker_fd.store(marker.max(0), Ordering::Relaxed);
-        slot.exited_ns.store(crate::now::sim_now(shared), Ordering::Relaxed);
-        slot.state.store(state::EXITED, Ordering::Release);
+        say_left(shared, slot, marker.max(0));
     }
-    crate::notify_scheduler(shared);
     let result = run();
     // Still here: the exec failed.
     if let Some((slot, state_before, pid_before)) = leaving {
-        slot.exec_marker_fd.store(0, Ordering::Relaxed);
+        // Before the marker closes: climbsim, seeing it closed, must not take this for the
+        // exec's end (see `Slot::exec_marker_fd`).
+        slot.exec_marker_fd.store(0, Ordering::Release);
         if state_before == state::FREE {
             slot.tid.store(0, Ordering::Relaxed);
         }
@@ -128,6 +123,39 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
         native::call1(sys::nr::CLOSE, marker.into());
     }
     result
+}
+
+/// A free slot for task `tid` of process `pid` (0: no longer a followed process's), which has
+/// none of its own (a vfork child runs on its parent's), to say that it leaves.
+fn slot_of_its_own(shared: &Shared, tid: i32, pid: i32) -> Option<&Slot> {
+    let (_, slot) = crate::take_free_slot(shared, state::RESERVED)?;
+    slot.parent.store(0, Ordering::Relaxed);
+    slot.pid.store(pid, Ordering::Relaxed);
+    slot.tid.store(tid, Ordering::Relaxed);
+    Some(slot)
+}
+
+/// `slot`'s task has left the followed world, now (an exec's `marker`, 0: none): climbsim waits
+/// until it is gone, or its exec over, before it asks the waiters on the real world to look.
+fn say_left(shared: &Shared, slot: &Slot, marker: c_int) {
+    slot.exec_marker_fd.store(marker, Ordering::Relaxed);
+    slot.exited_ns.store(crate::now::sim_now(shared), Ordering::Relaxed);
+    slot.state.store(state::EXITED, Ordering::Release);
+    crate::notify_scheduler(shared);
+}
+
+/// A vfork child ends (`_exit`, after an exec that failed): its parent, which the kernel lets
+/// go as the child lets go of its memory, may wait for the end of a pipe the child still holds
+/// (Python's `subprocess` reads why the exec failed until then), which the kernel releases only
+/// as the child becomes a zombie. The child says it is going away in a slot of its own, and
+/// climbsim waits until it has gone (366 ms of simulated time passed meanwhile, in one run of
+/// four, before).
+pub(crate) fn vfork_child_exits() {
+    if let Some(shared) = crate::active()
+        && let Some(slot) = slot_of_its_own(shared, sys::gettid(), sys::getpid())
+    {
+        say_left(shared, slot, 0);
+    }
 }
 
 /// A descriptor that marks an exec leaving the followed world, for climbsim to watch in

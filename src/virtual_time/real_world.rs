@@ -98,7 +98,14 @@ impl RealWorld {
                 continue;
             }
             let marker = slot.exec_marker_fd.load(Ordering::Acquire);
-            let left = if marker > 0 { exec_over(tid, marker) } else { !alive(slot) || followed_elsewhere(shared, index, tid) };
+            // An exec's end counts once climbsim has taken the marker from the slot: an exec that
+            // failed takes it back itself (before it closes the marker), and its task, followed
+            // again, is not to be written off as gone.
+            let left = if marker > 0 {
+                exec_over(tid, marker) && slot.exec_marker_fd.compare_exchange(marker, 0, Ordering::AcqRel, Ordering::Acquire).is_ok()
+            } else {
+                !alive(slot) || followed_elsewhere(shared, index, tid)
+            };
             if left {
                 self.gone[index] = tid;
                 self.exiting_since[index] = None;

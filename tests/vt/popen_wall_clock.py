@@ -17,3 +17,9 @@ for how, preexec in (("forked", lambda: None), ("vforked", None)):
         children.append(subprocess.Popen(["/bin/true"], env=env, preexec_fn=preexec))
         longest = max(longest, time.monotonic() - before)
     print(f"{how}: 20 execs, the longest {longest * 1000:.3f} ms", flush=True)
+    # An exec that fails: the child stays followed, says why through the pipe, and ends.
+    before = time.monotonic()
+    try:
+        subprocess.Popen(["/nonexistent/program"], env=env, preexec_fn=preexec)
+    except FileNotFoundError:
+        print(f"{how}: a missing program refused after {(time.monotonic() - before) * 1000:.3f} ms", flush=True)
