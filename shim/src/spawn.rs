@@ -101,7 +101,7 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     // A task without a slot (a vfork child, which runs on its parent's) takes one to say so.
     let leaving = match mine {
         Some(slot) => Some((slot, slot.state.load(Ordering::Acquire), slot.pid.swap(0, Ordering::AcqRel))),
-        None if marker > 0 => slot_of_its_own(shared, tid, 0).map(|slot| (slot, state::FREE, 0)),
+        None if marker > 0 => slot_of_its_own(shared, tid, 0, 0).map(|slot| (slot, state::FREE, 0)),
         None => None,
     };
     if let Some((slot, _, _)) = leaving {
@@ -125,11 +125,12 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     result
 }
 
-/// A free slot for task `tid` of process `pid` (0: no longer a followed process's), which has
-/// none of its own (a vfork child runs on its parent's), to say that it leaves.
-fn slot_of_its_own(shared: &Shared, tid: i32, pid: i32) -> Option<&Slot> {
+/// A free slot for task `tid` of process `pid`, child of `parent` (both 0: no longer a followed
+/// process's), which has none of its own (a vfork child runs on its parent's), to say that it
+/// leaves.
+fn slot_of_its_own(shared: &Shared, tid: i32, pid: i32, parent: i32) -> Option<&Slot> {
     let (_, slot) = crate::take_free_slot(shared, state::RESERVED)?;
-    slot.parent.store(0, Ordering::Relaxed);
+    slot.parent.store(parent, Ordering::Relaxed);
     slot.pid.store(pid, Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
     Some(slot)
@@ -149,10 +150,10 @@ fn say_left(shared: &Shared, slot: &Slot, marker: c_int) {
 /// (Python's `subprocess` reads why the exec failed until then), which the kernel releases only
 /// as the child becomes a zombie. The child says it is going away in a slot of its own, and
 /// climbsim waits until it has gone (366 ms of simulated time passed meanwhile, in one run of
-/// four, before).
+/// four, before); so does its parent's waitpid for it (see `children.rs`).
 pub(crate) fn vfork_child_exits() {
     if let Some(shared) = crate::active()
-        && let Some(slot) = slot_of_its_own(shared, sys::gettid(), sys::getpid())
+        && let Some(slot) = slot_of_its_own(shared, sys::gettid(), sys::getpid(), sys::getppid())
     {
         say_left(shared, slot, 0);
     }
