@@ -12,6 +12,7 @@ import signal
 import sys
 import time
 
+import dynamixel_sdk.port_handler
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 ADDR_TORQUE_ENABLE = 64
@@ -46,6 +47,10 @@ print(f"periods: {periods}", flush=True)
 slept = time.monotonic()
 time.sleep(0.3)
 print(f"slept {time.monotonic() - slept:.3f} s", flush=True)
+# The clean-up runs on the wall clock, where a host kept busy by other work can delay a reply
+# past the SDK's 35 ms at 1 Mbps (once, beside two busy loops and other runs: no status in
+# 36.8 ms). Its timeout goes to 0.4 s: servos that no longer answer still fail every write.
+dynamixel_sdk.port_handler.LATENCY_TIMER = 200
 for dxl in (1, 2, 3, 4):
     started = time.monotonic()
     result, error = packet.write1ByteTxRx(port, dxl, ADDR_TORQUE_ENABLE, 0)
