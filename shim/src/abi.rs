@@ -390,13 +390,14 @@ pub struct Slot {
     /// sees a controller's end at the first world tick after it, on every run (a tick at that
     /// very instant may run beside the thread, which ends while it does or after).
     pub exited_ns: AtomicU64,
-    /// S: while the thread's task execs a program that will not load the shim (it leaves the
-    /// followed world; its state says EXITED): a descriptor of its own, close-on-exec, named
-    /// [`EXEC_MARKER_NAME`], that the exec closes after the task's other close-on-exec
-    /// descriptors. climbsim waits until it is gone before it asks the threads waiting on the
-    /// real world to look again: the end of a pipe the exec closes then wakes its reader at the
-    /// exec's simulated instant. climbsim takes it back to 0 once it has seen the exec over; an
-    /// exec that failed does so itself before it closes the marker (0: none).
+    /// S: while the thread's task execs a program that will not load the shim's clock (it
+    /// leaves the followed world; its state says EXITED): a descriptor of its own named
+    /// [`EXEC_MARKER_NAME`], which the exec keeps open and the new program's shim closes as it
+    /// starts, once the kernel has released what the exec closed. climbsim waits until it is
+    /// gone before it asks the threads waiting on the real world to look again: the end of a
+    /// pipe the exec closes then wakes its reader at the exec's simulated instant. climbsim
+    /// takes it back to 0 once it has seen the exec over; an exec that failed does so itself
+    /// before it closes the marker (0: none).
     pub exec_marker_fd: AtomicI32,
 }
 
