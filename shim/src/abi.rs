@@ -405,6 +405,12 @@ pub struct Slot {
 /// /proc reads `/memfd:` and this name.
 pub const EXEC_MARKER_NAME: &core::ffi::CStr = c"climbsim-exec";
 
+/// Whether `link`, what a descriptor's /proc link reads, names an exec's marker (both sides
+/// look: the shim before it takes a slot, climbsim before it writes an exec off).
+pub fn is_exec_marker_link(link: &[u8]) -> bool {
+    link.strip_prefix(&b"/memfd:"[..]).is_some_and(|name| name.starts_with(EXEC_MARKER_NAME.to_bytes()))
+}
+
 /// `SigTimer::state`.
 pub mod timer_state {
     pub const FREE: u32 = 0;

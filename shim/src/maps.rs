@@ -9,9 +9,8 @@ use crate::sys::nr;
 /// If `addr` lies in a shared mapping of a file: the file (device and inode, folded into 63
 /// bits) and the offset in it.
 pub(crate) fn shared_file_offset(addr: usize) -> Option<(u64, u64)> {
-    const AT_FDCWD: c_long = -100;
     const O_RDONLY_CLOEXEC: c_long = 0o2000000;
-    let fd = native::call3(nr::OPENAT, AT_FDCWD, c"/proc/self/maps".as_ptr() as c_long, O_RDONLY_CLOEXEC);
+    let fd = native::call3(nr::OPENAT, crate::sys::AT_FDCWD, c"/proc/self/maps".as_ptr() as c_long, O_RDONLY_CLOEXEC);
     if fd < 0 {
         return None;
     }

@@ -231,9 +231,8 @@ fn names_marker(tid: Option<i32>, fd: c_int) -> bool {
         len += text.len();
     }
     let mut link = [0u8; 64];
-    let read = native::call4(sys::nr::READLINKAT, AT_FDCWD, path.as_ptr() as i64, link.as_mut_ptr() as i64, link.len() as i64);
-    let marker = crate::abi::EXEC_MARKER_NAME.to_bytes();
-    read > 0 && link[..read as usize].strip_prefix(&b"/memfd:"[..]).is_some_and(|name| name.starts_with(marker))
+    let read = native::call4(sys::nr::READLINKAT, sys::AT_FDCWD, path.as_ptr() as i64, link.as_mut_ptr() as i64, link.len() as i64);
+    read > 0 && crate::abi::is_exec_marker_link(&link[..read as usize])
 }
 
 /// `number` in decimal, in `digits`.
@@ -249,7 +248,6 @@ fn decimal(mut number: u32, digits: &mut [u8; 10]) -> &[u8] {
     }
 }
 
-const AT_FDCWD: i64 = -100;
 const F_DUPFD: i64 = 0;
 const RLIMIT_NOFILE: i64 = 7;
 const EXEC_MARKER_AT_MOST: u64 = 1023;

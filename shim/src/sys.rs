@@ -68,6 +68,8 @@ pub const TIMER_ABSTIME: c_int = 1;
 pub const EINVAL: c_int = 22;
 pub const EINTR: c_int = 4;
 pub const EAGAIN: c_int = 11;
+/// A path relative to the working directory, for the `*at` calls.
+pub const AT_FDCWD: c_long = -100;
 
 const RTLD_NEXT: *mut c_void = -1isize as *mut c_void;
 

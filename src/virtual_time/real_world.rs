@@ -5,13 +5,15 @@
 //! `wait_on_real_world`) after threads ran and before it gives a turn or moves time, and waits
 //! until they have. A followed process that has said it exits but is still going away (its
 //! last buffered output, the end of its pipes) is waited for the same way, and so is one that
-//! execs a program that will not load the shim, until the exec has closed its close-on-exec
-//! descriptors (the pipe through which a parent learns that the exec succeeded).
+//! execs a program on the wall clock, until the new program has started and the kernel has
+//! released what the exec closed (the pipe through which a parent learns that the exec
+//! succeeded).
 
+use std::os::unix::ffi::OsStrExt;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::abi::{EXEC_MARKER_NAME, SLOTS, Shared, Slot, state};
+use super::abi::{SLOTS, Shared, Slot, is_exec_marker_link, state};
 use super::{futex_wait, futex_wake};
 
 /// A process still going away after this long (wall time) is no longer waited for: something
@@ -130,12 +132,11 @@ impl RealWorld {
     }
 }
 
-/// The exec of task `tid` into a program that will not load the shim, whose marker is
-/// descriptor `fd` (`Slot::exec_marker_fd`), is over: the kernel has closed the marker, and
-/// with it the task's other close-on-exec descriptors (or the task is gone).
+/// The exec of task `tid` into a program on the wall clock, whose marker is descriptor `fd`
+/// (`Slot::exec_marker_fd`), is over: the new program's shim has closed the marker as it
+/// started (or the task is gone).
 fn exec_over(tid: i32, fd: i32) -> bool {
-    let marker = format!("/memfd:{}", EXEC_MARKER_NAME.to_string_lossy());
-    std::fs::read_link(format!("/proc/{tid}/fd/{fd}")).map_or(true, |link| !link.to_string_lossy().starts_with(&marker))
+    std::fs::read_link(format!("/proc/{tid}/fd/{fd}")).map_or(true, |link| !is_exec_marker_link(link.as_os_str().as_bytes()))
 }
 
 /// The slot's thread exists and is not a zombie.
@@ -148,4 +149,3 @@ fn alive(slot: &Slot) -> bool {
 fn followed_elsewhere(shared: &Shared, index: usize, tid: i32) -> bool {
     shared.live_slots().iter().enumerate().any(|(other, s)| other != index && s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
 }
-
