@@ -6,7 +6,7 @@
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, Shared, call, state, waits};
+use crate::abi::{NEVER, Parked, Shared, call, state, waits};
 use crate::sys::real;
 use crate::{active, charge, my_slot, note_call, notify_scheduler};
 
@@ -26,10 +26,7 @@ fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> 
         return wait();
     }
     let slot = slot.expect("checked above");
-    slot.deadline_ns.store(NEVER, Ordering::Relaxed);
-    slot.waits.store(waits::CHILD, Ordering::Relaxed);
-    slot.conn_mask.store(child as u64, Ordering::Relaxed);
-    slot.state.store(state::BLOCKED, Ordering::Release);
+    crate::park::publish_state(slot, Parked::Blocked, NEVER, waits::CHILD, child as u64);
     notify_scheduler(shared);
     let result = wait();
     slot.waits.store(0, Ordering::Relaxed);
@@ -40,19 +37,19 @@ fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> 
 /// Child `pid` of this process has said that it ends: every slot of it is marked exited.
 fn said_it_ends(shared: &Shared, pid: i32) -> bool {
     let me = crate::sys::getpid();
-    let mut its = shared.live_slots().iter().filter(|s| s.pid.load(Ordering::Relaxed) == pid && s.parent.load(Ordering::Relaxed) == me && s.state.load(Ordering::Acquire) != state::FREE).peekable();
-    its.peek().is_some() && its.all(|s| s.state.load(Ordering::Acquire) == state::EXITED)
+    let mut its = shared.live_slots().iter().filter(|s| s.pid.load(Ordering::Relaxed) == pid && s.parent.load(Ordering::Relaxed) == me && s.state() != state::FREE).peekable();
+    its.peek().is_some() && its.all(|s| s.state() == state::EXITED)
 }
 
 /// This process is ending: a parent waiting for it runs again from now.
 pub(crate) fn wake_waiting_parent(shared: &Shared, pid: i32, parent: i32) {
     for slot in shared.live_slots() {
-        if slot.pid.load(Ordering::Relaxed) != parent || slot.state.load(Ordering::Acquire) != state::BLOCKED || slot.waits.load(Ordering::Relaxed) != waits::CHILD {
+        if slot.pid.load(Ordering::Relaxed) != parent || slot.state() != state::BLOCKED || slot.waits.load(Ordering::Relaxed) != waits::CHILD {
             continue;
         }
         let awaited = slot.conn_mask.load(Ordering::Relaxed) as i64;
         if awaited <= 0 || awaited == i64::from(pid) {
-            let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
+            slot.make_ready(None);
         }
     }
 }

@@ -19,7 +19,7 @@
 use core::ffi::c_long;
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, Shared, Slot, call, release, state, waits};
+use crate::abi::{NEVER, Parked, Shared, Slot, call, release, state, waits};
 use crate::native;
 use crate::sys::{self, nr, timespec};
 use crate::time::{sim_now, sim_time_of, to_ns};
@@ -157,10 +157,10 @@ fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, dea
     slot.futex_queued.store(1, Ordering::Release);
     // Published blocked under the lock: a waker that takes this thread off the queue finds it
     // blocked and marks it running, whenever it comes.
-    crate::publish_parked(slot, state::BLOCKED, deadline, waits::FUTEX, key.space);
+    crate::publish_parked(slot, Parked::Blocked, deadline, waits::FUTEX, key.space);
     unlock(shared);
     hand.finish();
-    let why = crate::await_release(shared, slot, state::BLOCKED, deadline);
+    let why = crate::await_release(shared, slot, Parked::Blocked, deadline);
     lock(shared);
     let still_queued = slot.futex_queued.swap(0, Ordering::AcqRel) == 1;
     unlock(shared);
@@ -186,8 +186,7 @@ fn wake_locked(shared: &Shared, key: Key, count: u32, bitset: u32) -> u32 {
         let Some(slot) = oldest_waiter(shared, key, bitset) else { break };
         slot.futex_queued.store(0, Ordering::Release);
         // Ready, not running: it runs when climbsim gives it the turn (after this thread parks).
-        slot.release.store(release::DATA, Ordering::Release);
-        let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
+        slot.make_ready(Some(release::DATA));
         woken += 1;
     }
     woken
@@ -200,7 +199,7 @@ fn oldest_waiter(shared: &Shared, key: Key, bitset: u32) -> Option<&Slot> {
         .filter(|s| {
             s.futex_queued.load(Ordering::Acquire) == 1
                 // A waiter is blocked while queued; one whose process died is not.
-                && s.state.load(Ordering::Acquire) == state::BLOCKED
+                && s.state() == state::BLOCKED
                 && s.futex_addr.load(Ordering::Relaxed) == key.offset
                 && s.conn_mask.load(Ordering::Relaxed) == key.space
                 && s.futex_bitset.load(Ordering::Relaxed) & bitset != 0

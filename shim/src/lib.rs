@@ -1,7 +1,7 @@
 //! climbsim's preload for `--clock virtual`: it puts an unchanged controller process (every
 //! thread, every child that keeps `LD_PRELOAD`) on the simulation's clock.
 //!
-//! - Clock reads answer from the shared block (`abi.rs`), no system call.
+//! - Clock reads answer from the shared block (`abi/`), no system call.
 //! - Sleeps and waits publish "blocked until T, waiting on the port / a sensor connection" and
 //!   sleep on a futex until climbsim releases them: at T, or when their data is there.
 //! - Every other intercepted call costs a small charge of simulated time, so that a loop that
@@ -16,7 +16,6 @@
 
 #![allow(clippy::missing_safety_doc)]
 
-#[path = "abi.rs"]
 pub mod abi;
 mod children;
 mod epoll;
@@ -260,7 +259,6 @@ fn my_slot() -> Option<&'static Slot> {
         // SAFETY: pthread_self has no preconditions.
         slot.thread.store(unsafe { sys::pthread_self() } as u64, Ordering::Relaxed);
         signals::slot_claimed(slot);
-        slot.state.store(state::RUNNING, Ordering::Release);
         SLOT.with(|s| s.set(index as u32));
         took_turn(shared);
         if tid != pid {
@@ -272,11 +270,11 @@ fn my_slot() -> Option<&'static Slot> {
     // the exec) is still running. A child of posix_spawn finds the one its parent reserved.
     let parent = sys::getppid();
     for (index, slot) in shared.live_slots().iter().enumerate() {
-        let held = slot.state.load(Ordering::Acquire);
+        let held = slot.state();
         let slot_tid = slot.tid.load(Ordering::Relaxed);
         let mine = matches!(held, state::RUNNING | state::RESERVED) && slot_tid == tid;
         let spawned_for_me = held == state::RESERVED && slot_tid == 0 && slot.pid.load(Ordering::Relaxed) == parent;
-        if (mine || spawned_for_me) && (held == state::RUNNING || slot.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
+        if (mine || spawned_for_me) && (held == state::RUNNING || slot.claim_reservation()) {
             let claimed = claim(index, slot);
             // A program a followed process started (posix_spawn, fork, a vfork child's exec)
             // starts in its turn, as a thread does (below).
@@ -297,11 +295,11 @@ fn my_slot() -> Option<&'static Slot> {
         return claimed;
     }
     let first = &shared.slots[0];
-    if tid == pid && first.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+    if tid == pid && first.claim_reservation() {
         return claim(0, first);
     }
     // A free slot, or one whose thread has ended (a shell's children come and go).
-    let (index, slot) = take_free_slot(shared, state::RUNNING)?;
+    let (index, slot) = take_free_slot(shared, Slot::claim_unused)?;
     let claimed = claim(index, slot);
     notify_scheduler(shared);
     // A thread whose creation the shim did not see (libc's own thread creation, such as the
@@ -318,7 +316,7 @@ fn my_slot() -> Option<&'static Slot> {
 
 /// Whether process `pid` is followed (one of its threads has a slot).
 fn followed(shared: &Shared, pid: i32) -> bool {
-    shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == pid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+    shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == pid && !matches!(s.state(), state::FREE | state::EXITED))
 }
 
 /// A thread that has just claimed `slot` waits, ready, for its turn (without climbsim, or
@@ -329,11 +327,15 @@ fn start_in_turn(slot: &Slot) {
             // Its creator has usually parked by now (in a join, say): the turn is then this
             // thread's at once, without climbsim.
             let hand = park::hand_on(shared, slot);
-            slot.state.store(state::READY, Ordering::Release);
-            hand.finish();
-            await_turn(shared, slot);
+            if slot.start_in_turn() {
+                hand.finish();
+                await_turn(shared, slot);
+            }
         }
-        None => slot.state.store(state::RUNNING, Ordering::Release),
+        None => {
+            // A reservation is this thread's (a claimed slot runs already).
+            let _ = slot.claim_reservation();
+        }
     }
 }
 
@@ -348,7 +350,7 @@ pub(crate) fn reserve_raw_clone(tls: u64, clear_tid: usize) {
         return;
     }
     let Some(shared) = active() else { return };
-    let Some((_, slot)) = take_free_slot(shared, state::RESERVED) else { return };
+    let Some((_, slot)) = take_free_slot(shared, Slot::reserve_unused) else { return };
     slot.pid.store(pid(), Ordering::Relaxed);
     slot.conn_mask.store(tls, Ordering::Relaxed);
     slot.tid.store(abi::RAW_CLONE_TID, Ordering::Release);
@@ -361,14 +363,14 @@ fn raw_clone_reservation(shared: &Shared, pid: i32) -> Option<(usize, &Slot)> {
     let mut fs: u64 = 0;
     native::call2(sys::nr::ARCH_PRCTL, ARCH_GET_FS, &mut fs as *mut u64 as i64);
     let reserved = |slot: &Slot, key: u64| {
-        slot.state.load(Ordering::Acquire) == state::RESERVED
+        slot.state() == state::RESERVED
             && slot.tid.load(Ordering::Acquire) == abi::RAW_CLONE_TID
             && slot.pid.load(Ordering::Relaxed) == pid
             && slot.conn_mask.load(Ordering::Relaxed) == key
     };
     for key in [fs, 0] {
         for (index, slot) in shared.live_slots().iter().enumerate() {
-            if reserved(slot, key) && slot.state.compare_exchange(state::RESERVED, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+            if reserved(slot, key) && slot.claim_reservation() {
                 return Some((index, slot));
             }
         }
@@ -384,17 +386,6 @@ pub(crate) fn creating_thread<T>(create: impl FnOnce() -> T) -> T {
     result
 }
 
-/// Take `slot` if nobody uses it (free, or its thread ended), putting it in state `to`.
-fn take_unused(slot: &Slot, to: u32) -> bool {
-    // Not while its thread hands its turn on as it ends (nor after it died doing so: climbsim
-    // then writes the hand-over off and clears the mark).
-    let taken = slot.handing.load(Ordering::SeqCst) == 0 && [state::FREE, state::EXITED].into_iter().any(|from| slot.state.compare_exchange(from, to, Ordering::AcqRel, Ordering::Relaxed).is_ok());
-    if taken {
-        slot.exec_marker_fd.store(0, Ordering::Relaxed);
-    }
-    taken
-}
-
 /// Something the controller did cannot be followed (`abi::refused`: a table had no room, an
 /// io_uring): the run fails naming it.
 fn refuse(which: u32) {
@@ -404,17 +395,17 @@ fn refuse(which: u32) {
     }
 }
 
-/// A slot nobody uses (slot 0 is climbsim's to reserve), taken in state `to`. None if every one
-/// is in use: the table is then marked full, which fails the run naming it, rather than leave
-/// a thread unfollowed without a word.
-fn take_free_slot(shared: &Shared, to: u32) -> Option<(usize, &Slot)> {
+/// A slot nobody uses (slot 0 is climbsim's to reserve), taken by `take` (`Slot::reserve_unused`
+/// or `Slot::claim_unused`). None if every one is in use: the table is then marked full, which
+/// fails the run naming it, rather than leave a thread unfollowed without a word.
+fn take_free_slot(shared: &Shared, take: fn(&Slot) -> bool) -> Option<(usize, &Slot)> {
     for (index, slot) in shared.slots.iter().enumerate().skip(1) {
-        if !matches!(slot.state.load(Ordering::Acquire), state::FREE | state::EXITED) || !spawn::exec_over(slot) {
+        if !matches!(slot.state(), state::FREE | state::EXITED) || !spawn::exec_over(slot) {
             continue;
         }
         // Scans stop at the high-water mark: it is raised before the slot is taken.
         shared.header.slots_high.fetch_max(index as u32 + 1, Ordering::AcqRel);
-        if take_unused(slot, to) {
+        if take(slot) {
             return Some((index, slot));
         }
     }
@@ -432,7 +423,7 @@ unsafe extern "C" fn thread_exited(_: *mut c_void) {
 /// Reserve a slot for a thread about to be created (the creator runs on meanwhile).
 fn reserve_thread_slot() -> Option<usize> {
     let shared = shared()?;
-    let (index, slot) = take_free_slot(shared, state::RESERVED)?;
+    let (index, slot) = take_free_slot(shared, Slot::reserve_unused)?;
     slot.pid.store(pid(), Ordering::Relaxed);
     // Not 0, which marks a process's reservation (see `my_slot`).
     slot.tid.store(-1, Ordering::Relaxed);
@@ -442,7 +433,7 @@ fn reserve_thread_slot() -> Option<usize> {
 fn unreserve_slot(index: usize) {
     if let Some(shared) = shared()
         && let Some(slot) = shared.slots.get(index)
-        && slot.state.compare_exchange(state::RESERVED, state::FREE, Ordering::AcqRel, Ordering::Relaxed).is_ok()
+        && slot.unreserve()
     {
         // A thread that parked meanwhile left the decision to this one (see `park::HandOn`).
         notify_scheduler(shared);
@@ -461,7 +452,7 @@ fn claim_reserved(index: usize) {
         && let Some(old) = shared().and_then(|s| s.slots.get(before as usize))
     {
         old.futex_queued.store(0, Ordering::Release);
-        old.state.store(state::EXITED, Ordering::Release);
+        old.exit();
     }
     slot.futex_queued.store(0, Ordering::Release);
     let tid = sys::gettid();
@@ -497,7 +488,7 @@ unsafe extern "C" fn process_exiting(_: *mut c_void) {
     // process half marked (it would move time to the deadline of a thread not yet marked).
     let own = my_slot();
     for slot in shared.live_slots() {
-        if slot.pid.load(Ordering::Relaxed) == pid && slot.state.load(Ordering::Acquire) != state::FREE && !own.is_some_and(|own| core::ptr::eq(own, slot)) {
+        if slot.pid.load(Ordering::Relaxed) == pid && slot.state() != state::FREE && !own.is_some_and(|own| core::ptr::eq(own, slot)) {
             exit_slot(slot);
         }
     }
@@ -538,12 +529,12 @@ fn leaving_without_atexit() {
 
 fn exit_slot(slot: &Slot) {
     let Some(shared) = shared() else {
-        slot.state.store(state::EXITED, Ordering::Release);
+        slot.exit();
         return;
     };
     let hand = park::hand_on(shared, slot);
     slot.exited_ns.store(now::sim_now(shared), Ordering::Relaxed);
-    slot.state.store(state::EXITED, Ordering::Release);
+    slot.exit();
     hand.finish();
 }
 

@@ -6,7 +6,8 @@
 use core::cell::Cell;
 use core::sync::atomic::{AtomicU64, Ordering};
 
-use crate::abi::{self, Shared, Slot, mode, release, state};
+use crate::abi::protocol::{ChildWait, Decider};
+use crate::abi::{self, Parked, Shared, Slot, mode, release, state};
 use crate::now::{real_monotonic_ns, sim_now, thread_cpu_ns};
 use crate::{ORPHANED, active, climbsim_gone, my_slot, sys};
 
@@ -60,12 +61,12 @@ pub(crate) fn await_turn(shared: &Shared, slot: &Slot) {
     spin_while_not_running(shared, slot);
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
-        if slot.state.load(Ordering::Acquire) != state::READY {
+        if slot.state() != state::READY {
             took_turn(shared);
             return;
         }
         if run_over(shared) {
-            slot.state.store(state::RUNNING, Ordering::Release);
+            slot.let_go_at_end();
             return;
         }
         sleep_on_wake_word(shared, slot, seen);
@@ -95,7 +96,7 @@ pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
         spin_until = long_until;
     }
     let turns = header.turns_given.load(Ordering::Acquire);
-    while slot.state.load(Ordering::Acquire) != state::RUNNING && real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
+    while slot.state() != state::RUNNING && real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
         core::hint::spin_loop();
     }
     if long {
@@ -121,10 +122,10 @@ pub(crate) fn run_over(shared: &Shared) -> bool {
 /// turn, unless climbsim or a waker let it go already.
 pub(crate) fn resume_after_kernel_wake(shared: &Shared, slot: &Slot) {
     if active().is_none() {
-        slot.state.store(state::RUNNING, Ordering::Release);
+        slot.let_go_at_end();
         return;
     }
-    let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
+    slot.make_ready(None);
     notify_scheduler(shared);
     await_turn(shared, slot);
 }
@@ -160,36 +161,26 @@ impl HandOn<'_> {
         }
     }
 
-    /// Give the turn to the ready thread climbsim would give it to (`Shared::next_turn`), if
-    /// climbsim would decide nothing else first: no other thread runs or is being created, none
-    /// waits on what only a look at the kernel tells (whose turn comes first then depends on
-    /// that look), none is in the kernel's waitpid, and nothing was refused.
+    /// Give the turn to the ready thread whose turn it is, if the rule of the turn
+    /// (`Shared::who_decides`) says so: no other thread runs, and climbsim has nothing to decide
+    /// first.
     fn hand_to_next(&self) -> Handing {
-        let (shared, me) = (self.shared, self.me);
+        let shared = self.shared;
         // Against a thread publishing itself at the same moment (a new one ready, say, while this
         // one parks): with a full fence between each one's store of its state and its look at
         // the other's, at least one of the two sees the other, so they never both leave it to
         // the other (see `Handing::OtherRuns`).
         core::sync::atomic::fence(Ordering::SeqCst);
-        if active().is_none() || shared.header.refused.load(Ordering::Acquire) != 0 || shared.must_look(me) {
+        if active().is_none() {
             return Handing::ClimbsimDecides;
         }
-        let mut other_runs = false;
-        for slot in shared.live_slots() {
-            if core::ptr::eq(slot, me) {
-                continue;
-            }
-            match slot.state.load(Ordering::Acquire) {
-                state::RUNNING | state::RESERVED => other_runs = true,
-                state::BLOCKED if slot.waits.load(Ordering::Relaxed) & abi::waits::CHILD != 0 || shared.must_look(slot) => return Handing::ClimbsimDecides,
-                _ => {}
-            }
-        }
-        if other_runs {
-            return Handing::OtherRuns;
-        }
-        let Some(next) = shared.next_turn() else { return Handing::ClimbsimDecides };
-        if next.state.compare_exchange(state::READY, state::RUNNING, Ordering::AcqRel, Ordering::Relaxed).is_err() {
+        // The shim does not read /proc: whether a thread in waitpid returns is climbsim's call.
+        let next = match shared.who_decides(|_, _| ChildWait::Unknown) {
+            Decider::AnotherRuns => return Handing::OtherRuns,
+            Decider::Climbsim(_) => return Handing::ClimbsimDecides,
+            Decider::Turn(next) => next,
+        };
+        if !next.give_turn() {
             return Handing::ClimbsimDecides;
         }
         let header = &shared.header;
@@ -278,14 +269,14 @@ pub(crate) fn charge(shared: &Shared, ns: u64) {
         // clock) gives it up after a quantum, as the kernel's scheduler would: the threads
         // ready meanwhile run first (climbsim puts it after them), whoever they are.
         if target.saturating_sub(TURN_FROM.with(Cell::get)) >= abi::TURN_QUANTUM_NS {
-            park(shared, state::YIELDED, target, abi::waits::TURN, 0);
+            park(shared, Parked::Yielded, target, abi::waits::TURN, 0);
             return;
         }
         if advance_within_horizon(shared, now, target) {
             return;
         }
         if header.now_ns.load(Ordering::Acquire) == now {
-            park(shared, state::YIELDED, target, 0, 0);
+            park(shared, Parked::Yielded, target, 0, 0);
             return;
         }
     }
@@ -297,8 +288,8 @@ pub(crate) fn charge(shared: &Shared, ns: u64) {
 pub(crate) fn yield_turn(shared: &Shared) {
     note_call(shared, abi::call::YIELD);
     charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
-    if shared.live_slots().iter().any(|slot| slot.state.load(Ordering::Acquire) == state::READY) {
-        park(shared, state::YIELDED, sim_now(shared), abi::waits::TURN, 0);
+    if shared.live_slots().iter().any(|slot| slot.state() == state::READY) {
+        park(shared, Parked::Yielded, sim_now(shared), abi::waits::TURN, 0);
     }
 }
 
@@ -323,7 +314,7 @@ pub(crate) fn expect_look(shared: &Shared, slot: &Slot) {
 pub(crate) fn publish_waiting_on_kernel(shared: &Shared, slot: &Slot, deadline: u64, waits: u32, conn_mask: u64) {
     let hand = hand_on(shared, slot);
     expect_look(shared, slot);
-    publish_state(slot, state::BLOCKED, deadline, waits, conn_mask);
+    publish_state(slot, Parked::Blocked, deadline, waits, conn_mask);
     hand.finish();
 }
 
@@ -425,7 +416,7 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
         if slices.is_multiple_of(100) || pause_ns == OWN_LOOKS_AT_MOST_EVERY_NS {
             climbsim_gone(shared);
         }
-        if slot.state.load(Ordering::Acquire) == state::RUNNING {
+        if slot.state() == state::RUNNING {
             let why = slot.release.load(Ordering::Acquire);
             if why == release::SIGNAL && !crate::signals::take_due(slot) {
                 publish();
@@ -434,14 +425,14 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
             return held.map_or(Looked::Released(why), Looked::Found);
         }
         if active().is_none() {
-            slot.state.store(state::RUNNING, Ordering::Release);
+            slot.let_go_at_end();
             return held.map_or(Looked::Ended, Looked::Found);
         }
-        if slot.state.load(Ordering::Acquire) == state::READY {
+        if slot.state() == state::READY {
             // Let go, waiting for its turn: it looks no more (a look now would race the thread
             // that runs).
             let seen = slot.wake_word.load(Ordering::Acquire);
-            if slot.state.load(Ordering::Acquire) == state::READY {
+            if slot.state() == state::READY {
                 sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
             }
             continue;
@@ -469,7 +460,7 @@ const OWN_LOOKS_AT_MOST_EVERY_NS: u64 = 64_000_000;
 /// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on
 /// `waits`, and sleep until climbsim releases it; why it did (`abi::release`). A thread without
 /// a slot cannot be followed: it returns at once, as if its deadline had come.
-pub(crate) fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
+pub(crate) fn park(shared: &Shared, parked: Parked, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
     let Some(slot) = my_slot() else { return release::DEADLINE };
     // A signal fired for this thread while it ran: taken before it waits.
     if slot.signals_due.load(Ordering::Acquire) != 0 && crate::signals::take_due(slot) {
@@ -483,7 +474,7 @@ pub(crate) fn park(shared: &Shared, parked: u32, deadline: u64, waits: u32, conn
 
 /// Publish this thread (whose slot is `slot`) as parked until `deadline` on `waits`; nobody is
 /// told yet (see [`park`]). Its unapplied charges are dropped: a blocked thread costs nothing.
-pub(crate) fn publish_parked(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask: u64) {
+pub(crate) fn publish_parked(slot: &Slot, parked: Parked, deadline: u64, waits: u32, conn_mask: u64) {
     UNAPPLIED.with(|u| u.set(0));
     publish_state(slot, parked, deadline, waits, conn_mask);
 }
@@ -511,7 +502,7 @@ impl Drop for PortSeen {
 }
 
 /// The slot's wait (until `deadline`, on `waits`), then its state, which makes it seen.
-pub(crate) fn publish_state(slot: &Slot, parked: u32, deadline: u64, waits: u32, conn_mask: u64) {
+pub(crate) fn publish_state(slot: &Slot, parked: Parked, deadline: u64, waits: u32, conn_mask: u64) {
     let seen = PORT_SEEN.with(Cell::get);
     // SAFETY: a registration's entry in epoll.rs's static table.
     slot.port_seen.store(if seen.is_null() { 0 } else { unsafe { (*seen).load(Ordering::Relaxed) } }, Ordering::Relaxed);
@@ -519,22 +510,24 @@ pub(crate) fn publish_state(slot: &Slot, parked: u32, deadline: u64, waits: u32,
     slot.waits.store(waits, Ordering::Relaxed);
     slot.conn_mask.store(conn_mask, Ordering::Relaxed);
     slot.release.store(0, Ordering::Relaxed);
-    slot.state.store(parked, Ordering::Release);
+    // A slot taken from its thread meanwhile (exited with its process) stays so: its wait
+    // lasts until the run ends, or the process does.
+    let _ = slot.park(parked);
 }
 
 /// Sleep, parked as [`publish_parked`] published, until climbsim (or a waker) lets this thread
 /// go; why (`abi::release`).
-pub(crate) fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline: u64) -> u32 {
+pub(crate) fn await_release(shared: &Shared, slot: &Slot, parked: Parked, deadline: u64) -> u32 {
     spin_while_not_running(shared, slot);
     loop {
         let seen = slot.wake_word.load(Ordering::Acquire);
-        if slot.state.load(Ordering::Acquire) == state::RUNNING {
+        if slot.state() == state::RUNNING {
             let why = slot.release.load(Ordering::Acquire);
             // A signal timer fired for this thread: it sends itself the signal, and waits on
             // unless the signal interrupts the wait.
             if why == release::SIGNAL && !crate::signals::take_due(slot) {
                 slot.release.store(0, Ordering::Relaxed);
-                slot.state.store(parked, Ordering::Release);
+                let _ = slot.park(parked);
                 notify_scheduler(shared);
                 continue;
             }
@@ -542,7 +535,7 @@ pub(crate) fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline:
             // a real descriptor or a peer, before climbsim's decision landed): wait on.
             if why != release::DATA && why != release::ENDING && why != release::SIGNAL && deadline != abi::NEVER && sim_now(shared) < deadline {
                 slot.release.store(0, Ordering::Relaxed);
-                slot.state.store(parked, Ordering::Release);
+                let _ = slot.park(parked);
                 notify_scheduler(shared);
                 continue;
             }
@@ -551,7 +544,7 @@ pub(crate) fn await_release(shared: &Shared, slot: &Slot, parked: u32, deadline:
             return why;
         }
         if run_over(shared) {
-            slot.state.store(state::RUNNING, Ordering::Release);
+            slot.let_go_at_end();
             return release::ENDING;
         }
         sleep_on_wake_word(shared, slot, seen);

@@ -20,19 +20,19 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
         return None;
     }
     // The task may hold a slot already (a followed process that execs): it keeps it.
-    if tid != 0 && shared.live_slots().iter().any(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED)) {
+    if tid != 0 && shared.live_slots().iter().any(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state(), state::RUNNING | state::RESERVED)) {
         return None;
     }
     // A child of posix_spawn (whose exec glibc makes inside, where only the trap sees it) finds
     // the slot its parent reserved for it before the clone: it is this task's, not a second one.
     if tid != 0 {
         let parent = sys::getppid();
-        if let Some(ours) = shared.live_slots().iter().find(|s| s.state.load(Ordering::Acquire) == state::RESERVED && s.tid.load(Ordering::Relaxed) == 0 && s.pid.load(Ordering::Relaxed) == parent) {
+        if let Some(ours) = shared.live_slots().iter().find(|s| s.state() == state::RESERVED && s.tid.load(Ordering::Relaxed) == 0 && s.pid.load(Ordering::Relaxed) == parent) {
             ours.tid.store(tid, Ordering::Release);
             return None;
         }
     }
-    let (_, slot) = crate::take_free_slot(shared, state::RESERVED)?;
+    let (_, slot) = crate::take_free_slot(shared, Slot::reserve_unused)?;
     slot.pid.store(if tid == 0 { parent } else { tid }, Ordering::Relaxed);
     // The program to come is a child of `parent` (fork, posix_spawn), or of this process's
     // parent (an exec: the same process).
@@ -44,7 +44,7 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
 /// An exec failed: the reservation goes.
 fn unreserve(slot: Option<&'static Slot>) {
     if let Some(slot) = slot
-        && slot.state.compare_exchange(state::RESERVED, state::FREE, Ordering::AcqRel, Ordering::Relaxed).is_ok()
+        && slot.unreserve()
         && let Some(shared) = shared()
     {
         crate::notify_scheduler(shared);
@@ -89,18 +89,18 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     let Some(shared) = shared() else { return run() };
     // An exec made inside another of this task's (libc's execve, whose own call traps): the
     // outer one has said it all.
-    if shared.live_slots().iter().any(|s| s.tid.load(Ordering::Relaxed) == tid && s.state.load(Ordering::Acquire) == state::EXITED && s.exec_marker_fd.load(Ordering::Acquire) > 0) {
+    if shared.live_slots().iter().any(|s| s.tid.load(Ordering::Relaxed) == tid && s.state() == state::EXITED && s.exec_marker_fd.load(Ordering::Acquire) > 0) {
         return run();
     }
     // The new program will not delete its earlier image's timers itself (see `init`). (Should
     // the exec fail, they are gone: an edge left as it is.)
     crate::signals::delete_posix_timers_of(sys::getpid());
-    let mine = shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED));
+    let mine = shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state(), state::RUNNING | state::RESERVED));
     let marker = exec_marker();
     // Exited, and no longer this process's: a parent waiting for it waits on the real world.
     // A task without a slot (a vfork child, which runs on its parent's) takes one to say so.
     let leaving = match mine {
-        Some(slot) => Some((slot, slot.state.load(Ordering::Acquire), slot.pid.swap(0, Ordering::AcqRel))),
+        Some(slot) => Some((slot, slot.state(), slot.pid.swap(0, Ordering::AcqRel))),
         None if marker > 0 => slot_of_its_own(shared, tid, 0, 0).map(|slot| (slot, state::FREE, 0)),
         None => None,
     };
@@ -117,7 +117,7 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
             slot.tid.store(0, Ordering::Relaxed);
         }
         slot.pid.store(pid_before, Ordering::Relaxed);
-        slot.state.store(state_before, Ordering::Release);
+        slot.exec_failed(state_before);
     }
     if marker > 0 {
         native::call1(sys::nr::CLOSE, marker.into());
@@ -129,7 +129,7 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
 /// process's), which has none of its own (a vfork child runs on its parent's), to say that it
 /// leaves.
 fn slot_of_its_own(shared: &Shared, tid: i32, pid: i32, parent: i32) -> Option<&Slot> {
-    let (_, slot) = crate::take_free_slot(shared, state::RESERVED)?;
+    let (_, slot) = crate::take_free_slot(shared, Slot::reserve_unused)?;
     slot.parent.store(parent, Ordering::Relaxed);
     slot.pid.store(pid, Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
@@ -141,7 +141,7 @@ fn slot_of_its_own(shared: &Shared, tid: i32, pid: i32, parent: i32) -> Option<&
 fn say_left(shared: &Shared, slot: &Slot, marker: c_int) {
     slot.exec_marker_fd.store(marker, Ordering::Relaxed);
     slot.exited_ns.store(crate::now::sim_now(shared), Ordering::Relaxed);
-    slot.state.store(state::EXITED, Ordering::Release);
+    slot.exit();
     crate::notify_scheduler(shared);
 }
 

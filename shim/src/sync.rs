@@ -102,7 +102,7 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
     publish();
     let (mut told, mut held) = (false, None);
     let result = loop {
-        if slot.state.load(Ordering::Acquire) == state::RUNNING {
+        if slot.state() == state::RUNNING {
             match slot.release.load(Ordering::Acquire) {
                 // (A join a look of its own made is the wait's result.)
                 release::DEADLINE => break held.unwrap_or(ETIMEDOUT),
@@ -126,18 +126,18 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
             }
         }
         if active().is_none() {
-            slot.state.store(state::RUNNING, Ordering::Release);
+            slot.let_go_at_end();
             if let Some(rc) = held {
                 break rc;
             }
             break slice_until(shared, deadline, slice);
         }
-        if slot.state.load(Ordering::Acquire) == state::READY || shared.joins_live_thread(slot) {
+        if slot.state() == state::READY || shared.joins_live_thread(slot) {
             // Marked ready by the thread joined as it ended, or that thread is followed and has
             // not ended (nothing else can wake this one): nothing to look at until the turn
             // comes.
             let seen = slot.wake_word.load(Ordering::Acquire);
-            if slot.state.load(Ordering::Acquire) != state::RUNNING {
+            if slot.state() != state::RUNNING {
                 sys::futex_wait(&slot.wake_word, seen, SLICE_NS);
             }
             continue;
@@ -181,12 +181,12 @@ fn wake_peers(addr: usize) {
     }
     let me = pid();
     for slot in shared.live_slots() {
-        if slot.state.load(Ordering::Acquire) == state::BLOCKED
+        if slot.state() == state::BLOCKED
             && slot.waits.load(Ordering::Relaxed) == waits::PEER
             && slot.conn_mask.load(Ordering::Relaxed) == addr as u64
             && slot.pid.load(Ordering::Relaxed) == me
         {
-            let _ = slot.state.compare_exchange(state::BLOCKED, state::READY, Ordering::AcqRel, Ordering::Relaxed);
+            slot.make_ready(None);
         }
     }
 }

@@ -12,7 +12,7 @@
 use core::ffi::c_int;
 use core::sync::atomic::Ordering;
 
-use crate::abi::{Shared, call, release, state, waits};
+use crate::abi::{Parked, Shared, call, release, waits};
 use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
 use crate::time::{from_ns, sim_now, to_ns};
 use crate::Looked;
@@ -174,7 +174,7 @@ pub(crate) fn park_blocked(shared: &'static Shared, deadline: u64, waits: u32, c
     if waits & waits::PORT != 0 {
         crate::held::bound_horizon(shared);
     }
-    park(shared, state::BLOCKED, deadline, waits, conn_mask)
+    park(shared, Parked::Blocked, deadline, waits, conn_mask)
 }
 
 /// A look at the port that found nothing, at simulated time `now`: time goes on to the next
@@ -191,7 +191,7 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
     let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire).min(held_due);
     let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
     if target <= now || !crate::advance_within_horizon(shared, now, target) {
-        park(shared, state::YIELDED, target.max(now), waits::SPIN | waits::PORT, 0);
+        park(shared, Parked::Yielded, target.max(now), waits::SPIN | waits::PORT, 0);
     }
 }
 

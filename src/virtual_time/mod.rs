@@ -12,7 +12,7 @@
 //!
 //! A layer of its own below `transport`: it knows nothing of the bus or the world.
 
-#[path = "../../shim/src/abi.rs"]
+#[path = "../../shim/src/abi/mod.rs"]
 pub mod abi;
 mod block;
 mod held;
@@ -37,7 +37,7 @@ use std::time::Duration;
 use thiserror::Error;
 
 use abi::{NEVER, mode, release, state};
-use turns::let_run;
+use turns::wake;
 use block::Block;
 pub use held::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, await_pty_hand_over};
 pub use shim_file::{shim_bytes, shim_path};
@@ -248,12 +248,14 @@ impl VirtualTime {
     }
 
     fn controller_attached(&self) -> bool {
-        self.shared().live_slots().iter().any(|s| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY))
+        self.shared().live_slots().iter().any(|s| matches!(s.state(), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY))
     }
 
     /// Hold time until the process about to be started has loaded the shim (it takes this slot).
     pub fn reserve_process(&self) {
-        self.shared().slots[0].state.store(state::RESERVED, Ordering::Release);
+        if !self.shared().slots[0].reserve_process() {
+            tracing::warn!("virtual time: slot 0 was in use when the controller's process was to start; it starts unreserved");
+        }
     }
 
     /// The reserved process's pid, once started (for the watchdog).
@@ -270,7 +272,7 @@ impl VirtualTime {
     pub fn first_process_ended_before(&self, at: Duration) -> bool {
         let slot = &self.shared().slots[0];
         let at = u64::try_from(at.as_nanos()).unwrap_or(NEVER);
-        slot.state.load(Ordering::Acquire) == state::EXITED && slot.exited_ns.load(Ordering::Relaxed) < at
+        slot.state() == state::EXITED && slot.exited_ns.load(Ordering::Relaxed) < at
     }
 
     /// Bytes the controller sent that climbsim has not read yet (on the port or to the sensor
@@ -320,11 +322,14 @@ impl VirtualTime {
         // the cycle, so that the block is removed when the run lets go of it.
         drop(std::mem::take(&mut *lock(&self.driven)));
         for slot in self.shared().live_slots() {
-            match slot.state.load(Ordering::Acquire) {
-                state::BLOCKED | state::YIELDED => let_run(slot, release::ENDING),
+            match slot.state() {
+                state::BLOCKED | state::YIELDED => slot.release.store(release::ENDING, Ordering::Relaxed),
                 // Keeps the reason it was let go for.
-                state::READY => let_run(slot, slot.release.load(Ordering::Acquire)),
-                _ => {}
+                state::READY => {}
+                _ => continue,
+            }
+            if slot.let_go_at_end() {
+                wake(slot);
             }
         }
     }

@@ -78,7 +78,7 @@ impl RealWorld {
             if asked.elapsed() > UNANSWERED {
                 // One that never answers may have been killed (SIGKILL runs no clean-up).
                 for slot in waiting().filter(|s| s.checked_epoch.load(Ordering::Acquire) != epoch && !alive(s)) {
-                    slot.state.store(state::EXITED, Ordering::Release);
+                    slot.write_off();
                 }
             }
             return false;
@@ -91,7 +91,7 @@ impl RealWorld {
     fn any_exiting(&mut self, shared: &Shared) -> bool {
         let mut exiting = false;
         for (index, slot) in shared.live_slots().iter().enumerate() {
-            if slot.state.load(Ordering::Acquire) != state::EXITED {
+            if slot.state() != state::EXITED {
                 self.exiting_since[index] = None;
                 continue;
             }
@@ -147,5 +147,5 @@ fn alive(slot: &Slot) -> bool {
 /// The thread also holds another slot that is in use (one it moved to, as a thread created
 /// with explicit scheduling does).
 fn followed_elsewhere(shared: &Shared, index: usize, tid: i32) -> bool {
-    shared.live_slots().iter().enumerate().any(|(other, s)| other != index && s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+    shared.live_slots().iter().enumerate().any(|(other, s)| other != index && s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state(), state::FREE | state::EXITED))
 }

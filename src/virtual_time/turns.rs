@@ -7,6 +7,7 @@
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
+use super::abi::protocol::{ChildWait, Decider};
 use super::abi::{self, NEVER, Slot, release, state, waits};
 use super::{VirtualTime, futex_wake, lock, watchdog};
 
@@ -16,10 +17,12 @@ impl VirtualTime {
     /// thread that gave its turn up after a quantum comes after every other ready one.
     pub(super) fn give_turn(&self) -> bool {
         let ready = self.shared().next_turn();
-        if let Some(slot) = ready {
+        if let Some(slot) = ready
+            && slot.give_turn()
+        {
             lock(&self.stats).turns += 1;
             self.shared().header.turns_given.fetch_add(1, Ordering::Release);
-            let_run(slot, slot.release.load(Ordering::Acquire));
+            wake(slot);
         }
         ready.is_some()
     }
@@ -41,12 +44,12 @@ impl VirtualTime {
             .live_slots()
             .iter()
             .enumerate()
-            .filter(|(_, s)| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+            .filter(|(_, s)| !matches!(s.state(), state::FREE | state::EXITED))
             .map(|(i, s)| {
                 let deadline = s.deadline_ns.load(Ordering::Relaxed);
                 let until = if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) };
                 let (tid, waits, last) = (s.tid.load(Ordering::Relaxed), s.waits.load(Ordering::Relaxed), abi::call::name(s.last_call.load(Ordering::Relaxed)));
-                format!("#{i} tid {tid} {} waits {waits:#x} until {until} last {last}", state::name(s.state.load(Ordering::Acquire)))
+                format!("#{i} tid {tid} {} waits {waits:#x} until {until} last {last}", state::name(s.state()))
             })
             .collect();
         threads.join("; ")
@@ -58,14 +61,12 @@ impl VirtualTime {
     pub(super) fn any_running(&self) -> bool {
         let header = &self.shared().header;
         let ended = header.hand_ons_ended.load(Ordering::SeqCst);
-        let slots = self.shared().live_slots();
-        let running = slots.iter().any(|s| match s.state.load(Ordering::Acquire) {
-            state::RUNNING | state::RESERVED => true,
-            // In waitpid: blocked only while a followed child it waits for lives; else the
-            // kernel is about to return it (its child has just ended).
-            state::BLOCKED if s.waits.load(Ordering::Relaxed) == waits::CHILD => !waits_on_live_child(slots, s) && !watchdog::has_unfollowed_child(slots, s),
-            _ => false,
-        });
+        // In waitpid: blocked only while a child it waits for lives; else the kernel is about
+        // to return it (its child has just ended).
+        let child_wait = |slots: &[Slot], s: &Slot| {
+            if waits_on_live_child(slots, s) || watchdog::has_unfollowed_child(slots, s) { ChildWait::Blocked } else { ChildWait::Returning }
+        };
+        let running = matches!(self.shared().who_decides(child_wait), Decider::AnotherRuns);
         running || {
             let begun = header.hand_ons_begun.load(Ordering::SeqCst);
             let mut hand_ons = lock(&self.hand_ons);
@@ -140,22 +141,13 @@ pub(super) fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
     let pid = parent.pid.load(Ordering::Relaxed);
     let awaited = parent.conn_mask.load(Ordering::Relaxed) as i64;
     slots.iter().any(|child| {
-        let live = matches!(child.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY);
+        let live = matches!(child.state(), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY);
         live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
     })
 }
 
-/// Let a parked thread go, saying why.
-/// Let a parked thread go at its instant: ready, to run in its turn (see [`VirtualTime::give_turn`]).
-pub(super) fn release_slot(slot: &Slot, why: u32) {
-    slot.release.store(why, Ordering::Relaxed);
-    slot.state.store(state::READY, Ordering::Release);
-}
-
-/// Let a thread run now (its turn, or every thread once the run is over).
-pub(super) fn let_run(slot: &Slot, why: u32) {
-    slot.release.store(why, Ordering::Relaxed);
-    slot.state.store(state::RUNNING, Ordering::Release);
+/// Wake a thread that was given the turn, or let go at the run's end.
+pub(super) fn wake(slot: &Slot) {
     slot.wake_word.fetch_add(1, Ordering::AcqRel);
     futex_wake(&slot.wake_word);
 }
@@ -187,7 +179,7 @@ impl VirtualTime {
         // together, about one run in 60 beside two busy loops).
         let mut ready_already = false;
         for slot in self.shared().live_slots() {
-            let parked = slot.state.load(Ordering::Acquire);
+            let parked = slot.state();
             ready_already |= parked == state::READY;
             if parked != state::BLOCKED && parked != state::YIELDED {
                 continue;
@@ -230,7 +222,7 @@ impl VirtualTime {
                     release::DATA => stats.released_for_data += 1,
                     _ => stats.released_at_deadline += 1,
                 }
-                release_slot(slot, why);
+                slot.make_ready(Some(why));
             }
             drop(stats);
             // Every thread is parked here: the first of them runs at once, while the world
@@ -254,6 +246,7 @@ pub(super) struct LetGo {
 mod tests {
     use super::*;
     use crate::virtual_time::VtSettings;
+    use abi::Parked;
 
     /// A thread whose own look at the kernel found what woke it marks itself ready; if
     /// climbsim's look at the same instant passed it over, time moved on while it waited for
@@ -264,13 +257,13 @@ mod tests {
         let shared = vt.shared();
         shared.header.slots_high.store(2, Ordering::Release);
         let (ready, blocked) = (&shared.slots[0], &shared.slots[1]);
-        ready.state.store(state::READY, Ordering::Release);
+        assert!(ready.claim_unused() && ready.park(Parked::Blocked) && ready.make_ready(None));
         blocked.deadline_ns.store(9_000, Ordering::Relaxed);
-        blocked.state.store(state::BLOCKED, Ordering::Release);
+        assert!(blocked.claim_unused() && blocked.park(Parked::Blocked));
         let plan = vt.let_go_at(5_000, NEVER, 7_000);
         assert!(plan.released, "a ready thread runs at this instant: no jump to {}", plan.next);
-        assert_eq!(ready.state.load(Ordering::Acquire), state::RUNNING, "it has the turn");
-        assert_eq!(blocked.state.load(Ordering::Acquire), state::BLOCKED, "the other waits on");
+        assert_eq!(ready.state(), state::RUNNING, "it has the turn");
+        assert_eq!(blocked.state(), state::BLOCKED, "the other waits on");
     }
 
     /// Reply bytes that never reached the controller's side of the pty make the run fail at
@@ -303,7 +296,7 @@ mod tests {
         slot.pid.store(std::process::id() as i32, Ordering::Relaxed);
         // SAFETY: gettid has no arguments and cannot fail.
         slot.tid.store(unsafe { libc::gettid() }, Ordering::Relaxed);
-        slot.state.store(state::BLOCKED, Ordering::Release);
+        assert!(slot.claim_unused() && slot.park(Parked::Blocked));
         slot.handing.store(1, Ordering::SeqCst);
         for _ in 0..3 {
             assert!(vt.any_running(), "a live thread is handing its turn on");

@@ -103,7 +103,7 @@ impl Watchdog {
             self.liveness = Instant::now();
             for (_, slot) in running(shared) {
                 if matches!(task_state(slot), TaskState::Gone) || reserved_thread_orphaned(slot) {
-                    slot.state.store(state::EXITED, Ordering::Release);
+                    slot.write_off();
                 }
             }
         }
@@ -129,7 +129,7 @@ impl Watchdog {
                 computing |= thread.computing;
                 continue;
             }
-            if slot.state.load(Ordering::Acquire) == state::RESERVED {
+            if slot.state() == state::RESERVED {
                 return Err(VtError::Stuck(describe(slot, Judged::NoShim, quiet)));
             }
             match task_state(slot) {
@@ -196,7 +196,7 @@ impl Watchdog {
 }
 
 fn running(shared: &Shared) -> impl Iterator<Item = (usize, &Slot)> {
-    shared.live_slots().iter().enumerate().filter(|(_, s)| matches!(s.state.load(Ordering::Acquire), state::RUNNING | state::RESERVED))
+    shared.live_slots().iter().enumerate().filter(|(_, s)| matches!(s.state(), state::RUNNING | state::RESERVED))
 }
 
 enum TaskState {
@@ -231,7 +231,7 @@ pub(super) fn lives(path: &str) -> bool {
 /// the shim.
 fn reserved_thread_orphaned(slot: &Slot) -> bool {
     let (pid, tid) = (slot.pid.load(Ordering::Relaxed), slot.tid.load(Ordering::Relaxed));
-    slot.state.load(Ordering::Acquire) == state::RESERVED && tid < 0 && pid > 0 && !lives(&format!("/proc/{pid}/stat"))
+    slot.state() == state::RESERVED && tid < 0 && pid > 0 && !lives(&format!("/proc/{pid}/stat"))
 }
 
 /// The pid of the process tracing the slot's thread, if it is a followed one (it has a live
@@ -239,7 +239,7 @@ fn reserved_thread_orphaned(slot: &Slot) -> bool {
 fn followed_tracer(shared: &Shared, slot: &Slot) -> Option<i32> {
     let status = std::fs::read_to_string(format!("{}/status", stat_path(slot)?)).ok()?;
     let tracer: i32 = status.lines().find_map(|line| line.strip_prefix("TracerPid:"))?.trim().parse().ok()?;
-    let followed = shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == tracer && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED));
+    let followed = shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == tracer && !matches!(s.state(), state::FREE | state::EXITED));
     (tracer > 0 && followed).then_some(tracer)
 }
 
@@ -329,10 +329,10 @@ fn livelock(shared: &Shared, after: Duration, now: u64) -> String {
     let threads: Vec<String> = shared
         .live_slots()
         .iter()
-        .filter(|s| !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED))
+        .filter(|s| !matches!(s.state(), state::FREE | state::EXITED))
         .map(|slot| {
             let (thread, task) = thread_name(slot);
-            let followed = state::name(slot.state.load(Ordering::Acquire));
+            let followed = state::name(slot.state());
             let kernel = match task_state(slot) {
                 TaskState::Other(letter) => format!("{letter}, in {}", syscall_inside(&task)),
                 TaskState::Stopped => "stopped".to_owned(),
@@ -369,7 +369,7 @@ fn cpu_ns(slot: &Slot) -> Option<u64> {
 /// parent is about to be woken.
 pub fn has_unfollowed_child(slots: &[Slot], slot: &Slot) -> bool {
     let pid = slot.pid.load(Ordering::Relaxed);
-    let followed = |child: i32| slots.iter().any(|s| s.state.load(Ordering::Acquire) != state::FREE && s.pid.load(Ordering::Relaxed) == child);
+    let followed = |child: i32| slots.iter().any(|s| s.state() != state::FREE && s.pid.load(Ordering::Relaxed) == child);
     // Each thread's own children (another thread may have started the one waited for).
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
     tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("children")).ok()).any(|children| {

@@ -135,7 +135,7 @@ const SENT_AS_THEY_ARE: [c_int; 4] = [0, 9, 18, 19];
 
 /// The process a followed thread `tid` belongs to.
 fn pid_of_thread(shared: &Shared, tid: i32) -> Option<i32> {
-    shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state.load(Ordering::Acquire), state::FREE | state::EXITED)).map(|s| s.pid.load(Ordering::Relaxed))
+    shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state(), state::FREE | state::EXITED)).map(|s| s.pid.load(Ordering::Relaxed))
 }
 
 /// `kill`, `tgkill` or `tkill` of a followed process or thread (`tid` 0: the process) by
@@ -167,12 +167,8 @@ fn send_followed(shared: &Shared, pid: i32, tid: i32, signo: c_int) -> Option<c_
     // Parked where the shim waits: ready, with the signal for its reason (a thread in the
     // kernel's waitpid takes it when it parks next).
     if taker.waits.load(Ordering::Relaxed) & crate::abi::waits::CHILD == 0 {
-        taker.release.store(release::SIGNAL, Ordering::Release);
-        for parked in [state::BLOCKED, state::YIELDED] {
-            if taker.state.compare_exchange(parked, state::READY, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
-                crate::notify_scheduler(shared);
-                break;
-            }
+        if taker.make_ready(Some(release::SIGNAL)) {
+            crate::notify_scheduler(shared);
         }
     }
     Some(0)

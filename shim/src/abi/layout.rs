@@ -1,10 +1,8 @@
-//! The shared-memory block between climbsim and the shim in each controller process. Compiled
-//! into both (climbsim includes this file by path), so the two always agree on the layout; the
-//! ABI number guards against a shim file left over from another climbsim.
+//! The shared-memory block's layout: what the block holds and who writes each field (C =
+//! climbsim, S = the shim). A slot's state is changed only by `protocol.rs`.
 //!
 //! Every field is an atomic: the block is a file mapped `MAP_SHARED` by processes that do not
-//! trust one another's timing. A zero-filled file is a valid, empty block. Who writes what:
-//! C = climbsim, S = the shim.
+//! trust one another's timing. A zero-filled file is a valid, empty block.
 
 use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, AtomicU64};
 
@@ -91,36 +89,6 @@ pub mod refused {
             return None;
         };
         Some(format!("virtual time follows at most {limit} {what}, and the controller needed more: the one past them could not be followed (run it with --clock wall)"))
-    }
-}
-
-/// `Slot::state`.
-pub mod state {
-    pub const FREE: u32 = 0;
-    /// Claimed by climbsim for a process about to start (counts as running).
-    pub const RESERVED: u32 = 1;
-    pub const RUNNING: u32 = 2;
-    /// In an intercepted wait: released by climbsim at its deadline or when its data is there.
-    pub const BLOCKED: u32 = 3;
-    /// Gave time up to a due instant (a charge past the horizon, a spin on an empty port).
-    pub const YIELDED: u32 = 4;
-    pub const EXITED: u32 = 5;
-    /// Free to run (let go by climbsim at its instant, or woken by the thread that ran): runs
-    /// when climbsim gives it the turn. One followed thread runs at a time, in an order that
-    /// does not depend on the host's scheduling, so that runs repeat exactly.
-    pub const READY: u32 = 6;
-
-    pub fn name(state: u32) -> &'static str {
-        match state {
-            FREE => "free",
-            RESERVED => "starting",
-            RUNNING => "running",
-            BLOCKED => "blocked",
-            YIELDED => "yielded",
-            EXITED => "exited",
-            READY => "ready",
-            _ => "?",
-        }
     }
 }
 
@@ -333,8 +301,8 @@ pub struct HeldRun {
 
 #[repr(C)]
 pub struct Slot {
-    /// See [`state`].
-    pub state: AtomicU32,
+    /// See [`super::protocol`]: private to `abi`, changed only by its transitions.
+    pub(super) state: AtomicU32,
     /// C bumps it (and wakes the futex) to release a blocked or yielded thread.
     pub wake_word: AtomicU32,
     pub pid: AtomicI32,
@@ -527,8 +495,8 @@ impl Shared {
     /// process). A thread parked where the shim waits comes before one blocked in the kernel's
     /// waitpid, which would take it only when it returns.
     pub fn signal_taker(&self, pid: i32, tid: i32, signo: u32) -> Option<&Slot> {
-        use core::sync::atomic::Ordering::{Acquire, Relaxed};
-        let live = |s: &&Slot| !matches!(s.state.load(Acquire), state::FREE | state::EXITED) && s.tid.load(Relaxed) > 0;
+        use core::sync::atomic::Ordering::Relaxed;
+        let live = |s: &&Slot| s.is_live() && s.tid.load(Relaxed) > 0;
         let threads = || self.live_slots().iter().filter(move |s| s.pid.load(Relaxed) == pid).filter(live);
         if tid != 0 {
             return threads().find(|s| s.tid.load(Relaxed) == tid);
@@ -546,37 +514,6 @@ impl Shared {
             .or_else(|| threads().find(lets_through))
             .or_else(|| threads().find(main))
             .or_else(|| threads().next())
-    }
-
-    /// The ready thread whose turn it is: the one in the lowest slot, one that gave its turn up
-    /// after a quantum after every other (so the order never depends on which thread the host
-    /// happened to schedule first). Both climbsim and a thread handing its turn on pick by it.
-    pub fn next_turn(&self) -> Option<&Slot> {
-        use core::sync::atomic::Ordering::{Acquire, Relaxed};
-        let slots = self.live_slots();
-        let ready = |s: &&Slot| s.state.load(Acquire) == state::READY;
-        slots.iter().filter(ready).find(|s| s.waits.load(Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready))
-    }
-
-    /// `waiter` joins a thread that is followed and has not ended: it is blocked until that
-    /// thread ends, which marks it ready as it goes (so nobody need look at the kernel for it).
-    pub fn joins_live_thread(&self, waiter: &Slot) -> bool {
-        use core::sync::atomic::Ordering::{Acquire, Relaxed};
-        if waiter.waits.load(Relaxed) != waits::PEER {
-            return false;
-        }
-        let (pid, thread) = (waiter.pid.load(Relaxed), waiter.conn_mask.load(Relaxed));
-        self.live_slots().iter().any(|s| {
-            // A reserved slot's thread has not claimed it yet: what it holds is its last one's.
-            !matches!(s.state.load(Acquire), state::FREE | state::EXITED | state::RESERVED) && s.thread.load(Relaxed) == thread && s.pid.load(Relaxed) == pid && !core::ptr::eq(s, waiter)
-        })
-    }
-
-    /// `slot` waits on what the kernel wakes (a descriptor climbsim does not model, a thread
-    /// that is not followed or is going away): only a look tells whether it is still blocked.
-    pub fn must_look(&self, slot: &Slot) -> bool {
-        use core::sync::atomic::Ordering::{Acquire, Relaxed};
-        slot.state.load(Acquire) == state::BLOCKED && slot.waits.load(Relaxed) & (waits::OTHER | waits::PEER) != 0 && !self.joins_live_thread(slot)
     }
 
     /// The signal timers that have ever been taken (those past them are free).

@@ -1,0 +1,586 @@
+//! A followed thread's state, and the only code that changes it.
+//!
+//! Every controller thread the shim follows has a [`Slot`]; its state says who may act on it.
+//! One followed thread runs at a time: climbsim, or a thread that parks, gives the turn to the
+//! ready thread whose turn it is ([`Shared::next_turn`]), so that the interleaving of a
+//! controller's threads never depends on the host's scheduling. `Slot::state` is private to
+//! the `abi` module; the shim and climbsim read it through [`Slot::state`] and change it only
+//! through the named transitions below, each a compare-and-swap from the states it is allowed
+//! from. A transition that finds the slot in another state changes nothing and says so: the
+//! slot was taken from its thread meanwhile (written off, exited with its process).
+//!
+//! Who: S = the shim (own: the slot's own thread; any: another thread of the controller),
+//! C = climbsim.
+//!
+//! | transition | from | to | who, where |
+//! |---|---|---|---|
+//! | [`Slot::reserve_unused`] | free, exited (and not handing on) | starting | S any: a thread about to be created, an exec, a trapped clone |
+//! | [`Slot::reserve_process`] | free, exited | starting | C: slot 0, for the process it starts |
+//! | [`Slot::claim_unused`] | free, exited (and not handing on) | running | S own: a thread's first followed call, with no reservation |
+//! | [`Slot::claim_reservation`] | starting | running | S own: the reservation made for this thread or process |
+//! | [`Slot::unreserve`] | starting | free | S any: a creation or an exec that failed |
+//! | [`Slot::start_in_turn`] | starting, running | ready | S own: a new thread or process waits for its first turn |
+//! | [`Slot::park`] | running | blocked, yielded | S own: a wait, or time given up |
+//! | [`Slot::make_ready`] | blocked, yielded | ready | C: at its instant; S any: a waker (futex, peer, child, signal); S own: the kernel woke it |
+//! | [`Slot::give_turn`] | ready | running | C, or S any: a thread handing the turn on as it parks |
+//! | [`Slot::let_go_at_end`] | blocked, yielded, ready | running | C: the run ended; S own: the run ended or climbsim is gone |
+//! | [`Slot::exit`] | starting, running, blocked, yielded, ready, exited | exited | S: a thread's end, its process's end, an exec out of the followed world |
+//! | [`Slot::exec_failed`] | exited | the state before | S own: the exec that left returned |
+//! | [`Slot::write_off`] | starting, running, blocked, yielded, ready | exited | C: the thread is gone from the host (`/proc`) |
+//!
+//! Every transition but [`Slot::exec_failed`] publishes with `Release` what the slot's other
+//! fields say (a parked thread's deadline and wait, a release's reason), so that whoever sees
+//! the new state with `Acquire` sees them.
+
+use core::sync::atomic::Ordering::{AcqRel, Acquire, Relaxed, Release, SeqCst};
+
+use super::layout::{Shared, Slot, waits};
+
+/// `Slot::state`.
+pub mod state {
+    pub const FREE: u32 = 0;
+    /// Taken for a thread or process about to start (counts as running: climbsim decides
+    /// nothing until it has claimed the slot and parked).
+    pub const RESERVED: u32 = 1;
+    /// Has the turn (or runs on the wall clock after the run's end).
+    pub const RUNNING: u32 = 2;
+    /// In an intercepted wait: let go by climbsim at its deadline or when its data is there, or
+    /// by the thread that wakes it.
+    pub const BLOCKED: u32 = 3;
+    /// Gave time up to a due instant (a charge past the horizon, a quantum used up, a spin on an
+    /// empty port).
+    pub const YIELDED: u32 = 4;
+    pub const EXITED: u32 = 5;
+    /// Free to run (let go at its instant, or woken by the thread that ran): runs when it is
+    /// given the turn.
+    pub const READY: u32 = 6;
+
+    pub fn name(state: u32) -> &'static str {
+        match state {
+            FREE => "free",
+            RESERVED => "starting",
+            RUNNING => "running",
+            BLOCKED => "blocked",
+            YIELDED => "yielded",
+            EXITED => "exited",
+            READY => "ready",
+            _ => "?",
+        }
+    }
+}
+
+use state::{BLOCKED, EXITED, FREE, READY, RESERVED, RUNNING, YIELDED};
+
+/// How a running thread parks (see [`Slot::park`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Parked {
+    /// In a wait: let go at its deadline, when its data is there, or by a waker.
+    Blocked,
+    /// Gave time up: let go at its instant.
+    Yielded,
+}
+
+impl Parked {
+    pub fn state(self) -> u32 {
+        match self {
+            Parked::Blocked => BLOCKED,
+            Parked::Yielded => YIELDED,
+        }
+    }
+}
+
+/// The states a thread is followed in (a slot that is neither free nor exited).
+const LIVE: &[u32] = &[RESERVED, RUNNING, BLOCKED, YIELDED, READY];
+const UNUSED: &[u32] = &[FREE, EXITED];
+const PARKED: &[u32] = &[BLOCKED, YIELDED];
+
+impl Slot {
+    /// The slot's state (see [`state`]).
+    pub fn state(&self) -> u32 {
+        self.state.load(Acquire)
+    }
+
+    /// The slot is followed: neither free nor exited.
+    pub fn is_live(&self) -> bool {
+        LIVE.contains(&self.state())
+    }
+
+    /// Move from any of `from` to `to`; the state found if it was in none of them.
+    fn transition(&self, from: &[u32], to: u32) -> Result<u32, u32> {
+        let mut found = self.state.load(Acquire);
+        loop {
+            if !from.contains(&found) {
+                return Err(found);
+            }
+            match self.state.compare_exchange(found, to, AcqRel, Acquire) {
+                Ok(was) => return Ok(was),
+                Err(now) => found = now,
+            }
+        }
+    }
+
+    /// Take an unused slot (free, or its thread ended) as `to`; not while its thread hands its
+    /// turn on as it ends (nor after it died doing so: climbsim then writes the hand-over off
+    /// and clears the mark).
+    fn take_unused(&self, to: u32) -> bool {
+        let taken = self.handing.load(SeqCst) == 0 && self.transition(UNUSED, to).is_ok();
+        if taken {
+            self.exec_marker_fd.store(0, Relaxed);
+        }
+        taken
+    }
+
+    /// free, exited → starting: reserved for a thread or a program about to start.
+    #[must_use]
+    pub fn reserve_unused(&self) -> bool {
+        self.take_unused(RESERVED)
+    }
+
+    /// free, exited → starting: climbsim holds time until the process it is about to start has
+    /// loaded the shim and claimed slot 0.
+    #[must_use]
+    pub fn reserve_process(&self) -> bool {
+        self.transition(UNUSED, RESERVED).is_ok()
+    }
+
+    /// free, exited → running: taken by a thread that found no reservation for it.
+    #[must_use]
+    pub fn claim_unused(&self) -> bool {
+        self.take_unused(RUNNING)
+    }
+
+    /// starting → running: the reservation is this thread's.
+    #[must_use]
+    pub fn claim_reservation(&self) -> bool {
+        self.transition(&[RESERVED], RUNNING).is_ok()
+    }
+
+    /// starting → free: what it was reserved for will not start.
+    #[must_use]
+    pub fn unreserve(&self) -> bool {
+        self.transition(&[RESERVED], FREE).is_ok()
+    }
+
+    /// starting, running → ready: a new thread or process waits for its first turn.
+    #[must_use]
+    pub fn start_in_turn(&self) -> bool {
+        self.transition(&[RESERVED, RUNNING], READY).is_ok()
+    }
+
+    /// running → blocked or yielded. The caller has written what it waits on first.
+    #[must_use]
+    pub fn park(&self, parked: Parked) -> bool {
+        self.transition(&[RUNNING], parked.state()).is_ok()
+    }
+
+    /// blocked, yielded → ready, for reason `why` (`abi::release`, written first even if the
+    /// thread is no longer parked: a waker that took it off a queue has woken it, whatever let
+    /// it go first); None leaves the reason as it is.
+    pub fn make_ready(&self, why: Option<u32>) -> bool {
+        if let Some(why) = why {
+            self.release.store(why, Release);
+        }
+        self.transition(PARKED, READY).is_ok()
+    }
+
+    /// ready → running: this thread has the turn. Whoever gives it wakes it.
+    #[must_use]
+    pub fn give_turn(&self) -> bool {
+        self.transition(&[READY], RUNNING).is_ok()
+    }
+
+    /// blocked, yielded, ready → running: the run is over (or climbsim is gone), and every
+    /// thread runs on the wall clock.
+    pub fn let_go_at_end(&self) -> bool {
+        self.transition(&[BLOCKED, YIELDED, READY], RUNNING).is_ok()
+    }
+
+    /// Any state a thread had → exited: it ended, its process ended, or it left the followed
+    /// world (an exec of a program that will not load the shim). The caller has written
+    /// `exited_ns` first.
+    pub fn exit(&self) -> bool {
+        self.transition(&[RESERVED, RUNNING, BLOCKED, YIELDED, READY, EXITED], EXITED).is_ok()
+    }
+
+    /// exited → `before`: an exec that left the followed world failed, and the task is what it
+    /// was (`before` is free for a slot taken only to say it left).
+    pub fn exec_failed(&self, before: u32) -> bool {
+        self.transition(&[EXITED], before).is_ok()
+    }
+
+    /// starting, running, blocked, yielded, ready → exited: climbsim found the thread gone
+    /// (killed, or its reservation's creator gone), with no word from its shim.
+    pub fn write_off(&self) -> bool {
+        self.transition(LIVE, EXITED).is_ok()
+    }
+}
+
+/// What a thread blocked in the kernel's waitpid is doing, as far as the one who asks can tell
+/// (see [`Shared::who_decides`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum ChildWait {
+    /// Blocked: a child that can end, and so wake it, lives.
+    Blocked,
+    /// About to return: no child it waits for lives on, and the kernel is returning it.
+    Returning,
+    /// Cannot be told without reading `/proc` (the shim does not): climbsim decides.
+    Unknown,
+}
+
+/// Who decides what happens next (see [`Shared::who_decides`]).
+#[derive(Clone, Copy)]
+pub enum Decider<'a> {
+    /// Another followed thread runs, is being created, or is about to return from the kernel's
+    /// waitpid: it decides when it parks or ends.
+    AnotherRuns,
+    /// climbsim decides, for this reason.
+    Climbsim(Why),
+    /// Nothing else comes first: the turn goes to this ready thread.
+    Turn(&'a Slot),
+}
+
+/// Why climbsim decides (see [`Decider::Climbsim`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Why {
+    /// The controller did something virtual time cannot follow: the run fails.
+    Refused,
+    /// A thread waits on what the kernel wakes: whose turn comes first depends on its look.
+    MustLook,
+    /// A thread is in the kernel's waitpid, and the one who asks cannot tell whether it returns.
+    ChildWait,
+    /// No thread is ready: time moves, or a timer fires.
+    NoneReady,
+}
+
+impl Shared {
+    /// The ready thread whose turn it is: the one in the lowest slot, one that gave its turn up
+    /// after a quantum after every other (so the order never depends on which thread the host
+    /// happened to schedule first). Both climbsim and a thread handing its turn on pick by it.
+    pub fn next_turn(&self) -> Option<&Slot> {
+        let slots = self.live_slots();
+        let ready = |s: &&Slot| s.state() == READY;
+        slots.iter().filter(ready).find(|s| s.waits.load(Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready))
+    }
+
+    /// Who decides what happens next, once the asker has published its own state: the one
+    /// rule of the turn, for the shim's thread that parks or ends (it hands the turn on itself
+    /// when the answer is [`Decider::Turn`], else tells climbsim) and for climbsim's scheduler
+    /// (it waits while [`Decider::AnotherRuns`], else decides). In order:
+    ///
+    /// 1. another thread runs (running, starting, or `child_wait` says it is returning from
+    ///    waitpid): it decides later;
+    /// 2. climbsim, if the controller did something that cannot be followed, or a thread waits
+    ///    on what only a look at the kernel tells ([`Shared::must_look`]), or one is in waitpid
+    ///    and `child_wait` cannot tell its fate;
+    /// 3. the turn, to the ready thread whose turn it is ([`Shared::next_turn`]);
+    /// 4. climbsim, with no thread ready.
+    pub fn who_decides(&self, child_wait: impl Fn(&[Slot], &Slot) -> ChildWait) -> Decider<'_> {
+        let slots = self.live_slots();
+        let mut climbsim = None;
+        for slot in slots {
+            match slot.state() {
+                RUNNING | RESERVED => return Decider::AnotherRuns,
+                BLOCKED if slot.waits.load(Relaxed) & waits::CHILD != 0 => match child_wait(slots, slot) {
+                    ChildWait::Returning => return Decider::AnotherRuns,
+                    ChildWait::Unknown => climbsim = climbsim.or(Some(Why::ChildWait)),
+                    ChildWait::Blocked => {}
+                },
+                BLOCKED if self.must_look(slot) => climbsim = climbsim.or(Some(Why::MustLook)),
+                _ => {}
+            }
+        }
+        if self.header.refused.load(Acquire) != 0 {
+            return Decider::Climbsim(Why::Refused);
+        }
+        if let Some(why) = climbsim {
+            return Decider::Climbsim(why);
+        }
+        self.next_turn().map_or(Decider::Climbsim(Why::NoneReady), Decider::Turn)
+    }
+
+    /// `waiter` joins a thread that is followed and has not ended: it is blocked until that
+    /// thread ends, which marks it ready as it goes (so nobody need look at the kernel for it).
+    pub fn joins_live_thread(&self, waiter: &Slot) -> bool {
+        if waiter.waits.load(Relaxed) != waits::PEER {
+            return false;
+        }
+        let (pid, thread) = (waiter.pid.load(Relaxed), waiter.conn_mask.load(Relaxed));
+        self.live_slots().iter().any(|s| {
+            // A reserved slot's thread has not claimed it yet: what it holds is its last one's.
+            matches!(s.state(), RUNNING | BLOCKED | YIELDED | READY) && s.thread.load(Relaxed) == thread && s.pid.load(Relaxed) == pid && !core::ptr::eq(s, waiter)
+        })
+    }
+
+    /// `slot` waits on what the kernel wakes (a descriptor climbsim does not model, a thread
+    /// that is not followed or is going away): only a look tells whether it is still blocked.
+    pub fn must_look(&self, slot: &Slot) -> bool {
+        slot.state() == BLOCKED && slot.waits.load(Relaxed) & (waits::OTHER | waits::PEER) != 0 && !self.joins_live_thread(slot)
+    }
+}
+
+/// Compiled into climbsim's tests (the shim itself is never built as a test: its symbols would
+/// stand in for libc's in the test binary).
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const ALL: [u32; 7] = [FREE, RESERVED, RUNNING, BLOCKED, YIELDED, EXITED, READY];
+
+    /// A slot in `state`, the rest zero (a valid, empty slot).
+    fn slot_in(state: u32) -> Slot {
+        // SAFETY: every field of a slot is an atomic integer, for which zero is a valid value.
+        let slot: Slot = unsafe { core::mem::zeroed() };
+        slot.state.store(state, Release);
+        slot
+    }
+
+    /// `transition` moves a slot from each state in `from` to `to`, and from every other state
+    /// changes nothing and says it did not.
+    fn check(name: &str, transition: impl Fn(&Slot) -> bool, from: &[u32], to: impl Fn(u32) -> u32) {
+        for state in ALL {
+            let slot = slot_in(state);
+            let moved = transition(&slot);
+            if from.contains(&state) {
+                assert!(moved, "{name} from {}", state::name(state));
+                assert_eq!(slot.state(), to(state), "{name} from {}", state::name(state));
+            } else {
+                assert!(!moved, "{name} is not allowed from {}", state::name(state));
+                assert_eq!(slot.state(), state, "{name} from {} changed it", state::name(state));
+            }
+        }
+    }
+
+    #[test]
+    fn reserve_unused_takes_a_free_or_exited_slot() {
+        check("reserve_unused", Slot::reserve_unused, &[FREE, EXITED], |_| RESERVED);
+    }
+
+    #[test]
+    fn reserve_process_takes_a_free_or_exited_slot() {
+        check("reserve_process", Slot::reserve_process, &[FREE, EXITED], |_| RESERVED);
+    }
+
+    #[test]
+    fn claim_unused_takes_a_free_or_exited_slot_running() {
+        check("claim_unused", Slot::claim_unused, &[FREE, EXITED], |_| RUNNING);
+    }
+
+    /// A slot whose thread hands its turn on as it ends (or died doing so) is not taken, and a
+    /// slot taken forgets the exec marker of the task that had it.
+    #[test]
+    fn an_unused_slot_is_not_taken_while_its_thread_hands_on_and_forgets_its_marker() {
+        for take in [Slot::reserve_unused as fn(&Slot) -> bool, Slot::claim_unused] {
+            let slot = slot_in(EXITED);
+            slot.handing.store(1, SeqCst);
+            assert!(!take(&slot));
+            assert_eq!(slot.state(), EXITED);
+            slot.handing.store(0, SeqCst);
+            slot.exec_marker_fd.store(1023, Relaxed);
+            assert!(take(&slot));
+            assert_eq!(slot.exec_marker_fd.load(Relaxed), 0);
+        }
+        // climbsim's own reservation of slot 0 does not look at the mark (no thread of the
+        // controller has it before the process starts).
+        let slot = slot_in(FREE);
+        slot.handing.store(1, SeqCst);
+        assert!(slot.reserve_process());
+    }
+
+    #[test]
+    fn claim_reservation_runs_a_starting_slot() {
+        check("claim_reservation", Slot::claim_reservation, &[RESERVED], |_| RUNNING);
+    }
+
+    #[test]
+    fn unreserve_frees_a_starting_slot() {
+        check("unreserve", Slot::unreserve, &[RESERVED], |_| FREE);
+    }
+
+    #[test]
+    fn start_in_turn_makes_a_starting_or_running_thread_ready() {
+        check("start_in_turn", Slot::start_in_turn, &[RESERVED, RUNNING], |_| READY);
+    }
+
+    #[test]
+    fn park_blocks_or_yields_a_running_thread() {
+        check("park blocked", |s| s.park(Parked::Blocked), &[RUNNING], |_| BLOCKED);
+        check("park yielded", |s| s.park(Parked::Yielded), &[RUNNING], |_| YIELDED);
+    }
+
+    #[test]
+    fn make_ready_lets_a_parked_thread_go_and_writes_its_reason_whatever_it_found() {
+        check("make_ready", |s| s.make_ready(None), &[BLOCKED, YIELDED], |_| READY);
+        check("make_ready with a reason", |s| s.make_ready(Some(7)), &[BLOCKED, YIELDED], |_| READY);
+        for state in ALL {
+            let slot = slot_in(state);
+            slot.release.store(3, Relaxed);
+            slot.make_ready(Some(2));
+            assert_eq!(slot.release.load(Relaxed), 2, "from {}", state::name(state));
+            slot.make_ready(None);
+            assert_eq!(slot.release.load(Relaxed), 2, "None keeps the reason, from {}", state::name(state));
+        }
+    }
+
+    #[test]
+    fn give_turn_runs_a_ready_thread() {
+        check("give_turn", Slot::give_turn, &[READY], |_| RUNNING);
+    }
+
+    #[test]
+    fn let_go_at_end_runs_every_parked_or_ready_thread() {
+        check("let_go_at_end", Slot::let_go_at_end, &[BLOCKED, YIELDED, READY], |_| RUNNING);
+    }
+
+    #[test]
+    fn exit_ends_a_thread_in_any_state_but_free() {
+        check("exit", Slot::exit, &[RESERVED, RUNNING, BLOCKED, YIELDED, READY, EXITED], |_| EXITED);
+    }
+
+    #[test]
+    fn exec_failed_gives_an_exited_slot_back_its_state() {
+        for before in [FREE, RESERVED, RUNNING] {
+            check("exec_failed", |s| s.exec_failed(before), &[EXITED], |_| before);
+        }
+    }
+
+    #[test]
+    fn write_off_ends_a_followed_thread() {
+        check("write_off", Slot::write_off, &[RESERVED, RUNNING, BLOCKED, YIELDED, READY], |_| EXITED);
+    }
+
+    /// The states the table calls followed.
+    #[test]
+    fn a_slot_is_live_unless_free_or_exited() {
+        for state in ALL {
+            assert_eq!(slot_in(state).is_live(), !matches!(state, FREE | EXITED), "{}", state::name(state));
+        }
+    }
+
+    /// Two takers of one slot (two threads after the same free slot, a waker and climbsim
+    /// after the same parked thread): exactly one succeeds.
+    #[test]
+    fn of_two_racing_transitions_exactly_one_succeeds() {
+        for _ in 0..200 {
+            let slot = slot_in(FREE);
+            let wins = std::thread::scope(|scope| {
+                let takers: Vec<_> = (0..2).map(|_| scope.spawn(|| slot.claim_unused() as u32)).collect();
+                takers.into_iter().map(|t| t.join().expect("a taker")).sum::<u32>()
+            });
+            assert_eq!(wins, 1);
+            let slot = slot_in(READY);
+            let wins = std::thread::scope(|scope| {
+                let givers: Vec<_> = (0..2).map(|_| scope.spawn(|| slot.give_turn() as u32)).collect();
+                givers.into_iter().map(|t| t.join().expect("a giver")).sum::<u32>()
+            });
+            assert_eq!(wins, 1);
+        }
+    }
+
+    /// A block with `states` in its first slots (zeroed on the heap: it is megabytes).
+    fn block_with(states: &[u32]) -> Box<Shared> {
+        let layout = std::alloc::Layout::new::<Shared>();
+        // SAFETY: every field of the block is an atomic integer (or an array of them), for
+        // which zero is valid; the allocation has the block's layout, and the Box takes it.
+        let shared = unsafe { Box::from_raw(std::alloc::alloc_zeroed(layout).cast::<Shared>()) };
+        for (slot, &state) in shared.slots.iter().zip(states) {
+            slot.state.store(state, Release);
+        }
+        shared.header.slots_high.store(states.len() as u32, Release);
+        shared
+    }
+
+    #[test]
+    fn the_next_turn_is_the_lowest_ready_slot_and_a_thread_that_used_its_quantum_goes_last() {
+        let shared = block_with(&[BLOCKED, READY, RUNNING, READY]);
+        assert!(core::ptr::eq(shared.next_turn().expect("one is ready"), &shared.slots[1]));
+        shared.slots[1].waits.store(waits::TURN, Relaxed);
+        assert!(core::ptr::eq(shared.next_turn().expect("one is ready"), &shared.slots[3]));
+        shared.slots[3].waits.store(waits::TURN, Relaxed);
+        assert!(core::ptr::eq(shared.next_turn().expect("one is ready"), &shared.slots[1]), "all gave their quantum up: the lowest");
+        let none = block_with(&[BLOCKED, RUNNING, YIELDED]);
+        assert!(none.next_turn().is_none());
+    }
+
+    /// A thread blocked on what the kernel wakes must be looked at, unless it joins a followed
+    /// thread that has not ended (that thread's end makes it ready).
+    #[test]
+    fn a_blocked_wait_on_the_kernel_must_be_looked_at_unless_it_joins_a_live_followed_thread() {
+        let shared = block_with(&[BLOCKED, RUNNING]);
+        let (waiter, joined) = (&shared.slots[0], &shared.slots[1]);
+        waiter.waits.store(waits::OTHER, Relaxed);
+        assert!(shared.must_look(waiter));
+        waiter.waits.store(waits::PORT, Relaxed);
+        assert!(!shared.must_look(waiter));
+        waiter.waits.store(waits::PEER, Relaxed);
+        waiter.conn_mask.store(0xabc, Relaxed);
+        joined.thread.store(0xabc, Relaxed);
+        assert!(shared.joins_live_thread(waiter) && !shared.must_look(waiter));
+        for (state, live) in [(RESERVED, false), (EXITED, false), (READY, true), (BLOCKED, true)] {
+            joined.state.store(state, Release);
+            assert_eq!(shared.joins_live_thread(waiter), live, "joined {}", state::name(state));
+            assert_eq!(shared.must_look(waiter), !live, "joined {}", state::name(state));
+        }
+        waiter.state.store(READY, Release);
+        assert!(!shared.must_look(waiter), "a waiter already let go is not looked at");
+    }
+
+    /// The rule of the turn, case by case, in its order.
+    #[test]
+    fn who_decides_another_runner_first_then_climbsim_then_the_turn() {
+        let never = |_: &[Slot], _: &Slot| -> ChildWait { panic!("no thread is in waitpid") };
+        let is = |decider: Decider<'_>, slot: &Slot| matches!(decider, Decider::Turn(s) if core::ptr::eq(s, slot));
+        // Nobody ready: climbsim moves time.
+        let shared = block_with(&[BLOCKED, YIELDED, EXITED, FREE]);
+        assert!(matches!(shared.who_decides(never), Decider::Climbsim(Why::NoneReady)));
+        // The lowest ready thread has the turn.
+        let shared = block_with(&[BLOCKED, READY, READY]);
+        assert!(is(shared.who_decides(never), &shared.slots[1]));
+        // A thread that runs, or one being created, decides later, whatever else waits.
+        for runner in [RUNNING, RESERVED] {
+            let shared = block_with(&[READY, BLOCKED, runner]);
+            shared.slots[1].waits.store(waits::OTHER, Relaxed);
+            shared.header.refused.store(1, Relaxed);
+            assert!(matches!(shared.who_decides(never), Decider::AnotherRuns), "{}", state::name(runner));
+        }
+        // A wait on the kernel: climbsim asks for a look before any turn.
+        let shared = block_with(&[READY, BLOCKED]);
+        shared.slots[1].waits.store(waits::OTHER, Relaxed);
+        assert!(matches!(shared.who_decides(never), Decider::Climbsim(Why::MustLook)));
+        // A refusal comes before the look: the run fails.
+        shared.header.refused.store(1, Relaxed);
+        assert!(matches!(shared.who_decides(never), Decider::Climbsim(Why::Refused)));
+        // A thread in waitpid, as the asker tells it.
+        let shared = block_with(&[READY, BLOCKED]);
+        shared.slots[1].waits.store(waits::CHILD, Relaxed);
+        assert!(matches!(shared.who_decides(|_, _| ChildWait::Returning), Decider::AnotherRuns));
+        assert!(matches!(shared.who_decides(|_, _| ChildWait::Unknown), Decider::Climbsim(Why::ChildWait)));
+        assert!(is(shared.who_decides(|_, _| ChildWait::Blocked), &shared.slots[0]));
+        // The asker is seen as it published itself: parked, exited or ready, never running.
+        let shared = block_with(&[EXITED, READY]);
+        assert!(is(shared.who_decides(never), &shared.slots[1]));
+    }
+
+    /// `Slot::state` is written here only: the field is private to `abi` (the compiler keeps
+    /// the rest of both crates off it), and nothing else in `abi` writes it.
+    #[test]
+    fn a_slots_state_is_written_in_this_file_only() {
+        let abi = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("shim/src/abi");
+        let layout = std::fs::read_to_string(abi.join("layout.rs")).expect("layout.rs");
+        let slot = &layout[layout.find("pub struct Slot {").expect("the slot's layout")..];
+        let slot = &slot[..slot.find("\n}").expect("its end")];
+        assert!(slot.contains("    pub(super) state: AtomicU32,"), "Slot::state must stay private to abi");
+        let mut files = 0;
+        for entry in std::fs::read_dir(&abi).expect("shim/src/abi") {
+            let path = entry.expect("an entry").path();
+            if path.file_name().is_some_and(|name| name == "protocol.rs") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).expect("a source file");
+            for write in ["state.store", "state.compare_exchange", "state.swap", "state.fetch_"] {
+                assert!(!text.contains(write), "{} writes a state ({write}): only protocol.rs may", path.display());
+            }
+            files += 1;
+        }
+        assert!(files >= 2, "read layout.rs and mod.rs");
+    }
+}
