@@ -4,7 +4,8 @@
 # series and end instants among them: a deterministic controller run gives N passed, 1
 # distinct of each.
 # Usage: hil/bench/vt-repeat.sh SCENARIO [RUNS=20] [--loaded] (from the checkout; climbsim is
-# $CLIMBSIM or target/debug/climbsim).
+# $CLIMBSIM or target/debug/climbsim). Its last line names the distinct logs, series and end
+# instants themselves (md5 prefixes), so that two builds' runs can be held side by side.
 set -euo pipefail
 scenario="$1"; runs="${2:-20}"; loaded="${3:-}"
 climbsim="${CLIMBSIM:-target/debug/climbsim}"
@@ -37,3 +38,5 @@ done
 # the last line it printed says how far it got.
 echo "last line of the first run's controller log: $(tail -n 1 "$work/1/controller.log" 2>/dev/null)"
 echo "$scenario: $passed of $runs passed${loaded:+ (both cores loaded)}; distinct controller logs: $(sort -u "$work/logs" 2>/dev/null | wc -l), distinct time series: $(sort -u "$work/series" 2>/dev/null | wc -l), distinct end instants: $(sort -u "$work/ends" 2>/dev/null | wc -l); $((SECONDS - started)) s"
+short() { sort -u "$1" 2>/dev/null | cut -c1-12 | paste -sd, -; }
+echo "distinct: logs $(short "$work/logs"); series $(short "$work/series"); end instants $(sort -u "$work/ends" 2>/dev/null | sed 's/.*: //' | paste -sd, -)"

@@ -1,12 +1,12 @@
 //! Waiting for a child process. The kernel wakes the parent; meanwhile it counts as blocked, so
-//! that the child (a followed process itself) can run on. A child that ends marks its waiting
-//! parent running before it goes, so that time does not move between the child's end and the
+//! that the child (a followed process itself) can run on. A child that ends makes its waiting
+//! parent ready before it goes, so that time does not move between the child's end and the
 //! parent's return.
 
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, Parked, Shared, call, state, waits};
+use crate::abi::{NEVER, Parked, Shared, Wait, call, state};
 use crate::sys::real;
 use crate::{active, charge, my_slot, note_call, notify_scheduler};
 
@@ -26,10 +26,10 @@ fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> 
         return wait();
     }
     let slot = slot.expect("checked above");
-    crate::park::publish_state(slot, Parked::Blocked, NEVER, waits::CHILD, child as u64);
+    crate::park::publish_state(slot, Parked::Blocked, NEVER, Wait::Child(child));
     notify_scheduler(shared);
     let result = wait();
-    slot.waits.store(0, Ordering::Relaxed);
+    slot.wait_over();
     crate::resume_after_kernel_wake(shared, slot);
     result
 }
@@ -44,10 +44,10 @@ fn said_it_ends(shared: &Shared, pid: i32) -> bool {
 /// This process is ending: a parent waiting for it runs again from now.
 pub(crate) fn wake_waiting_parent(shared: &Shared, pid: i32, parent: i32) {
     for slot in shared.live_slots() {
-        if slot.pid.load(Ordering::Relaxed) != parent || slot.state() != state::BLOCKED || slot.waits.load(Ordering::Relaxed) != waits::CHILD {
+        let Wait::Child(awaited) = slot.wait() else { continue };
+        if slot.pid.load(Ordering::Relaxed) != parent || slot.state() != state::BLOCKED {
             continue;
         }
-        let awaited = slot.conn_mask.load(Ordering::Relaxed) as i64;
         if awaited <= 0 || awaited == i64::from(pid) {
             slot.make_ready(None);
         }

@@ -19,7 +19,7 @@
 use core::ffi::c_long;
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, Parked, Shared, Slot, call, release, state, waits};
+use crate::abi::{NEVER, Parked, Shared, Slot, Wait, call, release, state};
 use crate::native;
 use crate::sys::{self, nr, timespec};
 use crate::time::{sim_now, sim_time_of, to_ns};
@@ -151,20 +151,20 @@ fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, dea
         return -ETIMEDOUT;
     }
     slot.futex_addr.store(key.offset, Ordering::Relaxed);
-    slot.conn_mask.store(key.space, Ordering::Relaxed);
+    slot.futex_space.store(key.space, Ordering::Relaxed);
     slot.futex_bitset.store(bitset, Ordering::Relaxed);
     slot.futex_ticket.store(header.futex_tickets.fetch_add(1, Ordering::Relaxed), Ordering::Relaxed);
     slot.futex_queued.store(1, Ordering::Release);
     // Published blocked under the lock: a waker that takes this thread off the queue finds it
-    // blocked and marks it running, whenever it comes.
-    crate::publish_parked(slot, Parked::Blocked, deadline, waits::FUTEX, key.space);
+    // blocked and makes it ready, whenever it comes.
+    crate::publish_parked(slot, Parked::Blocked, deadline, Wait::Futex { space: key.space });
     unlock(shared);
     hand.finish();
     let why = crate::await_release(shared, slot, Parked::Blocked, deadline);
     lock(shared);
     let still_queued = slot.futex_queued.swap(0, Ordering::AcqRel) == 1;
     unlock(shared);
-    slot.waits.store(0, Ordering::Relaxed);
+    slot.wait_over();
     if !still_queued {
         return 0;
     }
@@ -201,7 +201,7 @@ fn oldest_waiter(shared: &Shared, key: Key, bitset: u32) -> Option<&Slot> {
                 // A waiter is blocked while queued; one whose process died is not.
                 && s.state() == state::BLOCKED
                 && s.futex_addr.load(Ordering::Relaxed) == key.offset
-                && s.conn_mask.load(Ordering::Relaxed) == key.space
+                && s.futex_space.load(Ordering::Relaxed) == key.space
                 && s.futex_bitset.load(Ordering::Relaxed) & bitset != 0
         })
         .min_by_key(|s| s.futex_ticket.load(Ordering::Relaxed))
@@ -235,7 +235,7 @@ fn requeue(shared: &Shared, args: &Args, from: Key, to: Key, expected: Option<u3
     while moved < move_count && from != to {
         let Some(slot) = oldest_waiter(shared, from, FUTEX_BITSET_MATCH_ANY) else { break };
         slot.futex_addr.store(to.offset, Ordering::Relaxed);
-        slot.conn_mask.store(to.space, Ordering::Relaxed);
+        slot.futex_space.store(to.space, Ordering::Relaxed);
         moved += 1;
     }
     unlock(shared);

@@ -9,7 +9,7 @@
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{Shared, call, release, waits};
+use crate::abi::{Shared, Wait, call, release};
 use crate::held::{stream_now, took};
 use crate::sys::{iovec, real};
 use crate::time::sim_now;
@@ -146,7 +146,7 @@ fn wait_for_port_bytes(shared: &'static crate::abi::Shared, fd: c_int, len: usiz
             let available = readable(shared, fd);
             return if available > 0 { PortRead::Now(len.min(available)) } else { PortRead::Return(0) };
         }
-        match park_blocked(shared, deadline, waits::PORT, 0) {
+        match park_blocked(shared, deadline, Wait::Data { port: true, conns: 0 }) {
             // A signal's handler has run (the thread sent it to itself): the read goes on, as
             // with SA_RESTART.
             release::DATA | release::SIGNAL => {}

@@ -352,7 +352,7 @@ pub(crate) fn reserve_raw_clone(tls: u64, clear_tid: usize) {
     let Some(shared) = active() else { return };
     let Some((_, slot)) = take_free_slot(shared, Slot::reserve_unused) else { return };
     slot.pid.store(pid(), Ordering::Relaxed);
-    slot.conn_mask.store(tls, Ordering::Relaxed);
+    slot.clone_tls.store(tls, Ordering::Relaxed);
     slot.tid.store(abi::RAW_CLONE_TID, Ordering::Release);
     shared.header.raw_clones.fetch_add(1, Ordering::AcqRel);
 }
@@ -366,7 +366,7 @@ fn raw_clone_reservation(shared: &Shared, pid: i32) -> Option<(usize, &Slot)> {
         slot.state() == state::RESERVED
             && slot.tid.load(Ordering::Acquire) == abi::RAW_CLONE_TID
             && slot.pid.load(Ordering::Relaxed) == pid
-            && slot.conn_mask.load(Ordering::Relaxed) == key
+            && slot.clone_tls.load(Ordering::Relaxed) == key
     };
     for key in [fs, 0] {
         for (index, slot) in shared.live_slots().iter().enumerate() {

@@ -7,7 +7,7 @@ use core::cell::Cell;
 use core::sync::atomic::{AtomicU64, Ordering};
 
 use crate::abi::protocol::{ChildWait, Decider};
-use crate::abi::{self, Parked, Shared, Slot, mode, release, state};
+use crate::abi::{self, Parked, Shared, Slot, Wait, mode, release, state};
 use crate::now::{real_monotonic_ns, sim_now, thread_cpu_ns};
 use crate::{ORPHANED, active, climbsim_gone, my_slot, sys};
 
@@ -269,14 +269,14 @@ pub(crate) fn charge(shared: &Shared, ns: u64) {
         // clock) gives it up after a quantum, as the kernel's scheduler would: the threads
         // ready meanwhile run first (climbsim puts it after them), whoever they are.
         if target.saturating_sub(TURN_FROM.with(Cell::get)) >= abi::TURN_QUANTUM_NS {
-            park(shared, Parked::Yielded, target, abi::waits::TURN, 0);
+            park(shared, Parked::Yielded, target, Wait::Turn);
             return;
         }
         if advance_within_horizon(shared, now, target) {
             return;
         }
         if header.now_ns.load(Ordering::Acquire) == now {
-            park(shared, Parked::Yielded, target, 0, 0);
+            park(shared, Parked::Yielded, target, Wait::Time);
             return;
         }
     }
@@ -289,7 +289,7 @@ pub(crate) fn yield_turn(shared: &Shared) {
     note_call(shared, abi::call::YIELD);
     charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
     if shared.live_slots().iter().any(|slot| slot.state() == state::READY) {
-        park(shared, Parked::Yielded, sim_now(shared), abi::waits::TURN, 0);
+        park(shared, Parked::Yielded, sim_now(shared), Wait::Turn);
     }
 }
 
@@ -310,11 +310,12 @@ pub(crate) fn expect_look(shared: &Shared, slot: &Slot) {
 }
 
 /// Publish this thread as blocked on what the kernel wakes until `deadline` (simulated ns),
-/// waiting on `waits`, and tell climbsim, which first waits for its look (see [`expect_look`]).
-pub(crate) fn publish_waiting_on_kernel(shared: &Shared, slot: &Slot, deadline: u64, waits: u32, conn_mask: u64) {
+/// waiting on `wait` (a `Wait::Kernel` or `Wait::Peer`), and tell climbsim, which first waits
+/// for its look (see [`expect_look`]).
+pub(crate) fn publish_waiting_on_kernel(shared: &Shared, slot: &Slot, deadline: u64, wait: Wait) {
     let hand = hand_on(shared, slot);
     expect_look(shared, slot);
-    publish_state(slot, Parked::Blocked, deadline, waits, conn_mask);
+    publish_state(slot, Parked::Blocked, deadline, wait);
     hand.finish();
 }
 
@@ -458,25 +459,25 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
 const OWN_LOOKS_AT_MOST_EVERY_NS: u64 = 64_000_000;
 
 /// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on
-/// `waits`, and sleep until climbsim releases it; why it did (`abi::release`). A thread without
+/// `wait`, and sleep until climbsim releases it; why it did (`abi::release`). A thread without
 /// a slot cannot be followed: it returns at once, as if its deadline had come.
-pub(crate) fn park(shared: &Shared, parked: Parked, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
+pub(crate) fn park(shared: &Shared, parked: Parked, deadline: u64, wait: Wait) -> u32 {
     let Some(slot) = my_slot() else { return release::DEADLINE };
     // A signal fired for this thread while it ran: taken before it waits.
     if slot.signals_due.load(Ordering::Acquire) != 0 && crate::signals::take_due(slot) {
         return release::SIGNAL;
     }
     let hand = hand_on(shared, slot);
-    publish_parked(slot, parked, deadline, waits, conn_mask);
+    publish_parked(slot, parked, deadline, wait);
     hand.finish();
     await_release(shared, slot, parked, deadline)
 }
 
-/// Publish this thread (whose slot is `slot`) as parked until `deadline` on `waits`; nobody is
+/// Publish this thread (whose slot is `slot`) as parked until `deadline` on `wait`; nobody is
 /// told yet (see [`park`]). Its unapplied charges are dropped: a blocked thread costs nothing.
-pub(crate) fn publish_parked(slot: &Slot, parked: Parked, deadline: u64, waits: u32, conn_mask: u64) {
+pub(crate) fn publish_parked(slot: &Slot, parked: Parked, deadline: u64, wait: Wait) {
     UNAPPLIED.with(|u| u.set(0));
-    publish_state(slot, parked, deadline, waits, conn_mask);
+    publish_state(slot, parked, deadline, wait);
 }
 
 thread_local! {
@@ -501,18 +502,14 @@ impl Drop for PortSeen {
     }
 }
 
-/// The slot's wait (until `deadline`, on `waits`), then its state, which makes it seen.
-pub(crate) fn publish_state(slot: &Slot, parked: Parked, deadline: u64, waits: u32, conn_mask: u64) {
+/// The slot's wait (until `deadline`, on `wait`), then its state, which makes it seen.
+pub(crate) fn publish_state(slot: &Slot, parked: Parked, deadline: u64, wait: Wait) {
     let seen = PORT_SEEN.with(Cell::get);
     // SAFETY: a registration's entry in epoll.rs's static table.
     slot.port_seen.store(if seen.is_null() { 0 } else { unsafe { (*seen).load(Ordering::Relaxed) } }, Ordering::Relaxed);
-    slot.deadline_ns.store(deadline, Ordering::Relaxed);
-    slot.waits.store(waits, Ordering::Relaxed);
-    slot.conn_mask.store(conn_mask, Ordering::Relaxed);
-    slot.release.store(0, Ordering::Relaxed);
     // A slot taken from its thread meanwhile (exited with its process) stays so: its wait
     // lasts until the run ends, or the process does.
-    let _ = slot.park(parked);
+    let _ = slot.park(parked, deadline, wait);
 }
 
 /// Sleep, parked as [`publish_parked`] published, until climbsim (or a waker) lets this thread
@@ -526,16 +523,14 @@ pub(crate) fn await_release(shared: &Shared, slot: &Slot, parked: Parked, deadli
             // A signal timer fired for this thread: it sends itself the signal, and waits on
             // unless the signal interrupts the wait.
             if why == release::SIGNAL && !crate::signals::take_due(slot) {
-                slot.release.store(0, Ordering::Relaxed);
-                let _ = slot.park(parked);
+                let _ = slot.park_again(parked);
                 notify_scheduler(shared);
                 continue;
             }
             // A release meant for an earlier wait of this thread (it had woken by itself, from
             // a real descriptor or a peer, before climbsim's decision landed): wait on.
             if why != release::DATA && why != release::ENDING && why != release::SIGNAL && deadline != abi::NEVER && sim_now(shared) < deadline {
-                slot.release.store(0, Ordering::Relaxed);
-                let _ = slot.park(parked);
+                let _ = slot.park_again(parked);
                 notify_scheduler(shared);
                 continue;
             }

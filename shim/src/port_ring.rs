@@ -14,7 +14,7 @@
 use core::ffi::{c_int, c_long};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{PORT_TX_RING, Parked, Shared, call, mode};
+use crate::abi::{PORT_TX_RING, Parked, Shared, Wait, call, mode};
 use crate::native;
 use crate::sys::{iovec, nr};
 use crate::time::sim_now;
@@ -126,7 +126,7 @@ impl Writer {
         if my_slot().is_none() {
             return false;
         }
-        park(self.shared, Parked::Yielded, sim_now(self.shared), 0, 0);
+        park(self.shared, Parked::Yielded, sim_now(self.shared), Wait::Time);
         self.yielded = true;
         self.shared.header.mode.load(Ordering::SeqCst) == mode::VIRTUAL && crate::active().is_some()
     }

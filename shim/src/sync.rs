@@ -12,7 +12,7 @@ use core::cell::Cell;
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 
-use crate::abi::{NEVER, Shared, call, release, state, waits};
+use crate::abi::{NEVER, Shared, Wait, call, release, state};
 use crate::sys::{self, clockid_t, real, timespec};
 use crate::time::sim_now;
 use crate::{active, my_slot, note_call, pid, reset_computation};
@@ -97,7 +97,7 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         let rc = slice(&real_deadline_after(0));
         return if rc == 0 { 0 } else { ETIMEDOUT };
     }
-    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::PEER, addr as u64);
+    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, Wait::Peer(addr as u64));
     shared.header.peer_waiters.fetch_add(1, Ordering::AcqRel);
     publish();
     let (mut told, mut held) = (false, None);
@@ -154,7 +154,7 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
             break rc;
         }
     };
-    slot.waits.store(0, Ordering::Relaxed);
+    slot.wait_over();
     shared.header.peer_waiters.fetch_sub(1, Ordering::AcqRel);
     reset_computation(shared);
     result
@@ -182,8 +182,7 @@ fn wake_peers(addr: usize) {
     let me = pid();
     for slot in shared.live_slots() {
         if slot.state() == state::BLOCKED
-            && slot.waits.load(Ordering::Relaxed) == waits::PEER
-            && slot.conn_mask.load(Ordering::Relaxed) == addr as u64
+            && slot.wait() == Wait::Peer(addr as u64)
             && slot.pid.load(Ordering::Relaxed) == me
         {
             slot.make_ready(None);

@@ -7,7 +7,7 @@
 use core::ffi::{c_int, c_uint, c_void};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{Parked, Shared, call, release};
+use crate::abi::{Parked, Shared, Wait, call, release};
 use crate::sys::{self, clockid_t, real, time_t, timespec, timeval};
 use crate::{active, charge, note_call, park, shared};
 pub(crate) use crate::now::{clock_at, from_ns, real_monotonic_ns, sim_now, sim_time_of, to_ns};
@@ -73,7 +73,7 @@ pub(crate) fn sleep_until(shared: &Shared, deadline: u64) -> Option<u64> {
         charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
         return None;
     }
-    match park(shared, Parked::Blocked, deadline, 0, 0) {
+    match park(shared, Parked::Blocked, deadline, Wait::Time) {
         release::ENDING => {
             real_sleep_ns(deadline.saturating_sub(sim_now(shared)));
         }

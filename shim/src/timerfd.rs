@@ -6,7 +6,7 @@
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
 
-use crate::abi::{NEVER, Parked, Shared, release};
+use crate::abi::{NEVER, Parked, Shared, Wait, release};
 use crate::sys::{real, timespec};
 use crate::time::{clock_at, from_ns, sim_now, sim_time_of, to_ns};
 use crate::{active, charge, note_call, park};
@@ -197,7 +197,7 @@ pub(crate) fn read(fd: c_int, buf: *mut c_void, len: usize) -> Option<isize> {
             charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
             return Some(-1);
         }
-        if park(shared, Parked::Blocked, expiry, 0, 0) == release::ENDING {
+        if park(shared, Parked::Blocked, expiry, Wait::Time) == release::ENDING {
             let real_read = real!(read: fn(c_int, *mut c_void, usize) -> isize);
             // SAFETY: passing the caller's arguments through.
             return Some(unsafe { real_read(fd, buf, len) });

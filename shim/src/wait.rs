@@ -12,7 +12,7 @@
 use core::ffi::c_int;
 use core::sync::atomic::Ordering;
 
-use crate::abi::{Parked, Shared, call, release, waits};
+use crate::abi::{Parked, Shared, Wait, call, release};
 use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
 use crate::time::{from_ns, sim_now, to_ns};
 use crate::Looked;
@@ -86,8 +86,9 @@ impl Interest {
         shown
     }
 
-    fn waits(&self) -> u32 {
-        (if self.port { waits::PORT } else { 0 }) | (if self.conns != 0 { waits::CONN } else { 0 })
+    /// A wait for what climbsim models among these descriptors.
+    fn data(&self) -> Wait {
+        Wait::Data { port: self.port, conns: self.conns }
     }
 }
 
@@ -126,14 +127,14 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     let deadline = asked.min(interest.timer_deadline());
     if interest.timers != 0 && deadline < asked {
         // Woken by a timer's expiry (or sooner): its descriptor is then ready.
-        let parked_on = interest.waits();
+        let parked_on = interest.data();
         if interest.other {
             let rc = wait_on_real_world(shared, deadline, interest, real_wait);
             if rc != 0 {
                 return rc;
             }
         } else {
-            match park_blocked(shared, deadline, parked_on, interest.conns) {
+            match park_blocked(shared, deadline, parked_on) {
                 release::DEADLINE => {}
                 release::SIGNAL => return interrupted(),
                 _ => return real_wait(Some(1_000_000_000)),
@@ -152,7 +153,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     if interest.other {
         return wait_on_real_world(shared, deadline, interest, real_wait);
     }
-    match park_blocked(shared, deadline, interest.waits(), interest.conns) {
+    match park_blocked(shared, deadline, interest.data()) {
         // Climbsim made the bytes visible before it released us; the guard only covers a kernel
         // that is slow to show them.
         release::DATA => real_wait(Some(1_000_000_000)),
@@ -169,12 +170,12 @@ fn interrupted() -> c_int {
     -1
 }
 
-/// Block until `deadline` or data on what `waits` names (see `park`).
-pub(crate) fn park_blocked(shared: &'static Shared, deadline: u64, waits: u32, conn_mask: u64) -> u32 {
-    if waits & waits::PORT != 0 {
+/// Block until `deadline` or data on what `wait` names (see `park`).
+pub(crate) fn park_blocked(shared: &'static Shared, deadline: u64, wait: Wait) -> u32 {
+    if wait.port() {
         crate::held::bound_horizon(shared);
     }
-    park(shared, Parked::Blocked, deadline, waits, conn_mask)
+    park(shared, Parked::Blocked, deadline, wait)
 }
 
 /// A look at the port that found nothing, at simulated time `now`: time goes on to the next
@@ -191,7 +192,7 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
     let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire).min(held_due);
     let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
     if target <= now || !crate::advance_within_horizon(shared, now, target) {
-        park(shared, Parked::Yielded, target.max(now), waits::SPIN | waits::PORT, 0);
+        park(shared, Parked::Yielded, target.max(now), Wait::Spin);
     }
 }
 
@@ -204,7 +205,7 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
 /// one at the instant it was made, not whenever the host got round to it.
 fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
     let Some(slot) = my_slot() else { return real_wait(Some(deadline.saturating_sub(sim_now(shared)))) };
-    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER | interest.waits(), interest.conns);
+    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: interest.port, conns: interest.conns });
     publish();
     loop {
         let looked = crate::wait_looking(shared, slot, &publish, |take| {

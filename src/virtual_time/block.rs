@@ -1,4 +1,4 @@
-//! The shared-memory block itself (layout: `shim/src/abi.rs`): a 0600 file in `/dev/shm` (or the
+//! The shared-memory block itself (layout: `shim/src/abi/layout.rs`): a 0600 file in `/dev/shm` (or the
 //! temporary folder where there is none), mapped `MAP_SHARED`, removed when dropped.
 
 use std::os::fd::AsRawFd as _;

@@ -10,7 +10,7 @@ use std::sync::atomic::Ordering;
 
 use tracing::debug;
 
-use super::abi::{NEVER, release, state, timer_state, waits};
+use super::abi::{NEVER, release, state, timer_state};
 use super::{VirtualTime, lock};
 
 impl VirtualTime {
@@ -49,7 +49,7 @@ impl VirtualTime {
                 slot.signals_due.fetch_add(1, Ordering::AcqRel);
                 lock(&self.stats).signals_fired += 1;
                 debug!(pid, tid = slot.tid.load(Ordering::Relaxed), signo, now_s = now as f64 / 1e9, "signal timer fired");
-                if matches!(slot.state(), state::BLOCKED | state::YIELDED) && slot.waits.load(Ordering::Relaxed) & waits::CHILD == 0 {
+                if matches!(slot.state(), state::BLOCKED | state::YIELDED) && !slot.in_waitpid() {
                     slot.make_ready(Some(release::SIGNAL));
                     released = true;
                 }

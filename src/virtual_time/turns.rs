@@ -8,7 +8,7 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use super::abi::protocol::{ChildWait, Decider};
-use super::abi::{self, NEVER, Slot, release, state, waits};
+use super::abi::{self, NEVER, Slot, Wait, release, state};
 use super::{VirtualTime, futex_wake, lock, watchdog};
 
 impl VirtualTime {
@@ -48,8 +48,8 @@ impl VirtualTime {
             .map(|(i, s)| {
                 let deadline = s.deadline_ns.load(Ordering::Relaxed);
                 let until = if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) };
-                let (tid, waits, last) = (s.tid.load(Ordering::Relaxed), s.waits.load(Ordering::Relaxed), abi::call::name(s.last_call.load(Ordering::Relaxed)));
-                format!("#{i} tid {tid} {} waits {waits:#x} until {until} last {last}", state::name(s.state()))
+                let (tid, wait, last) = (s.tid.load(Ordering::Relaxed), s.wait(), abi::call::name(s.last_call.load(Ordering::Relaxed)));
+                format!("#{i} tid {tid} {} waits {wait:?} until {until} last {last}", state::name(s.state()))
             })
             .collect();
         threads.join("; ")
@@ -139,7 +139,7 @@ impl HandOns {
 /// `parent`, in waitpid, has a followed child that can end (and so wake it).
 pub(super) fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
     let pid = parent.pid.load(Ordering::Relaxed);
-    let awaited = parent.conn_mask.load(Ordering::Relaxed) as i64;
+    let Wait::Child(awaited) = parent.wait() else { return false };
     slots.iter().any(|child| {
         let live = matches!(child.state(), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY);
         live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
@@ -184,9 +184,9 @@ impl VirtualTime {
             if parked != state::BLOCKED && parked != state::YIELDED {
                 continue;
             }
-            let waits_on = slot.waits.load(Ordering::Relaxed);
-            let response = waits_on & waits::CONN != 0 && self.response_waiting(slot.conn_mask.load(Ordering::Relaxed));
-            let on_port = waits_on & waits::PORT != 0;
+            let wait = slot.wait();
+            let response = wait.conns() != 0 && self.response_waiting(wait.conns());
+            let on_port = wait.port();
             // An edge-triggered epoll registration waits for bytes past those it has reported.
             let port_ready = on_port && {
                 let (unread, visible) = *unread.get_or_insert_with(|| self.port_unread_and_visible());
@@ -196,9 +196,9 @@ impl VirtualTime {
                 due_now.push((slot, release::DATA));
                 continue;
             }
-            blocked_on_port |= on_port && waits_on & waits::SPIN == 0;
+            blocked_on_port |= on_port && wait != Wait::Spin;
             let mut at = slot.deadline_ns.load(Ordering::Relaxed);
-            if waits_on & waits::SPIN != 0 {
+            if wait == Wait::Spin {
                 // A spin on the port goes on to the next byte due on it (its own deadline
                 // bounds the jump).
                 at = at.min(next_reply);
@@ -257,9 +257,8 @@ mod tests {
         let shared = vt.shared();
         shared.header.slots_high.store(2, Ordering::Release);
         let (ready, blocked) = (&shared.slots[0], &shared.slots[1]);
-        assert!(ready.claim_unused() && ready.park(Parked::Blocked) && ready.make_ready(None));
-        blocked.deadline_ns.store(9_000, Ordering::Relaxed);
-        assert!(blocked.claim_unused() && blocked.park(Parked::Blocked));
+        assert!(ready.claim_unused() && ready.park(Parked::Blocked, NEVER, Wait::Time) && ready.make_ready(None));
+        assert!(blocked.claim_unused() && blocked.park(Parked::Blocked, 9_000, Wait::Time));
         let plan = vt.let_go_at(5_000, NEVER, 7_000);
         assert!(plan.released, "a ready thread runs at this instant: no jump to {}", plan.next);
         assert_eq!(ready.state(), state::RUNNING, "it has the turn");
@@ -296,7 +295,7 @@ mod tests {
         slot.pid.store(std::process::id() as i32, Ordering::Relaxed);
         // SAFETY: gettid has no arguments and cannot fail.
         slot.tid.store(unsafe { libc::gettid() }, Ordering::Relaxed);
-        assert!(slot.claim_unused() && slot.park(Parked::Blocked));
+        assert!(slot.claim_unused() && slot.park(Parked::Blocked, NEVER, Wait::Time));
         slot.handing.store(1, Ordering::SeqCst);
         for _ in 0..3 {
             assert!(vt.any_running(), "a live thread is handing its turn on");

@@ -4,12 +4,12 @@
 //! Every field is an atomic: the block is a file mapped `MAP_SHARED` by processes that do not
 //! trust one another's timing. A zero-filled file is a valid, empty block.
 
-use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, AtomicU64};
+use core::sync::atomic::{AtomicI32, AtomicI64, AtomicU8, AtomicU32, AtomicU64};
 
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 16;
+pub const ABI: u32 = 17;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -35,7 +35,7 @@ pub const TURN_QUANTUM_NS: u64 = 1_000_000;
 pub const LONG_PARK_SPIN_NS: u64 = 2_000_000;
 /// `Slot::tid` of a slot reserved for a thread that a trapped clone creates (libc's own thread
 /// creation, a runtime's raw clone): the thread claims it at its first followed call, finding
-/// it by its TLS pointer (`Slot::conn_mask` meanwhile; 0: any such thread of the process).
+/// it by its TLS pointer (`Slot::clone_tls`; 0: any such thread of the process).
 pub const RAW_CLONE_TID: i32 = -2;
 /// "No deadline" / "nothing due".
 pub const NEVER: u64 = u64::MAX;
@@ -93,7 +93,10 @@ pub mod refused {
 }
 
 /// `Slot::waits`: what a blocked or yielded thread waits on.
-pub mod waits {
+///
+/// The encoding of `protocol::Wait`, private to `abi`: the shim and climbsim read and write a
+/// thread's wait as that type.
+pub(super) mod waits {
     /// Readable bytes on the servo port.
     pub const PORT: u32 = 1;
     /// A response on a sensor-server connection (`Slot::conn_mask` says which).
@@ -103,14 +106,14 @@ pub mod waits {
     /// A zero-timeout poll of the port that found nothing: resume at the next byte due on it
     /// (or after the spin cap if none is).
     pub const SPIN: u32 = 8;
-    /// A child process's end (waitpid and kin), which the kernel itself wakes; `Slot::conn_mask`
-    /// holds the pid waited for (as i64; -1: any child).
+    /// A child process's end (waitpid and kin), which the kernel itself wakes;
+    /// `Slot::awaited_child` holds the pid waited for (≤ 0: any child).
     pub const CHILD: u32 = 16;
-    /// Another thread (a condition variable, a semaphore, a join): `Slot::conn_mask` holds the
-    /// address waited on; the waking thread marks it running.
+    /// Another thread (a condition variable, a semaphore, a join): `Slot::peer` holds what is
+    /// waited on; the waking thread makes it ready.
     pub const PEER: u32 = 32;
-    /// A futex (a system call, whatever library made it): `Slot::futex_addr` says which; the
-    /// thread that wakes it marks it running.
+    /// A futex (a system call, whatever library made it): `Slot::futex_addr` and
+    /// `Slot::futex_space` say which; the thread that wakes it makes it ready.
     pub const FUTEX: u32 = 64;
     /// A running thread that gave up its turn after [`super::TURN_QUANTUM_NS`]: when it is
     /// ready again, the threads ready for any other reason run first.
@@ -309,12 +312,20 @@ pub struct Slot {
     pub tid: AtomicI32,
     /// S: a blocked thread's wake-up, a yielded thread's resume (simulated ns; [`NEVER`]).
     pub deadline_ns: AtomicU64,
-    /// S: see [`waits`].
-    pub waits: AtomicU32,
+    /// S: what a parked thread waits on (`protocol::Wait`, encoded: see [`waits`]).
+    pub(super) waits: AtomicU32,
     /// C: see [`release`].
     pub release: AtomicU32,
     /// S: the sensor connections a blocked thread waits on (bit i: `Shared::conns[i]`).
-    pub conn_mask: AtomicU64,
+    pub(super) conn_mask: AtomicU64,
+    /// S: the child a thread in waitpid waits for (≤ 0: any child of its process).
+    pub(super) awaited_child: AtomicI64,
+    /// S: what a wait for another thread waits on: a condition's or semaphore's address, or
+    /// the joined thread's `pthread_t`.
+    pub(super) peer: AtomicU64,
+    /// S: the TLS pointer of the thread a trapped clone reserved this slot for (see
+    /// [`RAW_CLONE_TID`]).
+    pub clone_tls: AtomicU64,
     /// S: see [`call`].
     pub last_call: AtomicU32,
     /// S: the parent process of the slot's process (a waitpid is a real wait only while a
@@ -328,6 +339,9 @@ pub struct Slot {
     /// in its process, and which wake-ups it takes (FUTEX_WAIT_BITSET's mask).
     pub futex_addr: AtomicU64,
     pub futex_bitset: AtomicU32,
+    /// S, under `Header::futex_lock`: the address space `futex_addr` is in (`futex.rs`'s key:
+    /// the process, or the file a shared mapping maps).
+    pub futex_space: AtomicU64,
     /// S, under `Header::futex_lock`: 1 while queued on `futex_addr`; a waker takes it to 0.
     pub futex_queued: AtomicU32,
     /// S, under `Header::futex_lock`: the order it queued in (wake-ups go first come, first
@@ -502,7 +516,7 @@ impl Shared {
             return threads().find(|s| s.tid.load(Relaxed) == tid);
         }
         let bit = 1u64.checked_shl(signo.saturating_sub(1)).unwrap_or(0);
-        let in_kernel = |s: &&Slot| s.waits.load(Relaxed) & waits::CHILD != 0;
+        let in_kernel = |s: &&Slot| s.in_waitpid();
         let waits_for = |s: &&Slot| s.sig_waiting.load(Relaxed) & bit != 0;
         let lets_through = |s: &&Slot| s.sig_blocked.load(Relaxed) & bit == 0;
         let main = |s: &&Slot| s.tid.load(Relaxed) == pid;

@@ -89,6 +89,48 @@ impl Parked {
     }
 }
 
+/// What a parked thread waits on besides its deadline (`Slot::deadline_ns`): written with the
+/// park ([`Slot::park`]), read back by [`Slot::wait`].
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Wait {
+    /// Its deadline only (a sleep, time given up to a due instant).
+    Time,
+    /// A turn given up after [`super::TURN_QUANTUM_NS`]: when it is ready again, the threads
+    /// ready for any other reason run first.
+    Turn,
+    /// Bytes on the servo port (past `Slot::port_seen`), and/or a response on these sensor
+    /// connections (bit i: `Shared::conns[i]`).
+    Data { port: bool, conns: u64 },
+    /// A zero-timeout poll of the empty port: it resumes at the next byte due on it (or after
+    /// the spin cap if none is).
+    Spin,
+    /// What the kernel wakes (descriptors climbsim does not model, a signal): only a look tells
+    /// whether it is still blocked; and the port and connections among them, as in `Data`.
+    Kernel { port: bool, conns: u64 },
+    /// A child's end, in the kernel's waitpid: the pid (≤ 0: any child of its process).
+    Child(i64),
+    /// Another thread: a condition's or semaphore's address, or the joined thread's `pthread_t`.
+    Peer(u64),
+    /// A futex (its address and bitset: `Slot::futex_addr`, `Slot::futex_bitset`) in address
+    /// space `space`.
+    Futex { space: u64 },
+}
+
+impl Wait {
+    /// The port, if the wait is for its bytes (a spin on it included).
+    pub fn port(self) -> bool {
+        matches!(self, Wait::Data { port: true, .. } | Wait::Kernel { port: true, .. } | Wait::Spin)
+    }
+
+    /// The sensor connections it waits on (0: none).
+    pub fn conns(self) -> u64 {
+        match self {
+            Wait::Data { conns, .. } | Wait::Kernel { conns, .. } => conns,
+            _ => 0,
+        }
+    }
+}
+
 /// The states a thread is followed in (a slot that is neither free nor exited).
 const LIVE: &[u32] = &[RESERVED, RUNNING, BLOCKED, YIELDED, READY];
 const UNUSED: &[u32] = &[FREE, EXITED];
@@ -167,10 +209,85 @@ impl Slot {
         self.transition(&[RESERVED, RUNNING], READY).is_ok()
     }
 
-    /// running → blocked or yielded. The caller has written what it waits on first.
+    /// running → blocked or yielded, until `deadline` (simulated ns; [`super::NEVER`]) or what
+    /// `wait` names; the reason of an earlier release is cleared.
     #[must_use]
-    pub fn park(&self, parked: Parked) -> bool {
+    pub fn park(&self, parked: Parked, deadline: u64, wait: Wait) -> bool {
+        self.deadline_ns.store(deadline, Relaxed);
+        self.set_wait(wait);
+        self.release.store(0, Relaxed);
         self.transition(&[RUNNING], parked.state()).is_ok()
+    }
+
+    /// running → blocked or yielded again, on the wait and deadline it had (a release that was
+    /// not for it, or a signal that interrupted nothing).
+    #[must_use]
+    pub fn park_again(&self, parked: Parked) -> bool {
+        self.release.store(0, Relaxed);
+        self.transition(&[RUNNING], parked.state()).is_ok()
+    }
+
+    /// What the thread waits on (meaningful while it is parked; [`Wait::Time`] once its wait is
+    /// over).
+    pub fn wait(&self) -> Wait {
+        let bits = self.waits.load(Relaxed);
+        let data = |kernel: bool| {
+            let (port, conns) = (bits & waits::PORT != 0, if bits & waits::CONN != 0 { self.conn_mask.load(Relaxed) } else { 0 });
+            if kernel { Wait::Kernel { port, conns } } else { Wait::Data { port, conns } }
+        };
+        if bits & waits::OTHER != 0 {
+            data(true)
+        } else if bits & waits::SPIN != 0 {
+            Wait::Spin
+        } else if bits & waits::CHILD != 0 {
+            Wait::Child(self.awaited_child.load(Relaxed))
+        } else if bits & waits::PEER != 0 {
+            Wait::Peer(self.peer.load(Relaxed))
+        } else if bits & waits::FUTEX != 0 {
+            Wait::Futex { space: self.futex_space.load(Relaxed) }
+        } else if bits & waits::TURN != 0 {
+            Wait::Turn
+        } else if bits & (waits::PORT | waits::CONN) != 0 {
+            data(false)
+        } else {
+            Wait::Time
+        }
+    }
+
+    /// The thread is in the kernel's waitpid (a cheaper `matches!(self.wait(), Wait::Child(_))`).
+    pub fn in_waitpid(&self) -> bool {
+        self.waits.load(Relaxed) & waits::CHILD != 0
+    }
+
+    /// The thread's wait is over: it runs, or is about to (its deadline and words stay, unread).
+    pub fn wait_over(&self) {
+        self.waits.store(0, Relaxed);
+    }
+
+    /// Write `wait` (see [`Slot::park`]).
+    fn set_wait(&self, wait: Wait) {
+        let data = |port: bool, conns: u64| (if port { waits::PORT } else { 0 }) | (if conns != 0 { waits::CONN } else { 0 });
+        let bits = match wait {
+            Wait::Time => 0,
+            Wait::Turn => waits::TURN,
+            Wait::Data { port, conns } => data(port, conns),
+            Wait::Spin => waits::SPIN | waits::PORT,
+            Wait::Kernel { port, conns } => waits::OTHER | data(port, conns),
+            Wait::Child(pid) => {
+                self.awaited_child.store(pid, Relaxed);
+                waits::CHILD
+            }
+            Wait::Peer(peer) => {
+                self.peer.store(peer, Relaxed);
+                waits::PEER
+            }
+            Wait::Futex { space } => {
+                self.futex_space.store(space, Relaxed);
+                waits::FUTEX
+            }
+        };
+        self.conn_mask.store(wait.conns(), Relaxed);
+        self.waits.store(bits, Relaxed);
     }
 
     /// blocked, yielded → ready, for reason `why` (`abi::release`, written first even if the
@@ -259,7 +376,7 @@ impl Shared {
     pub fn next_turn(&self) -> Option<&Slot> {
         let slots = self.live_slots();
         let ready = |s: &&Slot| s.state() == READY;
-        slots.iter().filter(ready).find(|s| s.waits.load(Relaxed) & waits::TURN == 0).or_else(|| slots.iter().find(ready))
+        slots.iter().filter(ready).find(|s| s.wait() != Wait::Turn).or_else(|| slots.iter().find(ready))
     }
 
     /// Who decides what happens next, once the asker has published its own state: the one
@@ -280,7 +397,7 @@ impl Shared {
         for slot in slots {
             match slot.state() {
                 RUNNING | RESERVED => return Decider::AnotherRuns,
-                BLOCKED if slot.waits.load(Relaxed) & waits::CHILD != 0 => match child_wait(slots, slot) {
+                BLOCKED if slot.in_waitpid() => match child_wait(slots, slot) {
                     ChildWait::Returning => return Decider::AnotherRuns,
                     ChildWait::Unknown => climbsim = climbsim.or(Some(Why::ChildWait)),
                     ChildWait::Blocked => {}
@@ -301,10 +418,8 @@ impl Shared {
     /// `waiter` joins a thread that is followed and has not ended: it is blocked until that
     /// thread ends, which marks it ready as it goes (so nobody need look at the kernel for it).
     pub fn joins_live_thread(&self, waiter: &Slot) -> bool {
-        if waiter.waits.load(Relaxed) != waits::PEER {
-            return false;
-        }
-        let (pid, thread) = (waiter.pid.load(Relaxed), waiter.conn_mask.load(Relaxed));
+        let Wait::Peer(thread) = waiter.wait() else { return false };
+        let pid = waiter.pid.load(Relaxed);
         self.live_slots().iter().any(|s| {
             // A reserved slot's thread has not claimed it yet: what it holds is its last one's.
             matches!(s.state(), RUNNING | BLOCKED | YIELDED | READY) && s.thread.load(Relaxed) == thread && s.pid.load(Relaxed) == pid && !core::ptr::eq(s, waiter)
@@ -314,7 +429,7 @@ impl Shared {
     /// `slot` waits on what the kernel wakes (a descriptor climbsim does not model, a thread
     /// that is not followed or is going away): only a look tells whether it is still blocked.
     pub fn must_look(&self, slot: &Slot) -> bool {
-        slot.state() == BLOCKED && slot.waits.load(Relaxed) & (waits::OTHER | waits::PEER) != 0 && !self.joins_live_thread(slot)
+        slot.state() == BLOCKED && matches!(slot.wait(), Wait::Kernel { .. } | Wait::Peer(_)) && !self.joins_live_thread(slot)
     }
 }
 
@@ -403,8 +518,62 @@ mod tests {
 
     #[test]
     fn park_blocks_or_yields_a_running_thread() {
-        check("park blocked", |s| s.park(Parked::Blocked), &[RUNNING], |_| BLOCKED);
-        check("park yielded", |s| s.park(Parked::Yielded), &[RUNNING], |_| YIELDED);
+        check("park blocked", |s| s.park(Parked::Blocked, 5, Wait::Time), &[RUNNING], |_| BLOCKED);
+        check("park yielded", |s| s.park(Parked::Yielded, 5, Wait::Turn), &[RUNNING], |_| YIELDED);
+        check("park again blocked", |s| s.park_again(Parked::Blocked), &[RUNNING], |_| BLOCKED);
+        check("park again yielded", |s| s.park_again(Parked::Yielded), &[RUNNING], |_| YIELDED);
+    }
+
+    /// A park writes its deadline and wait, and clears the last release's reason; a park again
+    /// keeps the wait and deadline.
+    #[test]
+    fn a_park_publishes_its_deadline_and_wait_and_clears_the_release() {
+        let slot = slot_in(RUNNING);
+        slot.release.store(2, Relaxed);
+        assert!(slot.park(Parked::Blocked, 42, Wait::Peer(7)));
+        assert_eq!((slot.deadline_ns.load(Relaxed), slot.wait(), slot.release.load(Relaxed)), (42, Wait::Peer(7), 0));
+        slot.state.store(RUNNING, Release);
+        slot.release.store(4, Relaxed);
+        assert!(slot.park_again(Parked::Blocked));
+        assert_eq!((slot.deadline_ns.load(Relaxed), slot.wait(), slot.release.load(Relaxed)), (42, Wait::Peer(7), 0));
+    }
+
+    /// Every wait reads back as written, whatever was written before it; a wait that is over
+    /// reads as time only.
+    #[test]
+    fn every_wait_reads_back_as_written() {
+        let all = [
+            Wait::Time,
+            Wait::Turn,
+            Wait::Data { port: true, conns: 0 },
+            Wait::Data { port: false, conns: 0b101 },
+            Wait::Data { port: true, conns: 1 << 63 },
+            Wait::Spin,
+            Wait::Kernel { port: false, conns: 0 },
+            Wait::Kernel { port: true, conns: 0b10 },
+            Wait::Child(-1),
+            Wait::Child(4242),
+            Wait::Peer(0xdead_beef),
+            Wait::Futex { space: 77 },
+        ];
+        let slot = slot_in(RUNNING);
+        for before in all {
+            for wait in all {
+                slot.set_wait(before);
+                slot.set_wait(wait);
+                assert_eq!(slot.wait(), wait, "after {before:?}");
+                assert_eq!(slot.in_waitpid(), matches!(wait, Wait::Child(_)));
+            }
+        }
+        // What the port and the connections are, whichever wait holds them.
+        assert!(Wait::Spin.port() && Wait::Kernel { port: true, conns: 0 }.port() && !Wait::Child(1).port());
+        assert_eq!(Wait::Kernel { port: false, conns: 6 }.conns(), 6);
+        // Data on nothing is a wait on time (a poll of timerfds alone).
+        slot.set_wait(Wait::Data { port: false, conns: 0 });
+        assert_eq!(slot.wait(), Wait::Time);
+        slot.set_wait(Wait::Child(3));
+        slot.wait_over();
+        assert_eq!(slot.wait(), Wait::Time);
     }
 
     #[test]
@@ -493,9 +662,9 @@ mod tests {
     fn the_next_turn_is_the_lowest_ready_slot_and_a_thread_that_used_its_quantum_goes_last() {
         let shared = block_with(&[BLOCKED, READY, RUNNING, READY]);
         assert!(core::ptr::eq(shared.next_turn().expect("one is ready"), &shared.slots[1]));
-        shared.slots[1].waits.store(waits::TURN, Relaxed);
+        shared.slots[1].set_wait(Wait::Turn);
         assert!(core::ptr::eq(shared.next_turn().expect("one is ready"), &shared.slots[3]));
-        shared.slots[3].waits.store(waits::TURN, Relaxed);
+        shared.slots[3].set_wait(Wait::Turn);
         assert!(core::ptr::eq(shared.next_turn().expect("one is ready"), &shared.slots[1]), "all gave their quantum up: the lowest");
         let none = block_with(&[BLOCKED, RUNNING, YIELDED]);
         assert!(none.next_turn().is_none());
@@ -507,12 +676,11 @@ mod tests {
     fn a_blocked_wait_on_the_kernel_must_be_looked_at_unless_it_joins_a_live_followed_thread() {
         let shared = block_with(&[BLOCKED, RUNNING]);
         let (waiter, joined) = (&shared.slots[0], &shared.slots[1]);
-        waiter.waits.store(waits::OTHER, Relaxed);
+        waiter.set_wait(Wait::Kernel { port: false, conns: 0 });
         assert!(shared.must_look(waiter));
-        waiter.waits.store(waits::PORT, Relaxed);
+        waiter.set_wait(Wait::Data { port: true, conns: 0 });
         assert!(!shared.must_look(waiter));
-        waiter.waits.store(waits::PEER, Relaxed);
-        waiter.conn_mask.store(0xabc, Relaxed);
+        waiter.set_wait(Wait::Peer(0xabc));
         joined.thread.store(0xabc, Relaxed);
         assert!(shared.joins_live_thread(waiter) && !shared.must_look(waiter));
         for (state, live) in [(RESERVED, false), (EXITED, false), (READY, true), (BLOCKED, true)] {
@@ -538,20 +706,20 @@ mod tests {
         // A thread that runs, or one being created, decides later, whatever else waits.
         for runner in [RUNNING, RESERVED] {
             let shared = block_with(&[READY, BLOCKED, runner]);
-            shared.slots[1].waits.store(waits::OTHER, Relaxed);
+            shared.slots[1].set_wait(Wait::Kernel { port: false, conns: 0 });
             shared.header.refused.store(1, Relaxed);
             assert!(matches!(shared.who_decides(never), Decider::AnotherRuns), "{}", state::name(runner));
         }
         // A wait on the kernel: climbsim asks for a look before any turn.
         let shared = block_with(&[READY, BLOCKED]);
-        shared.slots[1].waits.store(waits::OTHER, Relaxed);
+        shared.slots[1].set_wait(Wait::Kernel { port: true, conns: 0 });
         assert!(matches!(shared.who_decides(never), Decider::Climbsim(Why::MustLook)));
         // A refusal comes before the look: the run fails.
         shared.header.refused.store(1, Relaxed);
         assert!(matches!(shared.who_decides(never), Decider::Climbsim(Why::Refused)));
         // A thread in waitpid, as the asker tells it.
         let shared = block_with(&[READY, BLOCKED]);
-        shared.slots[1].waits.store(waits::CHILD, Relaxed);
+        shared.slots[1].set_wait(Wait::Child(-1));
         assert!(matches!(shared.who_decides(|_, _| ChildWait::Returning), Decider::AnotherRuns));
         assert!(matches!(shared.who_decides(|_, _| ChildWait::Unknown), Decider::Climbsim(Why::ChildWait)));
         assert!(is(shared.who_decides(|_, _| ChildWait::Blocked), &shared.slots[0]));

@@ -166,7 +166,7 @@ fn send_followed(shared: &Shared, pid: i32, tid: i32, signo: c_int) -> Option<c_
     taker.signals_due.fetch_add(1, Ordering::AcqRel);
     // Parked where the shim waits: ready, with the signal for its reason (a thread in the
     // kernel's waitpid takes it when it parks next).
-    if taker.waits.load(Ordering::Relaxed) & crate::abi::waits::CHILD == 0 {
+    if !taker.in_waitpid() {
         if taker.make_ready(Some(release::SIGNAL)) {
             crate::notify_scheduler(shared);
         }

@@ -3,7 +3,7 @@
 use core::ffi::c_long;
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, Shared, call, release, waits};
+use crate::abi::{NEVER, Shared, Wait, call, release};
 use crate::native;
 use crate::now::sim_now;
 use crate::Looked;
@@ -20,7 +20,7 @@ use super::{EAGAIN, EINTR, EINVAL, program_mask};
 /// is pending (`ends`) whenever climbsim asks, and every millisecond of wall time.
 fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -> u32 {
     let Some(slot) = crate::my_slot() else { return release::ENDING };
-    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, waits::OTHER, 0);
+    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
     publish();
     loop {
         match crate::wait_looking(shared, slot, &publish, |take| crate::Look::taking_nothing(ends(pending()).then_some(()), take)) {
