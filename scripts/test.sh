@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Runs every climbsim test on a fresh machine: makes .venv with the pinned official DynamixelSDK
-# and maturin (tests/sdk/requirements.txt) and tests/vt/node's node_modules (npm ci), then `cargo test`
+# and maturin (tests/sdk/requirements.txt) and tests/vt/node's node_modules (npm ci), checks the
+# format and clippy's lints (climbsim and the shim), then `cargo test`
 # (unit, golden-vector, property, dynamixel2 and official-SDK tests), then climbsim as a user outside
 # the checkout gets it (scripts/test-outside.sh: the wheel, `climbsim init`, pytest), then `climbsim check scenarios/` (every shipped scenario against its
 # [expect], on virtual time, and 15 s of the 1 Mbps external one on the wall clock), then the SocketCAN test if a vcan interface
@@ -65,6 +66,17 @@ need_debian_package golang-go "/usr/bin/go" "the Go controller of the virtual-ti
 stage_done "Debian packages"
 # One build from scratch, with the settings scripts/test-outside.sh packs it with.
 source "$repo/scripts/fresh-build.sh"
+
+# The code's habits, first (they fail in seconds, not after the build): rustfmt.toml's format
+# and clippy with every warning an error, for climbsim (every target) and for the shim, which
+# build.rs compiles with rustc alone and so has a manifest of its own (shim/Cargo.toml).
+echo "==> cargo fmt --check; cargo clippy -- -D warnings (climbsim and shim/)"
+command cargo fmt --check
+command cargo fmt --check --manifest-path shim/Cargo.toml
+command cargo clippy --locked --all-targets --quiet -- -D warnings
+command cargo clippy --locked --quiet --manifest-path shim/Cargo.toml --target-dir "${CARGO_TARGET_DIR:-$repo/target}/shim-lint" -- -D warnings
+stage_done "fmt and clippy"
+
 cargo() { command cargo "$1" "${fresh_build_config[@]}" "${@:2}"; }
 echo "==> cargo test"
 cargo test --locked --no-run "$@"
