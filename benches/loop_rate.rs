@@ -55,11 +55,7 @@ const GOALS: [i32; 8] = [10, 10, 10, 10, 0, 0, 0, 0];
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
-    let (run_for, warm_for) = if full {
-        (Duration::from_secs(3), Duration::from_millis(300))
-    } else {
-        (Duration::from_millis(200), Duration::from_millis(20))
-    };
+    let (run_for, warm_for) = if full { (Duration::from_secs(3), Duration::from_millis(300)) } else { (Duration::from_millis(200), Duration::from_millis(20)) };
     let goals: Vec<SyncWriteData<u32>> = IDS.iter().zip(GOALS).map(|(&id, v)| SyncWriteData { motor_id: id, data: v as u32 }).collect();
 
     // Wire bytes of one cycle, from the codec that builds the real packets.
@@ -388,7 +384,6 @@ fn note(samples: &mut Vec<String>, text: String) {
         samples.push(text);
     }
 }
-
 
 /// How a canned responder waits for the next request.
 #[derive(Clone, Copy)]

@@ -69,11 +69,7 @@ struct Config {
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
-    let cfg = if full {
-        Config { full, warmup: 2_000, blocks: 40, per_block: 500 }
-    } else {
-        Config { full, warmup: 50, blocks: 4, per_block: 50 }
-    };
+    let cfg = if full { Config { full, warmup: 2_000, blocks: 40, per_block: 500 } } else { Config { full, warmup: 50, blocks: 4, per_block: 50 } };
     let request = encode_instruction(1, READ, &[132, 0, 4, 0]);
     assert_eq!(request.len(), 14, "a Read request is 14 bytes");
 
@@ -131,8 +127,13 @@ fn main() {
     let ratio = sim_stats.median_ns as f64 / echo_stats.median_ns as f64;
 
     println!();
-    println!("pty round-trip latency ({} round trips each, interleaved in {} blocks, {:.1} s){}",
-        echo_stats.n, cfg.blocks, wall.as_secs_f64(), if cfg.full { "" } else { "  [smoke run, not a measurement]" });
+    println!(
+        "pty round-trip latency ({} round trips each, interleaved in {} blocks, {:.1} s){}",
+        echo_stats.n,
+        cfg.blocks,
+        wall.as_secs_f64(),
+        if cfg.full { "" } else { "  [smoke run, not a measurement]" }
+    );
     println!("| path                                     |     n | min µs | median µs | p90 µs | p99 µs | max µs |");
     println!("|------------------------------------------|------:|-------:|----------:|-------:|-------:|-------:|");
     echo_stats.row("raw pty echo (14 B out, 14 B back)");
@@ -171,11 +172,7 @@ fn main() {
         std::fs::write(&path, serde_json::to_string_pretty(&json).expect("json") + "\n").expect("write results");
         println!("results: {}", path.display());
         use support::history::figure;
-        let mut figures = vec![
-            figure("echo_median", echo_stats.median_ns as f64 / 1e3, "us"),
-            figure("climbsim_median", sim_stats.median_ns as f64 / 1e3, "us"),
-            figure("ratio_to_echo", ratio, "x"),
-        ];
+        let mut figures = vec![figure("echo_median", echo_stats.median_ns as f64 / 1e3, "us"), figure("climbsim_median", sim_stats.median_ns as f64 / 1e3, "us"), figure("ratio_to_echo", ratio, "x")];
         figures.extend(baseline_ratio.map(|r| figure("ratio_to_baseline", r, "x")));
         support::history::record("pty_latency", &figures);
     }
@@ -215,15 +212,7 @@ impl Stats {
 
     fn row(&self, name: &str) {
         let us = |ns: u64| ns as f64 / 1e3;
-        println!(
-            "| {name:<40} | {:>5} | {:>6.1} | {:>9.1} | {:>6.1} | {:>6.1} | {:>6.0} |",
-            self.n,
-            us(self.min_ns),
-            us(self.median_ns),
-            us(self.p90_ns),
-            us(self.p99_ns),
-            us(self.max_ns)
-        );
+        println!("| {name:<40} | {:>5} | {:>6.1} | {:>9.1} | {:>6.1} | {:>6.1} | {:>6.0} |", self.n, us(self.min_ns), us(self.median_ns), us(self.p90_ns), us(self.p99_ns), us(self.max_ns));
     }
 
     fn json(&self) -> serde_json::Value {
@@ -238,4 +227,3 @@ impl Stats {
         })
     }
 }
-

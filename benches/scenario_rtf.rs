@@ -77,7 +77,12 @@ fn main() {
         use support::history::figure;
         support::history::record(
             "scenario_rtf",
-            &[figure("flat_line_20s_wall", with_camera, "s"), figure("real_time_factor", rtf, "x"), figure("camera_share", 100.0 * camera_share, "%"), figure("sweep_speedup_2_jobs", serial / parallel, "x")],
+            &[
+                figure("flat_line_20s_wall", with_camera, "s"),
+                figure("real_time_factor", rtf, "x"),
+                figure("camera_share", 100.0 * camera_share, "%"),
+                figure("sweep_speedup_2_jobs", serial / parallel, "x"),
+            ],
         );
     }
 }

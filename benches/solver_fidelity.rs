@@ -76,12 +76,25 @@ fn main() {
     };
     let rows: Vec<Row> = settings.iter().map(|&solver| measure(solver)).collect();
     println!("\nsolver fidelity (tolerances of tests/physics.rs in the header; the flat-line scenario's expect: settles, |SSE| ≤ 2 mm)");
-    println!("| solver | flat speed vs v·R (±3 %) | wall drift 10 s (< 1 mm) | 30° drift 10 s (< 1 mm) | 60° climbing current vs weight (±20 %) | magnet vs contact angle (< 2°) | wall transition pitch (> 88°) | weakest pull on the wall (> 90 %) | slide at stall, 200 kg on 30° (< {:.0} mm) | flat-line settling (s) | flat-line SSE (mm) |", STALL_SLIP_TOLERANCE_M * 1000.0);
+    println!(
+        "| solver | flat speed vs v·R (±3 %) | wall drift 10 s (< 1 mm) | 30° drift 10 s (< 1 mm) | 60° climbing current vs weight (±20 %) | magnet vs contact angle (< 2°) | wall transition pitch (> 88°) | weakest pull on the wall (> 90 %) | slide at stall, 200 kg on 30° (< {:.0} mm) | flat-line settling (s) | flat-line SSE (mm) |",
+        STALL_SLIP_TOLERANCE_M * 1000.0
+    );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for r in &rows {
         println!(
             "| {} | {:+.2} % | {:.3} mm | {:.3} mm | {:+.1} % | {:.2}° | {:.1}° | {:.0} % | {:+.1} mm | {:.1} | {:+.2} |",
-            r.solver, r.speed_error_pct, r.wall_drift_mm, r.slope_drift_mm, r.climbing_current_pct, r.magnet_error_deg, r.wall_pitch_deg, r.wall_weakest_pull_pct, r.stall_slip_mm, r.line_settling_s, r.line_sse_mm
+            r.solver,
+            r.speed_error_pct,
+            r.wall_drift_mm,
+            r.slope_drift_mm,
+            r.climbing_current_pct,
+            r.magnet_error_deg,
+            r.wall_pitch_deg,
+            r.wall_weakest_pull_pct,
+            r.stall_slip_mm,
+            r.line_settling_s,
+            r.line_sse_mm
         );
     }
     if full_run {

@@ -50,7 +50,12 @@ fn main() {
     }
     let (direct_median, tapped_median) = (support::median(&mut direct), support::median(&mut tapped));
     let added = tapped_median - direct_median;
-    println!("tap_latency: Read of 4 bytes at 1 Mbps, {} round trips each way in {blocks} blocks, {:.1} s{}", direct.len(), started.elapsed().as_secs_f64(), if full { "" } else { "  [smoke run, not a measurement]" });
+    println!(
+        "tap_latency: Read of 4 bytes at 1 Mbps, {} round trips each way in {blocks} blocks, {:.1} s{}",
+        direct.len(),
+        started.elapsed().as_secs_f64(),
+        if full { "" } else { "  [smoke run, not a measurement]" }
+    );
     println!("  direct on the pty pair      median {direct_median:8.1} µs");
     println!("  through climbsim tap        median {tapped_median:8.1} µs");
     println!("  added by tap                {added:8.1} µs (target ≤ {TARGET_ADDED_US} µs: {})", if added <= TARGET_ADDED_US { "met" } else { "NOT met" });

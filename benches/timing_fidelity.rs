@@ -21,7 +21,6 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-
 use climbsim::protocol::encode_instruction;
 use nix::sys::termios::BaudRate;
 use support::Emulator;
@@ -103,10 +102,7 @@ impl Drop for Pinned {
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
-    let cases = [
-        Case { name: "Read 4 B", request: encode_instruction(1, 0x02, &[132, 0, 4, 0]), reply_len: 15 },
-        Case { name: "Ping", request: encode_instruction(1, 0x01, &[]), reply_len: 14 },
-    ];
+    let cases = [Case { name: "Read 4 B", request: encode_instruction(1, 0x02, &[132, 0, 4, 0]), reply_len: 15 }, Case { name: "Ping", request: encode_instruction(1, 0x01, &[]), reply_len: 14 }];
     let bauds = [(57_600u32, BaudRate::B57600), (1_000_000, BaudRate::B1000000), (4_000_000, BaudRate::B4000000)];
     let mut rows = Vec::new();
     let mut figures = Vec::new();
@@ -179,7 +175,11 @@ fn measure_at(bps: u32, baud: BaudRate, tag: &PlacementTag, cases: &[Case], full
         let mut echo_us = samples.pop().expect("echo samples");
         let echo_median = support::median(&mut echo_us);
         println!("|   | pty echo of the request, same blocks (the host's round trip){} | {n} | | {echo_median:.1} | | | | |", tag.row);
-        println!("|   | the request echoed {predicted:.1} µs after it was read, same blocks (the host's floor for a timed reply){} | {n} | {predicted:.1} | {timed_median:.1} | | {timed_error:+.1} | {:+.2} | |", tag.row, 100.0 * timed_error / predicted);
+        println!(
+            "|   | the request echoed {predicted:.1} µs after it was read, same blocks (the host's floor for a timed reply){} | {n} | {predicted:.1} | {timed_median:.1} | | {timed_error:+.1} | {:+.2} | |",
+            tag.row,
+            100.0 * timed_error / predicted
+        );
         rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "packet": format!("{} (pty echo floor)", case.name), "n": n, "median_us": echo_median }));
         rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "packet": format!("{} (timed echo floor)", case.name), "n": n, "predicted_us": predicted, "median_us": timed_median, "error_us": timed_error }));
         figures.push(support::history::figure(format!("{bps}_{short}_echo_floor{}", tag.figure), echo_median, "us"));
@@ -209,6 +209,12 @@ fn measure_at(bps: u32, baud: BaudRate, tag: &PlacementTag, cases: &[Case], full
     // handed replies to the pty (the rest is the pty and the client waking up).
     let timing: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).expect("timing report")).expect("report JSON");
     let lateness = &timing["delivery_lateness_us"];
-    println!("|   | emulator's hand-over after the due time (all {bps} bps replies){} | {} | | p50 {:.1} | p99 {:.1} | | | |", tag.row, lateness["count"], lateness["p50_us"].as_f64().unwrap_or(f64::NAN), lateness["p99_us"].as_f64().unwrap_or(f64::NAN));
+    println!(
+        "|   | emulator's hand-over after the due time (all {bps} bps replies){} | {} | | p50 {:.1} | p99 {:.1} | | | |",
+        tag.row,
+        lateness["count"],
+        lateness["p50_us"].as_f64().unwrap_or(f64::NAN),
+        lateness["p99_us"].as_f64().unwrap_or(f64::NAN)
+    );
     rows.push(serde_json::json!({ "baud": bps, "placement": tag.json, "emulator_handover_lateness_us": lateness }));
 }

@@ -125,7 +125,16 @@ fn main() {
     println!("| tick rate | solver | full µs/tick | bare rapier µs/tick | bare rapier + held inputs µs/tick | full × real time | overhead full/bare | overhead full/(bare + inputs) |");
     println!("|---|---|---|---|---|---|---|---|");
     for (hz, dt_us, solver, t) in &rows {
-        println!("| {hz} Hz | {solver}{} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} |", if *solver == default { " (default)" } else { "" }, t.full, t.bare, t.bare_with_inputs, dt_us / t.full, t.full / t.bare, t.full / t.bare_with_inputs);
+        println!(
+            "| {hz} Hz | {solver}{} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} |",
+            if *solver == default { " (default)" } else { "" },
+            t.full,
+            t.bare,
+            t.bare_with_inputs,
+            dt_us / t.full,
+            t.full / t.bare,
+            t.full / t.bare_with_inputs
+        );
     }
     println!("peak memory (VmHWM) of a world on a 1024×1024 terrain: {peak_mb:.1} MB (target < 200 MB)");
     if full_run {

@@ -15,16 +15,7 @@ fn main() -> anyhow::Result<()> {
     let terrain = terrain::generate(&TerrainSpec::Flat { size_m: 4.0 }, 0, Path::new("."))?;
     let mut line = WeldLine::new(&[[-1.0, 0.0], [0.0, 0.0], [0.6, -0.4], [1.2, -0.4]], 5, 0.02)?;
     line.drape(&terrain)?;
-    let settings = LineCameraSettings {
-        image_px: 128,
-        orthographic_size_m: 0.1,
-        aspect: 1.0,
-        frame_rate_hz: 1000.0,
-        noise_std: 0.0,
-        blur_px: 0,
-        latency_frames: 0,
-        seed: 1,
-    };
+    let settings = LineCameraSettings { image_px: 128, orthographic_size_m: 0.1, aspect: 1.0, frame_rate_hz: 1000.0, noise_std: 0.0, blur_px: 0, latency_frames: 0, seed: 1 };
     let mut camera = LineCamera::new(settings)?;
     let detector = LineDetector::new(DetectorSettings::default())?;
     let frames = 1000;

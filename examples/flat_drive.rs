@@ -39,7 +39,11 @@ fn main() {
         let v = world.chassis_velocity();
         println!(
             "t={second}s x={:.4} y={:.4} z={:.4} vx={:.5} m/s (v·R = {:.5}) adhesion={:?}",
-            pose.translation.x, pose.translation.y, pose.translation.z, v.x, v_goal,
+            pose.translation.x,
+            pose.translation.y,
+            pose.translation.z,
+            v.x,
+            v_goal,
             world.adhesion().iter().map(|a| a.force_n).collect::<Vec<_>>()
         );
     }

@@ -2,12 +2,12 @@
 //! pitch, wheel centres, magnet pulls and magnet angles every second: the floor-to-wall
 //! transition of issue #3. `cargo run --release --example wall_probe -- GOAL_VELOCITY FILLET_M`;
 //! `ROBOT=path/to/robot.toml` tries another robot description (absolute profile path).
-use std::path::Path;
-use std::time::Duration;
 use climbsim::robot::{RobotDescription, WheelPosition};
 use climbsim::sim::terrain::{TerrainSpec, generate};
 use climbsim::sim::{Lockstep, WorldConfig};
 use rapier3d::prelude::Vector;
+use std::path::Path;
+use std::time::Duration;
 
 fn main() {
     let args: Vec<f32> = std::env::args().skip(1).map(|a| a.parse().unwrap()).collect();

@@ -142,9 +142,7 @@ impl Fault {
             Self::LateReplies { delay_ms, .. } if !(delay_ms.is_finite() && delay_ms >= 0.0) => invalid(format!("delay_ms {delay_ms} must be >= 0")),
             Self::Overheating { ambient_c, .. } if !ambient_c.is_finite() => invalid("ambient_c must be finite".into()),
             Self::VoltageSag { volts, .. } if !(volts.is_finite() && volts >= 0.0) => invalid(format!("volts {volts} must be >= 0")),
-            Self::EncoderNoise { position_std_pulses: p, velocity_std: v, .. } if !(p >= 0.0 && v >= 0.0 && p.is_finite() && v.is_finite()) => {
-                invalid("standard deviations must be >= 0".into())
-            }
+            Self::EncoderNoise { position_std_pulses: p, velocity_std: v, .. } if !(p >= 0.0 && v >= 0.0 && p.is_finite() && v.is_finite()) => invalid("standard deviations must be >= 0".into()),
             Self::MagnetFailure { pull, .. } if !(0.0..=1.0).contains(&pull) => invalid(format!("pull {pull} is not a fraction in [0, 1]")),
             Self::SlipPatch { x_m, z_m, friction } => {
                 if !(friction.is_finite() && friction >= 0.0) {
@@ -241,11 +239,7 @@ impl ScheduledFault {
 
 /// A TOML value from its text; a bare word that is no TOML value is a string.
 fn parse_value(text: &str) -> toml::Value {
-    format!("v = {text}")
-        .parse::<toml::Table>()
-        .ok()
-        .and_then(|mut t| t.remove("v"))
-        .unwrap_or_else(|| toml::Value::String(text.to_owned()))
+    format!("v = {text}").parse::<toml::Table>().ok().and_then(|mut t| t.remove("v")).unwrap_or_else(|| toml::Value::String(text.to_owned()))
 }
 
 /// Split at commas that are not inside brackets or quotes.

@@ -8,9 +8,9 @@ use thiserror::Error;
 
 use crate::bus::{self, Bus, BusError, Timing};
 // Defined below the bus (fault descriptions name wheels too); part of the robot description.
-pub use crate::parts::{ServoRole, WheelPosition};
 use crate::device::{BenchPlant, FirmwareProfile, Plant, ProfileError, Servo};
 use crate::overrides::{Override, PROFILE_PREFIX, ROBOT_PREFIX};
+pub use crate::parts::{ServoRole, WheelPosition};
 use crate::source_location::{DataFileError, load_toml_with};
 
 /// What a robot description is called in errors.

@@ -105,8 +105,7 @@ fn trace_bus_writes_each_transaction_as_json_lines_and_shutdown_removes_link() {
     let dir = temp_dir("trace");
     let link = dir.join("ttyDXL");
     let trace = dir.join("bus.jsonl");
-    let mut serve =
-        Options::default().stderr_log().start(&["--link", link.to_str().unwrap(), "--timing", "off", "--trace-bus", trace.to_str().unwrap()]);
+    let mut serve = Options::default().stderr_log().start(&["--link", link.to_str().unwrap(), "--timing", "off", "--trace-bus", trace.to_str().unwrap()]);
     assert_eq!(serve.port(), link);
     let mut port = open_raw(&link);
     port.write_all(&[0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01, 0x19, 0x4E]).unwrap();
@@ -116,8 +115,7 @@ fn trace_bus_writes_each_transaction_as_json_lines_and_shutdown_removes_link() {
     let status = serve.terminate().expect("climbsim did not exit within 10 s of SIGTERM");
     assert!(status.success(), "{status:?}");
     assert!(!link.exists() && std::fs::symlink_metadata(&link).is_err(), "link removed on shutdown");
-    let lines: Vec<serde_json::Value> =
-        std::fs::read_to_string(&trace).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&trace).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert_eq!(lines.len(), 2, "{lines:?}");
     assert_eq!(lines[0]["dir"], "controller->servos");
     assert_eq!(lines[0]["decoded"]["instruction"], "Ping");

@@ -142,7 +142,8 @@ fn sweep_shards_merge_into_one_table() {
     let dir = support::scratch_dir("sweep");
     let (one, two, merged) = (dir.join("one"), dir.join("two"), dir.join("merged"));
     for (shard, out) in [("1/2", &one), ("2/2", &two)] {
-        let output = climbsim(&["sweep", "scenarios/flat-line.toml", "--set", "controller.zeta=0.5,1.0", "--set", "world.duration_s=3", "--shard", shard, "--jobs", "1", "--out", &out.display().to_string()]);
+        let output =
+            climbsim(&["sweep", "scenarios/flat-line.toml", "--set", "controller.zeta=0.5,1.0", "--set", "world.duration_s=3", "--shard", shard, "--jobs", "1", "--out", &out.display().to_string()]);
         assert!(output.status.success(), "{}", text(&output));
     }
     let output = climbsim(&["sweep", "--merge", &one.display().to_string(), &two.display().to_string(), "--out", &merged.display().to_string()]);
@@ -237,7 +238,20 @@ fn the_python_reference_controller_follows_the_line_over_a_pty() {
     let out = support::scratch_dir("external");
     // The test runner loads both cores, so the pace is not judged here (tests/external.rs is), and
     // 8 s is too short for the scenario's settling thresholds (`climbsim check` applies them).
-    let output = support::climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--set", "world.duration_s=8", "--set", "expect={}", "--timing", "off", "--pace-tolerance-ms", "1000", "--out", &out.display().to_string()]);
+    let output = support::climbsim_with_sdk_python(&[
+        "run",
+        "scenarios/external-line-follower.toml",
+        "--set",
+        "world.duration_s=8",
+        "--set",
+        "expect={}",
+        "--timing",
+        "off",
+        "--pace-tolerance-ms",
+        "1000",
+        "--out",
+        &out.display().to_string(),
+    ]);
     let log = std::fs::read_to_string(out.join("controller.log")).unwrap_or_default();
     assert!(output.status.success(), "{}\ncontroller.log:\n{log}", text(&output));
     assert!(log.contains("control periods"), "the controller ran and stopped cleanly:\n{log}");
@@ -380,7 +394,10 @@ fn interrupted_check_and_sweep_write_what_they_have() {
     assert!(xml.contains("flat-line") && xml.contains("interrupted"), "{xml}");
 
     let sweep = dir.join("sweep");
-    let output = interrupted(&["sweep", "scenarios/flat-line.toml", "--set", "world.duration_s=80000", "--set", "controller.zeta=0.5,1.0,1.5", "--jobs", "1", "--out", &sweep.display().to_string()], std::time::Duration::from_secs(2));
+    let output = interrupted(
+        &["sweep", "scenarios/flat-line.toml", "--set", "world.duration_s=80000", "--set", "controller.zeta=0.5,1.0,1.5", "--jobs", "1", "--out", &sweep.display().to_string()],
+        std::time::Duration::from_secs(2),
+    );
     assert_eq!(output.status.code(), Some(130), "{}", text(&output));
     let table = std::fs::read_to_string(sweep.join("sweep.csv")).expect("sweep.csv written on interrupt");
     assert_eq!(table.lines().count(), 4, "every point has a row: {table}");
@@ -427,7 +444,8 @@ fn from_an_empty_folder_climbsim_runs_on_the_files_it_has_built_in() {
     let dir = std::env::temp_dir().join(format!("climbsim-outside-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("an empty folder");
-    let in_dir = |args: &[&str]| Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(&dir).env("PATH", support::path_with_sdk_python()).env_remove("CLIMBSIM_ROBOT").output().expect("climbsim");
+    let in_dir =
+        |args: &[&str]| Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(&dir).env("PATH", support::path_with_sdk_python()).env_remove("CLIMBSIM_ROBOT").output().expect("climbsim");
     let shipped = std::fs::read_to_string(repo().join("scenarios/flat-line.toml")).expect("a shipped scenario");
     std::fs::write(dir.join("flat.toml"), shipped.replace("duration_s = 120.0", "duration_s = 5.0")).expect("copied");
     let run = in_dir(&["run", "flat.toml", "--set", "expect={}", "--out", "out"]);

@@ -514,11 +514,7 @@ fn pty_bulk_write_and_bulk_read() {
         let status = bus.read_status_response(count).unwrap_or_else(|e| panic!("Bulk Read reply of ID {id}: {e} ({e:?})"));
         got.push((status.packet_id(), status.parameters().to_vec()));
     }
-    assert_eq!(
-        got,
-        vec![(3, 700u16.to_le_bytes().to_vec()), (1, vec![1]), (2, 1234u32.to_le_bytes().to_vec())],
-        "Bulk Read replies (order of the instruction, each its own address/length)"
-    );
+    assert_eq!(got, vec![(3, 700u16.to_le_bytes().to_vec()), (1, vec![1]), (2, 1234u32.to_le_bytes().to_vec())], "Bulk Read replies (order of the instruction, each its own address/length)");
     drop(bus);
     emu.finish();
 }

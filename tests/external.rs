@@ -20,66 +20,32 @@ fn world(duration_s: f64) -> String {
 fn scenario(dir: &Path, name: &str, duration_s: f64, controller: &str, extra: &str) -> PathBuf {
     support::executable_script(dir, &format!("{name}.sh"), &format!("#!/bin/sh\n{controller}\n"));
     let path = dir.join(format!("{name}.toml"));
-    let text = format!(
-        "{}\n[controller]\nkind = \"external\"\ncommand = [\"./{name}.sh\"]\n{extra}\n",
-        world(duration_s)
-    );
+    let text = format!("{}\n[controller]\nkind = \"external\"\ncommand = [\"./{name}.sh\"]\n{extra}\n", world(duration_s));
     std::fs::write(&path, text).expect("write scenario");
     path
 }
 
 fn summary(out: &Path) -> serde_json::Value {
-    let bytes = std::fs::read(out.join("summary.json"))
-        .unwrap_or_else(|e| panic!("{}: {e}", out.join("summary.json").display()));
+    let bytes = std::fs::read(out.join("summary.json")).unwrap_or_else(|e| panic!("{}: {e}", out.join("summary.json").display()));
     serde_json::from_slice(&bytes).expect("summary.json")
 }
 
 #[test]
 fn a_controller_that_crashes_fails_check_with_its_output_in_junit() {
     let dir = support::scratch_dir("ext-crash");
-    let path = scenario(
-        &dir,
-        "crash",
-        5.0,
-        "echo \"starting on $DXL_PORT at $DXL_BAUD\"\nsleep 0.5\necho 'segfault in control loop' >&2\nexit 3",
-        "",
-    );
+    let path = scenario(&dir, "crash", 5.0, "echo \"starting on $DXL_PORT at $DXL_BAUD\"\nsleep 0.5\necho 'segfault in control loop' >&2\nexit 3", "");
     let junit = dir.join("junit.xml");
-    let output = climbsim(&[
-        "check",
-        &path.display().to_string(),
-        "--junit",
-        &junit.display().to_string(),
-        "--out",
-        &dir.join("runs").display().to_string(),
-    ]);
-    assert_eq!(
-        output.status.code(),
-        Some(1),
-        "a crashed controller fails the check: {}",
-        text(&output)
-    );
+    let output = climbsim(&["check", &path.display().to_string(), "--junit", &junit.display().to_string(), "--out", &dir.join("runs").display().to_string()]);
+    assert_eq!(output.status.code(), Some(1), "a crashed controller fails the check: {}", text(&output));
     let all = text(&output);
-    assert!(
-        all.contains("FAIL") && all.contains("exit status: 3"),
-        "{all}"
-    );
+    assert!(all.contains("FAIL") && all.contains("exit status: 3"), "{all}");
     let xml = std::fs::read_to_string(&junit).expect("junit");
-    assert!(
-        xml.contains("<failure") && xml.contains("segfault in control loop"),
-        "the log's last lines are in the failure:\n{xml}"
-    );
-    assert!(
-        xml.contains("<system-out>") && xml.contains("starting on /dev/pts/"),
-        "the controller's output is in system-out:\n{xml}"
-    );
+    assert!(xml.contains("<failure") && xml.contains("segfault in control loop"), "the log's last lines are in the failure:\n{xml}");
+    assert!(xml.contains("<system-out>") && xml.contains("starting on /dev/pts/"), "the controller's output is in system-out:\n{xml}");
     let s = summary(&dir.join("runs").join("crash"));
     assert_eq!(s["controller_exit_code"], 3, "{s}");
     let at = s["controller_exited_at_s"].as_f64().expect("exit time");
-    assert!(
-        (0.3..2.0).contains(&at),
-        "it died at ~0.5 s of simulated time, not {at}"
-    );
+    assert!((0.3..2.0).contains(&at), "it died at ~0.5 s of simulated time, not {at}");
 }
 
 #[test]
@@ -87,43 +53,18 @@ fn a_controller_killed_by_a_signal_fails_the_run() {
     let dir = support::scratch_dir("ext-signal");
     let path = scenario(&dir, "killed", 5.0, "sleep 0.3\nkill -SEGV $$", "");
     let out = dir.join("out");
-    let output = climbsim(&[
-        "run",
-        &path.display().to_string(),
-        "--out",
-        &out.display().to_string(),
-    ]);
+    let output = climbsim(&["run", &path.display().to_string(), "--out", &out.display().to_string()]);
     assert_eq!(output.status.code(), Some(1), "{}", text(&output));
     let s = summary(&out);
-    assert!(
-        s["controller_exit"]
-            .as_str()
-            .is_some_and(|e| e.contains("signal")),
-        "{s}"
-    );
-    assert!(
-        s["failures"].as_array().is_some_and(|f| !f.is_empty()),
-        "{s}"
-    );
+    assert!(s["controller_exit"].as_str().is_some_and(|e| e.contains("signal")), "{s}");
+    assert!(s["failures"].as_array().is_some_and(|f| !f.is_empty()), "{s}");
 }
 
 #[test]
 fn a_controller_that_ends_by_itself_passes_only_with_a_zero_exit() {
     let dir = support::scratch_dir("ext-ends");
-    let ok = scenario(
-        &dir,
-        "ok",
-        5.0,
-        "sleep 0.3\nexit 0",
-        "ends_by_itself = true",
-    );
-    let bad = scenario(
-        &dir,
-        "bad",
-        5.0,
-        "sleep 0.3\nexit 1",
-        "ends_by_itself = true",
-    );
+    let ok = scenario(&dir, "ok", 5.0, "sleep 0.3\nexit 0", "ends_by_itself = true");
+    let bad = scenario(&dir, "bad", 5.0, "sleep 0.3\nexit 1", "ends_by_itself = true");
     let early = scenario(&dir, "early", 5.0, "sleep 0.3\nexit 0", "");
     let runs = dir.join("runs").display().to_string();
     let output = climbsim(&["check", &ok.display().to_string(), "--out", &runs]);
@@ -131,12 +72,7 @@ fn a_controller_that_ends_by_itself_passes_only_with_a_zero_exit() {
     let output = climbsim(&["check", &bad.display().to_string(), "--out", &runs]);
     assert_eq!(output.status.code(), Some(1), "{}", text(&output));
     let output = climbsim(&["check", &early.display().to_string(), "--out", &runs]);
-    assert_eq!(
-        output.status.code(),
-        Some(1),
-        "exit 0 before the end fails unless ends_by_itself: {}",
-        text(&output)
-    );
+    assert_eq!(output.status.code(), Some(1), "exit 0 before the end fails unless ends_by_itself: {}", text(&output));
 }
 
 /// Whether `pid` is still running (a zombie waiting to be reaped is not).
@@ -193,30 +129,12 @@ fn a_controllers_log_is_capped_keeping_head_and_tail() {
 fn a_controller_that_cannot_start_is_one_clear_line() {
     let dir = support::scratch_dir("ext-missing");
     let path = dir.join("missing.toml");
-    std::fs::write(
-        &path,
-        format!(
-            "{}[controller]\nkind = \"external\"\ncommand = [\"./no-such-controller\"]\n",
-            world(1.0)
-        ),
-    )
-    .expect("write");
-    let output = climbsim(&[
-        "run",
-        &path.display().to_string(),
-        "--out",
-        &dir.join("out").display().to_string(),
-    ]);
+    std::fs::write(&path, format!("{}[controller]\nkind = \"external\"\ncommand = [\"./no-such-controller\"]\n", world(1.0))).expect("write");
+    let output = climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
     assert_eq!(output.status.code(), Some(2), "{}", text(&output));
     let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(
-        stderr.contains("no-such-controller") && !stderr.contains("panicked"),
-        "{stderr}"
-    );
-    assert!(
-        stderr.lines().filter(|l| !l.trim().is_empty()).count() <= 2,
-        "one clear line:\n{stderr}"
-    );
+    assert!(stderr.contains("no-such-controller") && !stderr.contains("panicked"), "{stderr}");
+    assert!(stderr.lines().filter(|l| !l.trim().is_empty()).count() <= 2, "one clear line:\n{stderr}");
     // Nothing half-written is left behind (the recording had been started).
     let left: Vec<_> = std::fs::read_dir(dir.join("out")).expect("out").filter_map(|e| e.ok()).map(|e| e.file_name()).filter(|n| n.to_string_lossy().ends_with(".tmp")).collect();
     assert!(left.is_empty(), "{left:?}");
@@ -235,25 +153,10 @@ fn a_controller_that_cannot_start_is_one_clear_line() {
 #[test]
 fn speed_runs_the_controller_clock_n_times_faster() {
     let dir = support::scratch_dir("ext-speed");
-    let path = scenario(
-        &dir,
-        "clock",
-        5.0,
-        "echo \"speed $CLIMBSIM_SPEED\"\nsleep 2\necho slept\nexit 0",
-        "ends_by_itself = true",
-    );
+    let path = scenario(&dir, "clock", 5.0, "echo \"speed $CLIMBSIM_SPEED\"\nsleep 2\necho slept\nexit 0", "ends_by_itself = true");
     let out = dir.join("out");
     let started = std::time::Instant::now();
-    let output = climbsim(&[
-        "run",
-        &path.display().to_string(),
-        "--speed",
-        "5",
-        "--pace-tolerance-ms",
-        "1000",
-        "--out",
-        &out.display().to_string(),
-    ]);
+    let output = climbsim(&["run", &path.display().to_string(), "--speed", "5", "--pace-tolerance-ms", "1000", "--out", &out.display().to_string()]);
     let wall = started.elapsed().as_secs_f64();
     assert!(output.status.success(), "{}", text(&output));
     let s = summary(&out);
@@ -262,14 +165,8 @@ fn speed_runs_the_controller_clock_n_times_faster() {
     // come on top, 5x in simulated time (beside two busy loops, the other tests and a build:
     // 0.2 s of wall time, 3.02 s; a 3 s run once ended before the sleep did). Unscaled, the
     // sleep alone would take 10 simulated seconds, past the run's 5.
-    assert!(
-        (1.8..4.5).contains(&at),
-        "the controller's 2 s sleep took {at} simulated seconds"
-    );
-    assert!(
-        wall < 3.0,
-        "5 simulated seconds at 5x took {wall:.2} s of wall time"
-    );
+    assert!((1.8..4.5).contains(&at), "the controller's 2 s sleep took {at} simulated seconds");
+    assert!(wall < 3.0, "5 simulated seconds at 5x took {wall:.2} s of wall time");
     assert_eq!(s["pace.speed"], 5.0, "{s}");
     let log = std::fs::read_to_string(out.join("controller.log")).expect("log");
     assert!(log.contains("speed 5") && log.contains("slept"), "{log}");
@@ -277,40 +174,15 @@ fn speed_runs_the_controller_clock_n_times_faster() {
 
 #[test]
 fn speed_refuses_a_statically_linked_controller() {
-    let Some(static_program) = ["/bin/busybox", "/usr/bin/busybox", "/sbin/ldconfig"]
-        .into_iter()
-        .map(Path::new)
-        .find(|p| is_static_elf(p))
-    else {
-        panic!(
-            "no statically linked program on this machine to test with (looked for busybox, ldconfig)"
-        );
+    let Some(static_program) = ["/bin/busybox", "/usr/bin/busybox", "/sbin/ldconfig"].into_iter().map(Path::new).find(|p| is_static_elf(p)) else {
+        panic!("no statically linked program on this machine to test with (looked for busybox, ldconfig)");
     };
     let dir = support::scratch_dir("ext-static");
     let path = dir.join("static.toml");
-    std::fs::write(
-        &path,
-        format!(
-            "{}[controller]\nkind = \"external\"\ncommand = [\"{}\"]\n",
-            world(1.0),
-            static_program.display()
-        ),
-    )
-    .expect("write");
-    let output = climbsim(&[
-        "run",
-        &path.display().to_string(),
-        "--speed",
-        "4",
-        "--out",
-        &dir.join("out").display().to_string(),
-    ]);
+    std::fs::write(&path, format!("{}[controller]\nkind = \"external\"\ncommand = [\"{}\"]\n", world(1.0), static_program.display())).expect("write");
+    let output = climbsim(&["run", &path.display().to_string(), "--speed", "4", "--out", &dir.join("out").display().to_string()]);
     assert_eq!(output.status.code(), Some(2), "{}", text(&output));
-    assert!(
-        text(&output).contains("statically linked"),
-        "{}",
-        text(&output)
-    );
+    assert!(text(&output).contains("statically linked"), "{}", text(&output));
 }
 
 /// An ELF file without a PT_INTERP program header (the dynamic loader's path).
@@ -321,16 +193,10 @@ fn is_static_elf(path: &Path) -> bool {
     if bytes.len() < 64 || &bytes[..4] != b"\x7fELF" || bytes[4] != 2 {
         return false;
     }
-    let u64_at =
-        |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().expect("8 bytes")) as usize;
-    let u16_at =
-        |o: usize| u16::from_le_bytes(bytes[o..o + 2].try_into().expect("2 bytes")) as usize;
+    let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().expect("8 bytes")) as usize;
+    let u16_at = |o: usize| u16::from_le_bytes(bytes[o..o + 2].try_into().expect("2 bytes")) as usize;
     let (phoff, phentsize, phnum) = (u64_at(0x20), u16_at(0x36), u16_at(0x38));
-    (0..phnum).all(|i| {
-        bytes
-            .get(phoff + i * phentsize..phoff + i * phentsize + 4)
-            .is_some_and(|h| u32::from_le_bytes(h.try_into().expect("4")) != 3)
-    })
+    (0..phnum).all(|i| bytes.get(phoff + i * phentsize..phoff + i * phentsize + 4).is_some_and(|h| u32::from_le_bytes(h.try_into().expect("4")) != 3))
 }
 
 #[test]
@@ -339,56 +205,22 @@ fn a_run_the_machine_cannot_pace_fails() {
     let path = scenario(&dir, "idle", 1.0, "sleep 5", "");
     let out = dir.join("out");
     // No machine hands every tick over within a nanosecond of its deadline.
-    let output = climbsim(&[
-        "run",
-        &path.display().to_string(),
-        "--pace-tolerance-ms",
-        "0.000001",
-        "--out",
-        &out.display().to_string(),
-    ]);
+    let output = climbsim(&["run", &path.display().to_string(), "--pace-tolerance-ms", "0.000001", "--out", &out.display().to_string()]);
     assert_eq!(output.status.code(), Some(1), "{}", text(&output));
     let s = summary(&out);
     assert_eq!(s["pace.kept"], false, "{s}");
-    assert!(
-        s["failures"].as_array().is_some_and(|f| f
-            .iter()
-            .any(|l| l.as_str().is_some_and(|l| l.contains("could not keep up")))),
-        "{s}"
-    );
+    assert!(s["failures"].as_array().is_some_and(|f| f.iter().any(|l| l.as_str().is_some_and(|l| l.contains("could not keep up")))), "{s}");
 }
 
 #[test]
 fn sweep_values_reach_an_external_controller() {
     let dir = support::scratch_dir("ext-sweep");
-    let path = scenario(
-        &dir,
-        "params",
-        1.0,
-        "echo \"gain=$CLIMBSIM_PARAM_GAIN arg=$1\"\nsleep 5",
-        "params = { gain = 1.0 }",
-    );
+    let path = scenario(&dir, "params", 1.0, "echo \"gain=$CLIMBSIM_PARAM_GAIN arg=$1\"\nsleep 5", "params = { gain = 1.0 }");
     // The command takes the value as an argument too.
     let text_now = std::fs::read_to_string(&path).expect("read");
-    std::fs::write(
-        &path,
-        text_now.replace(
-            "command = [\"./params.sh\"]",
-            "command = [\"./params.sh\", \"{gain}\"]",
-        ),
-    )
-    .expect("write");
+    std::fs::write(&path, text_now.replace("command = [\"./params.sh\"]", "command = [\"./params.sh\", \"{gain}\"]")).expect("write");
     let out = dir.join("sweep");
-    let output = climbsim(&[
-        "sweep",
-        &path.display().to_string(),
-        "--set",
-        "controller.params.gain=0.5,2.5",
-        "--jobs",
-        "2",
-        "--out",
-        &out.display().to_string(),
-    ]);
+    let output = climbsim(&["sweep", &path.display().to_string(), "--set", "controller.params.gain=0.5,2.5", "--jobs", "2", "--out", &out.display().to_string()]);
     assert!(output.status.success(), "{}", text(&output));
     let mut seen = Vec::new();
     for entry in walk(&out) {
@@ -398,10 +230,7 @@ fn sweep_values_reach_an_external_controller() {
     }
     seen.sort();
     assert_eq!(seen.len(), 2, "{seen:?}");
-    assert!(
-        seen[0].contains("gain=0.5 arg=0.5") && seen[1].contains("gain=2.5 arg=2.5"),
-        "{seen:?}"
-    );
+    assert!(seen[0].contains("gain=0.5 arg=0.5") && seen[1].contains("gain=2.5 arg=2.5"), "{seen:?}");
 }
 
 fn walk(dir: &Path) -> Vec<PathBuf> {

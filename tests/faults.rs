@@ -12,8 +12,8 @@ use climbsim::fault::ScheduledFault;
 use climbsim::protocol::{ALERT_BIT, Decoder, RawPacket, encode_instruction, opcode};
 use climbsim::robot::WheelPosition;
 use climbsim::scenario::Scenario;
-use climbsim::sim::terrain::TerrainSpec;
 use climbsim::sim::Lockstep;
+use climbsim::sim::terrain::TerrainSpec;
 use rapier3d::prelude::Vector;
 
 mod support;
@@ -492,4 +492,3 @@ fn scenario_fault_events_are_checked_and_show_in_the_time_series_and_summary() {
     assert!(outcome.summary["faults.control_periods_skipped"].as_u64().unwrap() > 10, "the controller lived through lost replies");
     assert_eq!(outcome.settings["faults"].as_array().map(Vec::len), Some(3));
 }
-

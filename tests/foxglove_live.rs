@@ -41,7 +41,9 @@ fn a_late_viewer_gets_the_scene_transforms_images_and_time() {
     std::thread::sleep(Duration::from_millis(500));
 
     let wanted = ["/tf", "/camera/image", "/scene/terrain", "/scene/robot"];
-    let seen = support::foxglove::watch(&url, &wanted, Duration::from_secs(15), |seen| wanted.iter().all(|t| seen.count(t) >= 3 || (t.starts_with("/scene") && seen.count(t) > 0)) && seen.server_time.is_some());
+    let seen = support::foxglove::watch(&url, &wanted, Duration::from_secs(15), |seen| {
+        wanted.iter().all(|t| seen.count(t) >= 3 || (t.starts_with("/scene") && seen.count(t) > 0)) && seen.server_time.is_some()
+    });
     let (received, server_time) = (&seen.received, seen.server_time);
     let info = seen.server_info.as_ref().expect("serverInfo");
     assert_eq!(info["name"], "climbsim");

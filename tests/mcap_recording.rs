@@ -88,7 +88,20 @@ fn a_run_records_transforms_camera_and_signals_that_match_its_time_series() {
     // The robot's frame tree, at the view's 50 Hz: the middle section where the series puts
     // the robot, the wheels a track apart, each magnet pulling straight down on the flat floor.
     let parents = ["map", "world", "middle", "front", "wheel_front_left", "front", "wheel_front_right", "middle", "wheel_rear_left", "middle", "wheel_rear_right", "middle"];
-    let children = ["world", "middle", "front", "wheel_front_left", "magnet_front_left", "wheel_front_right", "magnet_front_right", "wheel_rear_left", "magnet_rear_left", "wheel_rear_right", "magnet_rear_right", "camera"];
+    let children = [
+        "world",
+        "middle",
+        "front",
+        "wheel_front_left",
+        "magnet_front_left",
+        "wheel_front_right",
+        "magnet_front_right",
+        "wheel_rear_left",
+        "magnet_rear_left",
+        "wheel_rear_right",
+        "magnet_rear_right",
+        "camera",
+    ];
     for (index, message) in by_topic["/tf"].iter().enumerate().step_by(25) {
         let transforms = FrameTransforms::decode(&message.data[..]).expect("FrameTransforms");
         let pairs: Vec<(&str, &str)> = transforms.transforms.iter().map(|f| (f.parent_frame_id.as_str(), f.child_frame_id.as_str())).collect();

@@ -7,10 +7,7 @@
 use std::time::Duration;
 
 use climbsim::bus::{Bus, Timing, Transaction};
-use climbsim::protocol::{
-    BulkReadEntry, Decoder, FastReplyBuilder, FrameError, Instruction, RawPacket, crc16, encode_instruction, encode_status, opcode,
-    stuff, unstuff,
-};
+use climbsim::protocol::{BulkReadEntry, Decoder, FastReplyBuilder, FrameError, Instruction, RawPacket, crc16, encode_instruction, encode_status, opcode, stuff, unstuff};
 use climbsim::robot::RobotDescription;
 
 // ---------------------------------------------------------------------------------------------
@@ -29,8 +26,7 @@ const NO_ERROR_REPLY: &str = "FF FF FD 00 01 04 00 55 00 A1 0C";
 
 /// §6, Fast Sync Read example (IDs 3, 7, 4 each read 4 bytes at 132).
 const FAST_SYNC_READ: &str = "FF FF FD 00 FE 0A 00 8A 84 00 04 00 03 07 04 20 F2";
-const FAST_SYNC_READ_REPLY: &str =
-    "FF FF FD 00 FE 19 00 55  00 03 A6 00 00 00 84 08  00 07 1F 08 00 00 16 CA  00 04 FF 03 00 00 D1 9E";
+const FAST_SYNC_READ_REPLY: &str = "FF FF FD 00 FE 19 00 55  00 03 A6 00 00 00 84 08  00 07 1F 08 00 00 16 CA  00 04 FF 03 00 00 D1 9E";
 
 /// §10 worked examples.
 const PING_1: &str = "FF FF FD 00 01 03 00 01 19 4E";
@@ -255,11 +251,7 @@ fn backup_restore_as_printed_in_emanual_fails_crc() {
 #[test]
 fn fast_bulk_read_instruction_has_corrected_crc_da_2d() {
     let instruction = Instruction::FastBulkRead {
-        entries: vec![
-            BulkReadEntry { id: 3, address: 132, length: 4 },
-            BulkReadEntry { id: 7, address: 124, length: 2 },
-            BulkReadEntry { id: 4, address: 146, length: 1 },
-        ],
+        entries: vec![BulkReadEntry { id: 3, address: 132, length: 4 }, BulkReadEntry { id: 7, address: 124, length: 2 }, BulkReadEntry { id: 4, address: 146, length: 1 }],
     };
     assert_bytes(&encode_instruction(0xFE, instruction.code(), &instruction.params()), &hex(FAST_BULK_READ));
     let packet = decode_one(&hex(FAST_BULK_READ));
@@ -334,14 +326,7 @@ fn stuffing_scan_covers_the_instruction_byte() {
     let decoded = decode_one(&expected);
     let encoder_ok = wire == expected;
     let decoder_ok = (decoded.instruction, decoded.params.as_slice()) == (0xFF, &[0xFF, 0xFD, 0x00][..]);
-    assert!(
-        encoder_ok && decoder_ok,
-        "encoder: got {} expected {}; decoder: params of {} are {} (expected FF FD 00)",
-        show(&wire),
-        show(&expected),
-        show(&expected),
-        show(&decoded.params)
-    );
+    assert!(encoder_ok && decoder_ok, "encoder: got {} expected {}; decoder: params of {} are {} (expected FF FD 00)", show(&wire), show(&expected), show(&expected), show(&decoded.params));
 }
 
 #[test]
@@ -524,13 +509,8 @@ fn sync_read_replies_come_in_listed_order_3_1_2() {
 #[test]
 fn bulk_read_replies_come_in_listed_order() {
     let mut sim = Sim::new();
-    let instruction = Instruction::BulkRead {
-        entries: vec![
-            BulkReadEntry { id: 5, address: 7, length: 1 },
-            BulkReadEntry { id: 2, address: 0, length: 2 },
-            BulkReadEntry { id: 8, address: 6, length: 2 },
-        ],
-    };
+    let instruction =
+        Instruction::BulkRead { entries: vec![BulkReadEntry { id: 5, address: 7, length: 1 }, BulkReadEntry { id: 2, address: 0, length: 2 }, BulkReadEntry { id: 8, address: 6, length: 2 }] };
     let replies = sim.send(&encode_instruction(0xFE, instruction.code(), &instruction.params()));
     assert_eq!(replies, vec![encode_status(5, 0, &[5]), encode_status(2, 0, &[0x60, 0x04]), encode_status(8, 0, &[0x30, 8])]);
 }
@@ -701,10 +681,7 @@ fn sync_read_of_132_4_from_ids_1_2_decodes_and_bus_replies_from_1_then_2() {
 #[test]
 fn clear_multi_turn_decodes_and_bus_replies_no_error() {
     let packet = decode_one(&hex(CLEAR_MULTI_TURN_1));
-    assert_eq!(
-        Instruction::parse(packet.instruction, &packet.params),
-        Ok(Instruction::Clear { params: vec![0x01, 0x44, 0x58, 0x4C, 0x22] })
-    );
+    assert_eq!(Instruction::parse(packet.instruction, &packet.params), Ok(Instruction::Clear { params: vec![0x01, 0x44, 0x58, 0x4C, 0x22] }));
     let mut sim = Sim::new();
     assert_bytes(&sim.send_one(&hex(CLEAR_MULTI_TURN_1)), &hex(NO_ERROR_REPLY));
 }
@@ -712,10 +689,7 @@ fn clear_multi_turn_decodes_and_bus_replies_no_error() {
 #[test]
 fn control_table_backup_store_then_restore_decode_and_bus_replies_no_error() {
     let packet = decode_one(&hex(BACKUP_STORE_1));
-    assert_eq!(
-        Instruction::parse(packet.instruction, &packet.params),
-        Ok(Instruction::ControlTableBackup { params: vec![0x01, 0x43, 0x54, 0x52, 0x4C] })
-    );
+    assert_eq!(Instruction::parse(packet.instruction, &packet.params), Ok(Instruction::ControlTableBackup { params: vec![0x01, 0x43, 0x54, 0x52, 0x4C] }));
     let mut sim = Sim::new();
     assert_bytes(&sim.send_one(&hex(BACKUP_STORE_1)), &hex(NO_ERROR_REPLY));
     // Restore (corrected CRC) answers first, then reboots.

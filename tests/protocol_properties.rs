@@ -8,8 +8,7 @@ use std::time::Duration;
 
 use climbsim::bus::{Bus, Timing, Transaction};
 use climbsim::protocol::{
-    BulkReadEntry, BulkWriteEntry, DEFAULT_INTER_BYTE_TIMEOUT, Decoder, FrameError, Instruction, RawPacket, SyncWriteEntry, crc16,
-    encode_instruction, encode_status, opcode, stuff, unstuff,
+    BulkReadEntry, BulkWriteEntry, DEFAULT_INTER_BYTE_TIMEOUT, Decoder, FrameError, Instruction, RawPacket, SyncWriteEntry, crc16, encode_instruction, encode_status, opcode, stuff, unstuff,
 };
 use climbsim::robot::RobotDescription;
 use proptest::collection::vec;
@@ -134,10 +133,7 @@ fn sync_bulk_instruction() -> impl Strategy<Value = Instruction> {
         (address, any::<u16>(), unique_ids(12)).prop_map(|(address, length, ids)| Instruction::SyncRead { address, length, ids }),
         (address, any::<u16>(), unique_ids(12)).prop_map(|(address, length, ids)| Instruction::FastSyncRead { address, length, ids }),
         (address, 1u16..8, vec(any::<u8>(), 1..8)).prop_flat_map(|(address, length, ids)| {
-            let entries = ids
-                .into_iter()
-                .map(move |id| vec(any::<u8>(), usize::from(length)).prop_map(move |data| SyncWriteEntry { id, data }))
-                .collect::<Vec<_>>();
+            let entries = ids.into_iter().map(move |id| vec(any::<u8>(), usize::from(length)).prop_map(move |data| SyncWriteEntry { id, data })).collect::<Vec<_>>();
             entries.prop_map(move |entries| Instruction::SyncWrite { address, length, entries })
         }),
         unique_ids(10)
@@ -147,19 +143,14 @@ fn sync_bulk_instruction() -> impl Strategy<Value = Instruction> {
             })
             .prop_flat_map(|(ids, spans)| {
                 let entries: Vec<_> = ids.into_iter().zip(spans).map(|(id, (address, length))| BulkReadEntry { id, address, length }).collect();
-                prop_oneof![
-                    Just(Instruction::BulkRead { entries: entries.clone() }),
-                    Just(Instruction::FastBulkRead { entries }),
-                ]
+                prop_oneof![Just(Instruction::BulkRead { entries: entries.clone() }), Just(Instruction::FastBulkRead { entries }),]
             }),
         unique_ids(6)
             .prop_flat_map(|ids| {
                 let n = ids.len();
                 (Just(ids), vec((any::<u16>(), vec(any::<u8>(), 1..10)), n))
             })
-            .prop_map(|(ids, parts)| Instruction::BulkWrite {
-                entries: ids.into_iter().zip(parts).map(|(id, (address, data))| BulkWriteEntry { id, address, data }).collect(),
-            }),
+            .prop_map(|(ids, parts)| Instruction::BulkWrite { entries: ids.into_iter().zip(parts).map(|(id, (address, data))| BulkWriteEntry { id, address, data }).collect() }),
     ]
 }
 

@@ -38,16 +38,10 @@ fn pytest(selection: &[String]) {
     let hint = "run ./scripts/test.sh (it creates .venv and installs tests/sdk/requirements.txt), \
                 or point CLIMBSIM_PYTHON at a python with dynamixel-sdk 4.0.5 and pytest";
 
-    let probe = Command::new(&python)
-        .args(["-c", "import dynamixel_sdk, pytest, serial"])
-        .output();
+    let probe = Command::new(&python).args(["-c", "import dynamixel_sdk, pytest, serial"]).output();
     match probe {
         Err(e) => panic!("cannot run {}: {e}; {hint}", python.display()),
-        Ok(out) if !out.status.success() => panic!(
-            "{} cannot import dynamixel_sdk/pytest/serial: {}; {hint}",
-            python.display(),
-            String::from_utf8_lossy(&out.stderr).trim()
-        ),
+        Ok(out) if !out.status.success() => panic!("{} cannot import dynamixel_sdk/pytest/serial: {}; {hint}", python.display(), String::from_utf8_lossy(&out.stderr).trim()),
         Ok(_) => {}
     }
 
@@ -62,10 +56,5 @@ fn pytest(selection: &[String]) {
 
     print!("{}", String::from_utf8_lossy(&out.stdout));
     eprint!("{}", String::from_utf8_lossy(&out.stderr));
-    assert!(
-        out.status.success(),
-        "official-SDK conformance suite ({}) failed ({}); pytest output is above",
-        selection.join(" "),
-        out.status
-    );
+    assert!(out.status.success(), "official-SDK conformance suite ({}) failed ({}); pytest output is above", selection.join(" "), out.status);
 }

@@ -75,11 +75,20 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
     let live = wall_clock();
     let cable = NullModem::new();
     // Its gearboxes too: twice the shipped profile's Coulomb friction.
-    let real_robot = support::Options::default().stderr_log().sensors().start(&["scenarios/external-line-follower.toml", "--robot", robot.to_str().expect("utf-8"), "--set", HIDDEN_GEARBOX, "--device", cable.b().to_str().expect("utf-8")]);
+    let real_robot = support::Options::default().stderr_log().sensors().start(&[
+        "scenarios/external-line-follower.toml",
+        "--robot",
+        robot.to_str().expect("utf-8"),
+        "--set",
+        HIDDEN_GEARBOX,
+        "--device",
+        cable.b().to_str().expect("utf-8"),
+    ]);
     // Re-enacted live in the shipped world, shown live beside the real servos (on a port the
     // kernel picks), and the real servos recorded for Foxglove as they go.
     let tap_mcap = dir.join("tap.mcap");
-    let mut tap = TapProcess::start(cable.a(), &dir, &["--baud", "1000000", "--foxglove=127.0.0.1:0", "--mcap", tap_mcap.to_str().expect("utf-8"), "--scenario", "scenarios/external-line-follower.toml"]);
+    let mut tap =
+        TapProcess::start(cable.a(), &dir, &["--baud", "1000000", "--foxglove=127.0.0.1:0", "--mcap", tap_mcap.to_str().expect("utf-8"), "--scenario", "scenarios/external-line-follower.toml"]);
 
     // The reference controller as it would run on the robot: its port and the camera's URL.
     let mut controller = Command::new(support::sdk_python())
@@ -179,7 +188,17 @@ fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_sh
         .arg("fit")
         .arg(&transcript)
         .args(["--scenario", "scenarios/external-line-follower.toml", "--max-evaluations", "300"])
-        .args(["--param", "robot.wheel.friction=0.2..0.9", "--param", "robot.magnet.pull_at_contact_n=30.0..120.0", "--param", "profile.motor.coulomb_friction_nm=0.0..0.12", "--param", "robot.magnet.encoder_at_down_pulses=2000..2100", "--out"])
+        .args([
+            "--param",
+            "robot.wheel.friction=0.2..0.9",
+            "--param",
+            "robot.magnet.pull_at_contact_n=30.0..120.0",
+            "--param",
+            "profile.motor.coulomb_friction_nm=0.0..0.12",
+            "--param",
+            "robot.magnet.encoder_at_down_pulses=2000..2100",
+            "--out",
+        ])
         .arg(dir.join("fit"))
         .current_dir(support::repo())
         .output()
@@ -346,7 +365,8 @@ fn tap_forwards_an_unchanged_sdk_controller_and_records_each_transaction_with_it
     assert!(transcript.complete && !transcript.torn_tail);
     assert_eq!(transcript.header.mode, "tap");
     let records: Vec<&RealRecord> = transcript.records.iter().map(|(_, r)| r).collect();
-    let txs: Vec<Tx<'_>> = records.iter().filter_map(|r| if let RealRecord::Tx { hex, replies, missed, end, .. } = r { Some((hex.as_str(), replies.as_slice(), missed.as_slice(), *end)) } else { None }).collect();
+    let txs: Vec<Tx<'_>> =
+        records.iter().filter_map(|r| if let RealRecord::Tx { hex, replies, missed, end, .. } = r { Some((hex.as_str(), replies.as_slice(), missed.as_slice(), *end)) } else { None }).collect();
     // 9 pings, 20 Sync Reads, the LED write, the last ping (the SDK adds nothing else).
     assert_eq!(txs.len(), 31, "{records:?}");
     let missed: Vec<u8> = txs.iter().flat_map(|tx| tx.2.iter().copied()).collect();
@@ -472,7 +492,14 @@ fn the_robots_missed_replies_and_bus_errors_are_on_the_compare_recordings_log() 
     }
     recorder.finish_with(&RealRecord::End { t: 1_100_000_000, why: "written by the test".into(), from_controller: 0, from_servos: 0 }).expect("complete");
     let out = dir.join("compared");
-    let compared = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(["compare"]).arg(&path).args(["--scenario", "scenarios/flat-line.toml", "--out"]).arg(&out).current_dir(support::repo()).output().expect("run climbsim compare");
+    let compared = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["compare"])
+        .arg(&path)
+        .args(["--scenario", "scenarios/flat-line.toml", "--out"])
+        .arg(&out)
+        .current_dir(support::repo())
+        .output()
+        .expect("run climbsim compare");
     let text = support::output_text(&compared);
     let bytes = std::fs::read(out.join("compare.mcap")).unwrap_or_else(|e| panic!("compare.mcap: {e}: {text}"));
     let mut lines = Vec::new();
@@ -482,7 +509,11 @@ fn the_robots_missed_replies_and_bus_errors_are_on_the_compare_recordings_log() 
             lines.push(foxglove::messages::Log::decode(&message.data[..]).expect("a Log").message);
         }
     }
-    for expected in ["the robot: no reply from magnet_rear_right (8)", "the robot: from the servos: a byte without its stop bit", "the robot: a status packet from magnet_front_right (6) that answered nothing pending (late?)"] {
+    for expected in [
+        "the robot: no reply from magnet_rear_right (8)",
+        "the robot: from the servos: a byte without its stop bit",
+        "the robot: a status packet from magnet_front_right (6) that answered nothing pending (late?)",
+    ] {
         assert!(lines.iter().any(|line| line == expected), "{expected:?} on /log: {lines:?}\n{text}");
     }
 }

@@ -56,7 +56,20 @@ fn live() -> &'static (PathBuf, PathBuf) {
         let dir = support::scratch_dir("replay-live");
         let (out, transcript) = (dir.join("live"), dir.join("live.jsonl"));
         let duration = format!("world.duration_s={LIVE_S}");
-        let output = support::climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--set", &duration, "--set", "expect={}", "--pace-tolerance-ms", "1000", "--out", &s(&out), "--record", &s(&transcript)]);
+        let output = support::climbsim_with_sdk_python(&[
+            "run",
+            "scenarios/external-line-follower.toml",
+            "--set",
+            &duration,
+            "--set",
+            "expect={}",
+            "--pace-tolerance-ms",
+            "1000",
+            "--out",
+            &s(&out),
+            "--record",
+            &s(&transcript),
+        ]);
         let log = std::fs::read_to_string(out.join("controller.log")).unwrap_or_default();
         assert!(output.status.success(), "{}\ncontroller.log:\n{log}", text(&output));
         (out, transcript)
@@ -166,9 +179,7 @@ fn impossible_times_and_empty_transcripts_are_refused_by_line() {
     };
     let edited = dir.join("edited.jsonl");
     let write = |changed: Vec<String>| std::fs::write(&edited, changed.join("\n") + "\n").expect("written");
-    let with_line = |index: usize, text: String| -> Vec<String> {
-        lines.iter().enumerate().map(|(i, l)| if i == index { text.clone() } else { (*l).to_owned() }).collect()
-    };
+    let with_line = |index: usize, text: String| -> Vec<String> { lines.iter().enumerate().map(|(i, l)| if i == index { text.clone() } else { (*l).to_owned() }).collect() };
 
     // A tick 27 hours in.
     let far = ticks[5];

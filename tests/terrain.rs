@@ -31,9 +31,7 @@ fn world_with(g: &TerrainGeometry) -> PhysicsWorld {
 /// The point where a ray from `origin` along unit `dir` first hits the terrain.
 fn hit(world: &PhysicsWorld, origin: Vector, dir: Vector) -> Vector {
     let ray = Ray::new(origin, dir);
-    let (_, toi) = world
-        .cast_ray(&ray, 100.0, true, QueryFilter::default())
-        .unwrap_or_else(|| panic!("ray from {origin:?} along {dir:?} hit nothing"));
+    let (_, toi) = world.cast_ray(&ray, 100.0, true, QueryFilter::default()).unwrap_or_else(|| panic!("ray from {origin:?} along {dir:?} hit nothing"));
     ray.point_at(toi)
 }
 
@@ -290,9 +288,7 @@ fn bad_heightmaps_name_the_path() {
     let dir = temp_dir("bad-png");
     write_png(&dir.join("eight.png"), 2, 2, png::ColorType::Grayscale, png::BitDepth::Eight, &[0, 1, 2, 3]);
     std::fs::write(dir.join("junk.png"), b"not a png at all").unwrap();
-    let load = |name: &str| {
-        generate(&TerrainSpec::Heightmap { path: name.into(), size_m: 1.0, max_height_m: 1.0 }, 0, &dir).unwrap_err()
-    };
+    let load = |name: &str| generate(&TerrainSpec::Heightmap { path: name.into(), size_m: 1.0, max_height_m: 1.0 }, 0, &dir).unwrap_err();
 
     let e = load("eight.png");
     assert!(matches!(&e, TerrainError::NotGray16 { path, bit_depth: 8, .. } if *path == dir.join("eight.png")), "{e:?}");
@@ -414,10 +410,7 @@ fn a_ball_rests_on_each_terrain() {
         let g = gen_ok(&spec, 5);
         let mut world = PhysicsWorld::default();
         world.insert(RigidBodyBuilder::fixed(), g.collider());
-        let (body, _) = world.insert(
-            RigidBodyBuilder::dynamic().translation(start).linear_damping(5.0).angular_damping(5.0),
-            rapier3d::prelude::ColliderBuilder::ball(ball),
-        );
+        let (body, _) = world.insert(RigidBodyBuilder::dynamic().translation(start).linear_damping(5.0).angular_damping(5.0), rapier3d::prelude::ColliderBuilder::ball(ball));
         for _ in 0..60 {
             world.step();
         }
@@ -426,10 +419,7 @@ fn a_ball_rests_on_each_terrain() {
         let below = world.cast_ray(&ray, 10.0, true, QueryFilter::default().exclude_rigid_body(body));
         let gap = below.map(|(_, toi)| toi);
         // Vertical centre-to-surface distance: the radius on flat ground, radius / cos(tilt) on a tilt.
-        assert!(
-            gap.is_some_and(|d| d > ball - 0.005 && d < ball / 45f32.to_radians().cos()),
-            "{spec:?}: ball at {p:?}, surface {gap:?} below"
-        );
+        assert!(gap.is_some_and(|d| d > ball - 0.005 && d < ball / 45f32.to_radians().cos()), "{spec:?}: ball at {p:?}, surface {gap:?} below");
     }
 }
 
@@ -443,4 +433,3 @@ fn bump_is_where_it_is_asked_for() {
         assert!(bump.height_at(x, z).unwrap().abs() < 1e-6, "flat at ({x}, {z}): {}", bump.height_at(x, z).unwrap());
     }
 }
-

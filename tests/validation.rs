@@ -136,7 +136,8 @@ fn sweep_refuses_a_bad_robot_key_in_its_grid_before_any_run_naming_it() {
 #[test]
 fn a_start_off_the_terrain_is_refused() {
     let dir = support::scratch_dir("start-off");
-    let path = variant(&dir, "off", &[("size_m = 10.0", "size_m = 1.0"), ("points = [[-0.5, 0.0], [3.0, 0.0]]", "points = [[-0.45, 0.0], [0.45, 0.0]]"), ("line_offset_m = 0.05", "line_offset_m = 0.45")]);
+    let path =
+        variant(&dir, "off", &[("size_m = 10.0", "size_m = 1.0"), ("points = [[-0.5, 0.0], [3.0, 0.0]]", "points = [[-0.45, 0.0], [0.45, 0.0]]"), ("line_offset_m = 0.05", "line_offset_m = 0.45")]);
     let output = climbsim(&["run", &path.display().to_string(), "--out", &dir.join("out").display().to_string()]);
     assert_refused(&output, "start off the terrain", &["starts off the terrain"]);
 }

@@ -14,12 +14,7 @@ use support::{climbsim_with_sdk_python, output_text, repo, sdk_python};
 #[test]
 fn a_dormant_shim_leaves_a_program_on_the_wall_clock() {
     let shim = climbsim::virtual_time::shim_path().expect("the embedded shim is written out");
-    let output = Command::new(sdk_python())
-        .args(["-c", "import time; print(time.time()); time.sleep(0.01)"])
-        .env("LD_PRELOAD", &shim)
-        .env_remove("CLIMBSIM_VT")
-        .output()
-        .expect("run python");
+    let output = Command::new(sdk_python()).args(["-c", "import time; print(time.time()); time.sleep(0.01)"]).env("LD_PRELOAD", &shim).env_remove("CLIMBSIM_VT").output().expect("run python");
     assert!(output.status.success(), "{}", output_text(&output));
     let printed: f64 = String::from_utf8_lossy(&output.stdout).trim().parse().expect("a time");
     let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("after 1970").as_secs_f64();
@@ -191,7 +186,8 @@ fn the_reference_line_follower_repeats_exactly_under_virtual_time_even_on_a_load
             load = Some(Load::both_cores());
         }
         let out = dir.join(run);
-        let output = climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--clock", "virtual", "--set", "world.duration_s=4", "--set", "expect={}", "--out", &out.display().to_string()]);
+        let output =
+            climbsim_with_sdk_python(&["run", "scenarios/external-line-follower.toml", "--clock", "virtual", "--set", "world.duration_s=4", "--set", "expect={}", "--out", &out.display().to_string()]);
         assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
         let summary = repeatable(&out);
         assert_eq!(summary["clock"], "virtual");
@@ -434,7 +430,11 @@ fn a_sync_reads_replies_arrive_each_at_its_wire_instant_and_collide_and_flush_as
 #[ignore = "needs the official C++ SDK's sources: DYNAMIXEL_SDK_CPP=<checkout of ROBOTIS-GIT/DynamixelSDK> cargo test --test virtual_time -- --ignored"]
 fn the_official_cpp_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_servos_timeout() {
     let sdk = PathBuf::from(std::env::var("DYNAMIXEL_SDK_CPP").expect("DYNAMIXEL_SDK_CPP: a checkout of ROBOTIS-GIT/DynamixelSDK"));
-    let sources: Vec<PathBuf> = std::fs::read_dir(sdk.join("c++/src/dynamixel_sdk")).expect("the SDK's c++/src/dynamixel_sdk").filter_map(|e| Some(e.ok()?.path())).filter(|p| p.extension().is_some_and(|e| e == "cpp")).collect();
+    let sources: Vec<PathBuf> = std::fs::read_dir(sdk.join("c++/src/dynamixel_sdk"))
+        .expect("the SDK's c++/src/dynamixel_sdk")
+        .filter_map(|e| Some(e.ok()?.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "cpp"))
+        .collect();
     let dir = support::scratch_dir("vt-cpp-sdk");
     let program = dir.join("sdk_cpp_controller");
     let compiled = Command::new("g++")

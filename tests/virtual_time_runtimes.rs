@@ -79,7 +79,8 @@ const JSSC_JAR: &str = "/usr/share/java/jssc.jar";
 fn java_with_jssc_and_a_blocking_queue_repeats_exactly() {
     let dir = support::scratch_dir("vt-java");
     assert!(Path::new(JSSC_JAR).is_file(), "{JSSC_JAR} is missing: apt-get install libjssc-java (scripts/test.sh does)");
-    let compiled = Command::new("javac").args(["-cp", JSSC_JAR, "-d"]).arg(&dir).arg(repo().join("tests/vt/java/JsscController.java")).output().expect("javac (a JDK) is needed for the Java controller's test");
+    let compiled =
+        Command::new("javac").args(["-cp", JSSC_JAR, "-d"]).arg(&dir).arg(repo().join("tests/vt/java/JsscController.java")).output().expect("javac (a JDK) is needed for the Java controller's test");
     assert!(compiled.status.success(), "{}", output_text(&compiled));
     let java = on_path("java", "the Java controller's test");
     let classpath = format!("{JSSC_JAR}:{}", dir.display());

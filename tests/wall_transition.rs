@@ -69,7 +69,20 @@ fn the_front_magnets_turn_to_the_end_of_their_documented_range() {
     let dir = support::scratch_dir("wall-transition-180");
     let out = dir.join("out");
     let scenario = support::repo().join("scenarios/floor-to-wall-line.toml");
-    let args = ["run", &scenario.display().to_string(), "--set", "world.duration_s=25", "--set", "controller.wall_transition.front_magnet_deg=180", "--set", "expect={}", "--set", "capture.mcap=false", "--out", &out.display().to_string()];
+    let args = [
+        "run",
+        &scenario.display().to_string(),
+        "--set",
+        "world.duration_s=25",
+        "--set",
+        "controller.wall_transition.front_magnet_deg=180",
+        "--set",
+        "expect={}",
+        "--set",
+        "capture.mcap=false",
+        "--out",
+        &out.display().to_string(),
+    ];
     let output = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(args).current_dir(support::repo()).output().expect("climbsim");
     assert!(output.status.success(), "{}", support::output_text(&output));
     let csv = climbsim::report::read_timeseries_csv(&out.join("timeseries.csv")).expect("timeseries.csv");
@@ -78,4 +91,3 @@ fn the_front_magnets_turn_to_the_end_of_their_documented_range() {
     let magnet = csv.column("magnet_angle_fl_rad").expect("magnet angle");
     assert!(magnet.iter().any(|a| a.abs() > 3.0), "the front magnets turned to ±180°");
 }
-

@@ -60,12 +60,7 @@ impl Wish {
 
     fn load(&self) -> KernelSigaction {
         let [handler, flags, restorer, mask] = &self.0;
-        KernelSigaction {
-            handler: handler.load(Ordering::Relaxed),
-            flags: flags.load(Ordering::Relaxed) as u64,
-            restorer: restorer.load(Ordering::Relaxed),
-            mask: mask.load(Ordering::Relaxed) as u64,
-        }
+        KernelSigaction { handler: handler.load(Ordering::Relaxed), flags: flags.load(Ordering::Relaxed) as u64, restorer: restorer.load(Ordering::Relaxed), mask: mask.load(Ordering::Relaxed) as u64 }
     }
 
     fn store(&self, wanted: KernelSigaction) {
@@ -127,12 +122,7 @@ fn install_own_handler(signal: c_int, handler: usize) -> Result<(), ()> {
     const SA_NODEFER: u64 = 0x4000_0000;
     const SA_ONSTACK: u64 = 0x0800_0000;
     let on_stack = if crate::program::go_text().is_some() { SA_ONSTACK } else { 0 };
-    let action = KernelSigaction {
-        handler,
-        flags: SA_SIGINFO | SA_NODEFER | SA_RESTORER | on_stack,
-        restorer: native::PAGE_ADDRESS + native::RESTORER_OFFSET,
-        mask: !(SIGSYS_BIT | SIGSEGV_BIT),
-    };
+    let action = KernelSigaction { handler, flags: SA_SIGINFO | SA_NODEFER | SA_RESTORER | on_stack, restorer: native::PAGE_ADDRESS + native::RESTORER_OFFSET, mask: !(SIGSYS_BIT | SIGSEGV_BIT) };
     match native::call4(nr::RT_SIGACTION, signal as c_long, &action as *const KernelSigaction as c_long, 0, 8) {
         0 => Ok(()),
         _ => Err(()),

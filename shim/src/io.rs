@@ -334,4 +334,3 @@ pub unsafe extern "C" fn recvmsg(fd: c_int, message: *mut c_void, flags: c_int) 
     }
     received
 }
-

@@ -44,9 +44,9 @@ mod signals {
 }
 mod spawn;
 mod sync;
-mod timerfd;
 mod sys;
 mod time;
+mod timerfd;
 #[cfg(target_arch = "x86_64")]
 mod tsc;
 /// rdtsc is answered on x86_64 only.
@@ -61,11 +61,11 @@ use core::ffi::{c_char, c_int, c_void};
 use core::sync::atomic::{AtomicPtr, AtomicU32, Ordering};
 
 use abi::{Shared, Slot, mode, state};
-use sys::real;
 use park::{
-    Look, Looked, advance_within_horizon, await_release, await_turn, charge, look_at_kernel, note_call, notify_scheduler, park, publish_parked, publish_waiting_on_kernel,
-    reset_computation, resume_after_kernel_wake, took_turn, wait_looking, yield_turn,
+    Look, Looked, advance_within_horizon, await_release, await_turn, charge, look_at_kernel, note_call, notify_scheduler, park, publish_parked, publish_waiting_on_kernel, reset_computation,
+    resume_after_kernel_wake, took_turn, wait_looking, yield_turn,
 };
+use sys::real;
 
 /// The block, once mapped.
 static SHARED: AtomicPtr<Shared> = AtomicPtr::new(core::ptr::null_mut());
@@ -363,10 +363,7 @@ fn raw_clone_reservation(shared: &Shared, pid: i32) -> Option<(usize, &Slot)> {
     let mut fs: u64 = 0;
     native::call2(sys::nr::ARCH_PRCTL, ARCH_GET_FS, &mut fs as *mut u64 as i64);
     let reserved = |slot: &Slot, key: u64| {
-        slot.state() == state::RESERVED
-            && slot.tid.load(Ordering::Acquire) == abi::RAW_CLONE_TID
-            && slot.pid.load(Ordering::Relaxed) == pid
-            && slot.clone_tls.load(Ordering::Relaxed) == key
+        slot.state() == state::RESERVED && slot.tid.load(Ordering::Acquire) == abi::RAW_CLONE_TID && slot.pid.load(Ordering::Relaxed) == pid && slot.clone_tls.load(Ordering::Relaxed) == key
     };
     for key in [fs, 0] {
         for (index, slot) in shared.live_slots().iter().enumerate() {
@@ -552,4 +549,3 @@ unsafe extern "C" fn forked_child() {
 fn pid() -> i32 {
     PID.load(Ordering::Relaxed)
 }
-

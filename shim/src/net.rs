@@ -115,7 +115,6 @@ pub unsafe extern "C" fn connect(fd: c_int, addr: *const c_void, len: u32) -> c_
     result
 }
 
-
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn send(fd: c_int, buf: *const c_void, len: usize, flags: c_int) -> isize {
     let next = real!(send: fn(c_int, *const c_void, usize, c_int) -> isize);

@@ -370,14 +370,7 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
     }
     let _own = crate::OwnCalls::enter();
     let handled = match number {
-        nr::FUTEX => crate::futex::emulate(&crate::futex::Args {
-            uaddr: a[0] as usize,
-            op: a[1] as i32,
-            val: a[2] as u32,
-            timeout_or_val2: a[3] as usize,
-            uaddr2: a[4] as usize,
-            val3: a[5] as u32,
-        }),
+        nr::FUTEX => crate::futex::emulate(&crate::futex::Args { uaddr: a[0] as usize, op: a[1] as i32, val: a[2] as u32, timeout_or_val2: a[3] as usize, uaddr2: a[4] as usize, val3: a[5] as u32 }),
         nr::CLOCK_GETTIME => clock_gettime(a[0] as c_int, a[1] as *mut sys::timespec),
         nr::GETTIMEOFDAY => gettimeofday(a[0] as *mut sys::timeval),
         nr::TIME => crate::time::read_clock(sys::CLOCK_REALTIME).map(|ns| {
@@ -466,4 +459,3 @@ fn gettimeofday(tv: *mut sys::timeval) -> Option<c_long> {
     unsafe { *tv = sys::timeval { tv_sec: (ns / 1_000_000_000) as sys::time_t, tv_usec: ((ns % 1_000_000_000) / 1000) as c_long } };
     Some(0)
 }
-

@@ -9,8 +9,8 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, Slot, state};
 use crate::native;
-use crate::sys::{self, real};
 use crate::shared;
+use crate::sys::{self, real};
 
 /// Reserve a free slot for task `tid` of a program to come (`tid` 0: a child of `parent`
 /// whose id is not known yet).

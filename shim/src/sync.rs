@@ -181,10 +181,7 @@ fn wake_peers(addr: usize) {
     }
     let me = pid();
     for slot in shared.live_slots() {
-        if slot.state() == state::BLOCKED
-            && slot.wait() == Wait::Peer(addr as u64)
-            && slot.pid.load(Ordering::Relaxed) == me
-        {
+        if slot.state() == state::BLOCKED && slot.wait() == Wait::Peer(addr as u64) && slot.pid.load(Ordering::Relaxed) == me {
             slot.make_ready(None);
         }
     }

@@ -8,9 +8,9 @@ use core::ffi::{c_int, c_uint, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{Parked, Shared, Wait, call, release};
+pub(crate) use crate::now::{clock_at, from_ns, real_monotonic_ns, sim_now, sim_time_of, to_ns};
 use crate::sys::{self, clockid_t, real, time_t, timespec, timeval};
 use crate::{active, charge, note_call, park, shared};
-pub(crate) use crate::now::{clock_at, from_ns, real_monotonic_ns, sim_now, sim_time_of, to_ns};
 
 /// A clock read: charged, then answered from the block (when the shim answers this clock).
 pub(crate) fn read_clock(clock: clockid_t) -> Option<u64> {

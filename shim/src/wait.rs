@@ -12,10 +12,10 @@
 use core::ffi::c_int;
 use core::sync::atomic::Ordering;
 
+use crate::Looked;
 use crate::abi::{Parked, Shared, Wait, call, release};
 use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
 use crate::time::{from_ns, sim_now, to_ns};
-use crate::Looked;
 use crate::{active, charge, my_slot, note_call, park};
 
 /// How long a timer set to fire at once may take to show on its descriptor (wall time).

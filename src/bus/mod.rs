@@ -218,9 +218,7 @@ impl Bus {
         let hearing: Vec<usize> = (0..self.servos.len())
             .filter(|&i| {
                 let servo = &self.servos[i];
-                !servo.is_booting(instruction_end)
-                    && servo.speaks_protocol_2()
-                    && line_baud.is_none_or(|bps| servo.baud_bps() == Some(bps))
+                !servo.is_booting(instruction_end) && servo.speaks_protocol_2() && line_baud.is_none_or(|bps| servo.baud_bps() == Some(bps))
             })
             .filter(|&i| !self.faults.is_silent(self.servos[i].id()))
             .collect();
@@ -490,12 +488,10 @@ fn replies_at_level(request: &Request<'_>, level: u8) -> bool {
 
 /// Build the servos of a bus from one profile.
 pub fn servos_from_profile(profile: &std::sync::Arc<FirmwareProfile>, ids: &[u8], baud_bps: u32, supply_voltage_v: f64) -> Result<Vec<Servo>, BusError> {
-    let code = profile
-        .baud_code(baud_bps)
-        .ok_or_else(|| BusError::UnsupportedBaud {
-            bps: baud_bps,
-            profile: profile.path.display().to_string(),
-            offered: profile.baud_rates.iter().map(|b| b.bps.to_string()).collect::<Vec<_>>().join(", "),
-        })?;
+    let code = profile.baud_code(baud_bps).ok_or_else(|| BusError::UnsupportedBaud {
+        bps: baud_bps,
+        profile: profile.path.display().to_string(),
+        offered: profile.baud_rates.iter().map(|b| b.bps.to_string()).collect::<Vec<_>>().join(", "),
+    })?;
     Ok(ids.iter().map(|&id| Servo::new(std::sync::Arc::clone(profile), id, code, supply_voltage_v)).collect())
 }

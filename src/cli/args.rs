@@ -11,8 +11,8 @@ use climbsim::bus::Timing;
 use climbsim::embedded;
 use climbsim::fault::ScheduledFault;
 use climbsim::robot::{RobotDescription, RobotOverrides};
-use climbsim::runner::{Pace, TimeBase};
 use climbsim::runner::view::LiveAddress;
+use climbsim::runner::{Pace, TimeBase};
 use climbsim::virtual_time::VtSettings;
 
 /// `--foxglove[=ADDR]`, shared by `run` and `serve`.
@@ -202,4 +202,3 @@ pub fn refuse_recorded_cli_faults(faults: &[ScheduledFault], record: Option<&Pat
     }
     Ok(())
 }
-

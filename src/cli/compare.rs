@@ -98,7 +98,11 @@ pub fn exec(args: CompareArgs) -> Result<()> {
         let signals = compare_signals(file, &options, Pace::virtual_time(), interrupt::flag())?;
         Terminal.note(&signals.table());
     }
-    Terminal.say(&format!("wrote {}: compare.json, compare.mcap (the world and both sides' readings, for Foxglove), plots/{}", options.out.display(), if args.signals.is_some() { ", signals.json, world-run/" } else { "" }));
+    Terminal.say(&format!(
+        "wrote {}: compare.json, compare.mcap (the world and both sides' readings, for Foxglove), plots/{}",
+        options.out.display(),
+        if args.signals.is_some() { ", signals.json, world-run/" } else { "" }
+    ));
     verdict(&report)
 }
 

@@ -77,7 +77,13 @@ pub fn exec(args: FitArgs) -> Result<()> {
     for (session, reports) in options.sessions.iter().zip(&outcome.sessions) {
         refuse_unknown_tolerances(&session.compare, &reports.after)?;
     }
-    Terminal.say(&format!("{} evaluations; error (mean of (RMS / tolerance)² over registers{}) {:.4} before, {:.4} after", outcome.evaluations, if options.sessions.len() > 1 { ", then over sessions" } else { "" }, outcome.error_before, outcome.error_after));
+    Terminal.say(&format!(
+        "{} evaluations; error (mean of (RMS / tolerance)² over registers{}) {:.4} before, {:.4} after",
+        outcome.evaluations,
+        if options.sessions.len() > 1 { ", then over sessions" } else { "" },
+        outcome.error_before,
+        outcome.error_after
+    ));
     for fitted in &outcome.fitted {
         let how = match (fitted.determination.identifiable, fitted.determination.resolution) {
             (true, Some(resolution)) => format!("determined within ± {resolution:.4} (the error rises by 10 % there, the other parameters free)"),

@@ -63,4 +63,3 @@ pub fn replay_command(transcript: &std::path::Path, out: Option<PathBuf>, source
     }
     Ok(())
 }
-

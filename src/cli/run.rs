@@ -4,14 +4,14 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 
+use climbsim::embedded;
 use climbsim::fault::ScheduledFault;
+use climbsim::robot::RobotOverrides;
 use climbsim::runner::external::{ExternalRun, run_external};
 use climbsim::runner::lockstep::{LiveRun, run_builtin};
 use climbsim::runner::outputs::judge;
 use climbsim::runner::recording::RecordSpec;
 use climbsim::runner::{Console as _, RunOutcome, RunnerError, default_out_dir, preflight_dir, preflight_file};
-use climbsim::robot::RobotOverrides;
-use climbsim::embedded;
 use climbsim::scenario::{ControllerSection, Override, Scenario};
 
 use super::args::{FoxgloveArgs, PaceArgs, ROBOT_IN_CHECKOUT, TimingArg, built_in_unless_here, load_robot_with, parse_fault, refuse_recorded_cli_faults};
@@ -79,7 +79,12 @@ pub fn exec(args: RunArgs) -> Result<()> {
         ControllerSection::Builtin(_) => {
             // Flags that only an external controller's wall-clock run uses are refused, not
             // silently ignored.
-            let ignored = [(record.is_some(), "--record (a built-in controller's run is deterministic already: run it again)"), (link.is_some(), "--link (a built-in controller has no port)"), (timing.is_some(), "--timing (a built-in controller talks to the bus in lockstep)"), (!pace.is_default() && foxglove.is_none(), "--speed (a built-in controller runs in lockstep, as fast as the CPU allows; with --foxglove it keeps to --speed for the watcher)")];
+            let ignored = [
+                (record.is_some(), "--record (a built-in controller's run is deterministic already: run it again)"),
+                (link.is_some(), "--link (a built-in controller has no port)"),
+                (timing.is_some(), "--timing (a built-in controller talks to the bus in lockstep)"),
+                (!pace.is_default() && foxglove.is_none(), "--speed (a built-in controller runs in lockstep, as fast as the CPU allows; with --foxglove it keeps to --speed for the watcher)"),
+            ];
             if let Some((_, flag)) = ignored.iter().find(|(given, _)| *given) {
                 bail!("{}: the scenario's controller is built in, so {flag}", scenario.display());
             }

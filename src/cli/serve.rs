@@ -118,7 +118,33 @@ pub struct ServeArgs {
 }
 
 pub fn exec(args: ServeArgs) -> Result<()> {
-    let ServeArgs { scenario, link, tcp, tcp_connect, can, can_ids, can_padding, device, echo, low_latency, rs485, rs485_delay_ms, timing, adapter, latency_timer_ms, trace_bus, robot, set, baud, report, faults, record, mcap, foxglove, pace } = args;
+    let ServeArgs {
+        scenario,
+        link,
+        tcp,
+        tcp_connect,
+        can,
+        can_ids,
+        can_padding,
+        device,
+        echo,
+        low_latency,
+        rs485,
+        rs485_delay_ms,
+        timing,
+        adapter,
+        latency_timer_ms,
+        trace_bus,
+        robot,
+        set,
+        baud,
+        report,
+        faults,
+        record,
+        mcap,
+        foxglove,
+        pace,
+    } = args;
     interrupt::install()?;
     let adapter = match (adapter, latency_timer_ms) {
         (AdapterArg::Ideal, Some(_)) => bail!("--latency-timer-ms is a setting of a modelled adapter: give --adapter u2d2 with it"),
@@ -201,4 +227,3 @@ fn parse_rs485_delays(text: &str) -> Result<climbsim::transport::rs485::Rs485Del
     let ms = |part: &str| part.trim().parse::<u32>().ok().filter(|&ms| ms <= 1000).ok_or_else(|| format!("`{part}` is not a whole number of milliseconds in 0..=1000"));
     Ok(climbsim::transport::rs485::Rs485Delays { before_send_ms: ms(before)?, after_send_ms: ms(after)? })
 }
-

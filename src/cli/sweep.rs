@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
 
-use climbsim::runner::{Console as _, preflight_dir};
 use climbsim::runner::sweep::{SweepPlan, grid_listing, merge, sweep};
+use climbsim::runner::{Console as _, preflight_dir};
 use climbsim::scenario::sweep::{Axis, Shard, grid};
 
 use super::args::{PaceArgs, ROBOT_IN_CHECKOUT, load_robot};

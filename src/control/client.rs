@@ -53,9 +53,7 @@ impl<'a, L: BusLink> ServoClient<'a, L> {
         params.extend_from_slice(&length.to_le_bytes());
         params.extend_from_slice(ids);
         let replies = self.link.transact(&encode_instruction(crate::protocol::BROADCAST_ID, opcode::SYNC_READ, &params));
-        ids.iter()
-            .map(|&id| check(replies.iter().find(|r| r.id == id), id, what, usize::from(length)).map(<[u8]>::to_vec))
-            .collect()
+        ids.iter().map(|&id| check(replies.iter().find(|r| r.id == id), id, what, usize::from(length)).map(<[u8]>::to_vec)).collect()
     }
 
     /// Sync Write one `data` block per servo at `address` (every block the same length).

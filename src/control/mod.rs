@@ -10,8 +10,8 @@ mod client;
 mod line_follower;
 mod pid;
 pub mod planner;
-mod relocation;
 mod reference;
+mod relocation;
 mod transition;
 
 pub use client::{BusLink, ControlError, ServoClient};

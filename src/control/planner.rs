@@ -199,10 +199,8 @@ impl OccupancyGrid {
     pub fn plan_from_nearest_free(&self, from: [f32; 2], to: [f32; 2]) -> Result<PlannedPath, PlanError> {
         let Some((col, row)) = self.cell_of(from[0], from[1]).filter(|&(c, r)| !self.free(c as isize, r as isize)) else { return self.plan(from, to) };
         let reach = (0.5 / self.cell_m).ceil() as isize;
-        let nearest = (-reach..=reach)
-            .flat_map(|dr| (-reach..=reach).map(move |dc| (dc, dr)))
-            .filter(|&(dc, dr)| self.free(col as isize + dc, row as isize + dr))
-            .min_by_key(|&(dc, dr)| dc * dc + dr * dr);
+        let nearest =
+            (-reach..=reach).flat_map(|dr| (-reach..=reach).map(move |dc| (dc, dr))).filter(|&(dc, dr)| self.free(col as isize + dc, row as isize + dr)).min_by_key(|&(dc, dr)| dc * dc + dr * dr);
         let Some((dc, dr)) = nearest else { return self.plan(from, to) };
         let exit = self.centre(((col as isize + dc) as usize, (row as isize + dr) as usize));
         let mut path = self.plan(exit, to)?;

@@ -223,15 +223,10 @@ impl Addresses {
 
 impl ReferenceController {
     pub fn new(robot: &RobotDescription, profile: &FirmwareProfile, config: ReferenceConfig, target_speed_m_s: f64) -> Result<Self, ControlError> {
-        let find = |role: ServoRole, wheel: WheelPosition, what: &'static str| {
-            robot.servo.iter().find(|s| s.role == role && s.wheel == wheel).map(|s| s.id).ok_or(ControlError::MissingServo(what))
-        };
+        let find = |role: ServoRole, wheel: WheelPosition, what: &'static str| robot.servo.iter().find(|s| s.role == role && s.wheel == wheel).map(|s| s.id).ok_or(ControlError::MissingServo(what));
         let mut wheels = [WheelServos { drive: 0, magnet: 0 }; 4];
         for position in WheelPosition::ALL {
-            wheels[position.index()] = WheelServos {
-                drive: find(ServoRole::WheelDrive, position, "wheel drive servo")?,
-                magnet: find(ServoRole::MagnetShaft, position, "magnet shaft servo")?,
-            };
+            wheels[position.index()] = WheelServos { drive: find(ServoRole::WheelDrive, position, "wheel drive servo")?, magnet: find(ServoRole::MagnetShaft, position, "magnet shaft servo")? };
         }
         let goal_velocity = &profile.items[profile.index("goal_velocity")];
         let velocity_limit = &profile.items[profile.index("velocity_limit")];
@@ -364,9 +359,7 @@ impl ReferenceController {
         let limit = self.config.max_yaw_rate_rad_s;
         let yaw_rate = match (decision.yaw_rate_rad_s.or(relocating.yaw_rate_rad_s), line) {
             (Some(rate), _) => rate.clamp(-limit, limit),
-            (None, Some(error)) if self.config.follow_line && target > 0.0 => {
-                self.line_follower.yaw_rate(target, error.d_err_m, error.psi_err_rad, dt, limit)
-            }
+            (None, Some(error)) if self.config.follow_line && target > 0.0 => self.line_follower.yaw_rate(target, error.d_err_m, error.psi_err_rad, dt, limit),
             _ => 0.0,
         };
         let front_magnets = [self.wheels[WheelPosition::FrontLeft.index()].magnet, self.wheels[WheelPosition::FrontRight.index()].magnet];

@@ -313,12 +313,7 @@ impl Relocation {
     fn pursue(&self, path: &PlannedPath, pose: Pose2, speed: f64) -> RelocationDecision {
         let from = nearest_index(path, pose);
         let lookahead = self.config.lookahead_m;
-        let target = path.points[from..]
-            .iter()
-            .find(|p| (f64::from(p[0]) - pose.x).hypot(f64::from(p[1]) - pose.z) >= lookahead)
-            .or(path.points.last())
-            .copied()
-            .unwrap_or_default();
+        let target = path.points[from..].iter().find(|p| (f64::from(p[0]) - pose.x).hypot(f64::from(p[1]) - pose.z) >= lookahead).or(path.points.last()).copied().unwrap_or_default();
         let (dx, dz) = (f64::from(target[0]) - pose.x, f64::from(target[1]) - pose.z);
         let alpha = wrap((-dz).atan2(dx) - pose.heading_rad);
         // Turning on the spot near the goal would only swing the centre round it.

@@ -259,9 +259,7 @@ impl FirmwareProfile {
                         Some(k) => (true, k),
                         None => (false, r.as_str()),
                     };
-                    let index = *by_key
-                        .get(key)
-                        .ok_or_else(|| invalid(format!("item `{}` refers to unknown item `{key}`", spec.key)))?;
+                    let index = *by_key.get(key).ok_or_else(|| invalid(format!("item `{}` refers to unknown item `{key}`", spec.key)))?;
                     Ok(Some(Bound::Item { index, negate }))
                 }
                 (None, Some(c)) => Ok(Some(Bound::Const(c))),

@@ -101,13 +101,7 @@ mod tests {
     use super::*;
 
     fn drive(standstill: f64) -> ShaftDrive {
-        ShaftDrive {
-            torque_at_standstill_nm: standstill,
-            back_emf_damping: 10.6 / std::f64::consts::PI,
-            coulomb_friction_nm: 0.1,
-            viscous_friction: 0.0,
-            rotor_inertia_kgm2: 7.4e-3,
-        }
+        ShaftDrive { torque_at_standstill_nm: standstill, back_emf_damping: 10.6 / std::f64::consts::PI, coulomb_friction_nm: 0.1, viscous_friction: 0.0, rotor_inertia_kgm2: 7.4e-3 }
     }
 
     #[test]

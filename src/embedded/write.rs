@@ -19,7 +19,8 @@ pub enum Export {
 
 impl Export {
     /// Each choice by the name `climbsim export` takes.
-    pub const NAMES: [(&'static str, Export); 6] = [("robot", Self::Robot), ("profile", Self::Profile), ("layout", Self::Layout), ("controller", Self::Controller), ("scenario", Self::Scenario), ("all", Self::All)];
+    pub const NAMES: [(&'static str, Export); 6] =
+        [("robot", Self::Robot), ("profile", Self::Profile), ("layout", Self::Layout), ("controller", Self::Controller), ("scenario", Self::Scenario), ("all", Self::All)];
 }
 
 impl std::str::FromStr for Export {
@@ -49,7 +50,14 @@ pub fn export(what: Export, dir: &Path, force: bool) -> Result<Vec<PathBuf>, Exp
         Export::Layout => vec![(LAYOUT, LAYOUT.text.to_owned()), (COMPARE_LAYOUT, COMPARE_LAYOUT.text.to_owned())],
         Export::Controller => vec![(CONTROLLER, CONTROLLER.text.to_owned())],
         Export::Scenario => vec![(SCENARIO, SCENARIO.text.to_owned())],
-        Export::All => vec![(ROBOT, robot_beside_its_profile()), (PROFILE, PROFILE.text.to_owned()), (LAYOUT, LAYOUT.text.to_owned()), (COMPARE_LAYOUT, COMPARE_LAYOUT.text.to_owned()), (CONTROLLER, CONTROLLER.text.to_owned()), (SCENARIO, SCENARIO.text.to_owned())],
+        Export::All => vec![
+            (ROBOT, robot_beside_its_profile()),
+            (PROFILE, PROFILE.text.to_owned()),
+            (LAYOUT, LAYOUT.text.to_owned()),
+            (COMPARE_LAYOUT, COMPARE_LAYOUT.text.to_owned()),
+            (CONTROLLER, CONTROLLER.text.to_owned()),
+            (SCENARIO, SCENARIO.text.to_owned()),
+        ],
     };
     let files: Vec<(PathBuf, String)> = files.into_iter().map(|(file, text)| (dir.join(file.file_name()), text)).collect();
     write_all(dir, &files, force)
@@ -171,5 +179,4 @@ mod tests {
         let error = "robots".parse::<Export>().expect_err("no such choice");
         assert!(error.contains("robot, profile, layout, controller, scenario, all"), "{error}");
     }
-
 }

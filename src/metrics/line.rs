@@ -21,35 +21,17 @@ pub struct LineTracking {
 
 /// Largest and RMS distance error, and the time spent within `tolerance` of the line (for the
 /// painted line, half its width). Measured over the whole series.
-pub fn line_tracking(
-    t: &[f64],
-    distance: &[f64],
-    tolerance: f64,
-) -> Result<LineTracking, MetricsError> {
+pub fn line_tracking(t: &[f64], distance: &[f64], tolerance: f64) -> Result<LineTracking, MetricsError> {
     validate_series(t, distance)?;
     if !(tolerance.is_finite() && tolerance > 0.0) {
-        return Err(MetricsError::InvalidOption {
-            name: "tolerance",
-            value: tolerance,
-            expected: "finite and > 0",
-        });
+        return Err(MetricsError::InvalidOption { name: "tolerance", value: tolerance, expected: "finite and > 0" });
     }
     let max_abs = distance.iter().fold(0.0_f64, |max, d| max.max(d.abs()));
     let squares: Vec<f64> = distance.iter().map(|d| d * d).collect();
     let rms = mean(&squares).sqrt();
-    let time_on_line: f64 = t
-        .windows(2)
-        .zip(distance.windows(2))
-        .map(|(ts, ds)| (ts[1] - ts[0]) * fraction_within(ds[0], ds[1], tolerance))
-        .sum();
+    let time_on_line: f64 = t.windows(2).zip(distance.windows(2)).map(|(ts, ds)| (ts[1] - ts[0]) * fraction_within(ds[0], ds[1], tolerance)).sum();
     let duration = t[t.len() - 1] - t[0];
-    Ok(LineTracking {
-        max_abs,
-        rms,
-        tolerance,
-        time_on_line,
-        fraction_on_line: time_on_line / duration,
-    })
+    Ok(LineTracking { max_abs, rms, tolerance, time_on_line, fraction_on_line: time_on_line / duration })
 }
 
 /// Fraction of a segment, along which the value goes linearly from `a` to `b`, where

@@ -59,27 +59,16 @@ pub enum MetricsError {
     #[error("time does not increase at sample {index}")]
     TimeNotIncreasing { index: usize },
     #[error("step time {t_step} is outside the run [{t_first}, {t_last})")]
-    StepOutsideRun {
-        t_step: f64,
-        t_first: f64,
-        t_last: f64,
-    },
+    StepOutsideRun { t_step: f64, t_first: f64, t_last: f64 },
     #[error("the step's reference ({what}) is zero or not finite: {value}")]
     DegenerateReference { what: &'static str, value: f64 },
     #[error("option {name} = {value} is out of range ({expected})")]
-    InvalidOption {
-        name: &'static str,
-        value: f64,
-        expected: &'static str,
-    },
+    InvalidOption { name: &'static str, value: f64, expected: &'static str },
 }
 
 fn validate_series(t: &[f64], y: &[f64]) -> Result<(), MetricsError> {
     if t.len() != y.len() {
-        return Err(MetricsError::LengthMismatch {
-            t_len: t.len(),
-            y_len: y.len(),
-        });
+        return Err(MetricsError::LengthMismatch { t_len: t.len(), y_len: y.len() });
     }
     if t.len() < 2 {
         return Err(MetricsError::TooFewSamples { len: t.len() });
@@ -106,66 +95,18 @@ mod tests {
     #[test]
     fn bad_input_is_an_error_not_a_panic() {
         let options = StepOptions::default();
-        assert_eq!(
-            rising_step(&[], &[], 1.0, &options),
-            Err(MetricsError::TooFewSamples { len: 0 })
-        );
-        assert_eq!(
-            decaying_error_step(&[0.0], &[1.0], &options),
-            Err(MetricsError::TooFewSamples { len: 1 })
-        );
-        assert_eq!(
-            rising_step(&[0.0, 1.0], &[0.0], 1.0, &options),
-            Err(MetricsError::LengthMismatch { t_len: 2, y_len: 1 })
-        );
-        assert_eq!(
-            decaying_error_step(&[0.0, 1.0, 2.0], &[1.0, f64::NAN, 0.0], &options),
-            Err(MetricsError::NotFinite {
-                series: "y",
-                index: 1
-            })
-        );
-        assert_eq!(
-            line_tracking(&[0.0, f64::INFINITY], &[1.0, 0.0], 0.1),
-            Err(MetricsError::NotFinite {
-                series: "t",
-                index: 1
-            })
-        );
-        assert_eq!(
-            rising_step(&[0.0, 1.0, 1.0], &[0.0, 1.0, 1.0], 1.0, &options),
-            Err(MetricsError::TimeNotIncreasing { index: 2 })
-        );
-        assert!(matches!(
-            decaying_error_step(&[0.0, 1.0], &[0.0, 1.0], &options),
-            Err(MetricsError::DegenerateReference { .. })
-        ));
-        assert!(matches!(
-            rising_step(&[0.0, 1.0], &[0.0, 1.0], f64::NAN, &options),
-            Err(MetricsError::DegenerateReference { .. })
-        ));
-        let late = StepOptions {
-            t_step: Some(1.0),
-            ..options
-        };
-        assert!(matches!(
-            rising_step(&[0.0, 1.0], &[0.0, 1.0], 1.0, &late),
-            Err(MetricsError::StepOutsideRun { .. })
-        ));
-        let wide = StepOptions {
-            band: 1.5,
-            ..options
-        };
-        assert!(matches!(
-            rising_step(&[0.0, 1.0], &[0.0, 1.0], 1.0, &wide),
-            Err(MetricsError::InvalidOption { name: "band", .. })
-        ));
-        assert!(matches!(
-            line_tracking(&[0.0, 1.0], &[0.0, 1.0], -1.0),
-            Err(MetricsError::InvalidOption {
-                name: "tolerance",
-                ..
-            })
-        ));
+        assert_eq!(rising_step(&[], &[], 1.0, &options), Err(MetricsError::TooFewSamples { len: 0 }));
+        assert_eq!(decaying_error_step(&[0.0], &[1.0], &options), Err(MetricsError::TooFewSamples { len: 1 }));
+        assert_eq!(rising_step(&[0.0, 1.0], &[0.0], 1.0, &options), Err(MetricsError::LengthMismatch { t_len: 2, y_len: 1 }));
+        assert_eq!(decaying_error_step(&[0.0, 1.0, 2.0], &[1.0, f64::NAN, 0.0], &options), Err(MetricsError::NotFinite { series: "y", index: 1 }));
+        assert_eq!(line_tracking(&[0.0, f64::INFINITY], &[1.0, 0.0], 0.1), Err(MetricsError::NotFinite { series: "t", index: 1 }));
+        assert_eq!(rising_step(&[0.0, 1.0, 1.0], &[0.0, 1.0, 1.0], 1.0, &options), Err(MetricsError::TimeNotIncreasing { index: 2 }));
+        assert!(matches!(decaying_error_step(&[0.0, 1.0], &[0.0, 1.0], &options), Err(MetricsError::DegenerateReference { .. })));
+        assert!(matches!(rising_step(&[0.0, 1.0], &[0.0, 1.0], f64::NAN, &options), Err(MetricsError::DegenerateReference { .. })));
+        let late = StepOptions { t_step: Some(1.0), ..options };
+        assert!(matches!(rising_step(&[0.0, 1.0], &[0.0, 1.0], 1.0, &late), Err(MetricsError::StepOutsideRun { .. })));
+        let wide = StepOptions { band: 1.5, ..options };
+        assert!(matches!(rising_step(&[0.0, 1.0], &[0.0, 1.0], 1.0, &wide), Err(MetricsError::InvalidOption { name: "band", .. })));
+        assert!(matches!(line_tracking(&[0.0, 1.0], &[0.0, 1.0], -1.0), Err(MetricsError::InvalidOption { name: "tolerance", .. })));
     }
 }

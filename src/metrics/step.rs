@@ -23,13 +23,7 @@ pub struct StepOptions {
 
 impl Default for StepOptions {
     fn default() -> Self {
-        Self {
-            band: 0.02,
-            rise_low: 0.1,
-            rise_high: 0.9,
-            t_step: None,
-            unsettled_tail: 0.1,
-        }
+        Self { band: 0.02, rise_low: 0.1, rise_high: 0.9, t_step: None, unsettled_tail: 0.1 }
     }
 }
 
@@ -56,44 +50,26 @@ pub struct StepCharacteristics {
 
 /// Step characteristics of an error that starts at `e0 = error(t_step)` (interpolated if
 /// `t_step` falls between samples) and should decay to zero.
-pub fn decaying_error_step(
-    t: &[f64],
-    error: &[f64],
-    options: &StepOptions,
-) -> Result<StepCharacteristics, MetricsError> {
+pub fn decaying_error_step(t: &[f64], error: &[f64], options: &StepOptions) -> Result<StepCharacteristics, MetricsError> {
     validate_series(t, error)?;
     validate_options(options)?;
     let (window_t, window_error) = step_window(t, error, options)?;
     let initial_error = window_error[0];
     if initial_error == 0.0 {
-        return Err(MetricsError::DegenerateReference {
-            what: "initial error",
-            value: initial_error,
-        });
+        return Err(MetricsError::DegenerateReference { what: "initial error", value: initial_error });
     }
-    let response: Vec<f64> = window_error
-        .iter()
-        .map(|e| 1.0 - e / initial_error)
-        .collect();
+    let response: Vec<f64> = window_error.iter().map(|e| 1.0 - e / initial_error).collect();
     let step = characterise(&window_t, &response, options);
     let steady_state_error = mean(&window_error[step.steady_state_from..]);
     Ok(step.into_characteristics(window_t[0], initial_error, steady_state_error))
 }
 
 /// Step characteristics of a signal commanded at `t_step` from zero to `target` (the speed step).
-pub fn rising_step(
-    t: &[f64],
-    value: &[f64],
-    target: f64,
-    options: &StepOptions,
-) -> Result<StepCharacteristics, MetricsError> {
+pub fn rising_step(t: &[f64], value: &[f64], target: f64, options: &StepOptions) -> Result<StepCharacteristics, MetricsError> {
     validate_series(t, value)?;
     validate_options(options)?;
     if target == 0.0 || !target.is_finite() {
-        return Err(MetricsError::DegenerateReference {
-            what: "target",
-            value: target,
-        });
+        return Err(MetricsError::DegenerateReference { what: "target", value: target });
     }
     let (window_t, window_value) = step_window(t, value, options)?;
     let response: Vec<f64> = window_value.iter().map(|v| v / target).collect();
@@ -104,26 +80,14 @@ pub fn rising_step(
 
 fn validate_options(options: &StepOptions) -> Result<(), MetricsError> {
     let open_unit = |name, value: f64| {
-        if value > 0.0 && value < 1.0 {
-            Ok(())
-        } else {
-            Err(MetricsError::InvalidOption {
-                name,
-                value,
-                expected: "between 0 and 1",
-            })
-        }
+        if value > 0.0 && value < 1.0 { Ok(()) } else { Err(MetricsError::InvalidOption { name, value, expected: "between 0 and 1" }) }
     };
     open_unit("band", options.band)?;
     open_unit("rise_low", options.rise_low)?;
     open_unit("rise_high", options.rise_high)?;
     open_unit("unsettled_tail", options.unsettled_tail)?;
     if options.rise_low >= options.rise_high {
-        return Err(MetricsError::InvalidOption {
-            name: "rise_low",
-            value: options.rise_low,
-            expected: "below rise_high",
-        });
+        return Err(MetricsError::InvalidOption { name: "rise_low", value: options.rise_low, expected: "below rise_high" });
     }
     Ok(())
 }
@@ -131,20 +95,12 @@ fn validate_options(options: &StepOptions) -> Result<(), MetricsError> {
 /// The samples of the step: from `t_step` (the first sample unless the options say otherwise) to
 /// the end, with a sample interpolated at `t_step` if it falls between two, so that the window
 /// starts exactly at the step.
-fn step_window(
-    t: &[f64],
-    y: &[f64],
-    options: &StepOptions,
-) -> Result<(Vec<f64>, Vec<f64>), MetricsError> {
+fn step_window(t: &[f64], y: &[f64], options: &StepOptions) -> Result<(Vec<f64>, Vec<f64>), MetricsError> {
     let (t_first, t_last) = (t[0], t[t.len() - 1]);
     let t_step = options.t_step.unwrap_or(t_first);
     // The window must hold at least one interval after the step, hence t_step < t_last.
     if !(t_step >= t_first && t_step < t_last) {
-        return Err(MetricsError::StepOutsideRun {
-            t_step,
-            t_first,
-            t_last,
-        });
+        return Err(MetricsError::StepOutsideRun { t_step, t_first, t_last });
     }
     let first_after = t.partition_point(|&ti| ti < t_step);
     let mut window_t = Vec::with_capacity(t.len() - first_after + 1);
@@ -169,12 +125,7 @@ struct NormalisedStep {
 }
 
 impl NormalisedStep {
-    fn into_characteristics(
-        self,
-        t_step: f64,
-        reference: f64,
-        steady_state_error: f64,
-    ) -> StepCharacteristics {
+    fn into_characteristics(self, t_step: f64, reference: f64, steady_state_error: f64) -> StepCharacteristics {
         StepCharacteristics {
             t_step,
             reference,
@@ -191,10 +142,7 @@ impl NormalisedStep {
 /// step.
 fn characterise(t: &[f64], r: &[f64], options: &StepOptions) -> NormalisedStep {
     let (t_step, t_end) = (t[0], t[t.len() - 1]);
-    let rise_time = match (
-        first_reach(t, r, options.rise_low),
-        first_reach(t, r, options.rise_high),
-    ) {
+    let rise_time = match (first_reach(t, r, options.rise_low), first_reach(t, r, options.rise_high)) {
         (Some(low), Some(high)) => Some(high - low),
         _ => None,
     };
@@ -214,13 +162,7 @@ fn characterise(t: &[f64], r: &[f64], options: &StepOptions) -> NormalisedStep {
 fn first_reach(t: &[f64], r: &[f64], level: f64) -> Option<f64> {
     match r.iter().position(|&ri| ri >= level)? {
         0 => Some(t[0]),
-        index => Some(lerp_crossing(
-            t[index - 1],
-            r[index - 1],
-            t[index],
-            r[index],
-            level,
-        )),
+        index => Some(lerp_crossing(t[index - 1], r[index - 1], t[index], r[index], level)),
     }
 }
 
@@ -231,18 +173,8 @@ fn settling_instant(t: &[f64], r: &[f64], band: f64) -> Option<f64> {
         None => Some(t[0]),
         Some(last) if last == r.len() - 1 => None,
         Some(last) => {
-            let boundary = if r[last] > 1.0 {
-                1.0 + band
-            } else {
-                1.0 - band
-            };
-            Some(lerp_crossing(
-                t[last],
-                r[last],
-                t[last + 1],
-                r[last + 1],
-                boundary,
-            ))
+            let boundary = if r[last] > 1.0 { 1.0 + band } else { 1.0 - band };
+            Some(lerp_crossing(t[last], r[last], t[last + 1], r[last + 1], boundary))
         }
     }
 }
@@ -300,45 +232,26 @@ mod tests {
     fn exact(zeta: f64, omega_n: f64, horizon: f64) -> Exact {
         let y = |t: f64| second_order_step(zeta, omega_n, t);
         let grid_step = 1e-4 / omega_n;
-        let grid: Vec<f64> = (0..=(horizon / grid_step) as usize)
-            .map(|i| i as f64 * grid_step)
-            .collect();
+        let grid: Vec<f64> = (0..=(horizon / grid_step) as usize).map(|i| i as f64 * grid_step).collect();
         let first_reach = |level: f64| {
-            let i = grid
-                .iter()
-                .position(|&t| y(t) >= level)
-                .expect("reaches the level");
+            let i = grid.iter().position(|&t| y(t) >= level).expect("reaches the level");
             bisect(|t| y(t) - level, grid[i - 1], grid[i])
         };
         let outside = |t: f64| (y(t) - 1.0).abs() - 0.02;
-        let last_outside = grid
-            .iter()
-            .rposition(|&t| outside(t) > 0.0)
-            .expect("starts outside");
+        let last_outside = grid.iter().rposition(|&t| outside(t) > 0.0).expect("starts outside");
         assert!(last_outside + 1 < grid.len(), "horizon too short to settle");
-        Exact {
-            rise_time: first_reach(0.9) - first_reach(0.1),
-            settling_time: bisect(outside, grid[last_outside], grid[last_outside + 1]),
-        }
+        Exact { rise_time: first_reach(0.9) - first_reach(0.1), settling_time: bisect(outside, grid[last_outside], grid[last_outside + 1]) }
     }
 
     fn sampled(zeta: f64, omega_n: f64, dt: f64, horizon: f64) -> (Vec<f64>, Vec<f64>) {
-        let t: Vec<f64> = (0..=(horizon / dt).round() as usize)
-            .map(|i| i as f64 * dt)
-            .collect();
-        let y = t
-            .iter()
-            .map(|&ti| second_order_step(zeta, omega_n, ti))
-            .collect();
+        let t: Vec<f64> = (0..=(horizon / dt).round() as usize).map(|i| i as f64 * dt).collect();
+        let y = t.iter().map(|&ti| second_order_step(zeta, omega_n, ti)).collect();
         (t, y)
     }
 
     fn assert_within_2_percent(what: &str, measured: f64, expected: f64) {
         let relative = (measured - expected).abs() / expected.abs();
-        assert!(
-            relative < 0.02,
-            "{what}: measured {measured}, expected {expected} ({relative:.4} off)"
-        );
+        assert!(relative < 0.02, "{what}: measured {measured}, expected {expected} ({relative:.4} off)");
     }
 
     const OMEGA_N: f64 = 2.0;
@@ -348,29 +261,15 @@ mod tests {
     fn check_against_analytic(zeta: f64, step: &StepCharacteristics) {
         let exact = exact(zeta, OMEGA_N, HORIZON);
         assert_within_2_percent("rise time", step.rise_time.expect("rises"), exact.rise_time);
-        assert_within_2_percent(
-            "settling time",
-            step.settling_time.expect("settles"),
-            exact.settling_time,
-        );
+        assert_within_2_percent("settling time", step.settling_time.expect("settles"), exact.settling_time);
         assert!(step.settled);
         if zeta < 1.0 {
-            let overshoot =
-                100.0 * (-std::f64::consts::PI * zeta / (1.0 - zeta * zeta).sqrt()).exp();
+            let overshoot = 100.0 * (-std::f64::consts::PI * zeta / (1.0 - zeta * zeta).sqrt()).exp();
             assert_within_2_percent("overshoot", step.overshoot_pct, overshoot);
         } else {
-            assert!(
-                step.overshoot_pct < 1e-9,
-                "no overshoot for ζ = {zeta}: {}",
-                step.overshoot_pct
-            );
+            assert!(step.overshoot_pct < 1e-9, "no overshoot for ζ = {zeta}: {}", step.overshoot_pct);
         }
-        assert!(
-            step.steady_state_error.abs() < 0.02 * step.reference.abs(),
-            "steady-state error {} for reference {}",
-            step.steady_state_error,
-            step.reference
-        );
+        assert!(step.steady_state_error.abs() < 0.02 * step.reference.abs(), "steady-state error {} for reference {}", step.steady_state_error, step.reference);
     }
 
     const ZETAS: [f64; 5] = [0.2, 0.5, 0.7, 1.0, 1.5];
@@ -381,8 +280,7 @@ mod tests {
             let target = 0.004; // 240 mm/min, the seed's welding speed
             let (t, unit) = sampled(zeta, OMEGA_N, DT, HORIZON);
             let speed: Vec<f64> = unit.iter().map(|u| target * u).collect();
-            let step =
-                rising_step(&t, &speed, target, &StepOptions::default()).expect("measurable");
+            let step = rising_step(&t, &speed, target, &StepOptions::default()).expect("measurable");
             check_against_analytic(zeta, &step);
         }
     }
@@ -393,13 +291,8 @@ mod tests {
             for initial_error in [0.3, -0.05] {
                 let (t, unit) = sampled(zeta, OMEGA_N, DT, HORIZON);
                 let error: Vec<f64> = unit.iter().map(|u| initial_error * (1.0 - u)).collect();
-                let step =
-                    decaying_error_step(&t, &error, &StepOptions::default()).expect("measurable");
-                assert!(
-                    (step.reference - initial_error).abs() < 1e-12,
-                    "e0 = {}",
-                    step.reference
-                );
+                let step = decaying_error_step(&t, &error, &StepOptions::default()).expect("measurable");
+                assert!((step.reference - initial_error).abs() < 1e-12, "e0 = {}", step.reference);
                 check_against_analytic(zeta, &step);
             }
         }
@@ -409,26 +302,12 @@ mod tests {
     fn a_late_step_is_measured_from_its_own_time() {
         let t_step = 5.0;
         let (t, unit) = sampled(0.5, OMEGA_N, DT, HORIZON);
-        let speed: Vec<f64> = t
-            .iter()
-            .map(|&ti| {
-                if ti < t_step {
-                    0.0
-                } else {
-                    second_order_step(0.5, OMEGA_N, ti - t_step)
-                }
-            })
-            .collect();
-        let options = StepOptions {
-            t_step: Some(t_step),
-            ..StepOptions::default()
-        };
+        let speed: Vec<f64> = t.iter().map(|&ti| if ti < t_step { 0.0 } else { second_order_step(0.5, OMEGA_N, ti - t_step) }).collect();
+        let options = StepOptions { t_step: Some(t_step), ..StepOptions::default() };
         let late = rising_step(&t, &speed, 1.0, &options).expect("measurable");
         let immediate = rising_step(&t, &unit, 1.0, &StepOptions::default()).expect("measurable");
         assert_eq!(late.t_step, t_step);
-        let close = |a: Option<f64>, b: Option<f64>| {
-            (a.unwrap_or(f64::NAN) - b.unwrap_or(f64::NAN)).abs() < 2.0 * DT
-        };
+        let close = |a: Option<f64>, b: Option<f64>| (a.unwrap_or(f64::NAN) - b.unwrap_or(f64::NAN)).abs() < 2.0 * DT;
         assert!(close(late.rise_time, immediate.rise_time));
         assert!(close(late.settling_time, immediate.settling_time));
         assert!((late.overshoot_pct - immediate.overshoot_pct).abs() < 1e-6);
@@ -438,10 +317,7 @@ mod tests {
     fn a_run_that_never_settles_averages_its_last_tenth_and_says_so() {
         // Rises to 90 % of the target and stays: 10 % short, outside the 2 % band.
         let t: Vec<f64> = (0..=100).map(f64::from).collect();
-        let speed: Vec<f64> = t
-            .iter()
-            .map(|&ti| 0.9 * (1.0 - (-ti / 10.0).exp()))
-            .collect();
+        let speed: Vec<f64> = t.iter().map(|&ti| 0.9 * (1.0 - (-ti / 10.0).exp())).collect();
         let step = rising_step(&t, &speed, 1.0, &StepOptions::default()).expect("measurable");
         assert!(!step.settled);
         assert_eq!(step.settling_time, None);
@@ -453,8 +329,7 @@ mod tests {
     #[test]
     fn a_response_that_never_moves_has_no_rise_time() {
         let t = [0.0, 1.0, 2.0];
-        let step =
-            rising_step(&t, &[0.0, 0.0, 0.0], 2.0, &StepOptions::default()).expect("measurable");
+        let step = rising_step(&t, &[0.0, 0.0, 0.0], 2.0, &StepOptions::default()).expect("measurable");
         assert_eq!(step.rise_time, None);
         assert_eq!(step.settling_time, None);
         assert_eq!(step.overshoot_pct, 0.0);

@@ -207,13 +207,7 @@ impl Decoder {
         // Unstuff from the instruction byte on, as it was stuffed (reference §3).
         let mut body = unstuff(&buf[PREFIX_LEN..total - 2]);
         let instruction = body.remove(0);
-        Front::Packet(RawPacket {
-            id,
-            instruction,
-            params: body,
-            wire_len: total,
-            bytes: buf[..total].to_vec(),
-        })
+        Front::Packet(RawPacket { id, instruction, params: body, wire_len: total, bytes: buf[..total].to_vec() })
     }
 }
 

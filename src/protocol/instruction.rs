@@ -49,24 +49,59 @@ pub struct BulkWriteEntry {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Instruction {
     Ping,
-    Read { address: u16, length: u16 },
-    Write { address: u16, data: Vec<u8> },
-    RegWrite { address: u16, data: Vec<u8> },
+    Read {
+        address: u16,
+        length: u16,
+    },
+    Write {
+        address: u16,
+        data: Vec<u8>,
+    },
+    RegWrite {
+        address: u16,
+        data: Vec<u8>,
+    },
     Action,
-    FactoryReset { option: u8 },
+    FactoryReset {
+        option: u8,
+    },
     Reboot,
     /// Clear; the parameters are kept raw because their meaning (`01 44 58 4C 22` = reset the
     /// multi-turn count) is checked by the device.
-    Clear { params: Vec<u8> },
-    ControlTableBackup { params: Vec<u8> },
-    SyncRead { address: u16, length: u16, ids: Vec<u8> },
-    FastSyncRead { address: u16, length: u16, ids: Vec<u8> },
-    SyncWrite { address: u16, length: u16, entries: Vec<SyncWriteEntry> },
-    BulkRead { entries: Vec<BulkReadEntry> },
-    FastBulkRead { entries: Vec<BulkReadEntry> },
-    BulkWrite { entries: Vec<BulkWriteEntry> },
+    Clear {
+        params: Vec<u8>,
+    },
+    ControlTableBackup {
+        params: Vec<u8>,
+    },
+    SyncRead {
+        address: u16,
+        length: u16,
+        ids: Vec<u8>,
+    },
+    FastSyncRead {
+        address: u16,
+        length: u16,
+        ids: Vec<u8>,
+    },
+    SyncWrite {
+        address: u16,
+        length: u16,
+        entries: Vec<SyncWriteEntry>,
+    },
+    BulkRead {
+        entries: Vec<BulkReadEntry>,
+    },
+    FastBulkRead {
+        entries: Vec<BulkReadEntry>,
+    },
+    BulkWrite {
+        entries: Vec<BulkWriteEntry>,
+    },
     /// A code this protocol does not define (the device answers Instruction Error).
-    Unknown { code: u8 },
+    Unknown {
+        code: u8,
+    },
 }
 
 /// The parameters do not fit the instruction's layout.
@@ -126,11 +161,7 @@ impl Instruction {
                 let length = u16_at(params, 2);
                 let ids = params[4..].to_vec();
                 reject_duplicates(code, ids.iter().copied())?;
-                if code == opcode::SYNC_READ {
-                    Self::SyncRead { address, length, ids }
-                } else {
-                    Self::FastSyncRead { address, length, ids }
-                }
+                if code == opcode::SYNC_READ { Self::SyncRead { address, length, ids } } else { Self::FastSyncRead { address, length, ids } }
             }
             opcode::SYNC_WRITE => {
                 if params.len() < 4 {
@@ -143,20 +174,14 @@ impl Instruction {
                 if length == 0 || body.is_empty() || !body.len().is_multiple_of(stride) {
                     return Err(wrong("4 + (1 + length) per ID"));
                 }
-                let entries = body
-                    .chunks_exact(stride)
-                    .map(|chunk| SyncWriteEntry { id: chunk[0], data: chunk[1..].to_vec() })
-                    .collect::<Vec<_>>();
+                let entries = body.chunks_exact(stride).map(|chunk| SyncWriteEntry { id: chunk[0], data: chunk[1..].to_vec() }).collect::<Vec<_>>();
                 Self::SyncWrite { address, length, entries }
             }
             opcode::BULK_READ | opcode::FAST_BULK_READ => {
                 if params.is_empty() || !params.len().is_multiple_of(5) {
                     return Err(wrong("5 per ID"));
                 }
-                let entries = params
-                    .chunks_exact(5)
-                    .map(|c| BulkReadEntry { id: c[0], address: u16_at(c, 1), length: u16_at(c, 3) })
-                    .collect::<Vec<_>>();
+                let entries = params.chunks_exact(5).map(|c| BulkReadEntry { id: c[0], address: u16_at(c, 1), length: u16_at(c, 3) }).collect::<Vec<_>>();
                 reject_duplicates(code, entries.iter().map(|e| e.id))?;
                 if code == opcode::BULK_READ { Self::BulkRead { entries } } else { Self::FastBulkRead { entries } }
             }
@@ -302,15 +327,7 @@ mod tests {
     fn parses_bulk_write_with_different_lengths() {
         let params = [1, 116, 0, 4, 0, 0, 2, 0, 0, 2, 64, 0, 1, 0, 1];
         let parsed = Instruction::parse(opcode::BULK_WRITE, &params).unwrap();
-        assert_eq!(
-            parsed,
-            Instruction::BulkWrite {
-                entries: vec![
-                    BulkWriteEntry { id: 1, address: 116, data: vec![0, 2, 0, 0] },
-                    BulkWriteEntry { id: 2, address: 64, data: vec![1] },
-                ]
-            }
-        );
+        assert_eq!(parsed, Instruction::BulkWrite { entries: vec![BulkWriteEntry { id: 1, address: 116, data: vec![0, 2, 0, 0] }, BulkWriteEntry { id: 2, address: 64, data: vec![1] },] });
         assert_eq!(parsed.params(), params);
     }
 

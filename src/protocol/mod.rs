@@ -12,7 +12,7 @@ mod instruction;
 mod stuffing;
 
 pub use crc16::crc16;
-pub use decoder::{Decoder, FrameError, RawPacket, DEFAULT_INTER_BYTE_TIMEOUT, DEFAULT_MAX_LEN};
+pub use decoder::{DEFAULT_INTER_BYTE_TIMEOUT, DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};
 pub use encoder::{FastReplyBuilder, encode_instruction, encode_status};
 pub use instruction::{BulkReadEntry, BulkWriteEntry, Instruction, ParamError, SyncWriteEntry, opcode};
 pub use stuffing::{stuff, unstuff};
@@ -29,4 +29,3 @@ pub const STATUS_INSTRUCTION: u8 = 0x55;
 pub const PREFIX_LEN: usize = 7;
 /// Alert bit of the status error byte: Hardware Error Status is non-zero.
 pub const ALERT_BIT: u8 = 0x80;
-

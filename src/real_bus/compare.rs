@@ -194,7 +194,19 @@ fn stats_of(series: &RegisterSeries, tolerances: &Tolerances, step: f64) -> Regi
     let (lo, hi) = samples.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (_, real, _)| (lo.min(*real), hi.max(*real)));
     let real_span = if samples.is_empty() { 0.0 } else { hi - lo };
     let tolerance = tolerances.for_register(series.id, &series.key, real_span, step);
-    RegisterStats { id: series.id, key: series.key.clone(), unit: series.unit.clone(), samples: samples.len(), bias, rms, max_abs, lag_ms: lag_ms(samples), real_span, tolerance, passed: rms <= tolerance }
+    RegisterStats {
+        id: series.id,
+        key: series.key.clone(),
+        unit: series.unit.clone(),
+        samples: samples.len(),
+        bias,
+        rms,
+        max_abs,
+        lag_ms: lag_ms(samples),
+        real_span,
+        tolerance,
+        passed: rms <= tolerance,
+    }
 }
 
 /// The shift of the simulated series (in samples, ±[`MAX_LAG_SAMPLES`]) with the smallest RMS
@@ -256,7 +268,8 @@ mod tests {
         let spans = read_spans(&request);
         assert_eq!(spans, vec![(3, 132, 4), (7, 132, 4), (4, 132, 4)]);
         let reply = packet(&[
-            0xFF, 0xFF, 0xFD, 0x00, 0xFE, 0x19, 0x00, 0x55, 0x00, 0x03, 0xA6, 0x00, 0x00, 0x00, 0x84, 0x08, 0x00, 0x07, 0x1F, 0x08, 0x00, 0x00, 0x16, 0xCA, 0x00, 0x04, 0xFF, 0x03, 0x00, 0x00, 0xD1, 0x9E,
+            0xFF, 0xFF, 0xFD, 0x00, 0xFE, 0x19, 0x00, 0x55, 0x00, 0x03, 0xA6, 0x00, 0x00, 0x00, 0x84, 0x08, 0x00, 0x07, 0x1F, 0x08, 0x00, 0x00, 0x16, 0xCA, 0x00, 0x04, 0xFF, 0x03, 0x00, 0x00, 0xD1,
+            0x9E,
         ]);
         let blocks = fast_blocks(&reply, &spans);
         assert_eq!(blocks, vec![(3, 132, &[0xA6, 0, 0, 0][..]), (7, 132, &[0x1F, 0x08, 0, 0][..]), (4, 132, &[0xFF, 0x03, 0, 0][..])]);

@@ -124,7 +124,17 @@ pub fn grid_start(n: usize, evaluate: &mut Evaluate<'_>) -> (Vec<f64>, usize) {
     }
     let cell = |index: usize| (index as f64 + 0.5) / levels as f64;
     let count = levels.pow(n as u32);
-    let points: Vec<Vec<f64>> = (0..count).map(|mut k| (0..n).map(|_| { let index = k % levels; k /= levels; cell(index) }).collect()).collect();
+    let points: Vec<Vec<f64>> = (0..count)
+        .map(|mut k| {
+            (0..n)
+                .map(|_| {
+                    let index = k % levels;
+                    k /= levels;
+                    cell(index)
+                })
+                .collect()
+        })
+        .collect();
     let errors = evaluate(&points);
     let best = lowest(&errors).map_or(0, |(index, _)| index);
     (points[best].clone(), count)

@@ -41,7 +41,16 @@ pub struct RealHeader {
 
 impl RealHeader {
     pub fn new(device: &Path, link: &Path, baud: u32, started_unix_ns: u64) -> Self {
-        Self { format: FORMAT.to_owned(), version: VERSION, climbsim: env!("CARGO_PKG_VERSION").to_owned(), mode: "tap".to_owned(), device: device.to_owned(), link: link.to_owned(), baud, started_unix_ns }
+        Self {
+            format: FORMAT.to_owned(),
+            version: VERSION,
+            climbsim: env!("CARGO_PKG_VERSION").to_owned(),
+            mode: "tap".to_owned(),
+            device: device.to_owned(),
+            link: link.to_owned(),
+            baud,
+            started_unix_ns,
+        }
     }
 }
 

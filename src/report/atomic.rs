@@ -10,26 +10,18 @@ use super::{ReportError, io_error};
 /// Writes `path` atomically: `write` fills `NAME.tmp` in the same directory, which is flushed
 /// and fsynced and then renamed over `path`; the directory is fsynced so the rename survives a
 /// crash. If anything fails, the temporary file is removed and `path` is left as it was.
-pub fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
-) -> Result<(), ReportError> {
+pub fn write_atomically(path: &Path, write: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>) -> Result<(), ReportError> {
     let temporary = temporary_path(path);
     let written = (|| {
         let mut writer = BufWriter::new(File::create(&temporary)?);
         write(&mut writer)?;
-        let file = writer
-            .into_inner()
-            .map_err(io::IntoInnerError::into_error)?;
+        let file = writer.into_inner().map_err(io::IntoInnerError::into_error)?;
         file.sync_all()
     })();
     if let Err(source) = written {
         // Best effort: the error that matters is the write's, not the clean-up's.
         let _ = fs::remove_file(&temporary);
-        return Err(ReportError::Io {
-            path: temporary,
-            source,
-        });
+        return Err(ReportError::Io { path: temporary, source });
     }
     commit(&temporary, path)
 }
@@ -54,15 +46,10 @@ pub(crate) fn write_atomically_at(path: &Path, write: impl FnOnce(&Path) -> Resu
 pub(crate) fn commit(temporary: &Path, path: &Path) -> Result<(), ReportError> {
     if let Err(source) = fs::rename(temporary, path) {
         let _ = fs::remove_file(temporary);
-        return Err(ReportError::Io {
-            path: path.to_path_buf(),
-            source,
-        });
+        return Err(ReportError::Io { path: path.to_path_buf(), source });
     }
     let directory = directory_of(path);
-    File::open(directory)
-        .and_then(|dir| dir.sync_all())
-        .map_err(io_error(directory))
+    File::open(directory).and_then(|dir| dir.sync_all()).map_err(io_error(directory))
 }
 
 /// Writes `bytes` to `path` atomically (see [`write_atomically`]).

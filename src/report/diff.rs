@@ -22,17 +22,7 @@ use super::{ReportError, SUMMARY_JSON, Summary, TIMESERIES_CSV, TimeSeries, read
 /// Absolute tolerance by key suffix; the first match wins (so `_rad_s` before `_rad`). Chosen to
 /// be well under what matters for the task (0.1 mm of line distance, 0.06° of heading, 6 mm/min
 /// of speed) while far above floating-point noise.
-pub const DEFAULT_TOLERANCES: &[(&str, f64)] = &[
-    ("line_valid", 0.0),
-    ("_rad_s", 1e-2),
-    ("_m_s", 1e-4),
-    ("_rad", 1e-3),
-    ("_m", 1e-4),
-    ("_n", 0.5),
-    ("_pct", 0.5),
-    ("_fraction", 5e-3),
-    ("_s", 0.02),
-];
+pub const DEFAULT_TOLERANCES: &[(&str, f64)] = &[("line_valid", 0.0), ("_rad_s", 1e-2), ("_m_s", 1e-4), ("_rad", 1e-3), ("_m", 1e-4), ("_n", 0.5), ("_pct", 0.5), ("_fraction", 5e-3), ("_s", 0.02)];
 /// Any other key (counts, unitless numbers).
 pub const DEFAULT_OTHER_TOLERANCE: f64 = 1e-9;
 /// Summary keys that depend on the wall clock, not the trajectory.

@@ -43,29 +43,16 @@ pub struct JunitCase {
 /// as 0.
 pub fn junit_xml(suite_name: &str, cases: &[JunitCase]) -> String {
     let broken = cases.iter().filter(|case| case.broken).count();
-    let failed = cases
-        .iter()
-        .filter(|case| !case.broken && !case.failure_messages.is_empty())
-        .count();
+    let failed = cases.iter().filter(|case| !case.broken && !case.failure_messages.is_empty()).count();
     let total_time: f64 = cases.iter().map(|case| seconds(case.time_s)).sum();
     let suite = escape_attribute(suite_name);
     let counts = format!(r#"tests="{}" failures="{failed}" errors="{broken}""#, cases.len());
     let mut xml = String::from("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
     // Writing into a String cannot fail, hence the ignored fmt::Results.
-    let _ = writeln!(
-        xml,
-        r#"<testsuites name="{suite}" {counts} time="{total_time:.3}">"#
-    );
-    let _ = writeln!(
-        xml,
-        r#"  <testsuite name="{suite}" {counts} skipped="0" time="{total_time:.3}">"#
-    );
+    let _ = writeln!(xml, r#"<testsuites name="{suite}" {counts} time="{total_time:.3}">"#);
+    let _ = writeln!(xml, r#"  <testsuite name="{suite}" {counts} skipped="0" time="{total_time:.3}">"#);
     for case in cases {
-        let opening = format!(
-            r#"    <testcase name="{}" classname="{suite}" time="{:.3}""#,
-            escape_attribute(&case.name),
-            seconds(case.time_s)
-        );
+        let opening = format!(r#"    <testcase name="{}" classname="{suite}" time="{:.3}""#, escape_attribute(&case.name), seconds(case.time_s));
         if case.failure_messages.is_empty() && case.system_out.is_none() {
             let _ = writeln!(xml, "{opening}/>");
             continue;
@@ -73,12 +60,7 @@ pub fn junit_xml(suite_name: &str, cases: &[JunitCase]) -> String {
         let _ = writeln!(xml, "{opening}>");
         if !case.failure_messages.is_empty() {
             let (element, kind) = if case.broken { ("error", "error") } else { ("failure", "expectation") };
-            let _ = writeln!(
-                xml,
-                r#"      <{element} message="{}" type="{kind}">{}</{element}>"#,
-                escape_attribute(&case.failure_messages.join("; ")),
-                escape_text(&case.failure_messages.join("\n"))
-            );
+            let _ = writeln!(xml, r#"      <{element} message="{}" type="{kind}">{}</{element}>"#, escape_attribute(&case.failure_messages.join("; ")), escape_text(&case.failure_messages.join("\n")));
         }
         if let Some(out) = &case.system_out {
             let _ = writeln!(xml, "      <system-out>{}</system-out>", escape_text(out));
@@ -137,13 +119,7 @@ mod tests {
     use quick_xml::events::Event;
 
     fn case(name: &str, failures: &[&str]) -> JunitCase {
-        JunitCase {
-            name: name.to_owned(),
-            time_s: 1.25,
-            failure_messages: failures.iter().map(|&message| message.to_owned()).collect(),
-            system_out: None,
-            broken: false,
-        }
+        JunitCase { name: name.to_owned(), time_s: 1.25, failure_messages: failures.iter().map(|&message| message.to_owned()).collect(), system_out: None, broken: false }
     }
 
     /// Every element with its attributes (unescaped), parsed by a real XML parser.
@@ -157,12 +133,8 @@ mod tests {
                         .attributes()
                         .map(|attribute| {
                             let attribute = attribute.expect("a well-formed attribute");
-                            let key =
-                                String::from_utf8(attribute.key.as_ref().to_vec()).expect("UTF-8");
-                            let value = attribute
-                                .decode_and_unescape_value(reader.decoder())
-                                .expect("valid escapes")
-                                .into_owned();
+                            let key = String::from_utf8(attribute.key.as_ref().to_vec()).expect("UTF-8");
+                            let value = attribute.decode_and_unescape_value(reader.decoder()).expect("valid escapes").into_owned();
                             (key, value)
                         })
                         .collect();
@@ -177,36 +149,16 @@ mod tests {
     }
 
     fn attribute<'a>(element: &'a (String, Vec<(String, String)>), key: &str) -> &'a str {
-        element
-            .1
-            .iter()
-            .find(|(name, _)| name == key)
-            .map(|(_, value)| value.as_str())
-            .unwrap_or("")
+        element.1.iter().find(|(name, _)| name == key).map(|(_, value)| value.as_str()).unwrap_or("")
     }
 
     #[test]
     fn counts_cases_and_failed_cases() {
-        let cases = [
-            case("flat", &[]),
-            case("bumpy", &["overshoot 12 % > 10 %", "rise time 3 s > 2 s"]),
-            case("wall", &["never settled"]),
-        ];
+        let cases = [case("flat", &[]), case("bumpy", &["overshoot 12 % > 10 %", "rise time 3 s > 2 s"]), case("wall", &["never settled"])];
         let xml = junit_xml("climbsim check", &cases);
         let elements = parse(&xml);
         let names: Vec<&str> = elements.iter().map(|(name, _)| name.as_str()).collect();
-        assert_eq!(
-            names,
-            [
-                "testsuites",
-                "testsuite",
-                "testcase",
-                "testcase",
-                "failure",
-                "testcase",
-                "failure"
-            ]
-        );
+        assert_eq!(names, ["testsuites", "testsuite", "testcase", "testcase", "failure", "testcase", "failure"]);
         for suite in &elements[..2] {
             assert_eq!(attribute(suite, "tests"), "3");
             assert_eq!(attribute(suite, "failures"), "2");
@@ -214,10 +166,7 @@ mod tests {
         }
         assert_eq!(attribute(&elements[2], "name"), "flat");
         assert_eq!(attribute(&elements[2], "time"), "1.250");
-        assert_eq!(
-            attribute(&elements[4], "message"),
-            "overshoot 12 % > 10 %; rise time 3 s > 2 s"
-        );
+        assert_eq!(attribute(&elements[4], "message"), "overshoot 12 % > 10 %; rise time 3 s > 2 s");
     }
 
     #[test]
@@ -226,18 +175,9 @@ mod tests {
         let xml = junit_xml("suite & co", &[case(nasty, &[nasty])]);
         let elements = parse(&xml);
         assert_eq!(attribute(&elements[0], "name"), "suite & co");
-        assert_eq!(
-            attribute(&elements[2], "name"),
-            "a<b & \"c\" 'd'\nline\u{FFFD}"
-        );
-        assert_eq!(
-            attribute(&elements[3], "message"),
-            "a<b & \"c\" 'd'\nline\u{FFFD}"
-        );
-        assert!(
-            xml.contains(">a&lt;b &amp; \"c\" 'd'\nline\u{FFFD}</failure>"),
-            "{xml}"
-        );
+        assert_eq!(attribute(&elements[2], "name"), "a<b & \"c\" 'd'\nline\u{FFFD}");
+        assert_eq!(attribute(&elements[3], "message"), "a<b & \"c\" 'd'\nline\u{FFFD}");
+        assert!(xml.contains(">a&lt;b &amp; \"c\" 'd'\nline\u{FFFD}</failure>"), "{xml}");
     }
 
     #[test]

@@ -24,17 +24,11 @@ use thiserror::Error;
 
 pub use atomic::write_atomically;
 pub use path::{HeightGrid, PathView, plot_path};
-pub use plot::{
-    PLOT_SIZE_PX, PlotFiles, PlotLabels, PlotSeries, plot_metric_vs_parameter, plot_series,
-};
-pub use summary::{
-    SETTINGS_JSON, SUMMARY_JSON, Summary, summarise, write_settings_json, write_summary_json,
-};
-pub use timing::write_timing_report;
+pub use plot::{PLOT_SIZE_PX, PlotFiles, PlotLabels, PlotSeries, plot_metric_vs_parameter, plot_series};
+pub use summary::{SETTINGS_JSON, SUMMARY_JSON, Summary, summarise, write_settings_json, write_summary_json};
 pub use timeseries::{CsvRows, TIMESERIES_CSV, TimeSeries, TimeSeriesWriter, read_timeseries_csv, write_timeseries_csv};
-pub use workbook::{
-    REPORT_XLSX, SHEET_RAW_DATA, SHEET_SETTINGS, SHEET_STEP_CHARACTERISTICS, write_workbook,
-};
+pub use timing::write_timing_report;
+pub use workbook::{REPORT_XLSX, SHEET_RAW_DATA, SHEET_SETTINGS, SHEET_STEP_CHARACTERISTICS, write_workbook};
 
 /// Why an output could not be written. Variants about a file name it.
 #[derive(Debug, Error)]
@@ -42,30 +36,17 @@ pub enum ReportError {
     #[error("{}: {source}", path.display())]
     Io { path: PathBuf, source: io::Error },
     #[error("{}: JSON: {source}", path.display())]
-    Json {
-        path: PathBuf,
-        source: serde_json::Error,
-    },
+    Json { path: PathBuf, source: serde_json::Error },
     #[error("{}: workbook: {source}", path.display())]
-    Workbook {
-        path: PathBuf,
-        source: rust_xlsxwriter::XlsxError,
-    },
+    Workbook { path: PathBuf, source: rust_xlsxwriter::XlsxError },
     #[error("{}: plot: {message}", path.display())]
     Plot { path: PathBuf, message: String },
     #[error("{}: PNG encoding: {source}", path.display())]
-    PngEncoding {
-        path: PathBuf,
-        source: png::EncodingError,
-    },
+    PngEncoding { path: PathBuf, source: png::EncodingError },
     #[error("a time-series row has {got} values but the series has {expected} columns")]
     RowWidth { expected: usize, got: usize },
     #[error("plot series {label:?} has {x_len} x values and {y_len} y values")]
-    SeriesLengthMismatch {
-        label: String,
-        x_len: usize,
-        y_len: usize,
-    },
+    SeriesLengthMismatch { label: String, x_len: usize, y_len: usize },
     #[error("plot file stem {stem:?} is not a plain file name")]
     InvalidFileStem { stem: String },
     #[error("the embedded plot font could not be loaded")]

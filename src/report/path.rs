@@ -189,13 +189,7 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, plot: &PathPlot<'_>) -
         chart.draw_series(std::iter::once(Circle::new(plan(first), 6, GREEN.filled())))?.label("start").legend(|(x, y)| Circle::new((x + 12, y), 5, GREEN.filled()));
         chart.draw_series(std::iter::once(Cross::new(plan(last), 7, RED.stroke_width(3))))?.label("end").legend(|(x, y)| Cross::new((x + 12, y), 5, RED.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT_FAMILY, 16))
-        .draw()?;
+    chart.configure_series_labels().position(SeriesLabelPosition::UpperRight).background_style(WHITE.mix(0.85)).border_style(BLACK).label_font((FONT_FAMILY, 16)).draw()?;
     root.present()
 }
 

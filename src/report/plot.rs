@@ -62,34 +62,19 @@ pub struct PlotFiles {
 
 /// Plots the series as lines with a legend into `out_dir/STEM.png` and `out_dir/STEM.svg`
 /// (each written atomically). For time series such as the distance error of several runs.
-pub fn plot_series(
-    out_dir: &Path,
-    stem: &str,
-    labels: &PlotLabels<'_>,
-    series: &[PlotSeries<'_>],
-) -> Result<PlotFiles, ReportError> {
+pub fn plot_series(out_dir: &Path, stem: &str, labels: &PlotLabels<'_>, series: &[PlotSeries<'_>]) -> Result<PlotFiles, ReportError> {
     plot(out_dir, stem, labels, series, Markers::No, XAxis::Linear)
 }
 
 /// Like [`plot_series`] on a logarithmic x axis (positive x only): for distributions of times
 /// that span decades, where one long outlier would squash everything else into a corner.
-pub fn plot_series_log_x(
-    out_dir: &Path,
-    stem: &str,
-    labels: &PlotLabels<'_>,
-    series: &[PlotSeries<'_>],
-) -> Result<PlotFiles, ReportError> {
+pub fn plot_series_log_x(out_dir: &Path, stem: &str, labels: &PlotLabels<'_>, series: &[PlotSeries<'_>]) -> Result<PlotFiles, ReportError> {
     plot(out_dir, stem, labels, series, Markers::No, XAxis::Log)
 }
 
 /// Like [`plot_series`], with a marker on every point: for a metric measured at a few values of
 /// a swept parameter (e.g. speed rise time against Kp, normal compensation on and off).
-pub fn plot_metric_vs_parameter(
-    out_dir: &Path,
-    stem: &str,
-    labels: &PlotLabels<'_>,
-    series: &[PlotSeries<'_>],
-) -> Result<PlotFiles, ReportError> {
+pub fn plot_metric_vs_parameter(out_dir: &Path, stem: &str, labels: &PlotLabels<'_>, series: &[PlotSeries<'_>]) -> Result<PlotFiles, ReportError> {
     plot(out_dir, stem, labels, series, Markers::Yes, XAxis::Linear)
 }
 
@@ -105,21 +90,10 @@ enum XAxis {
     Log,
 }
 
-fn plot(
-    out_dir: &Path,
-    stem: &str,
-    labels: &PlotLabels<'_>,
-    series: &[PlotSeries<'_>],
-    markers: Markers,
-    x_axis: XAxis,
-) -> Result<PlotFiles, ReportError> {
+fn plot(out_dir: &Path, stem: &str, labels: &PlotLabels<'_>, series: &[PlotSeries<'_>], markers: Markers, x_axis: XAxis) -> Result<PlotFiles, ReportError> {
     for line in series {
         if line.x.len() != line.y.len() {
-            return Err(ReportError::SeriesLengthMismatch {
-                label: line.label.to_owned(),
-                x_len: line.x.len(),
-                y_len: line.y.len(),
-            });
+            return Err(ReportError::SeriesLengthMismatch { label: line.label.to_owned(), x_len: line.x.len(), y_len: line.y.len() });
         }
     }
     write_figure(out_dir, stem, &LinePlot { labels, series, markers, x_axis })
@@ -134,15 +108,10 @@ pub(super) trait Figure {
 pub(super) fn write_figure(out_dir: &Path, stem: &str, figure: &impl Figure) -> Result<PlotFiles, ReportError> {
     // The stem names a file inside out_dir; a separator would put it elsewhere.
     if stem.is_empty() || stem.contains(['/', '\\']) || stem == "." || stem == ".." {
-        return Err(ReportError::InvalidFileStem {
-            stem: stem.to_owned(),
-        });
+        return Err(ReportError::InvalidFileStem { stem: stem.to_owned() });
     }
     register_embedded_font()?;
-    let files = PlotFiles {
-        png: out_dir.join(format!("{stem}.png")),
-        svg: out_dir.join(format!("{stem}.svg")),
-    };
+    let files = PlotFiles { png: out_dir.join(format!("{stem}.png")), svg: out_dir.join(format!("{stem}.svg")) };
     let plot_error = |path: &Path| {
         let path = path.to_path_buf();
         move |message: String| ReportError::Plot { path, message }
@@ -152,24 +121,15 @@ pub(super) fn write_figure(out_dir: &Path, stem: &str, figure: &impl Figure) -> 
     let mut rgb = vec![0_u8; width as usize * height as usize * 3];
     {
         let backend = BitMapBackend::with_buffer(&mut rgb, PLOT_SIZE_PX);
-        figure
-            .draw(backend.into_drawing_area())
-            .map_err(|error| error.to_string())
-            .map_err(plot_error(&files.png))?;
+        figure.draw(backend.into_drawing_area()).map_err(|error| error.to_string()).map_err(plot_error(&files.png))?;
     }
-    let png = encode_png(&rgb, PLOT_SIZE_PX).map_err(|source| ReportError::PngEncoding {
-        path: files.png.clone(),
-        source,
-    })?;
+    let png = encode_png(&rgb, PLOT_SIZE_PX).map_err(|source| ReportError::PngEncoding { path: files.png.clone(), source })?;
     write_bytes_atomically(&files.png, &png)?;
 
     let mut svg = String::new();
     {
         let backend = SVGBackend::with_string(&mut svg, PLOT_SIZE_PX);
-        figure
-            .draw(backend.into_drawing_area())
-            .map_err(|error| error.to_string())
-            .map_err(plot_error(&files.svg))?;
+        figure.draw(backend.into_drawing_area()).map_err(|error| error.to_string()).map_err(plot_error(&files.svg))?;
     }
     write_bytes_atomically(&files.svg, svg.as_bytes())?;
     Ok(files)
@@ -192,22 +152,11 @@ impl Figure for LinePlot<'_> {
 fn register_embedded_font() -> Result<(), ReportError> {
     // plotters keeps registered fonts in a process-wide table; registering once is enough.
     static REGISTERED: OnceLock<bool> = OnceLock::new();
-    let registered = *REGISTERED
-        .get_or_init(|| register_font(FONT_FAMILY, FontStyle::Normal, DEJAVU_SANS).is_ok());
-    if registered {
-        Ok(())
-    } else {
-        Err(ReportError::Font)
-    }
+    let registered = *REGISTERED.get_or_init(|| register_font(FONT_FAMILY, FontStyle::Normal, DEJAVU_SANS).is_ok());
+    if registered { Ok(()) } else { Err(ReportError::Font) }
 }
 
-fn draw<DB: DrawingBackend>(
-    root: DrawingArea<DB, Shift>,
-    labels: &PlotLabels<'_>,
-    series: &[PlotSeries<'_>],
-    markers: Markers,
-    x_axis: XAxis,
-) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, labels: &PlotLabels<'_>, series: &[PlotSeries<'_>], markers: Markers, x_axis: XAxis) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     root.fill(&WHITE)?;
     // Markers at the first and last parameter value would be cut in half by the frame.
     let x_margin = if markers == Markers::Yes { 0.03 } else { 0.0 };
@@ -250,31 +199,13 @@ fn lines<'a, DB: DrawingBackend + 'a, X: Ranged<ValueType = f64> + ValueFormatte
     for (index, line) in series.iter().enumerate() {
         let colour = PALETTE[index % PALETTE.len()];
         let points = line_points(line);
-        chart
-            .draw_series(LineSeries::new(
-                points.iter().copied(),
-                colour.stroke_width(2),
-            ))?
-            .label(line.label)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(2))
-            });
+        chart.draw_series(LineSeries::new(points.iter().copied(), colour.stroke_width(2)))?.label(line.label).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(2)));
         if markers == Markers::Yes {
-            chart.draw_series(
-                points
-                    .iter()
-                    .map(|&point| Circle::new(point, 4, colour.filled())),
-            )?;
+            chart.draw_series(points.iter().map(|&point| Circle::new(point, 4, colour.filled())))?;
         }
     }
     if !series.is_empty() {
-        chart
-            .configure_series_labels()
-            .position(legend)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font((FONT_FAMILY, 16))
-            .draw()?;
+        chart.configure_series_labels().position(legend).background_style(WHITE.mix(0.85)).border_style(BLACK).label_font((FONT_FAMILY, 16)).draw()?;
     }
     Ok(())
 }
@@ -320,11 +251,7 @@ fn line_points(line: &PlotSeries<'_>) -> Vec<(f64, f64)> {
 }
 
 fn finite_points<'a>(line: &PlotSeries<'a>) -> impl Iterator<Item = (f64, f64)> + 'a {
-    line.x
-        .iter()
-        .zip(line.y)
-        .map(|(&x, &y)| (x, y))
-        .filter(|(x, y)| x.is_finite() && y.is_finite())
+    line.x.iter().zip(line.y).map(|(&x, &y)| (x, y)).filter(|(x, y)| x.is_finite() && y.is_finite())
 }
 
 /// The x range spanning all finite points with `x_margin` (a fraction of the span) each side,
@@ -392,48 +319,23 @@ mod tests {
     fn a_time_plot_is_written_as_png_and_svg() {
         let dir = tempfile::tempdir().expect("temporary directory");
         let t: Vec<f64> = (0..200).map(|i| f64::from(i) * 0.05).collect();
-        let d: Vec<f64> = t
-            .iter()
-            .map(|&ti| 0.3 * (-0.5 * ti).exp() * (2.0 * ti).cos())
-            .collect();
+        let d: Vec<f64> = t.iter().map(|&ti| 0.3 * (-0.5 * ti).exp() * (2.0 * ti).cos()).collect();
         let d2: Vec<f64> = t.iter().map(|&ti| 0.3 * (-ti).exp()).collect();
-        let labels = PlotLabels {
-            title: "Distance error",
-            x: "t (s)",
-            y: "d (m)",
-        };
-        let series = [
-            PlotSeries {
-                label: "zeta = 0.2",
-                x: &t,
-                y: &d,
-            },
-            PlotSeries {
-                label: "zeta = 1.0 & <more>",
-                x: &t,
-                y: &d2,
-            },
-        ];
+        let labels = PlotLabels { title: "Distance error", x: "t (s)", y: "d (m)" };
+        let series = [PlotSeries { label: "zeta = 0.2", x: &t, y: &d }, PlotSeries { label: "zeta = 1.0 & <more>", x: &t, y: &d2 }];
         let files = plot_series(dir.path(), "distance", &labels, &series).expect("plotted");
         assert_eq!(files.png, dir.path().join("distance.png"));
 
         let (info, pixels) = decode_png(&files.png);
         assert_eq!((info.width, info.height), PLOT_SIZE_PX);
         // Not a blank canvas: the plot drew dark text and coloured lines on white.
-        assert!(
-            pixels
-                .chunks(3)
-                .any(|p| p[0] < 100 && p[1] < 100 && p[2] < 100)
-        );
+        assert!(pixels.chunks(3).any(|p| p[0] < 100 && p[1] < 100 && p[2] < 100));
         assert!(pixels.chunks(3).any(|p| p == [31, 119, 180]));
 
         let svg = std::fs::read_to_string(&files.svg).expect("SVG exists");
         assert!(svg.starts_with("<svg"), "{}", &svg[..40.min(svg.len())]);
         assert!(svg.contains("zeta = 0.2"));
-        assert!(
-            svg.contains("zeta = 1.0 &amp; &lt;more&gt;"),
-            "labels are escaped"
-        );
+        assert!(svg.contains("zeta = 1.0 &amp; &lt;more&gt;"), "labels are escaped");
         assert!(svg.contains("Distance error"));
         assert!(!dir.path().join("distance.png.tmp").exists());
     }
@@ -444,25 +346,9 @@ mod tests {
         let kp = [0.5, 1.0, 2.0, 4.0];
         let with = [1.2, 0.8, 0.5, 0.4];
         let without = [1.6, 1.1, 0.9, f64::NAN];
-        let labels = PlotLabels {
-            title: "Speed rise time",
-            x: "Kp",
-            y: "rise time (s)",
-        };
-        let series = [
-            PlotSeries {
-                label: "compensation on",
-                x: &kp,
-                y: &with,
-            },
-            PlotSeries {
-                label: "compensation off",
-                x: &kp,
-                y: &without,
-            },
-        ];
-        let files = plot_metric_vs_parameter(dir.path(), "rise_time_vs_kp", &labels, &series)
-            .expect("plotted");
+        let labels = PlotLabels { title: "Speed rise time", x: "Kp", y: "rise time (s)" };
+        let series = [PlotSeries { label: "compensation on", x: &kp, y: &with }, PlotSeries { label: "compensation off", x: &kp, y: &without }];
+        let files = plot_metric_vs_parameter(dir.path(), "rise_time_vs_kp", &labels, &series).expect("plotted");
         let (info, _) = decode_png(&files.png);
         assert_eq!((info.width, info.height), PLOT_SIZE_PX);
         let svg = std::fs::read_to_string(&files.svg).expect("SVG exists");
@@ -473,45 +359,19 @@ mod tests {
     #[test]
     fn mismatched_series_and_bad_stems_are_errors() {
         let dir = tempfile::tempdir().expect("temporary directory");
-        let labels = PlotLabels {
-            title: "t",
-            x: "x",
-            y: "y",
-        };
-        let short = [PlotSeries {
-            label: "short",
-            x: &[0.0, 1.0],
-            y: &[0.0],
-        }];
-        assert!(matches!(
-            plot_series(dir.path(), "p", &labels, &short),
-            Err(ReportError::SeriesLengthMismatch {
-                x_len: 2,
-                y_len: 1,
-                ..
-            })
-        ));
-        assert!(matches!(
-            plot_series(dir.path(), "../p", &labels, &[]),
-            Err(ReportError::InvalidFileStem { .. })
-        ));
+        let labels = PlotLabels { title: "t", x: "x", y: "y" };
+        let short = [PlotSeries { label: "short", x: &[0.0, 1.0], y: &[0.0] }];
+        assert!(matches!(plot_series(dir.path(), "p", &labels, &short), Err(ReportError::SeriesLengthMismatch { x_len: 2, y_len: 1, .. })));
+        assert!(matches!(plot_series(dir.path(), "../p", &labels, &[]), Err(ReportError::InvalidFileStem { .. })));
     }
 
     #[test]
     fn degenerate_data_still_gives_valid_axes() {
         assert_eq!(axis_ranges(&[], 0.0), (0.0..1.0, 0.0..1.0));
-        let one = [PlotSeries {
-            label: "one",
-            x: &[2.0],
-            y: &[0.0],
-        }];
+        let one = [PlotSeries { label: "one", x: &[2.0], y: &[0.0] }];
         assert_eq!(axis_ranges(&one, 0.0), (1.8..2.2, -1.0..1.0));
         let dir = tempfile::tempdir().expect("temporary directory");
-        let labels = PlotLabels {
-            title: "empty",
-            x: "x",
-            y: "y",
-        };
+        let labels = PlotLabels { title: "empty", x: "x", y: "y" };
         plot_series(dir.path(), "empty", &labels, &[]).expect("an empty plot is still a plot");
     }
 }

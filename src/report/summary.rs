@@ -29,29 +29,13 @@ pub type Summary = BTreeMap<String, Value>;
 /// `distance.steady_state_error_m`, `speed.target_m_s` and `speed.steady_state_error_m_s`; and
 /// `rms_distance_m`, `max_abs_distance_m`, `time_on_line_s`, `time_on_line_fraction`,
 /// `line_tolerance_m`.
-pub fn summarise(
-    distance: Option<&StepCharacteristics>,
-    speed: Option<&StepCharacteristics>,
-    line: Option<&LineTracking>,
-) -> Summary {
+pub fn summarise(distance: Option<&StepCharacteristics>, speed: Option<&StepCharacteristics>, line: Option<&LineTracking>) -> Summary {
     let mut summary = Summary::new();
     if let Some(step) = distance {
-        insert_step(
-            &mut summary,
-            "distance",
-            step,
-            "initial_error_m",
-            "steady_state_error_m",
-        );
+        insert_step(&mut summary, "distance", step, "initial_error_m", "steady_state_error_m");
     }
     if let Some(step) = speed {
-        insert_step(
-            &mut summary,
-            "speed",
-            step,
-            "target_m_s",
-            "steady_state_error_m_s",
-        );
+        insert_step(&mut summary, "speed", step, "target_m_s", "steady_state_error_m_s");
     }
     if let Some(line) = line {
         let entries = [
@@ -68,13 +52,7 @@ pub fn summarise(
     summary
 }
 
-fn insert_step(
-    summary: &mut Summary,
-    prefix: &str,
-    step: &StepCharacteristics,
-    reference_key: &str,
-    steady_state_key: &str,
-) {
+fn insert_step(summary: &mut Summary, prefix: &str, step: &StepCharacteristics, reference_key: &str, steady_state_key: &str) {
     // Value::from turns a non-finite f64 into null, and None into null.
     let entries = [
         ("step_time_s", Value::from(step.t_step)),
@@ -102,10 +80,7 @@ pub fn write_settings_json(out_dir: &Path, settings: &Value) -> Result<PathBuf, 
 }
 
 pub(super) fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<PathBuf, ReportError> {
-    let mut text = serde_json::to_vec_pretty(value).map_err(|source| ReportError::Json {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let mut text = serde_json::to_vec_pretty(value).map_err(|source| ReportError::Json { path: path.to_path_buf(), source })?;
     // A final newline, as text tools expect; writing into a Vec cannot fail.
     let _ = text.write_all(b"\n");
     write_bytes_atomically(path, &text)?;
@@ -118,28 +93,14 @@ mod tests {
     use serde_json::json;
 
     fn step(reference: f64, settling_time: Option<f64>) -> StepCharacteristics {
-        StepCharacteristics {
-            t_step: 0.0,
-            reference,
-            rise_time: Some(1.5),
-            settling_time,
-            settled: settling_time.is_some(),
-            overshoot_pct: 4.3,
-            steady_state_error: -0.001,
-        }
+        StepCharacteristics { t_step: 0.0, reference, rise_time: Some(1.5), settling_time, settled: settling_time.is_some(), overshoot_pct: 4.3, steady_state_error: -0.001 }
     }
 
     #[test]
     fn flattens_both_steps_and_the_line_tracking_with_units_in_the_keys() {
         let distance = step(0.3, Some(4.0));
         let speed = step(0.004, None);
-        let line = LineTracking {
-            max_abs: 0.3,
-            rms: 0.1,
-            tolerance: 0.01,
-            time_on_line: 7.5,
-            fraction_on_line: 0.75,
-        };
+        let line = LineTracking { max_abs: 0.3, rms: 0.1, tolerance: 0.01, time_on_line: 7.5, fraction_on_line: 0.75 };
         let mut summary = summarise(Some(&distance), Some(&speed), Some(&line));
         summary.insert("realtime_factor".to_owned(), json!(12.5));
         assert_eq!(summary["distance.rise_time_s"], json!(1.5));
@@ -160,10 +121,7 @@ mod tests {
     #[test]
     fn absent_parts_add_no_keys() {
         let summary = summarise(None, Some(&step(0.004, Some(2.0))), None);
-        assert!(
-            summary.keys().all(|key| key.starts_with("speed.")),
-            "{summary:?}"
-        );
+        assert!(summary.keys().all(|key| key.starts_with("speed.")), "{summary:?}");
     }
 
     #[test]
@@ -171,15 +129,13 @@ mod tests {
         let dir = tempfile::tempdir().expect("temporary directory");
         let summary = summarise(Some(&step(0.3, None)), None, None);
         let path = write_summary_json(dir.path(), &summary).expect("written");
-        let read: Value =
-            serde_json::from_str(&std::fs::read_to_string(path).expect("readable")).expect("JSON");
+        let read: Value = serde_json::from_str(&std::fs::read_to_string(path).expect("readable")).expect("JSON");
         assert_eq!(read["distance.settling_time_s"], Value::Null);
         assert_eq!(read["distance.rise_time_s"], json!(1.5));
 
         let settings = json!({"controller": {"kd": 2.0, "kpsi": -1.5}, "seed": 7});
         let path = write_settings_json(dir.path(), &settings).expect("written");
-        let read: Value =
-            serde_json::from_str(&std::fs::read_to_string(path).expect("readable")).expect("JSON");
+        let read: Value = serde_json::from_str(&std::fs::read_to_string(path).expect("readable")).expect("JSON");
         assert_eq!(read, settings);
     }
 }

@@ -21,19 +21,13 @@ pub struct TimeSeries {
 impl TimeSeries {
     /// An empty series with these column names.
     pub fn new<S: Into<String>>(columns: impl IntoIterator<Item = S>) -> Self {
-        Self {
-            columns: columns.into_iter().map(Into::into).collect(),
-            rows: Vec::new(),
-        }
+        Self { columns: columns.into_iter().map(Into::into).collect(), rows: Vec::new() }
     }
 
     /// Appends a sample; it must have one value per column.
     pub fn push_row(&mut self, row: &[f64]) -> Result<(), ReportError> {
         if row.len() != self.columns.len() {
-            return Err(ReportError::RowWidth {
-                expected: self.columns.len(),
-                got: row.len(),
-            });
+            return Err(ReportError::RowWidth { expected: self.columns.len(), got: row.len() });
         }
         self.rows.push(row.to_vec());
         Ok(())
@@ -217,11 +211,7 @@ impl Iterator for CsvRows {
 
 /// A CSV field, quoted (RFC 4180) only when it holds a separator, quote or line break.
 fn csv_field(text: &str) -> String {
-    if text.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", text.replace('"', "\"\""))
-    } else {
-        text.to_owned()
-    }
+    if text.contains([',', '"', '\n', '\r']) { format!("\"{}\"", text.replace('"', "\"\"")) } else { text.to_owned() }
 }
 
 #[cfg(test)]
@@ -244,17 +234,8 @@ mod tests {
         let csv = csv_of(&series);
         let mut lines = csv.lines();
         assert_eq!(lines.next(), Some("t_s,d_m"));
-        let parsed: Vec<f64> = lines
-            .flat_map(|line| {
-                line.split(',')
-                    .map(|field| field.parse::<f64>().expect("a number"))
-                    .collect::<Vec<_>>()
-            })
-            .collect();
-        assert_eq!(
-            &parsed[..5],
-            &[0.0, awkward[0], awkward[1], awkward[2], awkward[3]]
-        );
+        let parsed: Vec<f64> = lines.flat_map(|line| line.split(',').map(|field| field.parse::<f64>().expect("a number")).collect::<Vec<_>>()).collect();
+        assert_eq!(&parsed[..5], &[0.0, awkward[0], awkward[1], awkward[2], awkward[3]]);
         assert!(parsed[5].is_nan());
         assert!(csv.ends_with('\n'));
     }
@@ -262,13 +243,7 @@ mod tests {
     #[test]
     fn a_row_of_the_wrong_width_is_refused() {
         let mut series = TimeSeries::new(["t_s", "d_m"]);
-        assert!(matches!(
-            series.push_row(&[1.0]),
-            Err(ReportError::RowWidth {
-                expected: 2,
-                got: 1
-            })
-        ));
+        assert!(matches!(series.push_row(&[1.0]), Err(ReportError::RowWidth { expected: 2, got: 1 })));
         assert!(series.is_empty());
     }
 
@@ -295,9 +270,6 @@ mod tests {
         series.push_row(&[0.5]).expect("width 1");
         let path = write_timeseries_csv(dir.path(), &series).expect("written");
         assert_eq!(path, dir.path().join("timeseries.csv"));
-        assert_eq!(
-            std::fs::read_to_string(&path).expect("readable"),
-            "t_s\n0.5\n"
-        );
+        assert_eq!(std::fs::read_to_string(&path).expect("readable"), "t_s\n0.5\n");
     }
 }

@@ -32,10 +32,7 @@ const SYMBOLS: &[(&str, &str)] = &[("zeta", "ζ"), ("omega_n", "ωn"), ("psi", "
 
 /// A key's unit suffix: (name without it, factor from SI to the shown unit, the unit).
 fn split_unit(name: &str) -> (&str, f64, &'static str) {
-    SUFFIXES
-        .iter()
-        .find_map(|&(suffix, factor, unit)| name.strip_suffix(suffix).filter(|stem| !stem.is_empty()).map(|stem| (stem, factor, unit)))
-        .unwrap_or((name, 1.0, ""))
+    SUFFIXES.iter().find_map(|&(suffix, factor, unit)| name.strip_suffix(suffix).filter(|stem| !stem.is_empty()).map(|stem| (stem, factor, unit))).unwrap_or((name, 1.0, ""))
 }
 
 /// The factor from a value's SI unit to the unit a plot shows it in, and that unit, from the

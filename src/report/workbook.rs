@@ -33,12 +33,7 @@ pub const MAX_SHEET_ROWS: u64 = 1_048_575;
 /// `out_dir` as it is written, so a series of any length costs the same memory. A sheet holds at
 /// most [`MAX_SHEET_ROWS`] samples; a longer series is thinned to every n-th row, which the
 /// Settings sheet records (`raw_data.every_nth_row`, `raw_data.note`); the CSV keeps them all.
-pub fn write_workbook(
-    out_dir: &Path,
-    series: &Path,
-    settings: &Value,
-    summary: &Summary,
-) -> Result<PathBuf, ReportError> {
+pub fn write_workbook(out_dir: &Path, series: &Path, settings: &Value, summary: &Summary) -> Result<PathBuf, ReportError> {
     write_workbook_with_limit(out_dir, series, settings, summary, MAX_SHEET_ROWS)
 }
 
@@ -146,13 +141,7 @@ impl From<ReportError> for Built {
     }
 }
 
-fn build_workbook(
-    out_dir: &Path,
-    series: &Path,
-    (rows, max_rows): (u64, u64),
-    settings: &Value,
-    summary: &Summary,
-) -> Result<Workbook, Built> {
+fn build_workbook(out_dir: &Path, series: &Path, (rows, max_rows): (u64, u64), settings: &Value, summary: &Summary) -> Result<Workbook, Built> {
     let mut workbook = Workbook::new();
     // The raw sheet's rows spill to a temporary file beside the outputs, not in /tmp (often a
     // RAM-backed tmpfs, which would bring the memory back).
@@ -182,24 +171,10 @@ fn build_workbook(
         ));
     }
     let sheet = workbook.add_worksheet().set_name(SHEET_SETTINGS)?;
-    write_key_values(
-        sheet,
-        ["setting", "value"],
-        flat_settings
-            .iter()
-            .map(|(key, value)| (key.as_str(), value)),
-        &header,
-    )?;
+    write_key_values(sheet, ["setting", "value"], flat_settings.iter().map(|(key, value)| (key.as_str(), value)), &header)?;
 
-    let sheet = workbook
-        .add_worksheet()
-        .set_name(SHEET_STEP_CHARACTERISTICS)?;
-    write_key_values(
-        sheet,
-        ["metric", "value"],
-        summary.iter().map(|(key, value)| (key.as_str(), value)),
-        &header,
-    )?;
+    let sheet = workbook.add_worksheet().set_name(SHEET_STEP_CHARACTERISTICS)?;
+    write_key_values(sheet, ["metric", "value"], summary.iter().map(|(key, value)| (key.as_str(), value)), &header)?;
 
     Ok(workbook)
 }
@@ -218,12 +193,7 @@ fn cell_text(text: &str) -> std::borrow::Cow<'_, str> {
     (kept + CUT).into()
 }
 
-fn write_key_values<'a>(
-    sheet: &mut Worksheet,
-    headings: [&str; 2],
-    entries: impl Iterator<Item = (&'a str, &'a Value)>,
-    header: &Format,
-) -> Result<(), XlsxError> {
+fn write_key_values<'a>(sheet: &mut Worksheet, headings: [&str; 2], entries: impl Iterator<Item = (&'a str, &'a Value)>, header: &Format) -> Result<(), XlsxError> {
     sheet.write_string_with_format(0, 0, headings[0], header)?;
     sheet.write_string_with_format(0, 1, headings[1], header)?;
     for (row, (key, value)) in (1..).zip(entries) {
@@ -262,11 +232,7 @@ fn flatten_json(value: &Value) -> Vec<(String, Value)> {
         match value {
             Value::Object(map) if !map.is_empty() => {
                 for (key, child) in map {
-                    let child_path = if path.is_empty() {
-                        key.clone()
-                    } else {
-                        format!("{path}.{key}")
-                    };
+                    let child_path = if path.is_empty() { key.clone() } else { format!("{path}.{key}") };
                     walk(child_path, child, leaves);
                 }
             }
@@ -276,11 +242,7 @@ fn flatten_json(value: &Value) -> Vec<(String, Value)> {
                 }
             }
             leaf => {
-                let path = if path.is_empty() {
-                    "value".to_owned()
-                } else {
-                    path
-                };
+                let path = if path.is_empty() { "value".to_owned() } else { path };
                 leaves.push((path, leaf.clone()));
             }
         }
@@ -307,22 +269,9 @@ mod tests {
         });
         let flat = flatten_json(&settings);
         let keys: Vec<&str> = flat.iter().map(|(key, _)| key.as_str()).collect();
-        assert_eq!(
-            keys,
-            [
-                "controller.gains[0]",
-                "controller.gains[1]",
-                "controller.kd",
-                "empty",
-                "name",
-                "none"
-            ]
-        );
+        assert_eq!(keys, ["controller.gains[0]", "controller.gains[1]", "controller.kd", "empty", "name", "none"]);
         assert_eq!(flat[2].1, json!(2.0));
-        assert_eq!(
-            flatten_json(&json!(3)),
-            vec![("value".to_owned(), json!(3))]
-        );
+        assert_eq!(flatten_json(&json!(3)), vec![("value".to_owned(), json!(3))]);
     }
 
     #[test]
@@ -356,10 +305,7 @@ mod tests {
         assert_eq!(path, dir.path().join("report.xlsx"));
 
         let mut workbook: Xlsx<_> = open_workbook(&path).expect("a valid xlsx");
-        assert_eq!(
-            workbook.sheet_names(),
-            ["Raw data", "Settings", "Step characteristics"]
-        );
+        assert_eq!(workbook.sheet_names(), ["Raw data", "Settings", "Step characteristics"]);
 
         let raw = workbook.worksheet_range("Raw data").expect("sheet");
         assert_eq!(raw.get_value((0, 1)), Some(&Data::String("d_m".to_owned())));
@@ -368,33 +314,16 @@ mod tests {
         assert_eq!(raw.height(), 3);
 
         let settings_sheet = workbook.worksheet_range("Settings").expect("sheet");
-        assert_eq!(
-            settings_sheet.get_value((1, 0)),
-            Some(&Data::String("controller.kd".to_owned()))
-        );
+        assert_eq!(settings_sheet.get_value((1, 0)), Some(&Data::String("controller.kd".to_owned())));
         assert_eq!(settings_sheet.get_value((1, 1)), Some(&Data::Float(2.0)));
         assert_eq!(settings_sheet.get_value((2, 1)), Some(&Data::Bool(true)));
-        assert_eq!(
-            settings_sheet.get_value((3, 1)),
-            Some(&Data::String("flat".to_owned()))
-        );
+        assert_eq!(settings_sheet.get_value((3, 1)), Some(&Data::String("flat".to_owned())));
 
-        let steps = workbook
-            .worksheet_range("Step characteristics")
-            .expect("sheet");
-        assert_eq!(
-            steps.get_value((0, 0)),
-            Some(&Data::String("metric".to_owned()))
-        );
-        assert_eq!(
-            steps.get_value((1, 0)),
-            Some(&Data::String("distance.rise_time_s".to_owned()))
-        );
+        let steps = workbook.worksheet_range("Step characteristics").expect("sheet");
+        assert_eq!(steps.get_value((0, 0)), Some(&Data::String("metric".to_owned())));
+        assert_eq!(steps.get_value((1, 0)), Some(&Data::String("distance.rise_time_s".to_owned())));
         assert_eq!(steps.get_value((1, 1)), Some(&Data::Float(1.25)));
-        assert_eq!(
-            steps.get_value((3, 0)),
-            Some(&Data::String("speed.settling_time_s".to_owned()))
-        );
+        assert_eq!(steps.get_value((3, 0)), Some(&Data::String("speed.settling_time_s".to_owned())));
         assert!(matches!(steps.get_value((3, 1)), None | Some(Data::Empty)));
     }
 

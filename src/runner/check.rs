@@ -5,9 +5,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+use crate::overrides::Override;
 use crate::report::junit::{JunitCase, write_junit};
 use crate::robot::RobotDescription;
-use crate::overrides::Override;
 use crate::scenario::{ControllerSection, Scenario};
 
 use super::clock::Pace;

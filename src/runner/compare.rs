@@ -25,10 +25,10 @@ use super::observe::{Observer, scenario_bus};
 use crate::bus::{Bus, Timing};
 use crate::device::FirmwareProfile;
 use crate::real_bus::compare::{Comparison, RegisterSeries, RegisterStats, Tolerances, fast_blocks, is_fast_read, read_spans, registers_in};
-use crate::runner::view::{LiveAddress, ReadingsTopic, ServoReadings, ViewOptions};
-use crate::report::{PlotLabels, PlotSeries, plot_series};
 use crate::real_bus::{RealRecord, RealTranscript, Side};
+use crate::report::{PlotLabels, PlotSeries, plot_series};
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
+use crate::runner::view::{LiveAddress, ReadingsTopic, ServoReadings, ViewOptions};
 use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::transcript::{TranscriptError, packet_from_bytes, packet_from_hex};
 
@@ -343,7 +343,10 @@ impl Reenactor {
             return Err(CompareError::NothingToCompare { path: self.transcript });
         }
         self.observer.finish_view()?;
-        let latency = std::mem::take(&mut self.latencies).into_iter().map(|(id, (mut real, mut model))| LatencyComparison { id, replies: real.len(), real_median_us: median(&mut real), model_median_us: median(&mut model) }).collect();
+        let latency = std::mem::take(&mut self.latencies)
+            .into_iter()
+            .map(|(id, (mut real, mut model))| LatencyComparison { id, replies: real.len(), real_median_us: median(&mut real), model_median_us: median(&mut model) })
+            .collect();
         let options = &self.options;
         Ok(CompareReport {
             transcript: self.transcript.clone(),
@@ -386,7 +389,14 @@ pub(super) fn real_bus_note(record: &RealRecord, servo: impl Fn(u8) -> String) -
 
 /// One servo's answer to a read, as the robot and the world gave it: compared register by
 /// register, and kept for the recording under the servo's `name` when there is one (a view).
-fn add_pair<'a>(comparison: &mut Comparison, readings: &mut (Vec<ServoReadings<'a>>, Vec<ServoReadings<'a>>), profile: &'a FirmwareProfile, name: Option<&'a str>, (id, address, t_s): (u8, u16, f64), (real, sim): (&[u8], &[u8])) {
+fn add_pair<'a>(
+    comparison: &mut Comparison,
+    readings: &mut (Vec<ServoReadings<'a>>, Vec<ServoReadings<'a>>),
+    profile: &'a FirmwareProfile,
+    name: Option<&'a str>,
+    (id, address, t_s): (u8, u16, f64),
+    (real, sim): (&[u8], &[u8]),
+) {
     comparison.add(profile, id, address, t_s, real, sim);
     if let Some(name) = name {
         readings.0.push(ServoReadings { name, id, registers: registers_in(profile, address, real) });

@@ -117,4 +117,3 @@ impl<T, E: std::error::Error + Send + Sync + 'static> During<T> for std::result:
         self.map_err(|source| RunnerError::during(what(), source))
     }
 }
-

@@ -21,11 +21,11 @@ use crate::transport::{Adapter, BusHandle, Clock as BusClock, VirtualPort};
 use crate::virtual_time::VirtualTime;
 
 use super::clock::{Pace, TimeBase, VirtualClock, WallClock};
+use super::feed::{WorldFailed, observer_hook, start_sensor_server};
 use super::observe::{require_line, scenario_bus};
 use super::outputs::{RunOutcome, failures, fault_summary, finish_timing_report, record_failure, settings_json, write_outputs};
 use super::process::{Controller, Launch, param_env, resolve_command};
 use super::recording::{RecordSpec, finish_recording, record_sensor_reads, start_recording};
-use super::feed::{WorldFailed, observer_hook, start_sensor_server};
 use super::serve::pty::{after_the_run, drive_pty, serve_after_the_run, serve_pty};
 use super::ticks::{HandleTicks, Ticked, run_ticks};
 use super::{Console, During as _, Result, RunnerError};
@@ -114,7 +114,15 @@ impl Ticked for WatchedTicks<'_> {
 /// Run `scenario` with its external controller; writes the outputs into `out_dir`. The summary's
 /// `failures` lists why the run failed (controller, pace), if it did; an interruption (`stop`
 /// set) is an error after the outputs are written.
-pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &RobotDescription, options: &ExternalRun<'_>, out_dir: &Path, stop: &AtomicBool, console: &dyn Console) -> Result<RunOutcome> {
+pub fn run_external(
+    scenario: &Scenario,
+    external: &ExternalController,
+    robot: &RobotDescription,
+    options: &ExternalRun<'_>,
+    out_dir: &Path,
+    stop: &AtomicBool,
+    console: &dyn Console,
+) -> Result<RunOutcome> {
     std::fs::create_dir_all(out_dir).during(|| format!("cannot create {}", out_dir.display()))?;
     let baud = scenario.bus.baud_bps;
     require_line(scenario)?;
@@ -202,14 +210,7 @@ pub fn run_external(scenario: &Scenario, external: &ExternalController, robot: &
     // already gone.
     let duration = Duration::from_secs_f64(scenario.world.duration_s);
     let hook = observer_hook(Arc::clone(&observer), Arc::clone(&feed), Arc::clone(&capture_errors), WorldFailed::Ends);
-    let mut ticks = WatchedTicks {
-        world: HandleTicks::new(Arc::clone(&handle), hook, Some(duration)),
-        controller: &mut controller,
-        clock: clock.clone(),
-        exit: None,
-        error: None,
-        unfollowed: false,
-    };
+    let mut ticks = WatchedTicks { world: HandleTicks::new(Arc::clone(&handle), hook, Some(duration)), controller: &mut controller, clock: clock.clone(), exit: None, error: None, unfollowed: false };
     let ended = match &virtual_time {
         Some(vt) => run_ticks(&mut VirtualClock::new(Arc::clone(vt), stop), &mut ticks, stop),
         None => run_ticks(&mut WallClock::on(clock.clone()), &mut ticks, stop),

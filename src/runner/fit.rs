@@ -141,12 +141,8 @@ pub fn fit(options: &FitOptions, progress: &dyn Progress) -> Result<FitOutcome, 
         let after = reenact(&session.transcript, &session.path, &with(session, &minimum.unit), Some(&recording_in(&session.compare.out.join("after"))?))?;
         sessions.push(SessionOutcome { before, after });
     }
-    let fitted: Vec<Fitted> = params
-        .iter()
-        .zip(&minimum.unit)
-        .zip(determinations)
-        .map(|((param, unit), determination)| Fitted { param: param.clone(), value: set_value(&set_for(param, *unit)), determination })
-        .collect();
+    let fitted: Vec<Fitted> =
+        params.iter().zip(&minimum.unit).zip(determinations).map(|((param, unit), determination)| Fitted { param: param.clone(), value: set_value(&set_for(param, *unit)), determination }).collect();
     let error_before = sessions_error(sessions.iter().map(|s| &s.before));
     let error_after = sessions_error(sessions.iter().map(|s| &s.after));
     let outcome = FitOutcome { fitted, evaluations: minimum.evaluations, sessions, error_before, error_after };
@@ -179,13 +175,15 @@ fn write_outputs(outcome: &FitOutcome, options: &FitOptions, first: &Session, af
         .sessions
         .iter()
         .zip(&outcome.sessions)
-        .map(|(session, reports)| json!({
-            "transcript": session.path,
-            "scenario": session.compare.scenario,
-            "out": session.compare.out,
-            "error_before": fit_error(&reports.before),
-            "error_after": fit_error(&reports.after),
-        }))
+        .map(|(session, reports)| {
+            json!({
+                "transcript": session.path,
+                "scenario": session.compare.scenario,
+                "out": session.compare.out,
+                "error_before": fit_error(&reports.before),
+                "error_after": fit_error(&reports.after),
+            })
+        })
         .collect();
     let summary = json!({
         "transcript": first.path,

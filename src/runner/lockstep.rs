@@ -13,7 +13,7 @@ use serde_json::json;
 use tracing::info_span;
 
 use crate::bus::BusFaults;
-use crate::control::{ControlError, ControlSample, Leg, ReferenceConfig, ReferenceController, WallSighting, Senses};
+use crate::control::{ControlError, ControlSample, Leg, ReferenceConfig, ReferenceController, Senses, WallSighting};
 use crate::device::Servo;
 use crate::robot::RobotDescription;
 use crate::runner::observe::watch::{RunFailure, WorldWatch};
@@ -22,8 +22,8 @@ use crate::scenario::{ControllerSection, Scenario};
 use crate::sim::Lockstep;
 use crate::sim::lidar::LidarScan;
 
-use super::clock::{Clock, LockstepClock, WallClock};
 use super::RunError;
+use super::clock::{Clock, LockstepClock, WallClock};
 use super::observe::{Observer, check_world, plan_pose, require_line};
 use super::outputs::{RunOutcome, fault_summary, record_failure, settings_json, write_outputs};
 use super::ticks::{Ticked, run_ticks};
@@ -197,10 +197,7 @@ impl BuiltinTicks {
         observer.pre_update(t_s, sim.world_mut())?;
         self.controller.set_target_speed(observer.target_speed_m_s(t_s));
         let line = observer.update(sim.world(), now);
-        let wall = observer.lidar_scan().map(|scan| WallSighting {
-            ahead_m: f64::from(scan.ahead_m()),
-            angle_rad: scan.wall_angle_rad(self.wall_window_rad).map(f64::from),
-        });
+        let wall = observer.lidar_scan().map(|scan| WallSighting { ahead_m: f64::from(scan.ahead_m()), angle_rad: scan.wall_angle_rad(self.wall_window_rad).map(f64::from) });
         let returns = if self.relocating { observer.lidar_scan().map(LidarScan::returns_in_plan).unwrap_or_default() } else { Vec::new() };
         let pose = self.relocating.then(|| plan_pose(sim.world()));
         let senses = Senses { line, wall, pose, lidar_returns: &returns };

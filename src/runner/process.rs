@@ -35,7 +35,8 @@ const MAX_INTERPRETER_DEPTH: usize = 4;
 const LOG_TAIL_LINES: usize = 15;
 
 /// Where Debian and most distributions put libfaketime; `CLIMBSIM_LIBFAKETIME` overrides.
-const LIBFAKETIME_GLOBS: &[&str] = &["/usr/lib/*/faketime/libfaketimeMT.so.1", "/usr/lib/faketime/libfaketimeMT.so.1", "/usr/local/lib/faketime/libfaketimeMT.so.1", "/usr/lib64/faketime/libfaketimeMT.so.1"];
+const LIBFAKETIME_GLOBS: &[&str] =
+    &["/usr/lib/*/faketime/libfaketimeMT.so.1", "/usr/lib/faketime/libfaketimeMT.so.1", "/usr/local/lib/faketime/libfaketimeMT.so.1", "/usr/lib64/faketime/libfaketimeMT.so.1"];
 
 /// What the controller process is told.
 pub struct Launch<'a> {
@@ -105,7 +106,12 @@ impl Controller {
         // Its own process group, so that stopping it stops what it started (background jobs,
         // a shell's children) and a terminal's Ctrl-C reaches climbsim alone, which then stops it.
         command.process_group(0).env(RUN_MARKER, &marker);
-        command.args(args).envs(launch.env.iter().map(|(k, v)| (k, v))).stdin(Stdio::null()).stdout(writer.try_clone().during(|| format!("cannot share {}", launch.log_path.display()))?).stderr(writer);
+        command
+            .args(args)
+            .envs(launch.env.iter().map(|(k, v)| (k, v)))
+            .stdin(Stdio::null())
+            .stdout(writer.try_clone().during(|| format!("cannot share {}", launch.log_path.display()))?)
+            .stderr(writer);
         if launch.virtual_time {
             refuse_unpreloadable(&resolved, &SHIM).during(|| format!("--clock virtual cannot follow `{description}`"))?;
         }
@@ -339,7 +345,9 @@ fn libfaketime() -> Result<PathBuf> {
             return Ok(found);
         }
     }
-    Err(RunnerError::Invalid("it needs libfaketime to scale the controller's clocks and none was found (Debian/Ubuntu: apt-get install libfaketime; or set CLIMBSIM_LIBFAKETIME to libfaketimeMT.so.1)".to_owned()))
+    Err(RunnerError::Invalid(
+        "it needs libfaketime to scale the controller's clocks and none was found (Debian/Ubuntu: apt-get install libfaketime; or set CLIMBSIM_LIBFAKETIME to libfaketimeMT.so.1)".to_owned(),
+    ))
 }
 
 /// The first file matching `pattern`, whose only wildcard is one `*` path component.
@@ -462,9 +470,7 @@ fn process_cpu_ticks(pid: u32) -> Option<u64> {
 /// Whether a thread of process `pid` is runnable or waiting for the disk (R, D).
 fn any_thread_busy(pid: u32) -> bool {
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
-    tasks
-        .filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("stat")).ok())
-        .any(|stat| stat_field(&stat, STATE).is_some_and(|state| matches!(state, "R" | "D")))
+    tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("stat")).ok()).any(|stat| stat_field(&stat, STATE).is_some_and(|state| matches!(state, "R" | "D")))
 }
 
 #[cfg(test)]

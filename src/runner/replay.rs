@@ -22,9 +22,9 @@ use super::RunError;
 use super::observe::{require_line, scenario_bus};
 use super::outputs::{RunOutcome, settings_json};
 use super::view::ViewOptions;
-use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::bus::Timing;
 use crate::robot::{RobotDescription, RobotError, RobotOverrides};
+use crate::scenario::{Override, Scenario, ScenarioError};
 use crate::transcript::{Record, Transcript, TranscriptError, crc64_hex, packet_from_hex, to_hex};
 
 #[derive(Debug, Error)]

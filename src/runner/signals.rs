@@ -55,13 +55,7 @@ impl OffsetStep {
         times.truncate(kept);
         offsets.truncate(kept);
         let measured = decaying_error_step(&times, &offsets, &StepOptions::default());
-        Self {
-            samples: times.len(),
-            duration_s: times.last().copied().unwrap_or(0.0),
-            step: measured.as_ref().ok().copied(),
-            error: measured.err().map(|e| e.to_string()),
-            series: (times, offsets),
-        }
+        Self { samples: times.len(), duration_s: times.last().copied().unwrap_or(0.0), step: measured.as_ref().ok().copied(), error: measured.err().map(|e| e.to_string()), series: (times, offsets) }
     }
 }
 
@@ -93,7 +87,8 @@ impl SignalsComparison {
             ("steady-state error", |s| Some(s.steady_state_error), 1e3, "mm"),
         ];
         let shown = |v: Option<f64>, scale: f64| v.map_or_else(|| "-".to_owned(), |v| format!("{:.3}", v * scale));
-        let mut out = format!("the line offset's step, robot ({} samples over {:.1} s) and world ({} over {:.1} s):\n", self.robot.samples, self.robot.duration_s, self.world.samples, self.world.duration_s);
+        let mut out =
+            format!("the line offset's step, robot ({} samples over {:.1} s) and world ({} over {:.1} s):\n", self.robot.samples, self.robot.duration_s, self.world.samples, self.world.duration_s);
         if let Some(rms) = self.rms_difference_m {
             out.push_str(&format!("  d(t), world against robot: RMS {:.3} mm\n", rms * 1e3));
         }
@@ -119,7 +114,10 @@ impl SignalsComparison {
 pub fn compare_signals(file: &Path, options: &CompareOptions, pace: Pace, stop: &AtomicBool) -> Result<SignalsComparison, CompareError> {
     let real = read_timeseries_csv(file).map_err(CompareError::Plot)?;
     let column = |name: &str| {
-        real.column(name).ok_or_else(|| CompareError::Signals { path: file.to_owned(), message: format!("no `{name}` column (the header has {}; the file needs `{TIME_COLUMN}` and `{OFFSET_COLUMN}`)", real.columns().join(", ")) })
+        real.column(name).ok_or_else(|| CompareError::Signals {
+            path: file.to_owned(),
+            message: format!("no `{name}` column (the header has {}; the file needs `{TIME_COLUMN}` and `{OFFSET_COLUMN}`)", real.columns().join(", ")),
+        })
     };
     let (t, d) = (column(TIME_COLUMN)?, column(OFFSET_COLUMN)?);
     let robot_side = OffsetStep::measure(&t, &d, f64::INFINITY);

@@ -13,8 +13,8 @@ use serde_json::Value;
 use crate::report::{self, PlotLabels, PlotSeries, TimeSeries, units};
 use crate::robot::{RobotDescription, RobotOverrides};
 use crate::runner::observe::capture::MetricTrack;
-use crate::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
 use crate::scenario::Scenario;
+use crate::scenario::sweep::{Axis, GridPoint, Shard, grid, table_columns};
 
 use super::clock::Pace;
 use super::outputs::failures;
@@ -171,7 +171,12 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path, allow_incomplete: bool, console: 
         for row in &file.rows {
             let from = dir.join("runs").join(&row.label);
             if row.status == "completed" && !from.join(report::TIMESERIES_CSV).is_file() {
-                return Err(RunnerError::Invalid(format!("{}: run {} completed, but {} is missing (copy the shard's runs/ folder with its sweep.json)", path.display(), row.label, from.join(report::TIMESERIES_CSV).display())));
+                return Err(RunnerError::Invalid(format!(
+                    "{}: run {} completed, but {} is missing (copy the shard's runs/ folder with its sweep.json)",
+                    path.display(),
+                    row.label,
+                    from.join(report::TIMESERIES_CSV).display()
+                )));
             }
             let to = out_dir.join("runs").join(&row.label);
             if from != to && from.is_dir() {
@@ -190,7 +195,15 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path, allow_incomplete: bool, console: 
     let missing: Vec<GridPoint> = grid(&merged.grid).into_iter().filter(|p| merged.rows.binary_search_by_key(&p.index, |r| r.index).is_err()).collect();
     for point in &missing {
         let parameters = point.overrides.iter().map(|o| (o.key.clone(), o.value.to_string())).collect();
-        merged.rows.push(SweepRow { index: point.index, label: point.label(), parameters, summary: BTreeMap::new(), status: "not_run".to_owned(), error: Some("no merged shard has this point".to_owned()), track: None });
+        merged.rows.push(SweepRow {
+            index: point.index,
+            label: point.label(),
+            parameters,
+            summary: BTreeMap::new(),
+            status: "not_run".to_owned(),
+            error: Some("no merged shard has this point".to_owned()),
+            track: None,
+        });
     }
     merged.rows.sort_by_key(|r| r.index);
     write_sweep(&merged, out_dir)?;
@@ -302,7 +315,8 @@ fn plot_sweep(file: &SweepFile, out_dir: &Path) -> Result<()> {
     }
     for (column, stem, title, y) in [("d_true_m", "overlay_distance", "Distance error", "d (mm)"), ("speed_m_s", "overlay_speed", "Speed", "speed (mm/min)")] {
         let (factor, _) = units::shown_unit(column);
-        let data: Vec<(String, Vec<f64>, Vec<f64>)> = loaded.iter().map(|(label, s)| (label.clone(), s.column("t_s").unwrap_or_default(), s.column(column).unwrap_or_default().into_iter().map(|v| v * factor).collect())).collect();
+        let data: Vec<(String, Vec<f64>, Vec<f64>)> =
+            loaded.iter().map(|(label, s)| (label.clone(), s.column("t_s").unwrap_or_default(), s.column(column).unwrap_or_default().into_iter().map(|v| v * factor).collect())).collect();
         let series: Vec<PlotSeries<'_>> = data.iter().map(|(label, x, y)| PlotSeries { label, x, y }).collect();
         if !series.is_empty() {
             report::plot_series(out_dir, stem, &PlotLabels { title, x: "t (s)", y }, &series)?;

@@ -101,11 +101,8 @@ pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&TapReady
     let _entered = runtime.enter();
     let settings = DeviceSettings { echo: Echo::Off, low_latency: options.low_latency, rs485: None };
     let device = SerialDevice::open(&options.device, options.baud, &settings).map_err(|e| RunnerError::during(format!("tap --device {}", options.device.display()), e))?;
-    let _timer: Option<LowLatencyGuard> = if options.low_latency {
-        Some(latency::set_low(&options.device, &latency::sysfs_root()).map_err(|e| RunnerError::during("tap --low-latency", e))?)
-    } else {
-        None
-    };
+    let _timer: Option<LowLatencyGuard> =
+        if options.low_latency { Some(latency::set_low(&options.device, &latency::sysfs_root()).map_err(|e| RunnerError::during("tap --low-latency", e))?) } else { None };
     let port = VirtualPort::open(Some(&options.link)).map_err(|e| RunnerError::during("tap --link", e))?;
     port.set_controller_baud(options.baud).map_err(|e| RunnerError::during("tap: setting the port's rate", e))?;
     let started_unix_ns = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, nanos);
@@ -116,7 +113,19 @@ pub fn tap(options: &TapOptions, stop: &AtomicBool, ready: impl FnOnce(&TapReady
     info!(device = %options.device.display(), link = %port.path().display(), baud = options.baud, "tap ready");
     ready(&TapReady { port: port.path(), servos_url: view.as_ref().and_then(TapView::live_url), world_url: world.as_ref().and_then(TapWorld::live_url) });
 
-    let mut bridge = Bridge { device: &device, port: &port, recorder: &recorder, view, world, pairing: Pairing::default(), tally: TimingTally::default(), started: Instant::now(), baud: options.baud, from_controller: 0, from_servos: 0 };
+    let mut bridge = Bridge {
+        device: &device,
+        port: &port,
+        recorder: &recorder,
+        view,
+        world,
+        pairing: Pairing::default(),
+        tally: TimingTally::default(),
+        started: Instant::now(),
+        baud: options.baud,
+        from_controller: 0,
+        from_servos: 0,
+    };
     let ended = bridge.run(stop);
     let at = bridge.started.elapsed();
     for event in bridge.pairing.finish(at) {

@@ -19,10 +19,10 @@ use tracing::warn;
 use crate::device::FirmwareProfile;
 use crate::protocol::RawPacket;
 use crate::real_bus::compare::{fast_blocks, is_fast_read, read_spans, registers_in};
-use crate::transcript::packet_from_bytes;
 use crate::real_bus::{Event, RealRecord};
 use crate::runner::compare::real_bus_note;
 use crate::runner::view::{LiveAddress, ReadingsTopic, ServoReadings, Setup, View, ViewError, ViewOptions};
+use crate::transcript::packet_from_bytes;
 
 use super::{Result, RunnerError};
 
@@ -129,7 +129,8 @@ fn show_event(view: &View, servos: &TapViewOptions, event: &Event) {
             packets.iter().filter_map(|packet| Some((packet.id, spans.iter().find(|(of, _, _)| *of == packet.id)?.1, packet.status_data().ok()?))).collect()
         };
         let names: Vec<String> = blocks.iter().map(|(id, _, _)| name(*id)).collect();
-        let readings: Vec<ServoReadings<'_>> = blocks.iter().zip(&names).map(|(&(id, address, data), name)| ServoReadings { name, id, registers: registers_in(&servos.profile, address, data) }).collect();
+        let readings: Vec<ServoReadings<'_>> =
+            blocks.iter().zip(&names).map(|(&(id, address, data), name)| ServoReadings { name, id, registers: registers_in(&servos.profile, address, data) }).collect();
         view.readings(ReadingsTopic::Servos, seen.t, &readings);
     }
     if let Some((level, note)) = real_bus_note(&record, |id| format!("{} ({id})", name(id))) {

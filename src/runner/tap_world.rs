@@ -86,7 +86,12 @@ impl TapWorld {
 
 /// The world's thread: make the world, then re-enact each record until the queue closes. The
 /// transcript's first line is its header, so the records are its lines from 2 on.
-fn reenact_live(transcript: &Path, options: &TapWorldOptions, records: &Receiver<RealRecord>, started: &SyncSender<std::result::Result<Option<String>, CompareError>>) -> std::result::Result<CompareReport, CompareError> {
+fn reenact_live(
+    transcript: &Path,
+    options: &TapWorldOptions,
+    records: &Receiver<RealRecord>,
+    started: &SyncSender<std::result::Result<Option<String>, CompareError>>,
+) -> std::result::Result<CompareReport, CompareError> {
     let out = &options.compare.out;
     let mut world = match Reenactor::new(transcript, &options.compare, Some(&out.join(COMPARE_MCAP)), options.live.clone()) {
         Ok(world) => world,

@@ -221,7 +221,9 @@ fn substitute(arg: &str, params: &BTreeMap<String, String>) -> Result<String, St
             continue;
         }
         let name = &after[..name_len];
-        let value = params.get(name).ok_or_else(|| format!("command argument `{arg}` uses {{{name}}}, but [controller] params has no `{name}` (it has: {})", params.keys().cloned().collect::<Vec<_>>().join(", ")))?;
+        let value = params
+            .get(name)
+            .ok_or_else(|| format!("command argument `{arg}` uses {{{name}}}, but [controller] params has no `{name}` (it has: {})", params.keys().cloned().collect::<Vec<_>>().join(", ")))?;
         out.push_str(value);
         rest = &after[name_len + 1..];
     }
@@ -537,7 +539,10 @@ mod tests {
     #[test]
     fn a_missing_metric_says_why() {
         let summary: BTreeMap<String, serde_json::Value> =
-            [("distance.settled", serde_json::json!(false)), ("distance.settling_time_s", serde_json::Value::Null), ("speed.rise_time_s", serde_json::Value::Null)].into_iter().map(|(k, v)| (k.to_owned(), v)).collect();
+            [("distance.settled", serde_json::json!(false)), ("distance.settling_time_s", serde_json::Value::Null), ("speed.rise_time_s", serde_json::Value::Null)]
+                .into_iter()
+                .map(|(k, v)| (k.to_owned(), v))
+                .collect();
         assert!(missing_metric("distance.settling_time_s", &summary).starts_with("never settled"));
         assert!(missing_metric("speed.rise_time_s", &summary).starts_with("never rose"));
         assert_eq!(missing_metric("faults.replies_dropped", &summary), "not measured in this run");

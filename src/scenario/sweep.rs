@@ -115,7 +115,9 @@ impl Shard {
             let fail = |message: String| SweepError::ShardIndex { text: text.to_owned(), message };
             let number = |name: &str| env(name).map(|v| v.trim().parse::<usize>().map_err(|_| fail(format!("{name}={v} is not a task index"))));
             let zero_based = match (number("SLURM_ARRAY_TASK_ID"), number("JOB_COMPLETION_INDEX")) {
-                (Some(slurm), None) => slurm?.checked_sub(number("SLURM_ARRAY_TASK_MIN").transpose()?.unwrap_or(0)).ok_or_else(|| fail("SLURM_ARRAY_TASK_ID is below SLURM_ARRAY_TASK_MIN".to_owned()))?,
+                (Some(slurm), None) => {
+                    slurm?.checked_sub(number("SLURM_ARRAY_TASK_MIN").transpose()?.unwrap_or(0)).ok_or_else(|| fail("SLURM_ARRAY_TASK_ID is below SLURM_ARRAY_TASK_MIN".to_owned()))?
+                }
                 (None, Some(kubernetes)) => kubernetes?,
                 (Some(_), Some(_)) => return Err(fail("both SLURM_ARRAY_TASK_ID and JOB_COMPLETION_INDEX are set: give K/N explicitly".to_owned())),
                 (None, None) => return Err(fail("auto needs SLURM_ARRAY_TASK_ID (a Slurm job array) or JOB_COMPLETION_INDEX (a Kubernetes Indexed Job)".to_owned())),

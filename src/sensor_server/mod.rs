@@ -244,9 +244,11 @@ fn take_request(buffer: &mut Vec<u8>) -> Option<Vec<u8>> {
 /// kept: a server may close after any answer, and a client written to read an answer to the
 /// end of the stream, as many hand-written ones are, then still gets its end.
 fn asks_keep_alive(head: &[u8]) -> bool {
-    String::from_utf8_lossy(head).split("\r\n").skip(1).filter_map(|line| line.split_once(':')).any(|(name, value)| {
-        name.trim().eq_ignore_ascii_case("connection") && value.split(',').any(|option| option.trim().eq_ignore_ascii_case("keep-alive"))
-    })
+    String::from_utf8_lossy(head)
+        .split("\r\n")
+        .skip(1)
+        .filter_map(|line| line.split_once(':'))
+        .any(|(name, value)| name.trim().eq_ignore_ascii_case("connection") && value.split(',').any(|option| option.trim().eq_ignore_ascii_case("keep-alive")))
 }
 
 /// What the server sends back for a request head.

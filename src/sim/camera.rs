@@ -99,16 +99,7 @@ impl LineCameraSettings {
 
     /// An `image_px` camera seeing 2·`orthographic_size_m`, every other setting at its default.
     pub fn with_size(image_px: u32, orthographic_size_m: f32) -> Self {
-        LineCameraSettings {
-            image_px,
-            orthographic_size_m,
-            aspect: 1.0,
-            frame_rate_hz: 30.0,
-            noise_std: 0.0,
-            blur_px: 0,
-            latency_frames: 0,
-            seed: 0,
-        }
+        LineCameraSettings { image_px, orthographic_size_m, aspect: 1.0, frame_rate_hz: 30.0, noise_std: 0.0, blur_px: 0, latency_frames: 0, seed: 0 }
     }
 
     /// H: metres per pixel along the image's vertical (robot forward).
@@ -213,11 +204,7 @@ impl LineCamera {
         if !(2..=MAX_IMAGE_PX).contains(&i) {
             return Err(CameraError::ImageSize(i));
         }
-        for (field, value) in [
-            ("orthographic_size_m", settings.orthographic_size_m),
-            ("aspect", settings.aspect),
-            ("frame_rate_hz", settings.frame_rate_hz),
-        ] {
+        for (field, value) in [("orthographic_size_m", settings.orthographic_size_m), ("aspect", settings.aspect), ("frame_rate_hz", settings.frame_rate_hz)] {
             if !(value > 0.0 && value.is_finite()) {
                 return Err(CameraError::NotPositive { field, value });
             }
@@ -323,15 +310,7 @@ impl LineCamera {
             }
             pixels.extend(self.gray.iter().map(|v| v.round().clamp(0.0, 255.0) as u8));
         }
-        Frame {
-            t,
-            width: n as u32,
-            height: n as u32,
-            pixels,
-            pose: camera_pose,
-            height_factor_m: h,
-            width_factor_m: w,
-        }
+        Frame { t, width: n as u32, height: n as u32, pixels, pose: camera_pose, height_factor_m: h, width_factor_m: w }
     }
 
     /// Project the stripe edges of the chunks that can reach the view into continuous pixel
@@ -425,10 +404,7 @@ fn raster_triangle(masks: &mut [u16], n: usize, a: [f32; 2], b: [f32; 2], c: [f3
             let mut m = 0u16;
             for (sy, dy) in offsets.iter().enumerate() {
                 for (sx, dx) in offsets.iter().enumerate() {
-                    let inside = edges
-                        .iter()
-                        .zip(e_centre)
-                        .all(|(&(ea, eb, _), e)| e + ea * dx + eb * dy >= 0.0);
+                    let inside = edges.iter().zip(e_centre).all(|(&(ea, eb, _), e)| e + ea * dx + eb * dy >= 0.0);
                     m |= u16::from(inside) << (sy * SS + sx);
                 }
             }

@@ -181,16 +181,7 @@ mod tests {
     use crate::sim::terrain::{self, TerrainSpec};
 
     fn settings(image_px: u32, aspect: f32) -> LineCameraSettings {
-        LineCameraSettings {
-            image_px,
-            orthographic_size_m: 0.1,
-            aspect,
-            frame_rate_hz: 30.0,
-            noise_std: 0.0,
-            blur_px: 0,
-            latency_frames: 0,
-            seed: 0,
-        }
+        LineCameraSettings { image_px, orthographic_size_m: 0.1, aspect, frame_rate_hz: 30.0, noise_std: 0.0, blur_px: 0, latency_frames: 0, seed: 0 }
     }
 
     fn flat() -> terrain::TerrainGeometry {
@@ -261,9 +252,7 @@ mod tests {
 
     #[test]
     fn yawed_and_displaced_robot() {
-        for (x, z, yaw, offset, heading) in
-            [(0.3, -0.2, 25.0f32, 0.03, 15.0f32), (-0.2, 0.1, -30.0, -0.04, -20.0), (0.0, 0.0, 90.0, 0.0, 100.0)]
-        {
+        for (x, z, yaw, offset, heading) in [(0.3, -0.2, 25.0f32, 0.03, 15.0f32), (-0.2, 0.1, -30.0, -0.04, -20.0), (0.0, 0.0, 90.0, 0.0, 100.0)] {
             let pose = robot(x, z, yaw.to_radians());
             // The line passes `offset` metres to the robot's right of its centre.
             let right = pose.transform_vector(Vector::Z) * offset;

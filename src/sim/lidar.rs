@@ -66,7 +66,16 @@ pub struct LidarSettings {
 
 impl Default for LidarSettings {
     fn default() -> Self {
-        Self { beams: default_beams(), fov_deg: default_fov_deg(), range_m: default_range_m(), min_range_m: default_min_range_m(), rate_hz: default_rate_hz(), noise_std_m: default_noise_std_m(), tilt_deg: 0.0, seed: 0 }
+        Self {
+            beams: default_beams(),
+            fov_deg: default_fov_deg(),
+            range_m: default_range_m(),
+            min_range_m: default_min_range_m(),
+            rate_hz: default_rate_hz(),
+            noise_std_m: default_noise_std_m(),
+            tilt_deg: 0.0,
+            seed: 0,
+        }
     }
 }
 

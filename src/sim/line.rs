@@ -191,10 +191,7 @@ impl WeldLine {
         }
         let smoothed = chaikin(&control, (smoothness - 1).min(MAX_CHAIKIN_ITERATIONS));
         let mut line = WeldLine { control, smoothness, width_m, smoothed, samples: Vec::new(), chunks: Vec::new() };
-        let flat = resample(&line.smoothed)
-            .into_iter()
-            .map(|[x, z]| (Vector::new(x, 0.0, z), Vector::Y))
-            .collect();
+        let flat = resample(&line.smoothed).into_iter().map(|[x, z]| (Vector::new(x, 0.0, z), Vector::Y)).collect();
         line.set_samples(flat);
         Ok(line)
     }
@@ -202,10 +199,7 @@ impl WeldLine {
     /// Project every sample straight down onto `surface` (normals too) and rebuild the stripe
     /// edges and arc lengths. Fails, leaving the line unchanged, if any sample is off the surface.
     pub fn drape(&mut self, surface: &dyn Surface) -> Result<(), LineError> {
-        let draped = resample(&self.smoothed)
-            .into_iter()
-            .map(|[x, z]| surface.project_down(x, z).ok_or(LineError::OffSurface { x, z }))
-            .collect::<Result<Vec<_>, _>>()?;
+        let draped = resample(&self.smoothed).into_iter().map(|[x, z]| surface.project_down(x, z).ok_or(LineError::OffSurface { x, z })).collect::<Result<Vec<_>, _>>()?;
         self.set_samples(draped);
         Ok(())
     }
@@ -296,9 +290,7 @@ impl WeldLine {
         self.chunks = (0..n.saturating_sub(1).div_ceil(CHUNK).max(1))
             .map(|c| {
                 let range = &self.samples[c * CHUNK..(c * CHUNK + CHUNK + 1).min(n)];
-                let (lo, hi) = range.iter().fold((Vector::INFINITY, Vector::NEG_INFINITY), |(lo, hi), s| {
-                    (lo.min(s.left_edge).min(s.right_edge), hi.max(s.left_edge).max(s.right_edge))
-                });
+                let (lo, hi) = range.iter().fold((Vector::INFINITY, Vector::NEG_INFINITY), |(lo, hi), s| (lo.min(s.left_edge).min(s.right_edge), hi.max(s.left_edge).max(s.right_edge)));
                 let centre = (lo + hi) / 2.0;
                 (centre, (hi - centre).length())
             })
@@ -449,10 +441,7 @@ pub(crate) mod tests {
     fn invalid_lines_are_rejected() {
         assert_eq!(WeldLine::new(&[[0.0, 0.0]], 1, 0.02), Err(LineError::TooFewPoints { count: 1 }));
         assert_eq!(WeldLine::new(&[[0.0, 0.0], [0.0, 0.0]], 1, 0.02), Err(LineError::TooFewPoints { count: 1 }));
-        assert!(matches!(
-            WeldLine::new(&[[0.0, 0.0], [f32::NAN, 0.0]], 1, 0.02),
-            Err(LineError::NonFinite { index: 1, .. })
-        ));
+        assert!(matches!(WeldLine::new(&[[0.0, 0.0], [f32::NAN, 0.0]], 1, 0.02), Err(LineError::NonFinite { index: 1, .. })));
         assert_eq!(WeldLine::new(&[[0.0, 0.0], [1.0, 0.0]], 1, 0.0), Err(LineError::Width { width_m: 0.0 }));
         assert_eq!(WeldLine::new(&[[0.0, 0.0], [1.0, 0.0]], 0, 0.02), Err(LineError::Smoothness));
     }

@@ -11,8 +11,10 @@ pub mod terrain;
 mod terrain_contacts;
 pub mod world;
 
-pub use world::{CAMERA_FRAME, AdhesionSample, SurfaceFrame, magnet_frame, wheel_frame, PartFrame, PartShape, PartShapeKind, RobotWorld, TerrainMesh, SolverSettings, StartPose, WorldConfig, WorldError};
 pub use camera::{Frame, LineCamera, LineCameraSettings};
 pub use detector::{DetectorSettings, LineDetector, LineMeasurement};
 pub use line::{LineProjection, Surface, WeldLine};
 pub use lockstep::{Lockstep, ReplyError, SimError};
+pub use world::{
+    AdhesionSample, CAMERA_FRAME, PartFrame, PartShape, PartShapeKind, RobotWorld, SolverSettings, StartPose, SurfaceFrame, TerrainMesh, WorldConfig, WorldError, magnet_frame, wheel_frame,
+};

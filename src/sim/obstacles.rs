@@ -102,7 +102,9 @@ impl From<ObstacleSpec> for ObstacleTable {
     fn from(spec: ObstacleSpec) -> Self {
         match spec {
             ObstacleSpec::Box { at_m, size_m, yaw_deg } => Self { kind: ObstacleKind::Box, at_m, size_m: Some(size_m), radius_m: None, length_m: None, lying: false, yaw_deg },
-            ObstacleSpec::Cylinder { at_m, radius_m, length_m, lying, yaw_deg } => Self { kind: ObstacleKind::Cylinder, at_m, size_m: None, radius_m: Some(radius_m), length_m: Some(length_m), lying, yaw_deg },
+            ObstacleSpec::Cylinder { at_m, radius_m, length_m, lying, yaw_deg } => {
+                Self { kind: ObstacleKind::Cylinder, at_m, size_m: None, radius_m: Some(radius_m), length_m: Some(length_m), lying, yaw_deg }
+            }
         }
     }
 }

@@ -134,12 +134,7 @@ pub fn generate(spec: &TerrainSpec, seed: u64, base_dir: &Path) -> Result<Terrai
     let geometry = match *spec {
         TerrainSpec::Flat { size_m } => {
             positive("size_m", size_m)?;
-            TerrainGeometry::HeightField {
-                heights: vec![0.0; 4],
-                rows: 2,
-                cols: 2,
-                scale: Vector::new(size_m, 1.0, size_m),
-            }
+            TerrainGeometry::HeightField { heights: vec![0.0; 4], rows: 2, cols: 2, scale: Vector::new(size_m, 1.0, size_m) }
         }
         TerrainSpec::Perlin { size_m, resolution, max_height_m, noise_scale } => {
             positive("size_m", size_m)?;
@@ -207,8 +202,7 @@ pub fn generate(spec: &TerrainSpec, seed: u64, base_dir: &Path) -> Result<Terrai
     };
     if let TerrainGeometry::TriMesh { vertices, indices } = &geometry {
         // Validate once here so that `collider()` cannot fail on generated geometry.
-        TriMesh::with_flags(vertices.clone(), indices.clone(), TRIMESH_FLAGS)
-            .map_err(|e| TerrainError::Mesh(e.to_string()))?;
+        TriMesh::with_flags(vertices.clone(), indices.clone(), TRIMESH_FLAGS).map_err(|e| TerrainError::Mesh(e.to_string()))?;
     }
     Ok(geometry)
 }
@@ -232,8 +226,7 @@ impl TerrainGeometry {
                 ColliderBuilder::heightfield_with_flags(array, *scale, HeightFieldFlags::FIX_INTERNAL_EDGES)
             }
             TerrainGeometry::TriMesh { vertices, indices } => {
-                ColliderBuilder::trimesh_with_flags(vertices.clone(), indices.clone(), TRIMESH_FLAGS)
-                    .expect("terrain trimesh is valid (checked by generate)")
+                ColliderBuilder::trimesh_with_flags(vertices.clone(), indices.clone(), TRIMESH_FLAGS).expect("terrain trimesh is valid (checked by generate)")
             }
         }
     }
@@ -259,11 +252,7 @@ impl TerrainGeometry {
         let h = |i: usize, j: usize| heights[i * cols + j];
         let (y00, y01, y10, y11) = (h(i, j), h(i, j + 1), h(i + 1, j), h(i + 1, j + 1));
         // parry's triangles: (x0,z0) (x0,z1) (x1,z0) and (x0,z1) (x1,z1) (x1,z0).
-        let y = if u + v <= 1.0 {
-            y00 + u * (y01 - y00) + v * (y10 - y00)
-        } else {
-            y11 + (1.0 - u) * (y10 - y11) + (1.0 - v) * (y01 - y11)
-        };
+        let y = if u + v <= 1.0 { y00 + u * (y01 - y00) + v * (y10 - y00) } else { y11 + (1.0 - u) * (y10 - y11) + (1.0 - v) * (y01 - y11) };
         Some(y * scale.y)
     }
 
@@ -332,11 +321,7 @@ fn check_resolution(resolution: u32) -> Result<(), TerrainError> {
 }
 
 fn slope_tan(field: &'static str, deg: f32) -> Result<f64, TerrainError> {
-    if deg.is_finite() && deg.abs() < 90.0 {
-        Ok(f64::from(deg).to_radians().tan())
-    } else {
-        Err(invalid(field, deg, "a slope angle must lie strictly between -90 and 90 degrees"))
-    }
+    if deg.is_finite() && deg.abs() < 90.0 { Ok(f64::from(deg).to_radians().tan()) } else { Err(invalid(field, deg, "a slope angle must lie strictly between -90 and 90 degrees")) }
 }
 
 /// A heightfield of `rows × cols` samples over `size_x × size_z` metres, sampling `f(x, z)` at
@@ -435,10 +420,7 @@ fn wall(distance: f32, height: f32, width: f32, fillet: f32, segments: usize) ->
     let profile = wall_profile(distance, height, width, fillet, segments);
     let n = profile.len();
     let half = width / 2.0;
-    let vertices = [-half, half]
-        .into_iter()
-        .flat_map(|z| profile.iter().map(move |[x, y]| Vector::new(*x as f32, *y as f32, z)))
-        .collect();
+    let vertices = [-half, half].into_iter().flat_map(|z| profile.iter().map(move |[x, y]| Vector::new(*x as f32, *y as f32, z))).collect();
     let (a, b) = (|k: usize| k as u32, |k: usize| (n + k) as u32);
     let indices = (0..n - 1).flat_map(|k| [[a(k), b(k + 1), a(k + 1)], [a(k), b(k), b(k + 1)]]).collect();
     TerrainGeometry::TriMesh { vertices, indices }
@@ -546,18 +528,12 @@ fn heightmap(path: &Path, size_m: f32, max_height_m: f32) -> Result<TerrainGeome
     let info = reader.info();
     let (width, height) = (info.width, info.height);
     if info.color_type != png::ColorType::Grayscale || info.bit_depth != png::BitDepth::Sixteen {
-        return Err(TerrainError::NotGray16 {
-            path: path.to_owned(),
-            color_type: format!("{:?}", info.color_type).to_lowercase(),
-            bit_depth: info.bit_depth as u8,
-        });
+        return Err(TerrainError::NotGray16 { path: path.to_owned(), color_type: format!("{:?}", info.color_type).to_lowercase(), bit_depth: info.bit_depth as u8 });
     }
     if width < 2 || height < 2 {
         return Err(TerrainError::HeightmapTooSmall { path: path.to_owned(), width, height });
     }
-    let size = reader.output_buffer_size().ok_or_else(|| {
-        TerrainError::Io { path: path.to_owned(), source: std::io::Error::other("image too large") }
-    })?;
+    let size = reader.output_buffer_size().ok_or_else(|| TerrainError::Io { path: path.to_owned(), source: std::io::Error::other("image too large") })?;
     let mut buffer = vec![0; size];
     let frame = reader.next_frame(&mut buffer).map_err(png_error)?;
     let (rows, cols) = (height as usize, width as usize);

@@ -19,13 +19,12 @@ use std::collections::hash_map::Entry;
 use rapier3d::geometry::{ContactData, ContactManifoldData};
 use rapier3d::parry::bounding_volume::BoundingVolume;
 use rapier3d::parry::math::{Pose, Real, Vector};
+use rapier3d::parry::query::details::NormalConstraints;
 use rapier3d::parry::query::details::contact_manifold_convex_ball;
 use rapier3d::parry::query::{
-    ClosestPoints, Contact, ContactManifold, ContactManifoldsWorkspace, DefaultQueryDispatcher, NonlinearRigidMotion, PersistentQueryDispatcher, PointQuery,
-    QueryDispatcher, QueryDispatcherChain, ShapeCastHit, ShapeCastOptions, ShapeDistance, ShapeIntersection, TypedWorkspaceData, Unsupported,
-    WorkspaceData,
+    ClosestPoints, Contact, ContactManifold, ContactManifoldsWorkspace, DefaultQueryDispatcher, NonlinearRigidMotion, PersistentQueryDispatcher, PointQuery, QueryDispatcher, QueryDispatcherChain,
+    ShapeCastHit, ShapeCastOptions, ShapeDistance, ShapeIntersection, TypedWorkspaceData, Unsupported, WorkspaceData,
 };
-use rapier3d::parry::query::details::NormalConstraints;
 use rapier3d::parry::shape::{Ball, HeightField, Shape, TrianglePseudoNormals};
 
 /// The dispatcher the world's narrow phase uses: ball on heightfield here, the rest by parry.

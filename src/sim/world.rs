@@ -93,7 +93,16 @@ impl WorldConfig {
     /// A world on `terrain` with everything else at its default: Earth gravity along −y, the
     /// default start pose, the robot's own tread friction, magnets on, no payload.
     pub fn on(terrain: TerrainGeometry) -> Self {
-        Self { gravity: Vector::new(0.0, -9.81, 0.0), terrain, start: StartPose::default(), friction: None, magnets_on: true, payload_kg: 0.0, solver: SolverSettings::default(), obstacles: Vec::new() }
+        Self {
+            gravity: Vector::new(0.0, -9.81, 0.0),
+            terrain,
+            start: StartPose::default(),
+            friction: None,
+            magnets_on: true,
+            payload_kg: 0.0,
+            solver: SolverSettings::default(),
+            obstacles: Vec::new(),
+        }
     }
 }
 
@@ -257,7 +266,10 @@ struct ServoJoint {
 enum ServoLink {
     Wheel(ServoJoint),
     /// The magnet shaft of wheel `wheel`; the encoder reads `zero_rad` with the magnet straight down.
-    Magnet { wheel: usize, zero_rad: f64 },
+    Magnet {
+        wheel: usize,
+        zero_rad: f64,
+    },
 }
 
 /// The terrain's surface as triangles (see [`RobotWorld::terrain_mesh`]).
@@ -301,9 +313,14 @@ pub struct PartShape {
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum PartShapeKind {
-    Box { half_extents: Vector },
+    Box {
+        half_extents: Vector,
+    },
     /// A cylinder (a wheel, a pipe) about its pose's z axis.
-    Cylinder { radius_m: f32, length_m: f32 },
+    Cylinder {
+        radius_m: f32,
+        length_m: f32,
+    },
 }
 
 pub struct RobotWorld {
@@ -343,7 +360,6 @@ mod build;
 mod measure;
 mod queries;
 mod step;
-
 
 /// The weld line drapes onto whatever terrain the world holds, trimeshes included.
 impl super::line::Surface for RobotWorld {

@@ -6,14 +6,14 @@ pub mod adapter;
 mod busy_poll;
 pub mod can;
 mod echo;
+mod handle;
 pub mod latency;
 pub mod memory;
 mod pty;
 pub mod rs485;
 mod serial;
-pub mod stats;
-mod handle;
 mod session;
+pub mod stats;
 mod tcp;
 
 use std::time::Duration;
@@ -21,11 +21,11 @@ use std::time::Duration;
 use thiserror::Error;
 
 pub use adapter::{Adapter, AdapterModel};
-pub use handle::{BusHandle, Clock};
-pub use session::{serve_stream, serve_stream_through, sleep_until_precise};
 pub use echo::{Echo, EchoFilter};
+pub use handle::{BusHandle, Clock};
 pub use pty::{PortStream, PtyError, PtyLine, VirtualPort, VirtualTimeStream};
 pub use serial::{DeviceLine, DeviceSettings, DeviceStream, SerialDevice, SerialError, majority_baud};
+pub use session::{serve_stream, serve_stream_through, sleep_until_precise};
 pub use stats::{Answered, LineStats, LogHistogram, LoopKey, MasterTimeouts, PhysicsPace, ReportExtras, TimingReport};
 pub use tcp::{TCP_INTER_BYTE_TIMEOUT, TcpLine, TcpServer, connect_forever, parse_tcp_addr, parse_tcp_server_addr};
 
@@ -121,4 +121,3 @@ impl LineSettings for NoLine {
         None
     }
 }
-

@@ -24,8 +24,8 @@ use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
 use tracing::{debug, info, warn};
 
 use super::busy_poll::BusyPoll;
-use crate::virtual_time::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, VirtualTime, await_pty_hand_over};
 use super::{LineSettings, queued_bytes};
+use crate::virtual_time::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, VirtualTime, await_pty_hand_over};
 
 /// How long a read waits in poll(2) before parking on the reactor.
 const QUICK_WAIT_MS: u8 = 1;
@@ -240,7 +240,13 @@ impl AsyncWrite for VirtualTimeStream {
             self.virtual_time.hand_over_never_came(written, "reply");
         }
         if handing_over.elapsed() > SLOW_HAND_OVER {
-            warn!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the kernel took this long to hand reply bytes over to the controller's side of the pty (a loaded machine)");
+            warn!(
+                waited_ms = handing_over.elapsed().as_secs_f64() * 1e3,
+                queued = queued_bytes(slave).unwrap_or(0),
+                before,
+                written,
+                "the kernel took this long to hand reply bytes over to the controller's side of the pty (a loaded machine)"
+            );
         } else if handing_over.elapsed() > Duration::from_millis(5) {
             debug!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the pty's hand-over was slow");
         }
@@ -375,9 +381,7 @@ impl Drop for VirtualPort {
 fn make_link(link: &Path, target: &Path) -> Result<(), PtyError> {
     if let Ok(meta) = std::fs::symlink_metadata(link) {
         // A dangling symlink into /dev/pts is what a killed climbsim leaves behind: replace it.
-        let stale = meta.file_type().is_symlink()
-            && std::fs::read_link(link).is_ok_and(|t| t.starts_with("/dev/pts"))
-            && std::fs::metadata(link).is_err();
+        let stale = meta.file_type().is_symlink() && std::fs::read_link(link).is_ok_and(|t| t.starts_with("/dev/pts")) && std::fs::metadata(link).is_err();
         if !stale {
             return Err(PtyError::LinkBusy(link.to_owned()));
         }

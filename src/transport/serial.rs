@@ -26,9 +26,9 @@ use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tracing::{info, warn};
 
+use super::LineSettings;
 use super::echo::{Echo, EchoFilter};
 use super::rs485::{Rs485Delays, SerialRs485};
-use super::LineSettings;
 
 #[derive(Debug, Error)]
 pub enum SerialError {
@@ -320,7 +320,8 @@ fn follow_servos(device: &SerialDevice, servos: &[(u8, Option<u32>)]) {
         warn!(%error, "the servos moved to {majority} bps but the device could not follow");
         return;
     }
-    let deaf: Vec<String> = servos.iter().filter(|&&(_, bps)| bps != Some(device.baud())).map(|&(id, bps)| format!("ID {id} at {}", bps.map_or("an invalid rate".to_owned(), |b| format!("{b} bps")))).collect();
+    let deaf: Vec<String> =
+        servos.iter().filter(|&&(_, bps)| bps != Some(device.baud())).map(|&(id, bps)| format!("ID {id} at {}", bps.map_or("an invalid rate".to_owned(), |b| format!("{b} bps")))).collect();
     if !deaf.is_empty() {
         warn!(device = %device.path.display(), device_bps = device.baud(), "servos at another baud than the device no longer hear it (went deaf): {}", deaf.join(", "));
     }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
-use tracing::{debug, info_span, trace, Instrument};
+use tracing::{Instrument, debug, info_span, trace};
 
 use crate::bus::{Bus, Reply, Timing, Transaction, wire};
 use crate::protocol::{DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};

@@ -37,11 +37,11 @@ use std::time::Duration;
 use thiserror::Error;
 
 use abi::{NEVER, mode, release, state};
-use turns::wake;
 use block::Block;
 pub use held::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, await_pty_hand_over};
 pub use shim_file::{shim_bytes, shim_path};
 pub use timer::Timer;
+use turns::wake;
 
 #[derive(Debug, Error)]
 pub enum VtError {
@@ -80,7 +80,15 @@ pub struct VtSettings {
 
 impl Default for VtSettings {
     fn default() -> Self {
-        Self { clock_read_ns: 25, syscall_ns: 1_000, spin_cap_ns: 100_000, stuck_after: Duration::from_secs(2), compute_limit: Duration::from_secs(60), epoch_unix_s: 1_704_067_200, controller_cpu: 0.0 }
+        Self {
+            clock_read_ns: 25,
+            syscall_ns: 1_000,
+            spin_cap_ns: 100_000,
+            stuck_after: Duration::from_secs(2),
+            compute_limit: Duration::from_secs(60),
+            epoch_unix_s: 1_704_067_200,
+            controller_cpu: 0.0,
+        }
     }
 }
 
@@ -208,7 +216,22 @@ impl VirtualTime {
         // Slot 0 is the process climbsim starts (reserve_process).
         header.slots_high.store(1, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
-        Ok(Arc::new(Self { waits_for_controller: AtomicBool::new(false), last_poll: Mutex::new(std::time::Instant::now()), spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1), stats: Mutex::default(), block, settings, timers: Mutex::default(), driven: Mutex::default(), port: Mutex::default(), held: Mutex::default(), quiet: Mutex::new(quiet::Quiet::new()), real_world: Mutex::new(real_world::RealWorld::new()), hand_ons: Mutex::default(), cannot_repeat: Mutex::default() }))
+        Ok(Arc::new(Self {
+            waits_for_controller: AtomicBool::new(false),
+            last_poll: Mutex::new(std::time::Instant::now()),
+            spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1),
+            stats: Mutex::default(),
+            block,
+            settings,
+            timers: Mutex::default(),
+            driven: Mutex::default(),
+            port: Mutex::default(),
+            held: Mutex::default(),
+            quiet: Mutex::new(quiet::Quiet::new()),
+            real_world: Mutex::new(real_world::RealWorld::new()),
+            hand_ons: Mutex::default(),
+            cannot_repeat: Mutex::default(),
+        }))
     }
 
     pub fn settings(&self) -> VtSettings {
@@ -589,6 +612,3 @@ fn futex_wake(word: &AtomicU32) {
     // SAFETY: a shared futex wake on a valid, aligned word in our mapping.
     unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAKE, i32::MAX) };
 }
-
-
-

@@ -119,7 +119,11 @@ impl RealWorld {
             };
             if since.elapsed() > EXIT_GRACE {
                 if marker > 0 {
-                    tracing::warn!(tid, "a controller process's exec of a program without climbsim's clock has not finished within {} s (a statically linked program, or one that ignores LD_PRELOAD, never says it has); no longer waited for", EXIT_GRACE.as_secs());
+                    tracing::warn!(
+                        tid,
+                        "a controller process's exec of a program without climbsim's clock has not finished within {} s (a statically linked program, or one that ignores LD_PRELOAD, never says it has); no longer waited for",
+                        EXIT_GRACE.as_secs()
+                    );
                 } else {
                     tracing::warn!(tid, "a controller thread has been exiting for {} s; no longer waited for", EXIT_GRACE.as_secs());
                 }

@@ -16,13 +16,7 @@ use super::{VirtualTime, lock};
 impl VirtualTime {
     /// The next armed signal timer's instant.
     pub(super) fn next_signal_timer(&self) -> u64 {
-        self.shared()
-            .live_sig_timers()
-            .iter()
-            .filter(|t| t.state.load(Ordering::Acquire) == timer_state::ARMED)
-            .map(|t| t.deadline_ns.load(Ordering::Relaxed))
-            .min()
-            .unwrap_or(NEVER)
+        self.shared().live_sig_timers().iter().filter(|t| t.state.load(Ordering::Acquire) == timer_state::ARMED).map(|t| t.deadline_ns.load(Ordering::Relaxed)).min().unwrap_or(NEVER)
     }
 
     /// Fire every signal timer due by `now`; whether a thread was let go for one.

@@ -73,7 +73,6 @@ impl VirtualTime {
             begun != ended.wrapping_add(hand_ons.written_off) && !hand_ons.write_off_dead(self.shared(), begun, ended)
         }
     }
-
 }
 
 /// How long (wall time) the hand-over counts may stand unequal and unchanged before climbsim

@@ -76,7 +76,13 @@ impl Watchdog {
         if since.elapsed() < self.limits.stuck_after {
             return Ok(());
         }
-        let place = if port { "the servo port" } else if sensors { "a sensor-server connection" } else { return Ok(()) };
+        let place = if port {
+            "the servo port"
+        } else if sensors {
+            "a sensor-server connection"
+        } else {
+            return Ok(());
+        };
         Err(VtError::Stuck(format!(
             "virtual time: bytes the controller sent on {place} did not reach climbsim within {} s of wall time (written by a process without the shim, or on a connection already closed); simulated time cannot go on",
             self.limits.stuck_after.as_secs_f64()
@@ -372,11 +378,9 @@ pub fn has_unfollowed_child(slots: &[Slot], slot: &Slot) -> bool {
     let followed = |child: i32| slots.iter().any(|s| s.state() != state::FREE && s.pid.load(Ordering::Relaxed) == child);
     // Each thread's own children (another thread may have started the one waited for).
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return false };
-    tasks.filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("children")).ok()).any(|children| {
-        children.split_whitespace().filter_map(|child| child.parse::<i32>().ok()).any(|child| {
-            !followed(child) && lives(&format!("/proc/{child}/stat"))
-        })
-    })
+    tasks
+        .filter_map(|task| std::fs::read_to_string(task.ok()?.path().join("children")).ok())
+        .any(|children| children.split_whitespace().filter_map(|child| child.parse::<i32>().ok()).any(|child| !followed(child) && lives(&format!("/proc/{child}/stat"))))
 }
 
 /// Names of the blocking calls one meets (x86-64 numbers).

@@ -83,13 +83,7 @@ impl Options {
         if self.temp_link {
             command.arg("--link").arg(link.as_ref().expect("temp link"));
         }
-        let mut child = command
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(stderr)
-            .spawn()
-            .expect("spawn climbsim");
+        let mut child = command.args(args).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(stderr).spawn().expect("spawn climbsim");
 
         // Keep reading stdout for the whole run, so the emulator never blocks on a full pipe.
         let stdout = child.stdout.take().expect("piped stdout");
@@ -101,22 +95,12 @@ impl Options {
                 }
             }
         });
-        let mut emulator = Emulator {
-            child: Some(child),
-            dir,
-            stderr_log: self.stderr_log,
-            port: PathBuf::new(),
-            link,
-            tcp: None,
-            sensors: None,
-        };
+        let mut emulator = Emulator { child: Some(child), dir, stderr_log: self.stderr_log, port: PathBuf::new(), link, tcp: None, sensors: None };
 
         let want_tcp = arg_value(args, "--tcp").is_some();
         let deadline = Instant::now() + ANNOUNCE_WITHIN;
         let first = emulator.announced(&rx, deadline, want_tcp);
-        let port = first
-            .strip_prefix("port: ")
-            .unwrap_or_else(|| panic!("climbsim's first stdout line is not `port: <path>`: {first:?}"));
+        let port = first.strip_prefix("port: ").unwrap_or_else(|| panic!("climbsim's first stdout line is not `port: <path>`: {first:?}"));
         emulator.port = PathBuf::from(port.trim());
         while want_tcp && emulator.tcp.is_none() {
             let line = emulator.announced(&rx, deadline, want_tcp);
@@ -315,12 +299,7 @@ pub fn median(values: &mut [f64]) -> f64 {
 /// Open a serial port (an emulator's pty) as a controller would, raw at `baud`.
 pub fn open_raw_port(path: &Path, baud: nix::sys::termios::BaudRate) -> std::fs::File {
     use std::os::unix::fs::OpenOptionsExt;
-    let port = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .custom_flags(libc::O_NOCTTY)
-        .open(path)
-        .unwrap_or_else(|e| panic!("open {}: {e}", path.display()));
+    let port = std::fs::OpenOptions::new().read(true).write(true).custom_flags(libc::O_NOCTTY).open(path).unwrap_or_else(|e| panic!("open {}: {e}", path.display()));
     configure_raw(&port, baud);
     port
 }
@@ -401,14 +380,14 @@ pub mod physics;
 
 pub mod vt;
 
+/// A viewer on Foxglove's WebSocket protocol.
+pub mod foxglove;
+/// A Foxglove layout checked against a recording.
+pub mod layout;
 /// Two ptys joined like a null-modem cable (`climbsim tap` between a controller and `serve --device`).
 pub mod null_modem;
 /// A `climbsim tap` process.
 pub mod tap;
-/// A Foxglove layout checked against a recording.
-pub mod layout;
-/// A viewer on Foxglove's WebSocket protocol.
-pub mod foxglove;
 
 /// `climbsim ARGS` with the official SDK's Python first on PATH, so that a scenario's external
 /// controller (`command = ["python", ...]`) runs in the venv.

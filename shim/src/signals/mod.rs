@@ -166,10 +166,8 @@ fn send_followed(shared: &Shared, pid: i32, tid: i32, signo: c_int) -> Option<c_
     taker.signals_due.fetch_add(1, Ordering::AcqRel);
     // Parked where the shim waits: ready, with the signal for its reason (a thread in the
     // kernel's waitpid takes it when it parks next).
-    if !taker.in_waitpid() {
-        if taker.make_ready(Some(release::SIGNAL)) {
-            crate::notify_scheduler(shared);
-        }
+    if !taker.in_waitpid() && taker.make_ready(Some(release::SIGNAL)) {
+        crate::notify_scheduler(shared);
     }
     Some(0)
 }
@@ -253,4 +251,3 @@ fn ignored(signo: c_int) -> bool {
         _ => false,
     }
 }
-

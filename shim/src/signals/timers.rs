@@ -30,9 +30,10 @@ pub(super) struct SigEvent {
 /// This process's ITIMER_REAL, if it has one (`create`: made if not).
 fn itimer(shared: &Shared, create: bool) -> Option<&SigTimer> {
     let pid = crate::pid();
-    let found = shared.live_sig_timers().iter().find(|t| {
-        t.pid.load(Ordering::Relaxed) == pid && t.kind.load(Ordering::Relaxed) == timer_kind::ITIMER_REAL && t.state.load(Ordering::Acquire) != timer_state::FREE
-    });
+    let found = shared
+        .live_sig_timers()
+        .iter()
+        .find(|t| t.pid.load(Ordering::Relaxed) == pid && t.kind.load(Ordering::Relaxed) == timer_kind::ITIMER_REAL && t.state.load(Ordering::Acquire) != timer_state::FREE);
     if found.is_some() || !create {
         return found;
     }

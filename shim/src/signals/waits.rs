@@ -3,10 +3,10 @@
 use core::ffi::c_long;
 use core::sync::atomic::Ordering;
 
+use crate::Looked;
 use crate::abi::{NEVER, Shared, Wait, call, release};
 use crate::native;
 use crate::now::sim_now;
-use crate::Looked;
 use crate::sys::{nr, timespec};
 
 use super::timers::timespec_ns;
@@ -113,4 +113,3 @@ pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout:
         _ => None,
     }
 }
-

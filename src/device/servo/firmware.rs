@@ -14,11 +14,7 @@ impl Servo {
         let Some(noise) = &mut self.encoder_noise else { return shaft };
         let position = noise.position_std_pulses * noise.rng.next_gaussian() * self.units.rad_per_pulse();
         let velocity = noise.velocity_std * noise.rng.next_gaussian() * self.units.rpm_per_velocity * TAU / 60.0;
-        ShaftState {
-            position_rad: shaft.position_rad + position,
-            velocity_rad_s: shaft.velocity_rad_s + velocity,
-            back_emf_velocity_rad_s: Some(shaft.back_emf_velocity()),
-        }
+        ShaftState { position_rad: shaft.position_rad + position, velocity_rad_s: shaft.velocity_rad_s + velocity, back_emf_velocity_rad_s: Some(shaft.back_emf_velocity()) }
     }
 
     pub(super) fn is_position_mode(&self, mode: i64) -> bool {
@@ -256,10 +252,7 @@ impl Servo {
             // Velocity Limit bounds Profile Velocity (e-manual, Velocity Limit(44)). The register
             // takes 0..32 767 (it is a time in ms with a time-based profile), so a larger value
             // is accepted and the profile cruises at the limit.
-            None => (
-                self.units.pulses_per_s(self.get(keys.profile_velocity).min(self.get(keys.velocity_limit)) as f64),
-                self.units.pulses_per_s2(self.get(keys.profile_acceleration) as f64),
-            ),
+            None => (self.units.pulses_per_s(self.get(keys.profile_velocity).min(self.get(keys.velocity_limit)) as f64), self.units.pulses_per_s2(self.get(keys.profile_acceleration) as f64)),
         };
         let loops = &mut self.loops;
         let remaining = goal - loops.trajectory_position;

@@ -225,10 +225,7 @@ impl Servo {
     /// Reference §8: gains reloaded, profile zeroed, goal PWM/current to their limits.
     pub(super) fn change_operating_mode(&mut self, mode: i64) {
         let keys = self.keys;
-        let gains = [
-            keys.velocity_i_gain, keys.velocity_p_gain, keys.position_d_gain, keys.position_i_gain, keys.position_p_gain,
-            keys.feedforward_2nd_gain, keys.feedforward_1st_gain,
-        ];
+        let gains = [keys.velocity_i_gain, keys.velocity_p_gain, keys.position_d_gain, keys.position_i_gain, keys.position_p_gain, keys.feedforward_2nd_gain, keys.feedforward_1st_gain];
         let profile = Arc::clone(self.profile());
         for index in gains {
             self.table.set(index, profile.items[index].spec.default.unwrap_or(0));

@@ -25,16 +25,33 @@ mod instructions;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Request<'a> {
     Ping,
-    Read { address: u16, length: u16 },
-    Write { address: u16, data: &'a [u8] },
-    RegWrite { address: u16, data: &'a [u8] },
+    Read {
+        address: u16,
+        length: u16,
+    },
+    Write {
+        address: u16,
+        data: &'a [u8],
+    },
+    RegWrite {
+        address: u16,
+        data: &'a [u8],
+    },
     Action,
-    FactoryReset { option: u8 },
+    FactoryReset {
+        option: u8,
+    },
     Reboot,
-    Clear { params: &'a [u8] },
-    ControlTableBackup { params: &'a [u8] },
+    Clear {
+        params: &'a [u8],
+    },
+    ControlTableBackup {
+        params: &'a [u8],
+    },
     /// An instruction code the firmware does not know.
-    Unknown { code: u8 },
+    Unknown {
+        code: u8,
+    },
 }
 
 /// How the packet reached the servo.

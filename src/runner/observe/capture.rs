@@ -351,7 +351,6 @@ fn speed_tracking(t: &[f64], speed: &[f64], target: &[f64], t_step: f64) -> Vec<
     ]
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -360,7 +359,18 @@ mod tests {
     fn speed_tracking_averages_the_last_80_percent_after_the_step() {
         // Step at 1 s, end at 11 s: averaged from 3 s. Before it the speed is far off.
         let t: Vec<f64> = (0..=110).map(|i| f64::from(i) * 0.1).collect();
-        let speed: Vec<f64> = t.iter().map(|&ti| if ti < 3.0 { 0.0 } else if ti < 7.0 { 0.9 } else { 1.3 }).collect();
+        let speed: Vec<f64> = t
+            .iter()
+            .map(|&ti| {
+                if ti < 3.0 {
+                    0.0
+                } else if ti < 7.0 {
+                    0.9
+                } else {
+                    1.3
+                }
+            })
+            .collect();
         let target = vec![1.0; t.len()];
         let metrics: std::collections::BTreeMap<String, serde_json::Value> = speed_tracking(&t, &speed, &target, 1.0).into_iter().collect();
         let (mean, abs) = (metrics["speed.mean_error_m_s"].as_f64().unwrap_or(f64::NAN), metrics["speed.mean_abs_error_m_s"].as_f64().unwrap_or(f64::NAN));

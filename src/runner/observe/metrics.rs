@@ -192,6 +192,9 @@ fn heights_around(line: impl Iterator<Item = [f32; 2]>, world: &RobotWorld) -> H
     }
     let cell = ((x.1 - x.0).max(z.1 - z.0) / HEIGHT_GRID_CELLS as f32).max(0.005);
     let (cols, rows) = (((x.1 - x.0) / cell).ceil() as usize + 1, ((z.1 - z.0) / cell).ceil() as usize + 1);
-    let heights = (0..rows).flat_map(|row| (0..cols).map(move |col| (x.0 + cell * col as f32, z.0 + cell * row as f32))).map(|(px, pz)| world.surface_below(px, pz).map_or(f32::NAN, |(point, _)| point.y)).collect();
+    let heights = (0..rows)
+        .flat_map(|row| (0..cols).map(move |col| (x.0 + cell * col as f32, z.0 + cell * row as f32)))
+        .map(|(px, pz)| world.surface_below(px, pz).map_or(f32::NAN, |(point, _)| point.y))
+        .collect();
     HeightGrid { x_m: (x.0, x.0 + cell * (cols - 1) as f32), z_m: (z.0, z.0 + cell * (rows - 1) as f32), cols, rows, heights }
 }

@@ -135,10 +135,7 @@ impl SurfaceTrack {
     /// The metrics for `summary.json` (see `docs/scenarios-and-runs.md`): always the adhesion's
     /// and the slide's; the transition's once one started.
     pub fn summary(&self) -> Vec<(String, Value)> {
-        let mut out = vec![
-            ("adhesion.longest_below_s".to_owned(), json!(self.longest_below_s)),
-            ("adhesion.floor_n".to_owned(), json!(self.floor_n)),
-        ];
+        let mut out = vec![("adhesion.longest_below_s".to_owned(), json!(self.longest_below_s)), ("adhesion.floor_n".to_owned(), json!(self.floor_n))];
         if let Some(held) = self.min_held_n {
             out.push(("adhesion.min_held_n".to_owned(), json!(held)));
         }
@@ -169,13 +166,16 @@ fn mean_direction(normals: &[Vector]) -> Option<Vector> {
 impl super::metrics::TrackMetric for SurfaceTrack {
     fn push(&mut self, sample: &super::metrics::TrackSample<'_>) {
         let adhesion = sample.world.adhesion();
-        SurfaceTrack::push(self, &SurfaceSample {
-            t_s: sample.t_s,
-            pull_n: adhesion.each_ref().map(|a| a.force_n),
-            normal: adhesion.each_ref().map(|a| a.contact.map(|(_, n)| n)),
-            d_true_m: sample.truth.d_err_m,
-            arc_m: sample.truth.arc_m,
-        });
+        SurfaceTrack::push(
+            self,
+            &SurfaceSample {
+                t_s: sample.t_s,
+                pull_n: adhesion.each_ref().map(|a| a.force_n),
+                normal: adhesion.each_ref().map(|a| a.contact.map(|(_, n)| n)),
+                d_true_m: sample.truth.d_err_m,
+                arc_m: sample.truth.arc_m,
+            },
+        );
     }
 
     fn summary(&self) -> Vec<(String, Value)> {

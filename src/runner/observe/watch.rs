@@ -60,10 +60,8 @@ fn judge(world: &RobotWorld, t_s: f64, last_contact_s: &mut f64) -> Option<RunFa
         *last_contact_s = t_s;
         return None;
     }
-    (t_s - *last_contact_s > NO_CONTACT_LIMIT_S).then(|| RunFailure {
-        at_s: t_s,
-        message: format!("world: no wheel touched the terrain from t = {:.2} s to {t_s:.2} s (more than {NO_CONTACT_LIMIT_S} s; y = {y:.2} m)", *last_contact_s),
-    })
+    (t_s - *last_contact_s > NO_CONTACT_LIMIT_S)
+        .then(|| RunFailure { at_s: t_s, message: format!("world: no wheel touched the terrain from t = {:.2} s to {t_s:.2} s (more than {NO_CONTACT_LIMIT_S} s; y = {y:.2} m)", *last_contact_s) })
 }
 
 /// Some wheel has terrain straight below (or above: the cast comes from high up) it.

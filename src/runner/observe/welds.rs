@@ -104,13 +104,7 @@ impl Welds {
         let nearest = self.lines.iter().enumerate().map(|(k, line)| (k, line.nearest(centre))).min_by(|(_, a), (_, b)| (a.point - centre).length().total_cmp(&(b.point - centre).length()));
         let Some((weld, projection)) = nearest else { return GroundTruth { d_err_m: f64::NAN, psi_err_rad: f64::NAN, speed_m_s, arc_m: f64::NAN, weld: None } };
         let (d, psi) = projection.relative_pose(centre, forward);
-        GroundTruth {
-            d_err_m: f64::from(d),
-            psi_err_rad: f64::from(psi),
-            speed_m_s,
-            arc_m: f64::from(projection.arc_length_m),
-            weld: Some(weld),
-        }
+        GroundTruth { d_err_m: f64::from(d), psi_err_rad: f64::from(psi), speed_m_s, arc_m: f64::from(projection.arc_length_m), weld: Some(weld) }
     }
 
     /// The robot seen from each weld, in plan (for the relocation metrics).
@@ -122,12 +116,7 @@ impl Welds {
         for (view, line) in views.iter_mut().zip(&self.lines) {
             let p = line.nearest(centre);
             let (d_m, psi_rad) = p.relative_pose(centre, forward);
-            *view = Some(WeldView {
-                distance_m: (p.point.x - centre.x).hypot(p.point.z - centre.z),
-                inside: p.arc_length_m > 1e-3 && p.arc_length_m < line.length_m() - 1e-3,
-                d_m,
-                psi_rad,
-            });
+            *view = Some(WeldView { distance_m: (p.point.x - centre.x).hypot(p.point.z - centre.z), inside: p.arc_length_m > 1e-3 && p.arc_length_m < line.length_m() - 1e-3, d_m, psi_rad });
         }
         views
     }

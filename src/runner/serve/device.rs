@@ -105,39 +105,42 @@ pub async fn start_device(options: DeviceOptions, handle: Arc<BusHandle>) -> Res
     let (opened_tx, opened_rx) = tokio::sync::oneshot::channel();
     let stop = Arc::new(Notify::new());
     let stop_thread = Arc::clone(&stop);
-    let thread = std::thread::Builder::new().name("device".into()).spawn(move || {
-        let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
-            Ok(runtime) => runtime,
-            Err(error) => return drop(opened_tx.send(Err(RunnerError::during("cannot start the device thread's runtime", error)))),
-        };
-        runtime.block_on(async move {
-            // The device registers with this thread's runtime, so it is opened here.
-            let mut opened = match open(&options, &handle) {
-                Ok(opened) => opened,
-                Err(error) => return drop(opened_tx.send(Err(RunnerError::during(format!("--device {}", options.path.display()), error)))),
+    let thread = std::thread::Builder::new()
+        .name("device".into())
+        .spawn(move || {
+            let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+                Ok(runtime) => runtime,
+                Err(error) => return drop(opened_tx.send(Err(RunnerError::during("cannot start the device thread's runtime", error)))),
             };
-            let _ = opened_tx.send(Ok(opened.device.baud()));
-            loop {
-                // Spawned, not run in `block_on`: see the pty thread in `serve`.
-                let mut session = tokio::spawn(serve_on(Arc::clone(&opened.device), Arc::clone(&handle)));
-                tokio::select! {
-                    () = stop_thread.notified() => return session.abort(),
-                    ended = &mut session => match ended {
-                        Ok(Ok(())) => warn!(device = %options.path.display(), "the device hung up"),
-                        Ok(Err(error)) => warn!(device = %options.path.display(), %error, "the device failed (unplugged?)"),
-                        Err(error) => warn!(device = %options.path.display(), %error, "the device session failed"),
-                    },
-                }
-                let (echoes, missing) = opened.device.echo_counts();
-                info!(echoes, missing, "echo of own sends on the device so far");
-                drop(opened);
-                opened = tokio::select! {
-                    () = stop_thread.notified() => return,
-                    back = reopen(&options, &handle) => back,
+            runtime.block_on(async move {
+                // The device registers with this thread's runtime, so it is opened here.
+                let mut opened = match open(&options, &handle) {
+                    Ok(opened) => opened,
+                    Err(error) => return drop(opened_tx.send(Err(RunnerError::during(format!("--device {}", options.path.display()), error)))),
                 };
-            }
-        });
-    }).map_err(|error| RunnerError::during("cannot start the device thread", error))?;
+                let _ = opened_tx.send(Ok(opened.device.baud()));
+                loop {
+                    // Spawned, not run in `block_on`: see the pty thread in `serve`.
+                    let mut session = tokio::spawn(serve_on(Arc::clone(&opened.device), Arc::clone(&handle)));
+                    tokio::select! {
+                        () = stop_thread.notified() => return session.abort(),
+                        ended = &mut session => match ended {
+                            Ok(Ok(())) => warn!(device = %options.path.display(), "the device hung up"),
+                            Ok(Err(error)) => warn!(device = %options.path.display(), %error, "the device failed (unplugged?)"),
+                            Err(error) => warn!(device = %options.path.display(), %error, "the device session failed"),
+                        },
+                    }
+                    let (echoes, missing) = opened.device.echo_counts();
+                    info!(echoes, missing, "echo of own sends on the device so far");
+                    drop(opened);
+                    opened = tokio::select! {
+                        () = stop_thread.notified() => return,
+                        back = reopen(&options, &handle) => back,
+                    };
+                }
+            });
+        })
+        .map_err(|error| RunnerError::during("cannot start the device thread", error))?;
     let baud = opened_rx.await.map_err(|_| RunnerError::Invalid("the device thread ended before opening the device".to_owned()))??;
     Ok(DeviceService { thread, stop, baud })
 }

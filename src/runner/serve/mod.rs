@@ -20,18 +20,18 @@ use crate::bus::{BusFaults, Timing, TraceWriter};
 use crate::fault::ScheduledFault;
 use crate::overrides::Override;
 use crate::robot::{RobotDescription, RobotOverrides};
-use crate::scenario::Scenario;
 use crate::runner::view::ViewOptions;
+use crate::scenario::Scenario;
 use crate::sensor_server::SensorFeed;
-use crate::virtual_time::VirtualTime;
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, PhysicsPace, VirtualPort};
+use crate::virtual_time::VirtualTime;
 
 use super::clock::{Pace, TimeBase};
+use super::feed::{WorldFailed, observer_hook, start_sensor_server};
 use super::observe::scenario_bus;
 use super::outputs::finish_timing_report;
 use super::process::faketime_env;
 use super::recording::{RecordSpec, finish_recording, record_sensor_reads, start_recording};
-use super::feed::{WorldFailed, observer_hook, start_sensor_server};
 use super::ticks::Pacer;
 use super::{Console, During as _, Result, RunnerError};
 

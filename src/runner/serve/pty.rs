@@ -63,10 +63,7 @@ pub fn start_thread(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Ada
             // Spawned, not run in `block_on`: a spawned task's I/O wake-ups stay in the
             // scheduler's local queue, while a `block_on` future is woken through the driver's
             // eventfd, which costs two extra syscalls and an extra epoll round per packet.
-            runtime
-                .block_on(async move { tokio::spawn(serve_pty(port, handle, adapter)).await })
-                .during(|| "the pty session failed".to_owned())?
-                .during(|| "the pty session ended".to_owned())
+            runtime.block_on(async move { tokio::spawn(serve_pty(port, handle, adapter)).await }).during(|| "the pty session failed".to_owned())?.during(|| "the pty session ended".to_owned())
         })
         .during(|| "cannot start the pty thread".to_owned())
 }

@@ -50,8 +50,8 @@ use crate::bus::transaction_json;
 use crate::device::Servo;
 use crate::scenario::CaptureSection;
 use crate::sim::lidar::LidarScan;
-use crate::sim::{CAMERA_FRAME, PartFrame, RobotWorld};
 use crate::sim::line::LineSample;
+use crate::sim::{CAMERA_FRAME, PartFrame, RobotWorld};
 
 /// The recording's file name in a run's output folder.
 pub const MCAP_FILE: &str = "run.mcap";
@@ -97,10 +97,12 @@ impl ViewOptions {
 }
 
 /// `/bus/packets`: one message per packet on the wire (see `bus::trace`).
-const PACKET_SCHEMA: &str = r#"{"type":"object","properties":{"t":{"type":"number"},"dir":{"type":"string"},"id":{"type":"integer"},"from":{"type":"integer"},"hex":{"type":"string"},"decoded":{"type":"object"}}}"#;
+const PACKET_SCHEMA: &str =
+    r#"{"type":"object","properties":{"t":{"type":"number"},"dir":{"type":"string"},"id":{"type":"integer"},"from":{"type":"integer"},"hex":{"type":"string"},"decoded":{"type":"object"}}}"#;
 
 /// The registers `/servos` shows, by control-table key.
-const SERVO_REGISTERS: &[&str] = &["torque_enable", "goal_velocity", "present_velocity", "present_position", "present_current", "present_input_voltage", "present_temperature", "hardware_error_status"];
+const SERVO_REGISTERS: &[&str] =
+    &["torque_enable", "goal_velocity", "present_velocity", "present_position", "present_current", "present_input_voltage", "present_temperature", "hardware_error_status"];
 
 struct Recording {
     /// Taken when the recording is finished (closed and renamed).
@@ -269,7 +271,12 @@ impl View {
             packets: options.packets.then(|| json_channel(&context, "/bus/packets", "climbsim.BusPacket", PACKET_SCHEMA.as_bytes().to_vec())).transpose().map_err(error)?,
             compare: options
                 .compare
-                .then(|| Ok::<_, String>([json_channel(&context, "/compare/robot", "climbsim.Servos", servos_schema(servo_names))?, json_channel(&context, "/compare/world", "climbsim.Servos", servos_schema(servo_names))?]))
+                .then(|| {
+                    Ok::<_, String>([
+                        json_channel(&context, "/compare/robot", "climbsim.Servos", servos_schema(servo_names))?,
+                        json_channel(&context, "/compare/world", "climbsim.Servos", servos_schema(servo_names))?,
+                    ])
+                })
                 .transpose()
                 .map_err(error)?,
         });
@@ -302,7 +309,13 @@ impl View {
         // Foxglove's 3D panel has z up; rapier's world has y up: +90° about x turns one into the other.
         let half = std::f64::consts::FRAC_1_SQRT_2;
         let mut transforms = Vec::with_capacity(frames.len() + 1);
-        transforms.push(FrameTransform { timestamp: Some(timestamp(t)), parent_frame_id: "map".to_owned(), child_frame_id: "world".to_owned(), translation: Some(Vector3 { x: 0.0, y: 0.0, z: 0.0 }), rotation: Some(Quaternion { x: half, y: 0.0, z: 0.0, w: half }) });
+        transforms.push(FrameTransform {
+            timestamp: Some(timestamp(t)),
+            parent_frame_id: "map".to_owned(),
+            child_frame_id: "world".to_owned(),
+            translation: Some(Vector3 { x: 0.0, y: 0.0, z: 0.0 }),
+            rotation: Some(Quaternion { x: half, y: 0.0, z: 0.0, w: half }),
+        });
         transforms.extend(frames.iter().map(|frame| FrameTransform {
             timestamp: Some(timestamp(t)),
             parent_frame_id: frame.parent.clone(),

@@ -5,7 +5,9 @@
 //! Everything here is in rapier's frame (y up); the recording's `map` → `world` transform turns
 //! it for Foxglove's z-up 3D panel.
 
-use foxglove::messages::{ArrowPrimitive, CameraCalibration, Color, CubePrimitive, CylinderPrimitive, Point3, Pose as FoxglovePose, Quaternion, SceneEntity, SceneUpdate, Timestamp, TriangleListPrimitive, Vector3};
+use foxglove::messages::{
+    ArrowPrimitive, CameraCalibration, Color, CubePrimitive, CylinderPrimitive, Point3, Pose as FoxglovePose, Quaternion, SceneEntity, SceneUpdate, Timestamp, TriangleListPrimitive, Vector3,
+};
 use rapier3d::prelude::{Pose, Rotation, Vector};
 
 use crate::sim::line::LineSample;

@@ -38,11 +38,7 @@ impl RobotWorld {
 
         let terrain_body = physics.insert_body(RigidBodyBuilder::fixed());
         let friction = config.friction.unwrap_or(robot.wheel.friction);
-        let terrain_collider = config
-            .terrain
-            .collider()
-            .friction(friction)
-            .collision_groups(InteractionGroups::new(TERRAIN_GROUP, ROBOT_GROUP, InteractionTestMode::And));
+        let terrain_collider = config.terrain.collider().friction(friction).collision_groups(InteractionGroups::new(TERRAIN_GROUP, ROBOT_GROUP, InteractionTestMode::And));
         let terrain = physics.insert_collider(terrain_collider, Some(terrain_body));
 
         // Queries need one update of the query structures before they see the terrain.
@@ -92,10 +88,7 @@ impl RobotWorld {
 
         // The front section rolls about x against the middle one (the rocker).
         let limit = body.rocker.limit_deg.to_radians();
-        let rocker = RevoluteJointBuilder::new(Vector::X)
-            .local_anchor1(Vector::new(half_base / 2.0, 0.0, 0.0))
-            .local_anchor2(Vector::new(-half_base / 2.0, 0.0, 0.0))
-            .limits([-limit, limit]);
+        let rocker = RevoluteJointBuilder::new(Vector::X).local_anchor1(Vector::new(half_base / 2.0, 0.0, 0.0)).local_anchor2(Vector::new(-half_base / 2.0, 0.0, 0.0)).limits([-limit, limit]);
         physics.insert_impulse_joint(middle, front, rocker);
 
         let mut wheels = Vec::with_capacity(4);
@@ -118,13 +111,7 @@ impl RobotWorld {
             // its rotation is the magnet shaft's own degree of freedom (`MagnetShaft`).
             let wheel_mass = MassProperties::new(Vector::ZERO, wheel.mass_kg + robot.magnet.mass_kg, Vector::new(ring_cross, ring_cross, ring + rotor_inertia));
             let wheel_body = physics.insert_body(RigidBodyBuilder::dynamic().pose(Pose::from_parts(centre, yaw)).additional_mass_properties(wheel_mass));
-            let collider = physics.insert_collider(
-                ColliderBuilder::ball(wheel.outer_radius_m)
-                    .density(0.0)
-                    .friction(friction)
-                    .collision_groups(robot_groups()),
-                Some(wheel_body),
-            );
+            let collider = physics.insert_collider(ColliderBuilder::ball(wheel.outer_radius_m).density(0.0).friction(friction).collision_groups(robot_groups()), Some(wheel_body));
             // Positive wheel-servo rotation drives the robot forward (about -z); positive magnet
             // rotation swings the magnet forward from straight down (about +z).
             let wheel_axis = -Vector::Z;
@@ -150,11 +137,7 @@ impl RobotWorld {
                 // The motor row's axis is in the first body's frame: the wheel's own axle, which
                 // stays the front section's z. rapier drives (ω_middle − ω_wheel)·axis, so +z
                 // turns the servo's positive rotation (about −z) into the motor's.
-                let drive = GenericJointBuilder::new(JointAxesMask::empty())
-                    .local_axis1(Vector::Z)
-                    .local_axis2(Vector::Z)
-                    .motor_model(JointAxis::AngX, MotorModel::ForceBased)
-                    .contacts_enabled(false);
+                let drive = GenericJointBuilder::new(JointAxesMask::empty()).local_axis1(Vector::Z).local_axis2(Vector::Z).motor_model(JointAxis::AngX, MotorModel::ForceBased).contacts_enabled(false);
                 physics.insert_impulse_joint(wheel_body, middle, drive)
             };
             wheels.push(WheelParts { section, wheel: wheel_body, drive_joint, wheel_axis, magnet_axis, collider });
@@ -166,9 +149,17 @@ impl RobotWorld {
             let Some(spec) = robot.servo.iter().find(|s| s.id == servo.id()) else { continue };
             let parts = wheels[spec.wheel.index()];
             links.push(match spec.role {
-                ServoRole::WheelDrive => {
-                    ServoLink::Wheel(ServoJoint { parent: parts.section, child: parts.wheel, joint: parts.drive_joint, axis: parts.wheel_axis, angle: 0.0, angle_before: 0.0, last_wrapped: 0.0, solved_rate: 0.0, solved_rate_before: 0.0 })
-                }
+                ServoRole::WheelDrive => ServoLink::Wheel(ServoJoint {
+                    parent: parts.section,
+                    child: parts.wheel,
+                    joint: parts.drive_joint,
+                    axis: parts.wheel_axis,
+                    angle: 0.0,
+                    angle_before: 0.0,
+                    last_wrapped: 0.0,
+                    solved_rate: 0.0,
+                    solved_rate_before: 0.0,
+                }),
                 ServoRole::MagnetShaft => {
                     let zero_rad = f64::from(robot.magnet.encoder_at_down_pulses) / 4096.0 * std::f64::consts::TAU;
                     ServoLink::Magnet { wheel: spec.wheel.index(), zero_rad }

@@ -9,7 +9,7 @@ use crate::device::ShaftLoad;
 use crate::robot::WheelPosition;
 
 use super::measure::{joint_rate, ray_down, surface_below, terrain_and_normal_below};
-use super::{CAMERA_FRAME, AdhesionSample, PartFrame, PartShape, PartShapeKind, RobotWorld, ServoLink, SlipArea, TerrainMesh, magnet_frame, robot_groups, wheel_frame};
+use super::{AdhesionSample, CAMERA_FRAME, PartFrame, PartShape, PartShapeKind, RobotWorld, ServoLink, SlipArea, TerrainMesh, magnet_frame, robot_groups, wheel_frame};
 
 impl RobotWorld {
     /// The robot description the world was built from.
@@ -305,4 +305,3 @@ impl RobotWorld {
         local.x.atan2(-local.y)
     }
 }
-

@@ -240,9 +240,22 @@ enum Rx {
 enum Tx {
     Idle,
     /// A first frame or a block went out; the peer's flow control is due by `deadline`.
-    AwaitFlowControl { message: Vec<u8>, offset: usize, next_sn: u8, deadline: Duration, waits: u8 },
+    AwaitFlowControl {
+        message: Vec<u8>,
+        offset: usize,
+        next_sn: u8,
+        deadline: Duration,
+        waits: u8,
+    },
     /// Consecutive frames go out, the next at `next_at`; `block_left` is `None` without a limit.
-    Sending { message: Vec<u8>, offset: usize, next_sn: u8, block_left: Option<u8>, st_min: Duration, next_at: Duration },
+    Sending {
+        message: Vec<u8>,
+        offset: usize,
+        next_sn: u8,
+        block_left: Option<u8>,
+        st_min: Duration,
+        next_at: Duration,
+    },
 }
 
 /// One end of an ISO-TP link; see the module documentation.

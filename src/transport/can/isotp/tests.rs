@@ -325,17 +325,11 @@ fn new_first_or_single_frame_interrupts_a_reception() {
     rx.on_frame(T0, &[0x10, 20, 1, 2, 3, 4, 5, 6]);
     rx.on_frame(T0, &[0x21, 7, 8, 9, 10, 11, 12, 13]);
     rx.on_frame(T0, &[0x02, 0xAB, 0xCD]);
-    assert_eq!(
-        events(&mut rx),
-        [Event::Error(IsoTpError::RxInterrupted { expected: 20, received: 13, by: "single" }), Event::Received(vec![0xAB, 0xCD])]
-    );
+    assert_eq!(events(&mut rx), [Event::Error(IsoTpError::RxInterrupted { expected: 20, received: 13, by: "single" }), Event::Received(vec![0xAB, 0xCD])]);
     rx.on_frame(T0, &[0x10, 20, 1, 2, 3, 4, 5, 6]);
     rx.on_frame(T0, &[0x10, 8, 1, 2, 3, 4, 5, 6]);
     rx.on_frame(T0, &[0x21, 7, 8]);
-    assert_eq!(
-        events(&mut rx),
-        [Event::Error(IsoTpError::RxInterrupted { expected: 20, received: 6, by: "first" }), Event::Received(vec![1, 2, 3, 4, 5, 6, 7, 8])]
-    );
+    assert_eq!(events(&mut rx), [Event::Error(IsoTpError::RxInterrupted { expected: 20, received: 6, by: "first" }), Event::Received(vec![1, 2, 3, 4, 5, 6, 7, 8])]);
 }
 
 #[test]
