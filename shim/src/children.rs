@@ -7,8 +7,10 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, Parked, Shared, Wait, call, state};
+use crate::block::{active, notify_scheduler};
+use crate::park::{charge, note_call};
+use crate::slot::my_slot;
 use crate::sys::real;
-use crate::{active, charge, my_slot, note_call, notify_scheduler};
 
 const WNOHANG: c_int = 1;
 
@@ -30,7 +32,7 @@ fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> 
     notify_scheduler(shared);
     let result = wait();
     slot.wait_over();
-    crate::resume_after_kernel_wake(shared, slot);
+    crate::turn::resume_after_kernel_wake(shared, slot);
     result
 }
 

@@ -7,10 +7,10 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU64, Ordering};
 
 use crate::abi::call;
+use crate::block::{active, shared};
 use crate::sys::{real, timespec};
 use crate::time::{from_ns, to_ns};
 use crate::wait::{EpollCall, Interest, ms_timeout, wait, wall_ms};
-use crate::{active, shared};
 
 /// Registrations followed at once (all epoll instances of a process together).
 const ENTRIES: usize = crate::abi::EPOLL_ENTRIES;
@@ -80,7 +80,7 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
                     entry.edge_at.store(0, Ordering::Relaxed);
                     entry.writable_edge.store(true, Ordering::Relaxed);
                 }
-                None => crate::refuse(crate::abi::refused::EPOLL),
+                None => crate::block::refuse(crate::abi::refused::EPOLL),
             }
         }
         EPOLL_CTL_DEL => {

@@ -5,6 +5,7 @@
 //! - they stay deliverable: a trapped call (or an `rdtsc`) while its signal is blocked would be
 //!   fatal, so the program's signal masks (sigprocmask, sigaction's masks) never include them.
 
+use core::cell::Cell;
 use core::ffi::{c_int, c_long, c_void};
 use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
@@ -215,4 +216,39 @@ pub(crate) fn sigaction_call(a: [i64; 6]) -> c_long {
     let mut cleaned = unsafe { *action };
     cleaned.mask &= !kept_signals();
     native::call4(nr::RT_SIGACTION, signal as c_long, &cleaned as *const KernelSigaction as c_long, old as c_long, size)
+}
+
+const SIG_BLOCK: c_long = 0;
+/// "Not in the trap handler" (a real mask never holds SIGSYS, so never all ones).
+const NO_MASK: u64 = u64::MAX;
+
+thread_local! {
+    /// Inside the trap handler: the program's signal mask, which the kernel saved (the
+    /// handler's own blocks everything).
+    static TRAP_MASK: Cell<u64> = const { Cell::new(NO_MASK) };
+}
+
+/// The trap handler starts with the program's mask `mask`; what to give [`left_trap`].
+pub(crate) fn entered_trap(mask: u64) -> u64 {
+    TRAP_MASK.with(|m| m.replace(mask))
+}
+
+pub(crate) fn left_trap(before: u64) {
+    TRAP_MASK.with(|m| m.set(before));
+}
+
+/// The program changed its mask (a trapped sigprocmask), inside the trap handler.
+pub(crate) fn set_trap_mask(mask: u64) {
+    TRAP_MASK.with(|m| m.set(mask));
+}
+
+/// The program's signal mask for this thread now.
+pub(crate) fn program_mask() -> u64 {
+    let trapped = TRAP_MASK.with(Cell::get);
+    if trapped != NO_MASK {
+        return trapped;
+    }
+    let mut mask = 0u64;
+    native::call4(nr::RT_SIGPROCMASK, SIG_BLOCK, 0, &mut mask as *mut u64 as c_long, 8);
+    mask
 }

@@ -3,11 +3,10 @@
 //! through libc (never through the shim's own interposers).
 //! Below every other module that parks or charges, which read these.
 
-use core::ffi::c_int;
 use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, mode};
-use crate::sys::{self, clockid_t, real, time_t, timespec};
+use crate::sys::{self, clockid_t, time_t, timespec};
 
 /// TAI runs 37 s ahead of UTC (since 2017).
 const TAI_OFFSET_NS: u64 = 37_000_000_000;
@@ -36,7 +35,7 @@ pub(crate) fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Op
 pub(crate) fn sim_now(shared: &Shared) -> u64 {
     let header = &shared.header;
     let now = header.now_ns.load(Ordering::Acquire);
-    let ended_at = match crate::orphaned_at() {
+    let ended_at = match crate::block::orphaned_at() {
         Some(at) => at,
         None if header.mode.load(Ordering::Acquire) == mode::VIRTUAL => return now,
         None => header.ending_wall_ns.load(Ordering::Acquire),
@@ -44,31 +43,7 @@ pub(crate) fn sim_now(shared: &Shared) -> u64 {
     now.saturating_add(real_monotonic_ns().saturating_sub(ended_at))
 }
 
-/// The host's monotonic clock (ns).
-pub(crate) fn real_monotonic_ns() -> u64 {
-    host_clock_ns(sys::CLOCK_MONOTONIC)
-}
-
-/// This thread's CPU time (the kernel's, ns).
-pub(crate) fn thread_cpu_ns() -> u64 {
-    const CLOCK_THREAD_CPUTIME_ID: clockid_t = 3;
-    host_clock_ns(CLOCK_THREAD_CPUTIME_ID)
-}
-
-/// The host's `clock`, read as the shim's own call: should libc fall back to the system call
-/// (the vDSO does for the CPU-time clocks), it goes to the kernel, not to the trap.
-fn host_clock_ns(clock: clockid_t) -> u64 {
-    let _own = crate::OwnCalls::enter();
-    let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
-    let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
-    // SAFETY: a valid timespec for the call.
-    unsafe { clock_gettime(clock, &mut ts) };
-    to_ns(&ts)
-}
-
-pub(crate) fn to_ns(ts: &timespec) -> u64 {
-    (ts.tv_sec.max(0) as u64).saturating_mul(1_000_000_000).saturating_add(ts.tv_nsec.max(0) as u64)
-}
+pub(crate) use crate::sys::{real_monotonic_ns, thread_cpu_ns, to_ns};
 
 pub(crate) fn from_ns(ns: u64) -> timespec {
     timespec { tv_sec: (ns / 1_000_000_000) as time_t, tv_nsec: (ns % 1_000_000_000) as i64 }

@@ -1,32 +1,26 @@
-//! A thread's turn, its charges and its parks: how a followed thread meets climbsim's scheduler.
-//! One thread runs at a time; what it does costs simulated time (charges, applied in batches,
-//! moving the clock up to climbsim's horizon, else yielding); a wait publishes the thread as
-//! parked and sleeps until climbsim (or a waker) lets it go.
+//! A thread's charges and its parks: how a followed thread meets climbsim's scheduler (its turn
+//! is turn.rs's). What a thread does costs simulated time (charges, applied in batches, moving
+//! the clock up to climbsim's horizon, else yielding); a wait publishes the thread as parked and
+//! sleeps until climbsim (or a waker) lets it go.
 
 use core::cell::Cell;
 use core::sync::atomic::{AtomicU64, Ordering};
 
-use crate::abi::protocol::{ChildWait, Decider};
-use crate::abi::{self, Parked, Shared, Slot, Wait, mode, release, state};
-use crate::now::{real_monotonic_ns, sim_now, thread_cpu_ns};
-use crate::{ORPHANED, active, climbsim_gone, my_slot, sys};
+use crate::abi::{self, Parked, Shared, Slot, Wait, release, state};
+use crate::block::{active, climbsim_gone, notify_scheduler};
+use crate::delivery::take_due;
+use crate::now::{sim_now, thread_cpu_ns};
+use crate::slot::my_slot;
+use crate::sys;
+use crate::turn::{add_charge, forget_charges, hand_on, resume_after_kernel_wake, run_over, sleep_on_wake_word, spin_while_not_running, took_turn, turn_began};
 
 /// Charges a thread may run up while climbsim has not read its bytes yet, before it yields.
 const HELD_CHARGE_LIMIT_NS: u64 = 50_000;
 
-/// A new thread or process starts with no charges (a forked child's copy is its parent's).
-pub(crate) fn forget_charges() {
-    UNAPPLIED.with(|u| u.set(0));
-}
-
 thread_local! {
-    /// Simulated time charged to this thread and not yet applied (ns).
-    static UNAPPLIED: Cell<u64> = const { Cell::new(0) };
     /// This thread's CPU time (real, ns) when its computation was last charged
     /// (`--controller-cpu`); 0: not yet read.
     static CPU_SEEN: Cell<u64> = const { Cell::new(0) };
-    /// Simulated time when this thread last got the turn (see [`charge`]).
-    static TURN_FROM: Cell<u64> = const { Cell::new(0) };
     /// The check epoch when this thread last began to wait on what the kernel wakes (see
     /// [`look_at_kernel`]).
     static WAIT_EPOCH: Cell<u32> = const { Cell::new(0) };
@@ -54,177 +48,6 @@ pub(crate) fn reset_computation(shared: &Shared) {
     }
 }
 
-/// Wait, ready to run (and climbsim told, or the turn handed: see [`HandOn`]), until climbsim
-/// or a parking thread gives this thread the turn (it marks it running). After the run's end
-/// (or without climbsim) every thread simply runs.
-pub(crate) fn await_turn(shared: &Shared, slot: &Slot) {
-    spin_while_not_running(shared, slot);
-    loop {
-        let seen = slot.wake_word.load(Ordering::Acquire);
-        if slot.state() != state::READY {
-            took_turn(shared);
-            return;
-        }
-        if run_over(shared) {
-            slot.let_go_at_end();
-            return;
-        }
-        sleep_on_wake_word(shared, slot, seen);
-    }
-}
-
-/// This thread runs from now: its quantum starts (see [`charge`]).
-pub(crate) fn took_turn(shared: &Shared) {
-    TURN_FROM.with(|t| t.set(sim_now(shared)));
-}
-
-/// climbsim usually lets a parked (or ready) thread run within a few hundred microseconds: a
-/// spin saves the futex's sleep and wake-up, which on a VM whose idle vCPUs halt costs tens of
-/// them. How long is climbsim's call (none on one CPU, nor where the machine is busy); not
-/// once climbsim has given another thread the turn (this one's CPU is that thread's then).
-pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
-    let header = &shared.header;
-    let now = real_monotonic_ns();
-    let spin = header.park_spin_ns.load(Ordering::Relaxed);
-    let mut spin_until = now.saturating_add(spin);
-    // One thread at a time spins longer (see `abi::LONG_PARK_SPIN_NS`): several would take the
-    // CPUs from climbsim and from the thread that has the turn.
-    let long_until = now.saturating_add(abi::LONG_PARK_SPIN_NS);
-    let taken = header.long_spin_until.load(Ordering::Acquire);
-    let long = spin > 0 && taken <= now && header.long_spin_until.compare_exchange(taken, long_until, Ordering::AcqRel, Ordering::Relaxed).is_ok();
-    if long {
-        spin_until = long_until;
-    }
-    let turns = header.turns_given.load(Ordering::Acquire);
-    while slot.state() != state::RUNNING && real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
-        core::hint::spin_loop();
-    }
-    if long {
-        let _ = header.long_spin_until.compare_exchange(long_until, 0, Ordering::AcqRel, Ordering::Relaxed);
-    }
-}
-
-/// Sleep until climbsim bumps the slot's wake word past `seen`; the timeout only notices a
-/// climbsim that went away without waking us.
-pub(crate) fn sleep_on_wake_word(shared: &Shared, slot: &Slot, seen: u32) {
-    sys::futex_wait(&slot.wake_word, seen, 100_000_000);
-    if slot.wake_word.load(Ordering::Acquire) == seen {
-        climbsim_gone(shared);
-    }
-}
-
-/// The run has ended, or climbsim is gone: nobody gives turns or releases any more.
-pub(crate) fn run_over(shared: &Shared) -> bool {
-    shared.header.mode.load(Ordering::Acquire) != mode::VIRTUAL || ORPHANED.load(Ordering::Relaxed)
-}
-
-/// This thread, which the kernel woke (a descriptor, a child's end, a join), runs again: in its
-/// turn, unless climbsim or a waker let it go already.
-pub(crate) fn resume_after_kernel_wake(shared: &Shared, slot: &Slot) {
-    if active().is_none() {
-        slot.let_go_at_end();
-        return;
-    }
-    slot.make_ready(None);
-    notify_scheduler(shared);
-    await_turn(shared, slot);
-}
-
-/// A hand-over of the turn this running thread may make as it parks or ends, begun before it
-/// publishes that (so that climbsim, which sees it begun, decides nothing meanwhile) and ended
-/// by [`HandOn::finish`] after. Without it, every park is two hand-overs through climbsim (this
-/// thread to climbsim, climbsim to the next), each a futex wake-up: most of what a thread's
-/// start and end, or a lock passed between threads, costs in wall time.
-pub(crate) struct HandOn<'a> {
-    shared: &'a Shared,
-    me: &'a Slot,
-    ended: bool,
-}
-
-/// Begin a hand-over by this thread (`me`, see [`HandOn`]): before it publishes itself parked
-/// or ended. Its slot is marked first, so that climbsim can tell a hand-over that will never
-/// end (its thread was killed in it) from one under way.
-pub(crate) fn hand_on<'a>(shared: &'a Shared, me: &'a Slot) -> HandOn<'a> {
-    me.handing.store(1, Ordering::SeqCst);
-    shared.header.hand_ons_begun.fetch_add(1, Ordering::SeqCst);
-    HandOn { shared, me, ended: false }
-}
-
-impl HandOn<'_> {
-    /// This thread (`me`) has published itself parked or ended: the next ready thread takes the
-    /// turn at once, if that is what climbsim would do now; else climbsim is told, and decides.
-    pub(crate) fn finish(mut self) {
-        let outcome = self.hand_to_next();
-        self.end();
-        if outcome == Handing::ClimbsimDecides {
-            notify_scheduler(self.shared);
-        }
-    }
-
-    /// Give the turn to the ready thread whose turn it is, if the rule of the turn
-    /// (`Shared::who_decides`) says so: no other thread runs, and climbsim has nothing to decide
-    /// first.
-    fn hand_to_next(&self) -> Handing {
-        let shared = self.shared;
-        // Against a thread publishing itself at the same moment (a new one ready, say, while this
-        // one parks): with a full fence between each one's store of its state and its look at
-        // the other's, at least one of the two sees the other, so they never both leave it to
-        // the other (see `Handing::OtherRuns`).
-        core::sync::atomic::fence(Ordering::SeqCst);
-        if active().is_none() {
-            return Handing::ClimbsimDecides;
-        }
-        // The shim does not read /proc: whether a thread in waitpid returns is climbsim's call.
-        let next = match shared.who_decides(|_, _| ChildWait::Unknown) {
-            Decider::AnotherRuns => return Handing::OtherRuns,
-            Decider::Climbsim(_) => return Handing::ClimbsimDecides,
-            Decider::Turn(next) => next,
-        };
-        if !next.give_turn() {
-            return Handing::ClimbsimDecides;
-        }
-        let header = &shared.header;
-        header.turns_given.fetch_add(1, Ordering::Release);
-        header.turns_handed.fetch_add(1, Ordering::Relaxed);
-        next.wake_word.fetch_add(1, Ordering::AcqRel);
-        sys::futex_wake(&next.wake_word);
-        Handing::Handed
-    }
-
-    fn end(&mut self) {
-        if !self.ended {
-            self.ended = true;
-            self.shared.header.hand_ons_ended.fetch_add(1, Ordering::SeqCst);
-            self.me.handing.store(0, Ordering::SeqCst);
-        }
-    }
-}
-
-/// How [`HandOn::hand_to_next`] went.
-#[derive(PartialEq, Eq)]
-enum Handing {
-    /// The next ready thread has the turn.
-    Handed,
-    /// Another thread runs, or is being created: it parks (or starts) later, and hands the turn
-    /// on or tells climbsim then; climbsim, woken now, could only spin meanwhile, on a CPU
-    /// those threads need. (A reservation that is given up tells climbsim.)
-    OtherRuns,
-    /// climbsim decides what comes next: it is told.
-    ClimbsimDecides,
-}
-
-impl Drop for HandOn<'_> {
-    /// Ended without a hand-over (the park did not happen after all).
-    fn drop(&mut self) {
-        self.end();
-    }
-}
-
-pub(crate) fn notify_scheduler(shared: &Shared) {
-    shared.header.sched_word.fetch_add(1, Ordering::AcqRel);
-    sys::futex_wake(&shared.header.sched_word);
-}
-
 /// Count an intercepted call (the watchdog's sign of life) and remember what it was.
 pub(crate) fn note_call(shared: &Shared, call: u32) {
     shared.header.calls.fetch_add(1, Ordering::Relaxed);
@@ -247,11 +70,7 @@ pub(crate) fn held(shared: &Shared) -> bool {
 /// Charge `ns` of simulated time to this thread; once the charges reach a batch they move the
 /// clock: by the thread itself up to climbsim's horizon, else by yielding to climbsim.
 pub(crate) fn charge(shared: &Shared, ns: u64) {
-    let total = UNAPPLIED.with(|u| {
-        let total = u.get().saturating_add(ns);
-        u.set(total);
-        total
-    });
+    let total = add_charge(ns);
     if total < shared.header.batch_ns.load(Ordering::Relaxed) {
         return;
     }
@@ -260,7 +79,7 @@ pub(crate) fn charge(shared: &Shared, ns: u64) {
     if total < HELD_CHARGE_LIMIT_NS && held(shared) {
         return;
     }
-    UNAPPLIED.with(|u| u.set(0));
+    forget_charges();
     let header = &shared.header;
     loop {
         let now = header.now_ns.load(Ordering::Acquire);
@@ -268,7 +87,7 @@ pub(crate) fn charge(shared: &Shared, ns: u64) {
         // A thread that keeps the turn (a loop that polls what is already ready, a spin on the
         // clock) gives it up after a quantum, as the kernel's scheduler would: the threads
         // ready meanwhile run first (climbsim puts it after them), whoever they are.
-        if target.saturating_sub(TURN_FROM.with(Cell::get)) >= abi::TURN_QUANTUM_NS {
+        if target.saturating_sub(turn_began()) >= abi::TURN_QUANTUM_NS {
             park(shared, Parked::Yielded, target, Wait::Turn);
             return;
         }
@@ -419,7 +238,7 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
         }
         if slot.state() == state::RUNNING {
             let why = slot.release.load(Ordering::Acquire);
-            if why == release::SIGNAL && !crate::signals::take_due(slot) {
+            if why == release::SIGNAL && !take_due(slot) {
                 publish();
                 continue;
             }
@@ -464,7 +283,7 @@ const OWN_LOOKS_AT_MOST_EVERY_NS: u64 = 64_000_000;
 pub(crate) fn park(shared: &Shared, parked: Parked, deadline: u64, wait: Wait) -> u32 {
     let Some(slot) = my_slot() else { return release::DEADLINE };
     // A signal fired for this thread while it ran: taken before it waits.
-    if slot.signals_due.load(Ordering::Acquire) != 0 && crate::signals::take_due(slot) {
+    if slot.signals_due.load(Ordering::Acquire) != 0 && take_due(slot) {
         return release::SIGNAL;
     }
     let hand = hand_on(shared, slot);
@@ -476,7 +295,7 @@ pub(crate) fn park(shared: &Shared, parked: Parked, deadline: u64, wait: Wait) -
 /// Publish this thread (whose slot is `slot`) as parked until `deadline` on `wait`; nobody is
 /// told yet (see [`park`]). Its unapplied charges are dropped: a blocked thread costs nothing.
 pub(crate) fn publish_parked(slot: &Slot, parked: Parked, deadline: u64, wait: Wait) {
-    UNAPPLIED.with(|u| u.set(0));
+    forget_charges();
     publish_state(slot, parked, deadline, wait);
 }
 
@@ -522,7 +341,7 @@ pub(crate) fn await_release(shared: &Shared, slot: &Slot, parked: Parked, deadli
             let why = slot.release.load(Ordering::Acquire);
             // A signal timer fired for this thread: it sends itself the signal, and waits on
             // unless the signal interrupts the wait.
-            if why == release::SIGNAL && !crate::signals::take_due(slot) {
+            if why == release::SIGNAL && !take_due(slot) {
                 let _ = slot.park_again(parked);
                 notify_scheduler(shared);
                 continue;

@@ -16,9 +16,10 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{PORT_TX_RING, Parked, Shared, Wait, call, mode};
 use crate::native;
+use crate::park::{charge, note_call, park};
+use crate::slot::my_slot;
 use crate::sys::{iovec, nr};
 use crate::time::sim_now;
-use crate::{charge, my_slot, note_call, park};
 
 /// Write `parts` (a write's buffer, or a writev's) to the port `fd` through the ring: the bytes
 /// written (or -1 with EAGAIN), or `None` for the kernel (the run has ended). A blocking write
@@ -128,7 +129,7 @@ impl Writer {
         }
         park(self.shared, Parked::Yielded, sim_now(self.shared), Wait::Time);
         self.yielded = true;
-        self.shared.header.mode.load(Ordering::SeqCst) == mode::VIRTUAL && crate::active().is_some()
+        self.shared.header.mode.load(Ordering::SeqCst) == mode::VIRTUAL && crate::block::active().is_some()
     }
 }
 

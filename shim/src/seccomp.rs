@@ -266,12 +266,12 @@ unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut 
         return;
     }
     // A thread a trapped clone created claims its slot at its first trapped call.
-    if !crate::in_shim() && crate::claimed_slot().is_none() && crate::shared().is_some_and(|s| s.header.raw_clones.load(Ordering::Acquire) > 0) {
-        crate::my_slot();
+    if !crate::sys::in_shim() && crate::slot::claimed_slot().is_none() && crate::block::shared().is_some_and(|s| s.header.raw_clones.load(Ordering::Acquire) > 0) {
+        crate::slot::my_slot();
     }
-    let outer = crate::signals::entered_trap(*sigmask);
+    let outer = crate::handlers::entered_trap(*sigmask);
     let result = dispatch(number, args, sigmask);
-    crate::signals::left_trap(outer);
+    crate::handlers::left_trap(outer);
     // SAFETY: the return value goes where the caller's `syscall` leaves it.
     unsafe { *gregs.add(context::RAX) = result };
     sys::set_errno(saved_errno);
@@ -296,7 +296,13 @@ unsafe fn clone_thread(gregs: *mut i64, info: *mut c_void, a: [i64; 6]) {
         return;
     }
     let clear_tid = if flags & CLONE_CHILD_CLEARTID != 0 { a[3] as usize } else { 0 };
-    crate::reserve_raw_clone(if flags & CLONE_SETTLS != 0 { tls as u64 } else { 0 }, clear_tid);
+    if crate::slot::creating_a_thread() {
+        // The shim's pthread_create reserved the thread's slot: `clear_tid`, the word the
+        // thread's end clears, is noted for its joins (see `sync::learn_clear_tid`).
+        crate::sync::note_clone_clear_tid(clear_tid);
+    } else {
+        crate::slot::reserve_raw_clone(if flags & CLONE_SETTLS != 0 { tls as u64 } else { 0 });
+    }
     let child_stack = (stack - 8) as *mut i64;
     let parent_words = info.cast::<i64>();
     // SAFETY: the caller's new stack (the word below its top is free: the stack grows down) and
@@ -343,7 +349,7 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         nr::RT_SIGACTION => return handlers::sigaction_call(a),
         // A Go program's own reads, writes and waits (only those trap: see GO_OWN_CALLS).
         // Its other signals wait meanwhile, as in a trapped futex wait.
-        _ if GO_OWN_CALLS.contains(&number) && !crate::in_shim() => return own_io_call(number, a),
+        _ if GO_OWN_CALLS.contains(&number) && !crate::sys::in_shim() => return own_io_call(number, a),
         // Not under the own-calls mark either: a handler that sigsuspend runs is the program's.
         nr::ALARM
         | nr::SETITIMER
@@ -359,16 +365,16 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         | nr::KILL
         | nr::TGKILL
         | nr::TKILL
-            if !crate::in_shim() =>
+            if !crate::sys::in_shim() =>
         {
             return crate::signals::trapped(number, a, *sigmask).unwrap_or_else(|| native_as_program(number, a, sigmask));
         }
         _ => {}
     }
-    if crate::in_shim() {
+    if crate::sys::in_shim() {
         return native_call(number, a);
     }
-    let _own = crate::OwnCalls::enter();
+    let _own = crate::sys::OwnCalls::enter();
     let handled = match number {
         nr::FUTEX => crate::futex::emulate(&crate::futex::Args { uaddr: a[0] as usize, op: a[1] as i32, val: a[2] as u32, timeout_or_val2: a[3] as usize, uaddr2: a[4] as usize, val3: a[5] as u32 }),
         nr::CLOCK_GETTIME => clock_gettime(a[0] as c_int, a[1] as *mut sys::timespec),
@@ -383,14 +389,14 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         }),
         nr::NANOSLEEP => crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec, a[1] as *mut sys::timespec).map(|e| -c_long::from(e)),
         nr::CLOCK_NANOSLEEP => crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec, a[3] as *mut sys::timespec).map(|e| -c_long::from(e)),
-        nr::SCHED_YIELD => crate::active().map(|shared| {
-            crate::yield_turn(shared);
+        nr::SCHED_YIELD => crate::block::active().map(|shared| {
+            crate::park::yield_turn(shared);
             0
         }),
         // Its rings are shared memory that the kernel reads and writes with no system call to
         // follow: refused (the run fails saying so) before any I/O goes through it.
-        nr::IO_URING_SETUP => crate::active().map(|_| {
-            crate::refuse(crate::abi::refused::IO_URING);
+        nr::IO_URING_SETUP => crate::block::active().map(|_| {
+            crate::block::refuse(crate::abi::refused::IO_URING);
             -ENOSYS
         }),
         _ => None,

@@ -8,8 +8,8 @@ use core::ffi::{c_char, c_int, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, Slot, state};
+use crate::block::shared;
 use crate::native;
-use crate::shared;
 use crate::sys::{self, real};
 
 /// Reserve a free slot for task `tid` of a program to come (`tid` 0: a child of `parent`
@@ -32,7 +32,7 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
             return None;
         }
     }
-    let (_, slot) = crate::take_free_slot(shared, Slot::reserve_unused)?;
+    let (_, slot) = crate::slot::take_free_slot(shared, Slot::reserve_unused)?;
     slot.pid.store(if tid == 0 { parent } else { tid }, Ordering::Relaxed);
     // The program to come is a child of `parent` (fork, posix_spawn), or of this process's
     // parent (an exec: the same process).
@@ -47,7 +47,7 @@ fn unreserve(slot: Option<&'static Slot>) {
         && slot.unreserve()
         && let Some(shared) = shared()
     {
-        crate::notify_scheduler(shared);
+        crate::block::notify_scheduler(shared);
     }
 }
 
@@ -96,7 +96,7 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     // the exec fail, they are gone: an edge left as it is.)
     crate::signals::delete_posix_timers_of(sys::getpid());
     let mine = shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && matches!(s.state(), state::RUNNING | state::RESERVED));
-    let marker = exec_marker();
+    let marker = crate::marker::exec_marker();
     // Exited, and no longer this process's: a parent waiting for it waits on the real world.
     // A task without a slot (a vfork child, which runs on its parent's) takes one to say so.
     let leaving = match mine {
@@ -129,7 +129,7 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
 /// process's), which has none of its own (a vfork child runs on its parent's), to say that it
 /// leaves.
 fn slot_of_its_own(shared: &Shared, tid: i32, pid: i32, parent: i32) -> Option<&Slot> {
-    let (_, slot) = crate::take_free_slot(shared, Slot::reserve_unused)?;
+    let (_, slot) = crate::slot::take_free_slot(shared, Slot::reserve_unused)?;
     slot.parent.store(parent, Ordering::Relaxed);
     slot.pid.store(pid, Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
@@ -142,7 +142,7 @@ fn say_left(shared: &Shared, slot: &Slot, marker: c_int) {
     slot.exec_marker_fd.store(marker, Ordering::Relaxed);
     slot.exited_ns.store(crate::now::sim_now(shared), Ordering::Relaxed);
     slot.exit();
-    crate::notify_scheduler(shared);
+    crate::block::notify_scheduler(shared);
 }
 
 /// A vfork child ends (`_exit`, after an exec that failed): its parent, which the kernel lets
@@ -152,105 +152,12 @@ fn say_left(shared: &Shared, slot: &Slot, marker: c_int) {
 /// climbsim waits until it has gone (366 ms of simulated time passed meanwhile, in one run of
 /// four, before); so does its parent's waitpid for it (see `children.rs`).
 pub(crate) fn vfork_child_exits() {
-    if let Some(shared) = crate::active()
+    if let Some(shared) = crate::block::active()
         && let Some(slot) = slot_of_its_own(shared, sys::gettid(), sys::getpid(), sys::getppid())
     {
         say_left(shared, slot, 0);
     }
 }
-
-/// A descriptor that marks an exec leaving the followed world, for climbsim to watch in
-/// /proc (`/proc/TID/fd/N` names [`abi::EXEC_MARKER_NAME`]): a memfd at a set number that the
-/// exec does not close; the new program's shim closes it at start (see
-/// [`close_inherited_exec_marker`]), in user space, once the exec is over. Only then are the
-/// descriptors the exec closed released: the kernel puts their last close off until the task
-/// returns to user space, milliseconds after it took them out of the table. Among them the pipe
-/// through which Python's `subprocess` and others learn that the exec succeeded, whose end a
-/// parent waits for. Without the marker climbsim moved simulated time on while the host ran the
-/// exec, by as much as the host took (0.1 s on average, up to 0.57 s, for a forked child's exec
-/// beside a Python controller). -1: none could be made at its number.
-fn exec_marker() -> c_int {
-    let Some(place) = exec_marker_place() else { return -1 };
-    let memfd = native::call2(sys::nr::MEMFD_CREATE, crate::abi::EXEC_MARKER_NAME.as_ptr() as i64, 0);
-    if memfd < 0 {
-        return -1;
-    }
-    let moved = native::call3(sys::nr::FCNTL, memfd, F_DUPFD, place.into());
-    native::call1(sys::nr::CLOSE, memfd);
-    if moved == i64::from(place) {
-        return place;
-    }
-    if moved >= 0 {
-        native::call1(sys::nr::CLOSE, moved);
-    }
-    -1
-}
-
-/// The number an exec's marker takes: high, so that the program's own descriptors leave it
-/// free, without growing the descriptor table the new program inherits past 1024 entries.
-fn exec_marker_place() -> Option<c_int> {
-    let mut limit = [0u64; 2];
-    if native::call4(sys::nr::PRLIMIT64, 0, RLIMIT_NOFILE, 0, limit.as_mut_ptr() as i64) < 0 || limit[0] < 2 {
-        return None;
-    }
-    Some((limit[0] - 1).min(EXEC_MARKER_AT_MOST) as c_int)
-}
-
-/// In a program that a followed one exec'd without the shim's clock: close the marker of that
-/// exec (see [`exec_marker`]), which tells climbsim that the exec is over.
-pub(crate) fn close_inherited_exec_marker() {
-    if let Some(place) = exec_marker_place()
-        && names_marker(None, place)
-    {
-        native::call1(sys::nr::CLOSE, place.into());
-    }
-}
-
-/// Whether the exec that `slot`'s marker stands for is over (or none is under way): the
-/// marker is gone from its task's descriptors (see [`exec_marker`]). Until then the slot is not
-/// taken again: climbsim watches it.
-pub(crate) fn exec_over(slot: &Slot) -> bool {
-    let (fd, tid) = (slot.exec_marker_fd.load(Ordering::Acquire), slot.tid.load(Ordering::Relaxed));
-    fd <= 0 || tid <= 0 || !names_marker(Some(tid), fd)
-}
-
-/// Whether descriptor `fd` of task `tid` (None: this one) is an exec's marker.
-fn names_marker(tid: Option<i32>, fd: c_int) -> bool {
-    // "/proc/TID/fd/N" (or "/proc/self/fd/N"), NUL-terminated, without the heap (this may be a
-    // vfork child).
-    let mut path = [0u8; 40];
-    let mut len = 0;
-    let mut digits = [[0u8; 10]; 2];
-    let [task_digits, fd_digits] = &mut digits;
-    let task: &[u8] = match tid {
-        Some(tid) => decimal(tid as u32, task_digits),
-        None => b"self",
-    };
-    for text in [&b"/proc/"[..], task, b"/fd/", decimal(fd as u32, fd_digits)] {
-        path[len..len + text.len()].copy_from_slice(text);
-        len += text.len();
-    }
-    let mut link = [0u8; 64];
-    let read = native::call4(sys::nr::READLINKAT, sys::AT_FDCWD, path.as_ptr() as i64, link.as_mut_ptr() as i64, link.len() as i64);
-    read > 0 && crate::abi::is_exec_marker_link(&link[..read as usize])
-}
-
-/// `number` in decimal, in `digits`.
-fn decimal(mut number: u32, digits: &mut [u8; 10]) -> &[u8] {
-    let mut start = digits.len();
-    loop {
-        start -= 1;
-        digits[start] = b'0' + (number % 10) as u8;
-        number /= 10;
-        if number == 0 {
-            return &digits[start..];
-        }
-    }
-}
-
-const F_DUPFD: i64 = 0;
-const RLIMIT_NOFILE: i64 = 7;
-const EXEC_MARKER_AT_MOST: u64 = 1023;
 
 type ExecveFn = unsafe extern "C" fn(*const c_char, *const *const c_char, *const *const c_char) -> c_int;
 type ExecvFn = unsafe extern "C" fn(*const c_char, *const *const c_char) -> c_int;
@@ -320,7 +227,7 @@ pub unsafe extern "C" fn fexecve(fd: c_int, argv: *const *const c_char, envp: *c
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn fork() -> c_int {
     let next = real!(fork: fn() -> c_int);
-    let reserved = reserve(0, crate::pid());
+    let reserved = reserve(0, crate::block::pid());
     // SAFETY: libc's fork; in the child the atfork handler claims the reserved slot.
     let child = unsafe { next() };
     match reserved {

@@ -3,6 +3,7 @@
 
 #![allow(non_camel_case_types)]
 
+use core::cell::Cell;
 use core::ffi::{c_char, c_int, c_long, c_void};
 use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 
@@ -265,4 +266,58 @@ pub fn char_device(fd: c_int) -> Option<u64> {
     let mut rdev = [0u8; 8];
     rdev.copy_from_slice(&stat[nr::ST_RDEV..nr::ST_RDEV + 8]);
     Some(u64::from_ne_bytes(rdev))
+}
+
+thread_local! {
+    /// Non-zero while the shim itself is at work in this thread (in the trap handler, or
+    /// calling libc for a thread): its system calls go to the kernel as they are.
+    static OWN_CALLS: Cell<u32> = const { Cell::new(0) };
+}
+
+/// Whether the shim is at work in this thread (see `OWN_CALLS`).
+pub(crate) fn in_shim() -> bool {
+    OWN_CALLS.with(Cell::get) != 0
+}
+
+/// Marks the shim at work in this thread while it lives.
+pub(crate) struct OwnCalls;
+
+impl OwnCalls {
+    pub(crate) fn enter() -> Self {
+        OWN_CALLS.with(|c| c.set(c.get() + 1));
+        OwnCalls
+    }
+}
+
+impl Drop for OwnCalls {
+    fn drop(&mut self) {
+        OWN_CALLS.with(|c| c.set(c.get().saturating_sub(1)));
+    }
+}
+
+/// The host's monotonic clock (ns).
+pub(crate) fn real_monotonic_ns() -> u64 {
+    host_clock_ns(CLOCK_MONOTONIC)
+}
+
+/// This thread's CPU time (the kernel's, ns).
+pub(crate) fn thread_cpu_ns() -> u64 {
+    const CLOCK_THREAD_CPUTIME_ID: clockid_t = 3;
+    host_clock_ns(CLOCK_THREAD_CPUTIME_ID)
+}
+
+/// The host's `clock`, read as the shim's own call: should libc fall back to the system call
+/// (the vDSO does for the CPU-time clocks), it goes to the kernel, not to the trap.
+fn host_clock_ns(clock: clockid_t) -> u64 {
+    let _own = OwnCalls::enter();
+    let mut ts = timespec { tv_sec: 0, tv_nsec: 0 };
+    let clock_gettime = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
+    // SAFETY: a valid timespec for the call.
+    unsafe { clock_gettime(clock, &mut ts) };
+    to_ns(&ts)
+}
+
+/// A timespec in ns (negative parts as 0).
+pub(crate) fn to_ns(ts: &timespec) -> u64 {
+    (ts.tv_sec.max(0) as u64).saturating_mul(1_000_000_000).saturating_add(ts.tv_nsec.max(0) as u64)
 }

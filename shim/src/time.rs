@@ -8,9 +8,10 @@ use core::ffi::{c_int, c_uint, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{Parked, Shared, Wait, call, release};
+use crate::block::{active, shared};
 pub(crate) use crate::now::{clock_at, from_ns, real_monotonic_ns, sim_now, sim_time_of, to_ns};
+use crate::park::{charge, note_call, park};
 use crate::sys::{self, clockid_t, real, time_t, timespec, timeval};
-use crate::{active, charge, note_call, park, shared};
 
 /// A clock read: charged, then answered from the block (when the shim answers this clock).
 pub(crate) fn read_clock(clock: clockid_t) -> Option<u64> {
@@ -87,7 +88,7 @@ pub(crate) fn sleep_until(shared: &Shared, deadline: u64) -> Option<u64> {
 pub(crate) fn real_sleep_ns(ns: u64) -> c_int {
     // glibc's clock_nanosleep is the system call, which would trap: this sleep is the shim's
     // own, on the wall clock.
-    let _own = crate::OwnCalls::enter();
+    let _own = crate::sys::OwnCalls::enter();
     let clock_nanosleep = real!(clock_nanosleep: fn(clockid_t, c_int, *const timespec, *mut timespec) -> c_int);
     // SAFETY: a valid relative timespec; the remainder is not wanted.
     unsafe { clock_nanosleep(sys::CLOCK_MONOTONIC, 0, &from_ns(ns), core::ptr::null_mut()) }

@@ -7,9 +7,10 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
 
 use crate::abi::{NEVER, Parked, Shared, Wait, release};
+use crate::block::active;
+use crate::park::{charge, note_call, park};
 use crate::sys::{real, timespec};
 use crate::time::{clock_at, from_ns, sim_now, sim_time_of, to_ns};
-use crate::{active, charge, note_call, park};
 
 /// Timers followed at once in a process.
 pub(crate) const TIMERS: usize = crate::abi::TIMERFDS;
@@ -96,7 +97,7 @@ pub unsafe extern "C" fn timerfd_create(clock: c_int, flags: c_int) -> c_int {
                 timer.shown.store(false, Ordering::Relaxed);
                 timer.fd.store(fd, Ordering::Release);
             }
-            None => crate::refuse(crate::abi::refused::TIMERFDS),
+            None => crate::block::refuse(crate::abi::refused::TIMERFDS),
         }
     }
     fd

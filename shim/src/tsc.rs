@@ -55,7 +55,7 @@ pub(crate) fn around_exec(before: bool) {
 
 /// The counter: the simulated monotonic clock in nanoseconds (the host's, when no run is on).
 fn counter() -> u64 {
-    match crate::active() {
+    match crate::block::active() {
         Some(shared) => crate::now::clock_at(shared, crate::sys::CLOCK_MONOTONIC, crate::now::sim_now(shared)).unwrap_or(0),
         None => crate::now::real_monotonic_ns(),
     }

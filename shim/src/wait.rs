@@ -12,11 +12,13 @@
 use core::ffi::c_int;
 use core::sync::atomic::Ordering;
 
-use crate::Looked;
 use crate::abi::{Parked, Shared, Wait, call, release};
+use crate::block::active;
+use crate::park::Looked;
+use crate::park::{charge, note_call, park};
+use crate::slot::my_slot;
 use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
 use crate::time::{from_ns, sim_now, to_ns};
-use crate::{active, charge, my_slot, note_call, park};
 
 /// How long a timer set to fire at once may take to show on its descriptor (wall time).
 const TIMER_SHOWN_WITHIN_NS: u64 = 10_000_000;
@@ -191,7 +193,7 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
     let held_due = crate::held::stream_at(shared, now).next_due;
     let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire).min(held_due);
     let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
-    if target <= now || !crate::advance_within_horizon(shared, now, target) {
+    if target <= now || !crate::park::advance_within_horizon(shared, now, target) {
         park(shared, Parked::Yielded, target.max(now), Wait::Spin);
     }
 }
@@ -205,10 +207,10 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
 /// one at the instant it was made, not whenever the host got round to it.
 fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
     let Some(slot) = my_slot() else { return real_wait(Some(deadline.saturating_sub(sim_now(shared)))) };
-    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: interest.port, conns: interest.conns });
+    let publish = || crate::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: interest.port, conns: interest.conns });
     publish();
     loop {
-        let looked = crate::wait_looking(shared, slot, &publish, |take| {
+        let looked = crate::park::wait_looking(shared, slot, &publish, |take| {
             if let (Some(call), false) = (interest.epoll, take) {
                 // A peek (see `look_at_kernel`): an epoll instance is readable while events
                 // wait in it, and they stay there. Not while the port it watches has bytes in
@@ -221,13 +223,13 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
                     let stream = crate::held::stream_now(shared);
                     stream.written > stream.taken
                 };
-                return if !port_bytes_in_kernel && readable_now(call.epfd) { crate::Look::Peeked } else { crate::Look::Nothing };
+                return if !port_bytes_in_kernel && readable_now(call.epfd) { crate::park::Look::Peeked } else { crate::park::Look::Nothing };
             }
             let ready = real_wait(Some(0));
             // The port masked as empty (bytes not visible yet) costs nothing here: the kernel
             // is never waited in.
             crate::held::take_masked();
-            crate::Look::taking_nothing((ready != 0).then_some(ready), take)
+            crate::park::Look::taking_nothing((ready != 0).then_some(ready), take)
         });
         let ready = match looked {
             Looked::Released(release::SIGNAL) => return interrupted(),
@@ -245,7 +247,7 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             _ => real_wait(Some(0)),
         };
         crate::held::take_masked();
-        if ready != 0 || crate::active().is_none() {
+        if ready != 0 || crate::block::active().is_none() {
             return ready;
         }
         // Taken by a thread that ran first: wait on.

@@ -5,18 +5,17 @@
 //!
 //! A timer lives in the block (`abi::SigTimer`). climbsim fires it at its instant, with every
 //! controller thread parked: it picks the thread that takes the signal and lets it go
-//! (`release::SIGNAL`). That thread sends the signal to itself ([`take_due`]), so that it
+//! (`release::SIGNAL`). That thread sends the signal to itself (`delivery::take_due`), so that it
 //! arrives in the thread's own turn, at a point of its run that does not depend on the host:
 //! inside the trap handler every other signal waits until the handler returns, so the
 //! program's handler runs right after the interrupted call returns EINTR, as on a kernel. A
 //! wait that the signal does not interrupt (it is blocked and not waited for, or ignored) goes
 //! on.
 
-use core::cell::Cell;
 use core::ffi::{c_int, c_long};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, Shared, SigTimer, Slot, call, release, state, timer_kind, timer_state};
+use crate::abi::{NEVER, Shared, SigTimer, call, release, state, timer_kind, timer_state};
 use crate::native;
 use crate::sys::{self, nr};
 
@@ -26,61 +25,21 @@ mod waits;
 pub(crate) use timers::delete_posix_timers_of;
 
 const ITIMER_REAL: i64 = 0;
-/// The signals whose default action is to do nothing.
-const IGNORED_BY_DEFAULT: [c_int; 4] = [17, 18, 23, 28];
-const SI_TIMER: c_int = -2;
-const SIG_BLOCK: c_long = 0;
 const EINTR: c_long = 4;
 const EAGAIN: c_long = 11;
 const EINVAL: c_long = 22;
-/// "Not in the trap handler" (a real mask never holds SIGSYS, so never all ones).
-const NO_MASK: u64 = u64::MAX;
-
-thread_local! {
-    /// Inside the trap handler: the program's signal mask, which the kernel saved (the
-    /// handler's own blocks everything).
-    static TRAP_MASK: Cell<u64> = const { Cell::new(NO_MASK) };
-}
-
-/// The trap handler starts with the program's mask `mask`; what to give [`left_trap`].
-pub(crate) fn entered_trap(mask: u64) -> u64 {
-    TRAP_MASK.with(|m| m.replace(mask))
-}
-
-pub(crate) fn left_trap(before: u64) {
-    TRAP_MASK.with(|m| m.set(before));
-}
-
 /// The program changed its mask (a trapped sigprocmask): climbsim sees it in the slot.
 pub(crate) fn mask_changed(mask: u64) {
-    TRAP_MASK.with(|m| m.set(mask));
-    if let Some(slot) = crate::claimed_slot() {
+    crate::handlers::set_trap_mask(mask);
+    if let Some(slot) = crate::slot::claimed_slot() {
         slot.sig_blocked.store(mask, Ordering::Relaxed);
     }
-}
-
-/// The program's signal mask for this thread now.
-pub(crate) fn program_mask() -> u64 {
-    let trapped = TRAP_MASK.with(Cell::get);
-    if trapped != NO_MASK {
-        return trapped;
-    }
-    let mut mask = 0u64;
-    native::call4(nr::RT_SIGPROCMASK, SIG_BLOCK, 0, &mut mask as *mut u64 as c_long, 8);
-    mask
-}
-
-/// A thread that claims a slot: its signal state starts afresh.
-pub(crate) fn slot_claimed(slot: &Slot) {
-    slot.signals_due.store(0, Ordering::Relaxed);
-    slot.sig_waiting.store(0, Ordering::Relaxed);
-    slot.sig_blocked.store(program_mask(), Ordering::Relaxed);
 }
 
 /// A trapped call of this module's families, on simulated time; None: the kernel's (the run
 /// is over, a clock or timer climbsim does not follow), with the program's own mask.
 pub(crate) fn trapped(number: i64, a: [i64; 6], program_mask: u64) -> Option<c_long> {
-    let shared = crate::active()?;
+    let shared = crate::block::active()?;
     match number {
         nr::ALARM => Some(timers::alarm(shared, a[0] as u32)),
         nr::SETITIMER if a[0] == ITIMER_REAL => Some(timers::setitimer(shared, a[1] as *const [sys::timeval; 2], a[2] as *mut [sys::timeval; 2])),
@@ -104,8 +63,8 @@ pub(crate) fn trapped(number: i64, a: [i64; 6], program_mask: u64) -> Option<c_l
 }
 
 fn charged_call(shared: &Shared, what: u32) {
-    crate::note_call(shared, what);
-    crate::charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+    crate::park::note_call(shared, what);
+    crate::park::charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
 }
 
 /// Take a free timer (or one whose process has gone), busy for its process to fill in.
@@ -120,11 +79,11 @@ fn take_timer(shared: &Shared) -> Option<(usize, &SigTimer)> {
             timer.deliver_tid.store(0, Ordering::Relaxed);
             timer.deadline_ns.store(NEVER, Ordering::Relaxed);
             timer.interval_ns.store(0, Ordering::Relaxed);
-            timer.pid.store(crate::pid(), Ordering::Relaxed);
+            timer.pid.store(crate::block::pid(), Ordering::Relaxed);
             return Some((index, timer));
         }
     }
-    crate::refuse(crate::abi::refused::SIG_TIMERS);
+    crate::block::refuse(crate::abi::refused::SIG_TIMERS);
     None
 }
 
@@ -154,7 +113,7 @@ fn send_followed(shared: &Shared, pid: i32, tid: i32, signo: c_int) -> Option<c_
     }
     charged_call(shared, call::TIMER);
     let (_, sent) = take_timer(shared)?;
-    let sender = (crate::pid() as u32 as u64) | (native::call0(nr::GETUID) as u32 as u64) << 32;
+    let sender = (crate::block::pid() as u32 as u64) | (native::call0(nr::GETUID) as u32 as u64) << 32;
     sent.kind.store(timer_kind::SENT, Ordering::Relaxed);
     sent.pid.store(pid, Ordering::Relaxed);
     sent.tid.store(tid, Ordering::Relaxed);
@@ -167,87 +126,7 @@ fn send_followed(shared: &Shared, pid: i32, tid: i32, signo: c_int) -> Option<c_
     // Parked where the shim waits: ready, with the signal for its reason (a thread in the
     // kernel's waitpid takes it when it parks next).
     if !taker.in_waitpid() && taker.make_ready(Some(release::SIGNAL)) {
-        crate::notify_scheduler(shared);
+        crate::block::notify_scheduler(shared);
     }
     Some(0)
-}
-
-/// Signals climbsim fired for this thread (`Slot::signals_due`), sent to itself now; whether
-/// one of them interrupts the wait it was let go from.
-pub(crate) fn take_due(slot: &Slot) -> bool {
-    if slot.signals_due.swap(0, Ordering::AcqRel) == 0 {
-        return false;
-    }
-    let Some(shared) = crate::shared() else { return false };
-    let (pid, tid) = (crate::pid(), sys::gettid());
-    let mut interrupts = false;
-    for (index, timer) in shared.live_sig_timers().iter().enumerate() {
-        if timer.pid.load(Ordering::Relaxed) != pid || timer.deliver_tid.load(Ordering::Relaxed) != tid {
-            continue;
-        }
-        let expirations = timer.fired.swap(0, Ordering::AcqRel);
-        let signo = timer.signo.load(Ordering::Relaxed) as c_int;
-        if expirations == 0 || !(1..=64).contains(&signo) {
-            continue;
-        }
-        let overrun = expirations - 1;
-        timer.overrun.store(overrun, Ordering::Relaxed);
-        let bit = 1u64 << (signo - 1);
-        let (blocked, waiting) = (slot.sig_blocked.load(Ordering::Relaxed), slot.sig_waiting.load(Ordering::Relaxed));
-        // Blocked here and waited for by no one: pending on the process, as the kernel keeps
-        // it, for whichever thread unblocks it or waits for it later.
-        let whole_process = blocked & bit != 0 && waiting & bit == 0 && timer.tid.load(Ordering::Relaxed) == 0;
-        send(timer, index, signo, overrun, (pid, tid), whole_process);
-        interrupts |= waiting & bit != 0 || (blocked & bit == 0 && !ignored(signo));
-    }
-    interrupts
-}
-
-/// Send the entry's signal: ITIMER_REAL's as the kernel sends SIGALRM; a POSIX timer's with
-/// SI_TIMER, its id, overrun and value (glibc's SIGEV_THREAD helper needs them); a followed
-/// thread's `kill` with SI_USER and the sender's pid and uid (the entry is then freed).
-fn send(timer: &SigTimer, index: usize, signo: c_int, overrun: u32, (pid, tid): (i32, i32), whole_process: bool) {
-    let (pid, tid, signo) = (pid as c_long, tid as c_long, signo as c_long);
-    let kind = timer.kind.load(Ordering::Relaxed);
-    if kind == timer_kind::ITIMER_REAL {
-        if whole_process {
-            native::call2(nr::KILL, pid, signo);
-        } else {
-            native::call3(nr::TGKILL, pid, tid, signo);
-        }
-        return;
-    }
-    // siginfo_t (128 bytes): signo, errno, code, then (at byte 16) the sender's pid and uid, or
-    // the timer's id, overrun and value.
-    let value = timer.value.load(Ordering::Relaxed);
-    let mut info = [0i32; 32];
-    info[0] = signo as i32;
-    if kind == timer_kind::SENT {
-        info[4] = value as u32 as i32;
-        info[5] = (value >> 32) as u32 as i32;
-        timer.state.store(timer_state::FREE, Ordering::Release);
-    } else {
-        info[2] = SI_TIMER;
-        info[4] = (timers::ID_BASE + index as i64) as i32;
-        info[5] = overrun.min(i32::MAX as u32) as i32;
-        info[6] = value as u32 as i32;
-        info[7] = (value >> 32) as u32 as i32;
-    }
-    let info = info.as_ptr() as c_long;
-    if whole_process {
-        native::call3(nr::RT_SIGQUEUEINFO, pid, signo, info);
-    } else {
-        native::call4(nr::RT_TGSIGQUEUEINFO, pid, tid, signo, info);
-    }
-}
-
-/// Whether `signo` is discarded on arrival (SIG_IGN, or a default action of nothing).
-fn ignored(signo: c_int) -> bool {
-    let mut action = [0usize; 4];
-    native::call4(nr::RT_SIGACTION, signo as c_long, 0, action.as_mut_ptr() as c_long, 8);
-    match action[0] {
-        0 => IGNORED_BY_DEFAULT.contains(&signo),
-        1 => true,
-        _ => false,
-    }
 }

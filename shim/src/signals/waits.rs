@@ -3,14 +3,15 @@
 use core::ffi::c_long;
 use core::sync::atomic::Ordering;
 
-use crate::Looked;
 use crate::abi::{NEVER, Shared, Wait, call, release};
 use crate::native;
 use crate::now::sim_now;
+use crate::park::Looked;
 use crate::sys::{nr, timespec};
 
 use super::timers::timespec_ns;
-use super::{EAGAIN, EINTR, EINVAL, program_mask};
+use super::{EAGAIN, EINTR, EINVAL};
+use crate::handlers::program_mask;
 
 /// Wait until a signal ends this wait, or `deadline`; why it ended (`release::SIGNAL`: a
 /// signal is pending for it). Signals come two ways: climbsim lets this thread go for a timer's
@@ -19,11 +20,11 @@ use super::{EAGAIN, EINTR, EINVAL, program_mask};
 /// the trap handler blocks them. For those it waits as a thread on a pipe does: looking at what
 /// is pending (`ends`) whenever climbsim asks, and every millisecond of wall time.
 fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -> u32 {
-    let Some(slot) = crate::my_slot() else { return release::ENDING };
-    let publish = || crate::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
+    let Some(slot) = crate::slot::my_slot() else { return release::ENDING };
+    let publish = || crate::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
     publish();
     loop {
-        match crate::wait_looking(shared, slot, &publish, |take| crate::Look::taking_nothing(ends(pending()).then_some(()), take)) {
+        match crate::park::wait_looking(shared, slot, &publish, |take| crate::park::Look::taking_nothing(ends(pending()).then_some(()), take)) {
             // Let go before its deadline for a wait it had ended itself: it waits on.
             Looked::Released(release::DEADLINE) if sim_now(shared) < deadline => publish(),
             Looked::Released(why) => return why,
@@ -35,7 +36,7 @@ fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -
 }
 
 pub(super) fn pause(shared: &Shared) -> Option<c_long> {
-    crate::note_call(shared, call::SIGNAL_WAIT);
+    crate::park::note_call(shared, call::SIGNAL_WAIT);
     let program_mask = program_mask();
     match wait_for_signal(shared, NEVER, |pending| pending & !program_mask != 0) {
         release::SIGNAL => Some(-EINTR),
@@ -54,10 +55,10 @@ pub(super) fn sigsuspend(shared: &Shared, mask: *const u64, size: i64, program_m
     if mask.is_null() || size != 8 {
         return Some(-EINVAL);
     }
-    crate::note_call(shared, call::SIGNAL_WAIT);
+    crate::park::note_call(shared, call::SIGNAL_WAIT);
     // SAFETY: the caller's sigset (8 bytes, as size says).
     let suspended = unsafe { *mask } & !crate::handlers::kept_signals();
-    let slot = crate::my_slot();
+    let slot = crate::slot::my_slot();
     if let Some(slot) = slot {
         slot.sig_blocked.store(suspended, Ordering::Relaxed);
     }
@@ -79,7 +80,7 @@ pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout:
     if set.is_null() || size != 8 {
         return Some(-EINVAL);
     }
-    crate::note_call(shared, call::SIGNAL_WAIT);
+    crate::park::note_call(shared, call::SIGNAL_WAIT);
     // SAFETY: the caller's sigset.
     let set_bits = unsafe { *set };
     let zero = timespec { tv_sec: 0, tv_nsec: 0 };
@@ -94,12 +95,12 @@ pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout:
         // SAFETY: the caller's timespec.
         let Some(ns) = timespec_ns(unsafe { &*timeout }) else { return Some(-EINVAL) };
         if ns == 0 {
-            crate::charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+            crate::park::charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
             return Some(-EAGAIN);
         }
         sim_now(shared).saturating_add(ns)
     };
-    let slot = crate::my_slot()?;
+    let slot = crate::slot::my_slot()?;
     slot.sig_waiting.store(set_bits, Ordering::Relaxed);
     let why = wait_for_signal(shared, deadline, |pending| pending & set_bits != 0);
     slot.sig_waiting.store(0, Ordering::Relaxed);
