@@ -20,9 +20,9 @@ fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> 
     note_call(shared, call::WAIT_CHILD);
     let slot = my_slot();
     // A child that has said it ends is waited for as a call that returns at once: the kernel is
-    // through with its exit within microseconds, and time must not move meanwhile. (Parked,
-    // the parent of a vfork child whose exec failed saw time move 4 ms in one run of 30: the
-    // kernel lets that parent go as the child ends, before its waitpid can be woken by it.)
+    // through with its exit within microseconds, and time must not move meanwhile. (Parked, the
+    // parent of a vfork child whose exec failed would see time move: the kernel lets that
+    // parent go as the child ends, before its waitpid can be woken by it.)
     if options & WNOHANG != 0 || slot.is_none() || (child > 0 && said_it_ends(shared, child as i32)) {
         charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
         return wait();

@@ -170,8 +170,8 @@ impl<T> Look<T> {
 /// run. A look of its own (the first after the thread parked, or one after a slice of wall
 /// time) may come while another thread runs: had it taken that thread's events, or made this
 /// one ready there (the other's next yield, or the turn it hands on as it parks, depends on who
-/// is ready), the run would have depended on the host (a Go program's runs differed, about one
-/// in 36 beside two busy loops). Such a look peeks, and if something is there, climbsim is told
+/// is ready), the run would have depended on the host (docs/performance-virtual-time.md
+/// measured it). Such a look peeks, and if something is there, climbsim is told
 /// (once: `told`) and asks every waiter once all threads have parked. What a look had to take
 /// (a join) is `held`, returned when climbsim asks (or the wait ends otherwise).
 pub(crate) fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, told: &mut bool, held: &mut Option<T>, look: impl FnOnce(bool) -> Look<T>) -> Option<T> {
@@ -271,10 +271,9 @@ pub(crate) fn wait_looking<T>(shared: &Shared, slot: &Slot, publish: &dyn Fn(), 
 /// doubling from 1 ms while nothing happens (climbsim asks whenever it matters, with every
 /// thread parked; these looks only catch what wakes a thread from outside, on the wall clock).
 /// Each look wakes the thread for microseconds, and many threads doing so every millisecond
-/// beside busy cores starved other tasks on Linux 6.18's scheduler for seconds (measured: the
-/// kernel's pty worker, which carries the replies to the controller, waited up to 30 s; eight
-/// threads sleeping 1 ms in a loop beside two busy loops starve a kworker 5 s, eight sleeping
-/// 50 ms do not).
+/// beside busy cores can starve other tasks, among them the kernel's pty worker that carries
+/// the replies to the controller (docs/performance-virtual-time.md, "A starved pty worker";
+/// `hil/bench/short-sleepers.sh` shows it).
 const OWN_LOOKS_AT_MOST_EVERY_NS: u64 = 64_000_000;
 
 /// Publish this thread as blocked or yielded until `deadline` (simulated ns), waiting on

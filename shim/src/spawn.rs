@@ -149,8 +149,7 @@ fn say_left(shared: &Shared, slot: &Slot, marker: c_int) {
 /// go as the child lets go of its memory, may wait for the end of a pipe the child still holds
 /// (Python's `subprocess` reads why the exec failed until then), which the kernel releases only
 /// as the child becomes a zombie. The child says it is going away in a slot of its own, and
-/// climbsim waits until it has gone (366 ms of simulated time passed meanwhile, in one run of
-/// four, before); so does its parent's waitpid for it (see `children.rs`).
+/// climbsim waits until it has gone; so does its parent's waitpid for it (see `children.rs`).
 pub(crate) fn vfork_child_exits() {
     if let Some(shared) = crate::block::active()
         && let Some(slot) = slot_of_its_own(shared, sys::gettid(), sys::getpid(), sys::getppid())

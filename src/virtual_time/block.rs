@@ -5,8 +5,8 @@ use std::os::fd::AsRawFd as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use super::VtError;
 use super::abi::{self, Shared};
+use super::error::VtError;
 
 /// Names of blocks made by this process: one per run (a sweep runs several at once).
 static NEXT_BLOCK: AtomicU64 = AtomicU64::new(0);

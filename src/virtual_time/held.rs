@@ -41,14 +41,12 @@ fn queued(fd: i32) -> usize {
 const COPY_LIMIT: usize = 64 * 1024;
 
 /// How long bytes climbsim writes to the pty may take to reach the controller's side before it
-/// goes on without them. The kernel's pty worker usually hands them over within microseconds.
-/// On a loaded machine it was seen to take seconds (once more than 30 s), with every controller
-/// thread parked and nothing read meanwhile. The worker is a kernel thread that Linux 6.18's
-/// scheduler left runnable and unrun for seconds beside busy cores while many threads woke for
-/// microseconds every millisecond (traced with the workqueue and sched events; a plain program
-/// of eight such threads beside two busy loops does it too): the controller's parked threads
-/// looking at the kernel, and climbsim's own looks here. Both now look less often the longer
-/// nothing happens. A controller let go before the bytes are there loses the replies
+/// goes on without them. The kernel's pty worker usually hands them over within microseconds,
+/// but a kernel thread can be left runnable and unrun for seconds beside busy cores while many
+/// threads wake for microseconds every millisecond (docs/performance-virtual-time.md, "A
+/// starved pty worker"): the controller's parked threads looking at the kernel, and climbsim's
+/// own looks here, both of which look less often the longer nothing happens. A controller let
+/// go before the bytes are there loses the replies
 /// and the run no longer repeats, so the wait is long: it costs only wall time, and past it the
 /// run fails ([`VirtualTime::cannot_repeat`]) rather than going on without them. A controller
 /// that does not read the port fills the terminal's buffer instead, which is handled apart.

@@ -15,6 +15,8 @@
 #[path = "../../shim/src/abi/mod.rs"]
 pub mod abi;
 mod block;
+mod error;
+mod futex;
 mod held;
 mod port;
 mod quiet;
@@ -29,32 +31,18 @@ mod watchdog;
 use std::future::Future;
 use std::os::fd::RawFd;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::task::{Context, Waker};
 use std::time::Duration;
 
-use thiserror::Error;
-
 use abi::{NEVER, mode, release, state};
 use block::Block;
+pub use error::VtError;
+use futex::{futex_wait, wake};
 pub use held::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, await_pty_hand_over};
 pub use shim_file::{shim_bytes, shim_path};
 pub use timer::Timer;
-use turns::wake;
-
-#[derive(Debug, Error)]
-pub enum VtError {
-    #[error("virtual time: the shim {path}: {what}: {source}")]
-    Shim { path: std::path::PathBuf, what: String, source: std::io::Error },
-    #[error("virtual time: the shared block {path}: {what}: {source}")]
-    Block { path: std::path::PathBuf, what: String, source: std::io::Error },
-    /// A controller that virtual time cannot follow (the watchdog's finding).
-    #[error("{0}")]
-    Stuck(String),
-    #[error("interrupted")]
-    Interrupted,
-}
 
 /// The model's knobs (docs/virtual-time.md, "What a busy loop costs").
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -393,8 +381,7 @@ impl VirtualTime {
             }
             let settled = self.settle(&mut watchdog, stop, due)?;
             // Judged with every thread parked: the thread that met the refusal has printed
-            // what it makes of it (a run failed at once lost the io_uring test's line, once,
-            // under load: climbsim had let the thread go and looked before it wrote).
+            // what it makes of it (judged at once, the run could end before it wrote).
             if settled == Settled::Parked
                 && let Some(refusal) = abi::refused::describe(header.refused.load(Ordering::Acquire))
             {
@@ -600,15 +587,4 @@ impl Drop for EndOnDrop {
     fn drop(&mut self) {
         self.0.end();
     }
-}
-
-fn futex_wait(word: &AtomicU32, expected: u32, timeout: Duration) {
-    let timeout = libc::timespec { tv_sec: timeout.as_secs() as libc::time_t, tv_nsec: libc::c_long::from(timeout.subsec_nanos() as i32) };
-    // SAFETY: a shared futex wait on a valid, aligned word in our mapping, with a valid timeout.
-    unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAIT, expected, &timeout as *const libc::timespec, 0usize, 0u32) };
-}
-
-fn futex_wake(word: &AtomicU32) {
-    // SAFETY: a shared futex wake on a valid, aligned word in our mapping.
-    unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAKE, i32::MAX) };
 }

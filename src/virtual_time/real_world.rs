@@ -14,7 +14,7 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use super::abi::{SLOTS, Shared, Slot, is_exec_marker_link, state};
-use super::{futex_wait, futex_wake};
+use super::futex::{futex_wait, futex_wake};
 
 /// A process still going away after this long (wall time) is no longer waited for: something
 /// else holds it (a debugger), and the run must not hang on it.

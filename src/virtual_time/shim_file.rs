@@ -8,8 +8,8 @@
 use std::io::Write as _;
 use std::path::PathBuf;
 
-use super::VtError;
 use super::abi;
+use super::error::VtError;
 
 static SHIM: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/libclimbsim_shim.so"));
 

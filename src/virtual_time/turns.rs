@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 
 use super::abi::protocol::{ChildWait, Decider};
 use super::abi::{self, NEVER, Slot, Wait, release, state};
-use super::{VirtualTime, futex_wake, lock, watchdog};
+use super::futex::wake;
+use super::{VirtualTime, lock, watchdog};
 
 impl VirtualTime {
     /// Give the turn to the ready thread in the lowest slot, if there is one (and no thread
@@ -145,12 +146,6 @@ pub(super) fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
     })
 }
 
-/// Wake a thread that was given the turn, or let go at the run's end.
-pub(super) fn wake(slot: &Slot) {
-    slot.wake_word.fetch_add(1, Ordering::AcqRel);
-    futex_wake(&slot.wake_word);
-}
-
 /// Which parked threads go at an instant.
 impl VirtualTime {
     /// Fire the port session's timers and the controller's signal timers due by `now`; a thread
@@ -173,9 +168,8 @@ impl VirtualTime {
         let mut blocked_on_port = false;
         // A thread that found by itself what woke it (its look at the kernel saw the port's
         // reply shown at this instant) is ready at this instant, as one let go here would be.
-        // Skipped, time would move on while it waits for its turn (an asyncio controller's
-        // epoll woken by its own look at a reply's instant then saw that reply and the next
-        // together, about one run in 60 beside two busy loops).
+        // Skipped, time would move on while it waits for its turn (an epoll woken by its own
+        // look at a reply's instant would then see that reply and the next together).
         let mut ready_already = false;
         for slot in self.shared().live_slots() {
             let parked = slot.state();

@@ -10,8 +10,8 @@ use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::VtError;
 use super::abi::{Shared, Slot, call, state};
+use super::error::VtError;
 use crate::proc_stat::{STATE, cpu_ticks, stat_field};
 
 /// How often running slots are checked for threads that died without saying so (killed).
