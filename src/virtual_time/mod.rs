@@ -164,7 +164,7 @@ pub struct VirtualTime {
     stats: Mutex<VtStats>,
     block: Block,
     settings: VtSettings,
-    timers: Mutex<timer::Timers>,
+    timers: Arc<timer::TimerWheel>,
     driven: Mutex<Vec<Driven>>,
     port: Mutex<Option<PortFds>>,
     held: Mutex<held::HeldBytes>,
@@ -184,6 +184,26 @@ impl std::fmt::Debug for VirtualTime {
 
 fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
     mutex.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// The pty session's timers (`timer.rs`'s wheel).
+impl VirtualTime {
+    /// A future that completes when simulated time reaches `due`.
+    pub fn timer(&self, due: Duration) -> Timer {
+        self.timers.timer(due)
+    }
+
+    fn next_timer(&self) -> u64 {
+        self.timers.next_due()
+    }
+
+    /// Fire every timer due by `now`, then let the driven futures act on them.
+    fn fire_timers(&self, now: u64) {
+        let fired = self.timers.fire(now);
+        lock(&self.stats).timers_fired += fired;
+        // Timers are the port session's (its replies and its inter-byte gaps).
+        self.poll_driven(Some(Serves::Port));
+    }
 }
 
 impl VirtualTime {
@@ -211,7 +231,7 @@ impl VirtualTime {
             stats: Mutex::default(),
             block,
             settings,
-            timers: Mutex::default(),
+            timers: Arc::default(),
             driven: Mutex::default(),
             port: Mutex::default(),
             held: Mutex::default(),

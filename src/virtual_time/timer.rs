@@ -1,62 +1,70 @@
 //! Timers on simulated time: the pty session's replies and inter-byte gaps wait on them, and
-//! the scheduler fires them at their instant (see [`VirtualTime::timer`]).
+//! the scheduler fires them at their instant (see [`VirtualTime::timer`](super::VirtualTime::timer)).
+//! The wheel knows nothing of the scheduler: the scheduler asks it what is due next and fires
+//! it, and a [`Timer`] holds only the wheel.
 
 use std::collections::{BTreeMap, HashSet};
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::task::{Context, Poll};
 use std::time::Duration;
 
 use tracing::debug;
 
 use super::abi::NEVER;
-use super::{Serves, VirtualTime, lock};
+
+/// The timers registered and not yet taken by their futures.
+#[derive(Default)]
+pub(super) struct TimerWheel(Mutex<Timers>);
 
 #[derive(Default)]
-pub(super) struct Timers {
+struct Timers {
     /// (due ns, sequence): registered and not fired.
     pending: BTreeMap<(u64, u64), ()>,
     fired: HashSet<u64>,
     next_seq: u64,
 }
 
-impl VirtualTime {
-    /// A future that completes when simulated time reaches `due`.
-    pub fn timer(self: &Arc<Self>, due: Duration) -> Timer {
+impl TimerWheel {
+    fn timers(&self) -> MutexGuard<'_, Timers> {
+        self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// A future that completes when `fire` reaches `due`.
+    pub(super) fn timer(self: &Arc<Self>, due: Duration) -> Timer {
         let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
-        let mut timers = lock(&self.timers);
+        let mut timers = self.timers();
         let seq = timers.next_seq;
         timers.next_seq += 1;
         timers.pending.insert((due, seq), ());
-        Timer { vt: Arc::clone(self), due, seq, done: false }
+        Timer { wheel: Arc::clone(self), due, seq, done: false }
     }
 
-    pub(super) fn next_timer(&self) -> u64 {
-        lock(&self.timers).pending.keys().next().map_or(NEVER, |&(due, _)| due)
+    /// When the next timer is due ([`NEVER`]: none is).
+    pub(super) fn next_due(&self) -> u64 {
+        self.timers().pending.keys().next().map_or(NEVER, |&(due, _)| due)
     }
 
-    /// Fire every timer due by `now`, then let the driven futures act on them.
-    pub(super) fn fire_timers(&self, now: u64) {
-        {
-            let mut timers = lock(&self.timers);
-            while let Some(&(due, seq)) = timers.pending.keys().next() {
-                if due > now {
-                    break;
-                }
-                timers.pending.remove(&(due, seq));
-                timers.fired.insert(seq);
-                lock(&self.stats).timers_fired += 1;
+    /// Fire every timer due by `now`; how many.
+    pub(super) fn fire(&self, now: u64) -> u64 {
+        let mut timers = self.timers();
+        let mut fired = 0;
+        while let Some(&(due, seq)) = timers.pending.keys().next() {
+            if due > now {
+                break;
             }
+            timers.pending.remove(&(due, seq));
+            timers.fired.insert(seq);
+            fired += 1;
         }
-        // Timers are the port session's (its replies and its inter-byte gaps).
-        self.poll_driven(Some(Serves::Port));
+        fired
     }
 }
 
-/// Completes when simulated time reaches its due time (see [`VirtualTime::timer`]).
+/// Completes when simulated time reaches its due time (see [`TimerWheel::timer`]).
 pub struct Timer {
-    vt: Arc<VirtualTime>,
+    wheel: Arc<TimerWheel>,
     due: u64,
     seq: u64,
     done: bool,
@@ -66,7 +74,7 @@ impl Future for Timer {
     type Output = ();
 
     fn poll(mut self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<()> {
-        let fired = lock(&self.vt.timers).fired.remove(&self.seq);
+        let fired = self.wheel.timers().fired.remove(&self.seq);
         if fired {
             self.done = true;
             debug!(due_ns = self.due, "virtual timer fired");
@@ -79,7 +87,7 @@ impl Future for Timer {
 impl Drop for Timer {
     fn drop(&mut self) {
         if !self.done {
-            let mut timers = lock(&self.vt.timers);
+            let mut timers = self.wheel.timers();
             timers.pending.remove(&(self.due, self.seq));
             timers.fired.remove(&self.seq);
         }
