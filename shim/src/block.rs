@@ -60,8 +60,8 @@ pub(crate) fn shared() -> Option<&'static Shared> {
 
 /// Tell climbsim's scheduler that a thread parked, yielded, ended or was refused: it decides.
 pub(crate) fn notify_scheduler(shared: &Shared) {
-    shared.header.sched_word.fetch_add(1, Ordering::AcqRel);
-    sys::futex_wake(&shared.header.sched_word);
+    shared.header.turns.sched_word.fetch_add(1, Ordering::AcqRel);
+    sys::futex_wake(&shared.header.turns.sched_word);
 }
 
 /// Something the controller did cannot be followed (`abi::refused`: a table had no room, an

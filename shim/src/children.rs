@@ -24,7 +24,7 @@ fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> 
     // parent of a vfork child whose exec failed would see time move: the kernel lets that
     // parent go as the child ends, before its waitpid can be woken by it.)
     if options & WNOHANG != 0 || slot.is_none() || (child > 0 && said_it_ends(shared, child as i32)) {
-        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
         return wait();
     }
     let slot = slot.expect("checked above");

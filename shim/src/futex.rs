@@ -140,7 +140,7 @@ fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, dea
     // applied in whole batches, and a parking thread's remainder is dropped), while a waiter is
     // still woken at its waker's very instant. The charge may yield (past the horizon) before
     // the word is checked, as a thread preempted on its way into the kernel would.
-    charge(shared, header.syscall_ns.load(Ordering::Relaxed));
+    charge(shared, header.clock.syscall_ns.load(Ordering::Relaxed));
     let hand = crate::turn::hand_on(shared, slot);
     lock(shared);
     let holds = word_holds(args.uaddr, args.val, args.op & FUTEX_PRIVATE_FLAG != 0);

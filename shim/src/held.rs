@@ -51,21 +51,21 @@ pub(crate) fn stream_at(shared: &Shared, now: u64) -> Stream {
     // that polls real descriptors meanwhile may look. A climbsim that died mid-write leaves the
     // count odd: after a while, everything written counts as visible.
     for _ in 0..10_000 {
-        let seq = header.held_seq.load(Ordering::Acquire);
+        let seq = header.port.held_seq.load(Ordering::Acquire);
         if seq & 1 == 1 {
             core::hint::spin_loop();
             continue;
         }
-        let written = header.port_rx_written.load(Ordering::Acquire);
+        let written = header.port.rx_written.load(Ordering::Acquire);
         let (visible, next_due) = header.port_visible_at(written, now);
         fence(Ordering::Acquire);
-        if header.held_seq.load(Ordering::Relaxed) == seq {
-            let taken = header.port_rx_taken.load(Ordering::Acquire);
+        if header.port.held_seq.load(Ordering::Relaxed) == seq {
+            let taken = header.port.rx_taken.load(Ordering::Acquire);
             return Stream { visible, written, taken, next_due };
         }
     }
-    let written = header.port_rx_written.load(Ordering::Acquire);
-    Stream { visible: written, written, taken: header.port_rx_taken.load(Ordering::Acquire), next_due: NEVER }
+    let written = header.port.rx_written.load(Ordering::Acquire);
+    Stream { visible: written, written, taken: header.port.rx_taken.load(Ordering::Acquire), next_due: NEVER }
 }
 
 pub(crate) fn stream_now(shared: &Shared) -> Stream {
@@ -75,7 +75,7 @@ pub(crate) fn stream_now(shared: &Shared) -> Stream {
 /// The controller read (or discarded) `bytes` of the port's stream.
 pub(crate) fn took(shared: &Shared, bytes: isize) {
     if bytes > 0 {
-        shared.header.port_rx_taken.fetch_add(bytes as u64, Ordering::AcqRel);
+        shared.header.port.rx_taken.fetch_add(bytes as u64, Ordering::AcqRel);
     }
 }
 
@@ -84,7 +84,7 @@ pub(crate) fn took(shared: &Shared, bytes: isize) {
 pub(crate) fn bound_horizon(shared: &Shared) {
     let next_due = stream_now(shared).next_due;
     if next_due != NEVER {
-        shared.header.horizon_ns.fetch_min(next_due, Ordering::AcqRel);
+        shared.header.clock.horizon_ns.fetch_min(next_due, Ordering::AcqRel);
     }
 }
 

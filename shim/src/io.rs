@@ -38,8 +38,8 @@ fn count_written(fd: c_int, written: isize, port: Option<&'static Shared>) {
     crate::net::count_sent(fd, written);
     if let Some(shared) = port {
         note_call(shared, call::WRITE);
-        shared.header.port_tx_total.fetch_add(written as u64, Ordering::AcqRel);
-        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        shared.header.port.tx_total.fetch_add(written as u64, Ordering::AcqRel);
+        charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
     }
 }
 
@@ -250,7 +250,7 @@ fn flush_port(shared: &'static Shared, fd: c_int, queue: c_int) -> c_int {
         let rc = real_ioctl(fd, TCFLSH, queue as usize as *mut c_void);
         if rc == 0 && input {
             // Everything written has been discarded.
-            shared.header.port_rx_taken.fetch_max(stream.written, Ordering::AcqRel);
+            shared.header.port.rx_taken.fetch_max(stream.written, Ordering::AcqRel);
         }
         return rc;
     }

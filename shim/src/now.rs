@@ -14,8 +14,8 @@ const TAI_OFFSET_NS: u64 = 37_000_000_000;
 /// What `clock` reads at simulated time `now`, if it is one the shim answers.
 pub(crate) fn clock_at(shared: &Shared, clock: clockid_t, now: u64) -> Option<u64> {
     let header = &shared.header;
-    let epoch = header.realtime_epoch_ns.load(Ordering::Relaxed);
-    let base = header.monotonic_base_ns.load(Ordering::Relaxed);
+    let epoch = header.clock.realtime_epoch_ns.load(Ordering::Relaxed);
+    let base = header.clock.monotonic_base_ns.load(Ordering::Relaxed);
     match clock {
         sys::CLOCK_REALTIME | sys::CLOCK_REALTIME_COARSE | sys::CLOCK_REALTIME_ALARM => Some(epoch + now),
         sys::CLOCK_TAI => Some(epoch + TAI_OFFSET_NS + now),
@@ -34,11 +34,11 @@ pub(crate) fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Op
 /// clock's rate from where it stopped.
 pub(crate) fn sim_now(shared: &Shared) -> u64 {
     let header = &shared.header;
-    let now = header.now_ns.load(Ordering::Acquire);
+    let now = header.clock.now_ns.load(Ordering::Acquire);
     let ended_at = match crate::block::orphaned_at() {
         Some(at) => at,
         None if header.mode.load(Ordering::Acquire) == mode::VIRTUAL => return now,
-        None => header.ending_wall_ns.load(Ordering::Acquire),
+        None => header.clock.ending_wall_ns.load(Ordering::Acquire),
     };
     now.saturating_add(real_monotonic_ns().saturating_sub(ended_at))
 }

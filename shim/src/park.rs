@@ -29,7 +29,7 @@ thread_local! {
 /// With `--controller-cpu F`: the CPU time this thread used since it was last charged, × F.
 /// Time spent parked (spinning for climbsim) is not the controller's and is skipped.
 pub(crate) fn charge_computation(shared: &Shared) {
-    let factor = shared.header.cpu_factor_ppm.load(Ordering::Relaxed);
+    let factor = shared.header.clock.cpu_factor_ppm.load(Ordering::Relaxed);
     if factor == 0 {
         return;
     }
@@ -43,7 +43,7 @@ pub(crate) fn charge_computation(shared: &Shared) {
 
 /// Forget the CPU time used until now (after a park: the spin was not the controller's work).
 pub(crate) fn reset_computation(shared: &Shared) {
-    if shared.header.cpu_factor_ppm.load(Ordering::Relaxed) != 0 {
+    if shared.header.clock.cpu_factor_ppm.load(Ordering::Relaxed) != 0 {
         CPU_SEEN.with(|c| c.set(thread_cpu_ns()));
     }
 }
@@ -55,7 +55,7 @@ pub(crate) fn note_call(shared: &Shared, call: u32) {
     if let Some(slot) = my_slot() {
         slot.calls.fetch_add(1, Ordering::Relaxed);
         slot.last_call.store(call, Ordering::Relaxed);
-        slot.last_call_ns.store(shared.header.now_ns.load(Ordering::Relaxed), Ordering::Relaxed);
+        slot.last_call_ns.store(shared.header.clock.now_ns.load(Ordering::Relaxed), Ordering::Relaxed);
     }
 }
 
@@ -63,7 +63,7 @@ pub(crate) fn note_call(shared: &Shared, call: u32) {
 /// move until it has, or their arrival would be stamped late.
 pub(crate) fn held(shared: &Shared) -> bool {
     let header = &shared.header;
-    header.port_tx_total.load(Ordering::Acquire) != header.port_tx_read.load(Ordering::Acquire)
+    header.port.tx_total.load(Ordering::Acquire) != header.port.tx_read.load(Ordering::Acquire)
         || shared.conns.iter().any(|c| c.client_port.load(Ordering::Relaxed) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire))
 }
 
@@ -71,7 +71,7 @@ pub(crate) fn held(shared: &Shared) -> bool {
 /// clock: by the thread itself up to climbsim's horizon, else by yielding to climbsim.
 pub(crate) fn charge(shared: &Shared, ns: u64) {
     let total = add_charge(ns);
-    if total < shared.header.batch_ns.load(Ordering::Relaxed) {
+    if total < shared.header.clock.batch_ns.load(Ordering::Relaxed) {
         return;
     }
     // Bytes in flight: the clock cannot move until climbsim has them, but yielding for a
@@ -82,7 +82,7 @@ pub(crate) fn charge(shared: &Shared, ns: u64) {
     forget_charges();
     let header = &shared.header;
     loop {
-        let now = header.now_ns.load(Ordering::Acquire);
+        let now = header.clock.now_ns.load(Ordering::Acquire);
         let target = now.saturating_add(total);
         // A thread that keeps the turn (a loop that polls what is already ready, a spin on the
         // clock) gives it up after a quantum, as the kernel's scheduler would: the threads
@@ -94,7 +94,7 @@ pub(crate) fn charge(shared: &Shared, ns: u64) {
         if advance_within_horizon(shared, now, target) {
             return;
         }
-        if header.now_ns.load(Ordering::Acquire) == now {
+        if header.clock.now_ns.load(Ordering::Acquire) == now {
             park(shared, Parked::Yielded, target, Wait::Time);
             return;
         }
@@ -106,7 +106,7 @@ pub(crate) fn charge(shared: &Shared, ns: u64) {
 /// waits for a lock's holder then lets the holder run, and moves the clock meanwhile).
 pub(crate) fn yield_turn(shared: &Shared) {
     note_call(shared, abi::call::YIELD);
-    charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+    charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
     if shared.live_slots().iter().any(|slot| slot.state() == state::READY) {
         park(shared, Parked::Yielded, sim_now(shared), Wait::Turn);
     }
@@ -116,14 +116,14 @@ pub(crate) fn yield_turn(shared: &Shared) {
 /// has due (the horizon) and climbsim has every byte the controller sent; whether it did.
 pub(crate) fn advance_within_horizon(shared: &Shared, now: u64, target: u64) -> bool {
     let header = &shared.header;
-    target <= header.horizon_ns.load(Ordering::Acquire) && !held(shared) && header.now_ns.compare_exchange(now, target, Ordering::AcqRel, Ordering::Acquire).is_ok()
+    target <= header.clock.horizon_ns.load(Ordering::Acquire) && !held(shared) && header.clock.now_ns.compare_exchange(now, target, Ordering::AcqRel, Ordering::Acquire).is_ok()
 }
 
 /// A thread about to wait on what the kernel wakes (a descriptor climbsim does not model, a
 /// thread's end): climbsim waits for its first look before it decides anything (see
 /// `wait::wait_on_real_world`).
 pub(crate) fn expect_look(shared: &Shared, slot: &Slot) {
-    let epoch = shared.header.check_epoch.load(Ordering::Acquire);
+    let epoch = shared.header.looks.check_epoch.load(Ordering::Acquire);
     WAIT_EPOCH.with(|e| e.set(epoch));
     slot.checked_epoch.store(epoch.wrapping_sub(1), Ordering::Relaxed);
 }
@@ -175,7 +175,7 @@ impl<T> Look<T> {
 /// (once: `told`) and asks every waiter once all threads have parked. What a look had to take
 /// (a join) is `held`, returned when climbsim asks (or the wait ends otherwise).
 pub(crate) fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, told: &mut bool, held: &mut Option<T>, look: impl FnOnce(bool) -> Look<T>) -> Option<T> {
-    let epoch = shared.header.check_epoch.load(Ordering::Acquire);
+    let epoch = shared.header.looks.check_epoch.load(Ordering::Acquire);
     let seen = slot.wake_word.load(Ordering::Acquire);
     let asked = epoch != WAIT_EPOCH.with(Cell::get) && slot.checked_epoch.load(Ordering::Acquire) != epoch;
     if asked {
@@ -202,8 +202,8 @@ pub(crate) fn look_at_kernel<T>(shared: &Shared, slot: &Slot, slice_ns: u64, tol
         }
     }
     if slot.checked_epoch.swap(epoch, Ordering::AcqRel) != epoch {
-        shared.header.checks_word.fetch_add(1, Ordering::AcqRel);
-        sys::futex_wake(&shared.header.checks_word);
+        shared.header.looks.checks_word.fetch_add(1, Ordering::AcqRel);
+        sys::futex_wake(&shared.header.looks.checks_word);
     }
     sys::futex_wait(&slot.wake_word, seen, slice_ns);
     None

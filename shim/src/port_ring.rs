@@ -8,7 +8,7 @@
 //! One writer at a time: the thread has its turn (its first followed call claims it), and
 //! signals are held while it copies and publishes, so that a handler that writes the port (a
 //! SIGTERM or SIGALRM handler's torque-off) cannot take the same offsets. climbsim counts the
-//! writers in flight (`Header::port_tx_ring_writers`): at the run's end it waits for them
+//! writers in flight (`Header::port.tx_ring_writers`): at the run's end it waits for them
 //! before it takes what is left for the clean-up's servos.
 
 use core::ffi::{c_int, c_long};
@@ -41,7 +41,7 @@ pub(crate) fn write(shared: &'static Shared, fd: c_int, parts: &[iovec]) -> Opti
         if room > 0 {
             let count = (wanted - written).min(room);
             copy_in(shared, parts, written, count);
-            header.port_tx_total.fetch_add(count as u64, Ordering::AcqRel);
+            header.port.tx_total.fetch_add(count as u64, Ordering::AcqRel);
             written += count;
         }
         // SAFETY: fcntl F_GETFL on the caller's descriptor.
@@ -50,7 +50,7 @@ pub(crate) fn write(shared: &'static Shared, fd: c_int, parts: &[iovec]) -> Opti
             break;
         }
         if room == 0 && !is_blocking && writer.yielded {
-            charge(shared, header.syscall_ns.load(Ordering::Relaxed));
+            charge(shared, header.clock.syscall_ns.load(Ordering::Relaxed));
             crate::epoll::port_was_full(shared);
             crate::sys::set_errno(crate::sys::EAGAIN);
             return Some(-1);
@@ -64,7 +64,7 @@ pub(crate) fn write(shared: &'static Shared, fd: c_int, parts: &[iovec]) -> Opti
             return if written > 0 { Some(written as isize) } else { None };
         }
     }
-    charge(shared, header.syscall_ns.load(Ordering::Relaxed));
+    charge(shared, header.clock.syscall_ns.load(Ordering::Relaxed));
     Some(written as isize)
 }
 
@@ -72,7 +72,7 @@ pub(crate) fn write(shared: &'static Shared, fd: c_int, parts: &[iovec]) -> Opti
 fn copy_in(shared: &Shared, parts: &[iovec], skip: usize, count: usize) {
     let _held = SignalsHeld::new();
     let header = &shared.header;
-    let start = header.port_tx_ring_written.load(Ordering::Acquire);
+    let start = header.port.tx_ring_written.load(Ordering::Acquire);
     let (mut offset, mut skip, mut left) = (start, skip, count);
     for part in parts {
         if left == 0 {
@@ -94,7 +94,7 @@ fn copy_in(shared: &Shared, parts: &[iovec], skip: usize, count: usize) {
         left -= take;
     }
     // Published before the stream's total grows: climbsim, seeing it, finds the bytes here.
-    header.port_tx_ring_written.store(start.wrapping_add(count as u64), Ordering::Release);
+    header.port.tx_ring_written.store(start.wrapping_add(count as u64), Ordering::Release);
 }
 
 /// Free bytes in the ring.
@@ -102,7 +102,7 @@ fn ring_room(shared: &Shared) -> usize {
     PORT_TX_RING.saturating_sub(usize::try_from(shared.port_tx_ring_unread()).unwrap_or(usize::MAX))
 }
 
-/// A writer in flight (`Header::port_tx_ring_writers`), entered only while the run is on.
+/// A writer in flight (`Header::port.tx_ring_writers`), entered only while the run is on.
 struct Writer {
     shared: &'static Shared,
     /// Whether it has yielded to climbsim (so that climbsim took what the ring held).
@@ -112,10 +112,10 @@ struct Writer {
 impl Writer {
     fn enter(shared: &'static Shared) -> Option<Self> {
         let header = &shared.header;
-        header.port_tx_ring_writers.fetch_add(1, Ordering::SeqCst);
+        header.port.tx_ring_writers.fetch_add(1, Ordering::SeqCst);
         // Counted before the look: climbsim sets ENDING, then waits for the count to fall.
         if header.mode.load(Ordering::SeqCst) != mode::VIRTUAL {
-            header.port_tx_ring_writers.fetch_sub(1, Ordering::SeqCst);
+            header.port.tx_ring_writers.fetch_sub(1, Ordering::SeqCst);
             return None;
         }
         Some(Self { shared, yielded: false })
@@ -135,7 +135,7 @@ impl Writer {
 
 impl Drop for Writer {
     fn drop(&mut self) {
-        self.shared.header.port_tx_ring_writers.fetch_sub(1, Ordering::SeqCst);
+        self.shared.header.port.tx_ring_writers.fetch_sub(1, Ordering::SeqCst);
     }
 }
 

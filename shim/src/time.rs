@@ -17,7 +17,7 @@ use crate::sys::{self, clockid_t, real, time_t, timespec, timeval};
 pub(crate) fn read_clock(clock: clockid_t) -> Option<u64> {
     if let Some(shared) = active() {
         note_call(shared, call::CLOCK);
-        charge(shared, shared.header.clock_read_ns.load(Ordering::Relaxed));
+        charge(shared, shared.header.clock.clock_read_ns.load(Ordering::Relaxed));
     }
     let shared = shared()?;
     clock_at(shared, clock, sim_now(shared))
@@ -71,7 +71,7 @@ pub unsafe extern "C" fn time(out: *mut time_t) -> time_t {
 pub(crate) fn sleep_until(shared: &Shared, deadline: u64) -> Option<u64> {
     note_call(shared, call::SLEEP);
     if deadline <= sim_now(shared) {
-        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
         return None;
     }
     match park(shared, Parked::Blocked, deadline, Wait::Time) {

@@ -146,7 +146,7 @@ pub unsafe extern "C" fn timerfd_settime(fd: c_int, flags: c_int, new: *const It
     timer.interval.store(to_ns(&new.interval), Ordering::Relaxed);
     timer.shown.store(false, Ordering::Relaxed);
     timer.expiry.store(expiry, Ordering::Release);
-    charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+    charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
     0
 }
 
@@ -195,7 +195,7 @@ pub(crate) fn read(fd: c_int, buf: *mut c_void, len: usize) -> Option<isize> {
         // SAFETY: fcntl F_GETFL on the program's descriptor.
         if unsafe { fcntl(fd, F_GETFL) } & O_NONBLOCK != 0 {
             crate::sys::set_errno(EAGAIN);
-            charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+            charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
             return Some(-1);
         }
         if park(shared, Parked::Blocked, expiry, Wait::Time) == release::ENDING {

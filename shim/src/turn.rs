@@ -69,22 +69,22 @@ pub(crate) fn took_turn(shared: &Shared) {
 pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
     let header = &shared.header;
     let now = real_monotonic_ns();
-    let spin = header.park_spin_ns.load(Ordering::Relaxed);
+    let spin = header.spin.park_spin_ns.load(Ordering::Relaxed);
     let mut spin_until = now.saturating_add(spin);
     // One thread at a time spins longer (see `abi::LONG_PARK_SPIN_NS`): several would take the
     // CPUs from climbsim and from the thread that has the turn.
     let long_until = now.saturating_add(abi::LONG_PARK_SPIN_NS);
-    let taken = header.long_spin_until.load(Ordering::Acquire);
-    let long = spin > 0 && taken <= now && header.long_spin_until.compare_exchange(taken, long_until, Ordering::AcqRel, Ordering::Relaxed).is_ok();
+    let taken = header.spin.long_spin_until.load(Ordering::Acquire);
+    let long = spin > 0 && taken <= now && header.spin.long_spin_until.compare_exchange(taken, long_until, Ordering::AcqRel, Ordering::Relaxed).is_ok();
     if long {
         spin_until = long_until;
     }
-    let turns = header.turns_given.load(Ordering::Acquire);
-    while slot.state() != state::RUNNING && real_monotonic_ns() < spin_until && header.turns_given.load(Ordering::Acquire) == turns {
+    let turns = header.turns.given.load(Ordering::Acquire);
+    while slot.state() != state::RUNNING && real_monotonic_ns() < spin_until && header.turns.given.load(Ordering::Acquire) == turns {
         core::hint::spin_loop();
     }
     if long {
-        let _ = header.long_spin_until.compare_exchange(long_until, 0, Ordering::AcqRel, Ordering::Relaxed);
+        let _ = header.spin.long_spin_until.compare_exchange(long_until, 0, Ordering::AcqRel, Ordering::Relaxed);
     }
 }
 
@@ -130,7 +130,7 @@ pub(crate) struct HandOn<'a> {
 /// end (its thread was killed in it) from one under way.
 pub(crate) fn hand_on<'a>(shared: &'a Shared, me: &'a Slot) -> HandOn<'a> {
     me.handing.store(1, Ordering::SeqCst);
-    shared.header.hand_ons_begun.fetch_add(1, Ordering::SeqCst);
+    shared.header.turns.hand_ons_begun.fetch_add(1, Ordering::SeqCst);
     HandOn { shared, me, ended: false }
 }
 
@@ -168,8 +168,8 @@ impl HandOn<'_> {
             return Handing::ClimbsimDecides;
         }
         let header = &shared.header;
-        header.turns_given.fetch_add(1, Ordering::Release);
-        header.turns_handed.fetch_add(1, Ordering::Relaxed);
+        header.turns.given.fetch_add(1, Ordering::Release);
+        header.turns.handed.fetch_add(1, Ordering::Relaxed);
         next.wake_word.fetch_add(1, Ordering::AcqRel);
         sys::futex_wake(&next.wake_word);
         Handing::Handed
@@ -178,7 +178,7 @@ impl HandOn<'_> {
     fn end(&mut self) {
         if !self.ended {
             self.ended = true;
-            self.shared.header.hand_ons_ended.fetch_add(1, Ordering::SeqCst);
+            self.shared.header.turns.hand_ons_ended.fetch_add(1, Ordering::SeqCst);
             self.me.handing.store(0, Ordering::SeqCst);
         }
     }

@@ -106,7 +106,7 @@ pub(crate) struct EpollCall {
 
 /// The descriptor is the servo port (the pty slave climbsim serves).
 pub(crate) fn is_port(shared: &Shared, fd: c_int) -> bool {
-    let port = shared.header.port_rdev.load(Ordering::Relaxed);
+    let port = shared.header.port.rdev.load(Ordering::Relaxed);
     port != 0 && sys::char_device(fd) == Some(port)
 }
 
@@ -121,7 +121,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     let look = |shown: bool| if shown { Some(TIMER_SHOWN_WITHIN_NS) } else { Some(0) };
     let ready = real_wait(look(interest.show_expired_timers(shared)));
     if ready != 0 {
-        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
         return ready;
     }
     let now = sim_now(shared);
@@ -149,7 +149,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
             spin_on_port(shared, now);
             return real_wait(Some(0));
         }
-        charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+        charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
         return 0;
     }
     if interest.other {
@@ -191,8 +191,8 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
     // Replies climbsim wrote ahead show at their instants without it: within the horizon the
     // thread moves on to the next itself.
     let held_due = crate::held::stream_at(shared, now).next_due;
-    let next_due = shared.header.port_next_due_ns.load(Ordering::Acquire).min(held_due);
-    let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
+    let next_due = shared.header.port.next_due_ns.load(Ordering::Acquire).min(held_due);
+    let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.clock.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
     if target <= now || !crate::park::advance_within_horizon(shared, now, target) {
         park(shared, Parked::Yielded, target.max(now), Wait::Spin);
     }

@@ -88,24 +88,24 @@ pub fn await_pty_hand_over(mut handed_over: impl FnMut() -> bool) -> bool {
 impl VirtualTime {
     /// Bytes of the port's stream the controller has taken (read or flushed), as the shim counts.
     pub fn port_taken_total(&self) -> u64 {
-        self.shared().header.port_rx_taken.load(Ordering::Acquire)
+        self.shared().header.port.rx_taken.load(Ordering::Acquire)
     }
 
     /// Bytes written to the port so far (the stream offset of the next byte).
     pub fn port_written_total(&self) -> u64 {
-        self.shared().header.port_rx_written.load(Ordering::Acquire)
+        self.shared().header.port.rx_written.load(Ordering::Acquire)
     }
 
     /// climbsim wrote `bytes` to the port (all of them now visible to the kernel).
     pub fn port_written(&self, bytes: &[u8]) {
         let header = &self.shared().header;
         let mut held = lock(&self.held);
-        let taken = header.port_rx_taken.load(Ordering::Acquire);
+        let taken = header.port.rx_taken.load(Ordering::Acquire);
         let consumed = usize::try_from(taken.saturating_sub(held.copy_start)).unwrap_or(usize::MAX).min(held.copy.len());
         held.copy.drain(..consumed);
         held.copy_start += consumed as u64;
         if held.copy.is_empty() {
-            held.copy_start = header.port_rx_written.load(Ordering::Acquire);
+            held.copy_start = header.port.rx_written.load(Ordering::Acquire);
         }
         held.copy.extend(bytes);
         // A controller that reads the port where the shim cannot count it never takes: keep
@@ -113,13 +113,13 @@ impl VirtualTime {
         let excess = held.copy.len().saturating_sub(COPY_LIMIT);
         held.copy.drain(..excess);
         held.copy_start += excess as u64;
-        header.port_rx_written.fetch_add(bytes.len() as u64, Ordering::AcqRel);
+        header.port.rx_written.fetch_add(bytes.len() as u64, Ordering::AcqRel);
     }
 
     /// Whether `runs` more held runs fit in the block.
     pub fn port_holds_room_for(&self, runs: usize) -> bool {
         self.prune_held_runs(self.now_ns());
-        let used = self.shared().header.held_runs.iter().filter(|r| r.due_ns.load(Ordering::Relaxed) != 0).count();
+        let used = self.shared().header.port.held_runs.iter().filter(|r| r.due_ns.load(Ordering::Relaxed) != 0).count();
         used + runs <= HELD_RUNS
     }
 
@@ -129,7 +129,7 @@ impl VirtualTime {
         let now = self.now_ns();
         self.prune_held_runs(now);
         self.edit_held_runs(|shared| {
-            let mut free = shared.header.held_runs.iter().filter(|r| r.due_ns.load(Ordering::Relaxed) == 0);
+            let mut free = shared.header.port.held_runs.iter().filter(|r| r.due_ns.load(Ordering::Relaxed) == 0);
             for &(start, due) in runs {
                 let due = u64::try_from(due.as_nanos()).unwrap_or(NEVER);
                 if due <= now {
@@ -148,12 +148,12 @@ impl VirtualTime {
 
     /// Forget the runs that are visible by `now`.
     fn prune_held_runs(&self, now: u64) {
-        let runs = &self.shared().header.held_runs;
+        let runs = &self.shared().header.port.held_runs;
         if runs.iter().all(|r| r.due_ns.load(Ordering::Relaxed) == 0 || r.due_ns.load(Ordering::Relaxed) > now) {
             return;
         }
         self.edit_held_runs(|shared| {
-            for run in &shared.header.held_runs {
+            for run in &shared.header.port.held_runs {
                 let due = run.due_ns.load(Ordering::Relaxed);
                 if due != 0 && due <= now {
                     run.due_ns.store(0, Ordering::Relaxed);
@@ -166,7 +166,7 @@ impl VirtualTime {
     /// Change the runs under the sequence lock the shim reads them with.
     fn edit_held_runs(&self, edit: impl FnOnce(&Shared)) {
         let shared = self.shared();
-        let seq = &shared.header.held_seq;
+        let seq = &shared.header.port.held_seq;
         seq.fetch_add(1, Ordering::AcqRel);
         std::sync::atomic::fence(Ordering::Release);
         edit(shared);
@@ -188,7 +188,7 @@ impl VirtualTime {
 
     /// [`Self::port_unread_visible`], and how far into the port's stream bytes are visible.
     pub(super) fn port_unread_and_visible(&self) -> (usize, u64) {
-        let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
+        let taken = self.shared().header.port.rx_taken.load(Ordering::Acquire);
         let (visible, _) = self.shared().header.port_visible_at(self.port_written_total(), self.now_ns());
         if visible <= taken {
             return (0, visible);
@@ -216,7 +216,7 @@ impl VirtualTime {
     pub fn rewrite_held_bytes(&self, start: u64, bytes: &[u8]) {
         let Some(port) = *lock(&self.port) else { return };
         let mut held = lock(&self.held);
-        let taken = self.shared().header.port_rx_taken.load(Ordering::Acquire);
+        let taken = self.shared().header.port.rx_taken.load(Ordering::Acquire);
         let Some(from) = start.checked_sub(held.copy_start).and_then(|o| usize::try_from(o).ok()) else { return };
         for (index, &byte) in bytes.iter().enumerate() {
             if let Some(slot) = held.copy.get_mut(from + index) {

@@ -211,15 +211,15 @@ impl VirtualTime {
         let block = Block::create()?;
         let header = &block.shared().header;
         header.abi.store(abi::ABI, Ordering::Relaxed);
-        header.realtime_epoch_ns.store(settings.epoch_unix_s.saturating_mul(1_000_000_000), Ordering::Relaxed);
-        header.monotonic_base_ns.store(MONOTONIC_BASE_NS, Ordering::Relaxed);
-        header.clock_read_ns.store(settings.clock_read_ns, Ordering::Relaxed);
-        header.syscall_ns.store(settings.syscall_ns, Ordering::Relaxed);
-        header.batch_ns.store(BATCH_NS, Ordering::Relaxed);
-        header.spin_cap_ns.store(settings.spin_cap_ns, Ordering::Relaxed);
-        header.port_next_due_ns.store(NEVER, Ordering::Relaxed);
+        header.clock.realtime_epoch_ns.store(settings.epoch_unix_s.saturating_mul(1_000_000_000), Ordering::Relaxed);
+        header.clock.monotonic_base_ns.store(MONOTONIC_BASE_NS, Ordering::Relaxed);
+        header.clock.clock_read_ns.store(settings.clock_read_ns, Ordering::Relaxed);
+        header.clock.syscall_ns.store(settings.syscall_ns, Ordering::Relaxed);
+        header.clock.batch_ns.store(BATCH_NS, Ordering::Relaxed);
+        header.clock.spin_cap_ns.store(settings.spin_cap_ns, Ordering::Relaxed);
+        header.port.next_due_ns.store(NEVER, Ordering::Relaxed);
         header.climbsim_pid.store(std::process::id() as i32, Ordering::Relaxed);
-        header.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
+        header.clock.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         // Slot 0 is the process climbsim starts (reserve_process).
         header.slots_high.store(1, Ordering::Relaxed);
@@ -247,7 +247,7 @@ impl VirtualTime {
     }
 
     pub fn stats(&self) -> VtStats {
-        let handed = self.shared().header.turns_handed.load(Ordering::Relaxed);
+        let handed = self.shared().header.turns.handed.load(Ordering::Relaxed);
         let stats = *lock(&self.stats);
         VtStats { turns: stats.turns + handed, turns_handed: handed, ..stats }
     }
@@ -258,11 +258,11 @@ impl VirtualTime {
 
     /// Simulated time now.
     pub fn now(&self) -> Duration {
-        Duration::from_nanos(self.shared().header.now_ns.load(Ordering::Acquire))
+        Duration::from_nanos(self.shared().header.clock.now_ns.load(Ordering::Acquire))
     }
 
     fn now_ns(&self) -> u64 {
-        self.shared().header.now_ns.load(Ordering::Acquire)
+        self.shared().header.clock.now_ns.load(Ordering::Acquire)
     }
 
     /// What a controller needs in its environment to run on this clock: the preload and the
@@ -317,7 +317,7 @@ impl VirtualTime {
     fn held_by(&self) -> (bool, bool) {
         let shared = self.shared();
         let header = &shared.header;
-        let port = header.port_tx_read.load(Ordering::Acquire) != header.port_tx_total.load(Ordering::Acquire);
+        let port = header.port.tx_read.load(Ordering::Acquire) != header.port.tx_total.load(Ordering::Acquire);
         let sensors = shared.conns.iter().any(|c| c.client_port.load(Ordering::Acquire) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire));
         (port, sensors)
     }
@@ -347,7 +347,7 @@ impl VirtualTime {
         let mut wall = libc::timespec { tv_sec: 0, tv_nsec: 0 };
         // SAFETY: a valid timespec for the call.
         unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut wall) };
-        header.ending_wall_ns.store(wall.tv_sec as u64 * 1_000_000_000 + wall.tv_nsec as u64, Ordering::Release);
+        header.clock.ending_wall_ns.store(wall.tv_sec as u64 * 1_000_000_000 + wall.tv_nsec as u64, Ordering::Release);
         header.mode.store(mode::ENDING, Ordering::Release);
         // The driven futures hold this scheduler (through their clocks): dropping them ends
         // the cycle, so that the block is removed when the run lets go of it.
@@ -384,9 +384,9 @@ impl VirtualTime {
             }
             // Clients that are not followed (a person's curl) are still answered meanwhile.
             self.poll_driven(None);
-            let seen = header.sched_word.load(Ordering::Acquire);
+            let seen = header.turns.sched_word.load(Ordering::Acquire);
             if !self.controller_attached() {
-                futex_wait(&header.sched_word, seen, Duration::from_millis(20));
+                futex_wait(&header.turns.sched_word, seen, Duration::from_millis(20));
             }
         }
         loop {
@@ -435,16 +435,16 @@ impl VirtualTime {
                     // `settle`), so nothing it can see depends on the race.
                     lock(&self.stats).jumps += 1;
                     self.trace_jump(plan.next);
-                    let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
+                    let now = header.clock.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
                     self.let_go_at(now, next_timer, next_timer.min(self.next_held_due(now)));
                     return Ok(());
                 }
-                header.now_ns.fetch_max(due, Ordering::AcqRel);
+                header.clock.now_ns.fetch_max(due, Ordering::AcqRel);
                 return Ok(());
             }
             lock(&self.stats).jumps += 1;
             self.trace_jump(plan.next);
-            let now = header.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
+            let now = header.clock.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
             self.fire_all(now);
         }
     }
@@ -461,7 +461,7 @@ impl VirtualTime {
             if watchdog.due() {
                 watchdog.check(self.shared())?;
             }
-            let seen = header.sched_word.load(Ordering::Acquire);
+            let seen = header.turns.sched_word.load(Ordering::Acquire);
             if !self.any_running() {
                 // What the threads that ran wrote may have woken threads waiting on the real
                 // world: they look before anything is decided.
@@ -507,15 +507,15 @@ impl VirtualTime {
             // A controller thread usually parks again within tens of microseconds: spin that
             // long before sleeping on the futex (its wake-up costs more on a VM).
             let spin = if self.spin && lock(&self.quiet).now() { SPIN } else { Duration::ZERO };
-            header.park_spin_ns.store(spin.as_nanos() as u64, Ordering::Relaxed);
+            header.spin.park_spin_ns.store(spin.as_nanos() as u64, Ordering::Relaxed);
             let spin_until = std::time::Instant::now() + spin;
-            while header.sched_word.load(Ordering::Acquire) == seen && !self.ran_past(due) && std::time::Instant::now() < spin_until {
+            while header.turns.sched_word.load(Ordering::Acquire) == seen && !self.ran_past(due) && std::time::Instant::now() < spin_until {
                 std::hint::spin_loop();
             }
-            if header.sched_word.load(Ordering::Acquire) != seen || self.ran_past(due) {
+            if header.turns.sched_word.load(Ordering::Acquire) != seen || self.ran_past(due) {
                 continue;
             }
-            futex_wait(&header.sched_word, seen, Duration::from_millis(10));
+            futex_wait(&header.turns.sched_word, seen, Duration::from_millis(10));
         }
     }
 
@@ -540,14 +540,14 @@ impl VirtualTime {
         let header = &self.shared().header;
         let until = std::time::Instant::now() + within;
         loop {
-            let seen = header.sched_word.load(Ordering::Acquire);
+            let seen = header.turns.sched_word.load(Ordering::Acquire);
             if !self.any_running() {
                 return true;
             }
             if stop.load(Ordering::Relaxed) || std::time::Instant::now() >= until {
                 return false;
             }
-            futex_wait(&header.sched_word, seen, Duration::from_millis(1));
+            futex_wait(&header.turns.sched_word, seen, Duration::from_millis(1));
         }
     }
 

@@ -17,14 +17,14 @@ impl VirtualTime {
         let mut stat: libc::stat = unsafe { std::mem::zeroed() };
         // SAFETY: fstat of climbsim's own descriptor into a valid struct.
         if unsafe { libc::fstat(slave, &mut stat) } == 0 {
-            self.shared().header.port_rdev.store(stat.st_rdev, Ordering::Release);
+            self.shared().header.port.rdev.store(stat.st_rdev, Ordering::Release);
         }
         *lock(&self.port) = Some(PortFds { master, slave });
     }
 
     /// climbsim has read `bytes` more from the port (and so time-stamped them).
     pub fn port_read(&self, bytes: usize) {
-        self.shared().header.port_tx_read.fetch_add(bytes as u64, Ordering::AcqRel);
+        self.shared().header.port.tx_read.fetch_add(bytes as u64, Ordering::AcqRel);
     }
 
     /// Take what the controller wrote to the port through the block's ring (see
@@ -33,14 +33,14 @@ impl VirtualTime {
     pub fn take_port_ring(&self, out: &mut [u8]) -> usize {
         let shared = self.shared();
         let header = &shared.header;
-        let start = header.port_tx_ring_read.load(Ordering::Acquire);
+        let start = header.port.tx_ring_read.load(Ordering::Acquire);
         // Never more than a ring's worth: the count is the shim's, which climbsim does not trust.
         let unread = shared.port_tx_ring_unread().min(abi::PORT_TX_RING as u64);
         let count = usize::try_from(unread).unwrap_or(usize::MAX).min(out.len());
         for (index, byte) in out[..count].iter_mut().enumerate() {
             *byte = shared.port_tx_ring_at(start.wrapping_add(index as u64)).load(Ordering::Relaxed);
         }
-        header.port_tx_ring_read.store(start.wrapping_add(count as u64), Ordering::Release);
+        header.port.tx_ring_read.store(start.wrapping_add(count as u64), Ordering::Release);
         self.port_read(count);
         count
     }
@@ -51,7 +51,7 @@ impl VirtualTime {
     pub fn take_port_ring_rest(&self) -> Vec<u8> {
         let shared = self.shared();
         let since = std::time::Instant::now();
-        while shared.header.port_tx_ring_writers.load(Ordering::SeqCst) != 0 && since.elapsed() < RING_WRITERS_FINISH_WITHIN {
+        while shared.header.port.tx_ring_writers.load(Ordering::SeqCst) != 0 && since.elapsed() < RING_WRITERS_FINISH_WITHIN {
             std::thread::yield_now();
         }
         let unread = shared.port_tx_ring_unread().min(abi::PORT_TX_RING as u64);

@@ -28,7 +28,7 @@ const ANSWER_WAIT: Duration = Duration::from_millis(1);
 const UNANSWERED: Duration = Duration::from_millis(50);
 
 pub(super) struct RealWorld {
-    /// `Header::sched_word` when the check epoch was last bumped: threads ran since, if it moved.
+    /// `Header::turns.sched_word` when the check epoch was last bumped: threads ran since, if it moved.
     epoch_for_sched: Option<u32>,
     /// Per slot: the thread id last seen gone for good (its slot is not looked at again).
     gone: Vec<i32>,
@@ -59,13 +59,13 @@ impl RealWorld {
             std::thread::sleep(Duration::from_micros(50));
             return false;
         }
-        let sched = header.sched_word.load(Ordering::Acquire);
+        let sched = header.turns.sched_word.load(Ordering::Acquire);
         if self.epoch_for_sched != Some(sched) {
             self.epoch_for_sched = Some(sched);
-            header.check_epoch.fetch_add(1, Ordering::AcqRel);
+            header.looks.check_epoch.fetch_add(1, Ordering::AcqRel);
         }
-        let epoch = header.check_epoch.load(Ordering::Acquire);
-        let answers = header.checks_word.load(Ordering::Acquire);
+        let epoch = header.looks.check_epoch.load(Ordering::Acquire);
+        let answers = header.looks.checks_word.load(Ordering::Acquire);
         let mut looked = true;
         for slot in waiting().filter(|s| s.checked_epoch.load(Ordering::Acquire) != epoch) {
             looked = false;
@@ -74,7 +74,7 @@ impl RealWorld {
         }
         if !looked {
             let asked = *self.asked_since.get_or_insert_with(Instant::now);
-            futex_wait(&header.checks_word, answers, ANSWER_WAIT);
+            futex_wait(&header.looks.checks_word, answers, ANSWER_WAIT);
             if asked.elapsed() > UNANSWERED {
                 // One that never answers may have been killed (SIGKILL runs no clean-up).
                 for slot in waiting().filter(|s| s.checked_epoch.load(Ordering::Acquire) != epoch && !alive(s)) {

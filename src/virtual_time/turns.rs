@@ -22,7 +22,7 @@ impl VirtualTime {
             && slot.give_turn()
         {
             lock(&self.stats).turns += 1;
-            self.shared().header.turns_given.fetch_add(1, Ordering::Release);
+            self.shared().header.turns.given.fetch_add(1, Ordering::Release);
             wake(slot);
         }
         ready.is_some()
@@ -57,11 +57,11 @@ impl VirtualTime {
     }
 
     /// A thread runs, or may: one is being created, is in a waitpid the kernel is about to
-    /// return from, or is handing its turn on (`Header::hand_ons_begun`: climbsim decides
+    /// return from, or is handing its turn on (`Header::turns.hand_ons_begun`: climbsim decides
     /// nothing on a look that such a hand-over overlapped).
     pub(super) fn any_running(&self) -> bool {
         let header = &self.shared().header;
-        let ended = header.hand_ons_ended.load(Ordering::SeqCst);
+        let ended = header.turns.hand_ons_ended.load(Ordering::SeqCst);
         // In waitpid: blocked only while a child it waits for lives; else the kernel is about
         // to return it (its child has just ended).
         let child_wait = |slots: &[Slot], s: &Slot| {
@@ -69,7 +69,7 @@ impl VirtualTime {
         };
         let running = matches!(self.shared().who_decides(child_wait), Decider::AnotherRuns);
         running || {
-            let begun = header.hand_ons_begun.load(Ordering::SeqCst);
+            let begun = header.turns.hand_ons_begun.load(Ordering::SeqCst);
             let mut hand_ons = lock(&self.hand_ons);
             begun != ended.wrapping_add(hand_ons.written_off) && !hand_ons.write_off_dead(self.shared(), begun, ended)
         }
@@ -80,7 +80,7 @@ impl VirtualTime {
 /// looks for hand-overs whose threads were killed in them (a pool's worker ended by SIGTERM).
 const HAND_ON_STALL: Duration = Duration::from_millis(20);
 
-/// Hand-overs of the turn between threads that never ended (see `Header::hand_ons_begun`).
+/// Hand-overs of the turn between threads that never ended (see `Header::turns.hand_ons_begun`).
 #[derive(Default)]
 pub(super) struct HandOns {
     /// What the counts differ by with no hand-over under way (`begun == ended + written_off`):
@@ -205,8 +205,8 @@ impl VirtualTime {
         // Not the world's next tick: a thread may run past it (the world catches up). Nor a
         // held reply's instant, unless a thread blocked on the port must be let go then.
         let horizon = next_thread.min(next_timer).min(if blocked_on_port { next_reply } else { NEVER });
-        header.horizon_ns.store(horizon, Ordering::Release);
-        header.port_next_due_ns.store(next_timer, Ordering::Release);
+        header.clock.horizon_ns.store(horizon, Ordering::Release);
+        header.port.next_due_ns.store(next_timer, Ordering::Release);
         let released = !due_now.is_empty() || ready_already;
         if released {
             let mut stats = lock(&self.stats);
@@ -282,8 +282,8 @@ mod tests {
     fn hand_overs_of_killed_threads_are_written_off_and_a_live_ones_is_not() {
         let vt = VirtualTime::create(VtSettings::default()).expect("a block");
         let header = &vt.shared().header;
-        header.hand_ons_begun.store(7, Ordering::SeqCst);
-        header.hand_ons_ended.store(5, Ordering::SeqCst);
+        header.turns.hand_ons_begun.store(7, Ordering::SeqCst);
+        header.turns.hand_ons_ended.store(5, Ordering::SeqCst);
         let slot = &vt.shared().slots[0];
         slot.pid.store(std::process::id() as i32, Ordering::Relaxed);
         // SAFETY: gettid has no arguments and cannot fail.
@@ -306,9 +306,9 @@ mod tests {
         }
         assert!(!running, "written off within two stalls");
         assert_eq!(slot.handing.load(Ordering::SeqCst), 0, "the dead thread's mark is cleared");
-        header.hand_ons_begun.store(8, Ordering::SeqCst);
+        header.turns.hand_ons_begun.store(8, Ordering::SeqCst);
         assert!(vt.any_running(), "a new hand-over is under way");
-        header.hand_ons_ended.store(6, Ordering::SeqCst);
+        header.turns.hand_ons_ended.store(6, Ordering::SeqCst);
         assert!(!vt.any_running(), "and has ended");
     }
 }

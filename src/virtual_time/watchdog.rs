@@ -101,7 +101,7 @@ impl Watchdog {
             // Threads run: whatever was held is theirs to send on (a wait for it starts anew).
             self.held_since = None;
         }
-        let now = shared.header.now_ns.load(Ordering::Acquire);
+        let now = shared.header.clock.now_ns.load(Ordering::Acquire);
         if now != self.time.0 {
             self.time = (now, Instant::now());
         }

@@ -9,7 +9,7 @@ use core::sync::atomic::{AtomicI32, AtomicI64, AtomicU8, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 17;
+pub const ABI: u32 = 18;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -28,7 +28,7 @@ pub const SIG_TIMERS: usize = 256;
 /// before it gives up its turn, as a kernel's time slice: a loop that polls what is ready and
 /// never blocks would otherwise keep every other thread from running.
 pub const TURN_QUANTUM_NS: u64 = 1_000_000;
-/// How long (wall time) one parked thread at a time spins, where `Header::park_spin_ns` lets
+/// How long (wall time) one parked thread at a time spins, where `Header::spin.park_spin_ns` lets
 /// threads spin at all, instead of that: a single-threaded controller's wait for its replies
 /// outlasts the world's ticks up to them (half a millisecond or more), and a thread woken from
 /// its futex then costs tens of microseconds more than one that spun.
@@ -173,12 +173,44 @@ pub struct Header {
     pub abi: AtomicU32,
     /// C: see [`mode`].
     pub mode: AtomicU32,
-    /// S bumps it (and wakes climbsim's scheduler) whenever a thread blocks, yields or exits.
-    pub sched_word: AtomicU32,
-    /// C: bumped when a scheduling decision is due after threads ran: every thread waiting on
-    /// descriptors climbsim does not model (a pipe, an eventfd) looks at them again first, and
-    /// says so in `Slot::checked_epoch`, since what a thread that ran wrote may have woken it.
-    pub check_epoch: AtomicU32,
+    /// C: climbsim's process: a shim whose climbsim is gone leaves virtual time.
+    pub climbsim_pid: AtomicI32,
+    /// S: see [`refused`].
+    pub refused: AtomicU32,
+    /// Simulated time and what the controller's calls cost in it.
+    pub clock: Clock,
+    /// Whose turn it is (see `protocol::Shared::who_decides`).
+    pub turns: Turns,
+    /// The looks at the kernel that climbsim asks for after threads ran.
+    pub looks: Looks,
+    /// Who spins while parked, instead of sleeping on its futex.
+    pub spin: Spin,
+    /// The servo port's two streams.
+    pub port: PortStream,
+    /// C: the sensor server's TCP port and IPv4 address (network order), 0 before there is one.
+    pub sensor_port: AtomicU32,
+    pub sensor_ip: AtomicU32,
+    /// S: every intercepted call, all threads: the watchdog's sign of life.
+    pub calls: AtomicU64,
+    /// S: threads in a wait for another thread (wakers look for them only when there are some).
+    pub peer_waiters: AtomicU32,
+    /// S: the lock over every slot's futex queue fields (0 free, 1 held, 2 held with sleepers).
+    pub futex_lock: AtomicU32,
+    /// S: the last futex ticket handed out.
+    pub futex_tickets: AtomicU64,
+    /// S (and C for slot 0): one past the highest slot ever taken; raised before a slot is, so
+    /// that a scan up to it never misses a thread.
+    pub slots_high: AtomicU32,
+    /// S: one past the highest signal timer used so far (scans stop there).
+    pub sig_timers_high: AtomicU32,
+    /// S: slots reserved for threads created by a trapped clone and not claimed yet (see
+    /// [`RAW_CLONE_TID`]).
+    pub raw_clones: AtomicU32,
+}
+
+/// `Header::clock`: simulated time, and what the controller's calls cost in it.
+#[repr(C)]
+pub struct Clock {
     /// C (and S within the horizon): simulated time, ns since the run's start.
     pub now_ns: AtomicU64,
     /// C: a thread may move `now_ns` itself (charging its calls) up to here, not beyond.
@@ -197,59 +229,18 @@ pub struct Header {
     pub batch_ns: AtomicU64,
     /// C: the longest jump of a spin on an empty port with nothing due on it.
     pub spin_cap_ns: AtomicU64,
-    /// C: the servo port's device number (the pty slave's st_rdev); 0 before there is one.
-    pub port_rdev: AtomicU64,
-    /// S: bytes the controller has written to the port.
-    pub port_tx_total: AtomicU64,
-    /// C: of those, the bytes climbsim has read (and so time-stamped).
-    pub port_tx_read: AtomicU64,
-    /// C: the sensor server's TCP port and IPv4 address (network order), 0 before there is one.
-    pub sensor_port: AtomicU32,
-    pub sensor_ip: AtomicU32,
-    /// S: every intercepted call, all threads: the watchdog's sign of life.
-    pub calls: AtomicU64,
-    /// C: when the next reply byte is due on the port ([`NEVER`]: none is).
-    pub port_next_due_ns: AtomicU64,
-    /// C: climbsim's process: a shim whose climbsim is gone leaves virtual time.
-    pub climbsim_pid: AtomicI32,
-    /// S bumps it (and wakes the futex) when a thread has looked again for `check_epoch`.
-    pub checks_word: AtomicU32,
     /// C: each thread's CPU time is also charged, × this / 1e6 (`--controller-cpu`; 0: free).
     pub cpu_factor_ppm: AtomicU64,
-    /// S: threads in a wait for another thread (wakers look for them only when there are some).
-    pub peer_waiters: AtomicU32,
-    /// C: how long (wall time) a parked thread spins before it sleeps on its futex: 0 on one
-    /// CPU or where the machine is busy (a spin would take the CPU from the very thread it waits
-    /// for). climbsim alone decides, for both sides.
-    pub park_spin_ns: AtomicU64,
-    /// S: until when (CLOCK_MONOTONIC, ns) the thread that took the long spin
-    /// ([`LONG_PARK_SPIN_NS`]) spins; a thread
-    /// that parks takes it when this has passed, and gives it back (0) when it stops spinning.
-    /// A thread killed while it spins holds it only until then.
-    pub long_spin_until: AtomicU64,
-    /// C: odd while climbsim rewrites `held_runs` (a sequence lock: the shim reads them again).
-    pub held_seq: AtomicU32,
-    /// S: the lock over every slot's futex queue fields (0 free, 1 held, 2 held with sleepers).
-    pub futex_lock: AtomicU32,
-    /// S: the last futex ticket handed out.
-    pub futex_tickets: AtomicU64,
-    /// C: reply bytes climbsim has written to the port, in all (a stream offset).
-    pub port_rx_written: AtomicU64,
-    /// S: of those, the bytes the controller has read, or flushed while they were visible.
-    pub port_rx_taken: AtomicU64,
-    /// S (and C for slot 0): one past the highest slot ever taken; raised before a slot is, so
-    /// that a scan up to it never misses a thread.
-    pub slots_high: AtomicU32,
-    /// S: see [`refused`].
-    pub refused: AtomicU32,
-    /// C: bumped each time climbsim gives a thread its turn: a parked thread stops spinning
-    /// once another has it (it would take the CPU that thread needs).
-    pub turns_given: AtomicU32,
-    /// S: one past the highest signal timer used so far (scans stop there).
-    pub sig_timers_high: AtomicU32,
-    /// S: slots reserved for threads created by a trapped clone and not claimed yet (see
-    /// [`RAW_CLONE_TID`]).
-    pub raw_clones: AtomicU32,
+}
+
+/// `Header::turns`: whose turn it is, and the hand-overs between threads.
+#[repr(C)]
+pub struct Turns {
+    /// S bumps it (and wakes climbsim's scheduler) whenever a thread blocks, yields or exits.
+    pub sched_word: AtomicU32,
+    /// C (and S handing on): bumped each time a thread is given its turn: a parked thread stops
+    /// spinning once another has it (it would take the CPU that thread needs).
+    pub given: AtomicU32,
     /// S: hand-overs of the turn from a parking thread to the next ready one (see
     /// [`Shared::next_turn`]) begun, and ended. climbsim reads `hand_ons_ended` before it looks
     /// at the slots and `hand_ons_begun` after: if they differ, a hand-over overlapped its look,
@@ -257,21 +248,66 @@ pub struct Header {
     pub hand_ons_begun: AtomicU64,
     pub hand_ons_ended: AtomicU64,
     /// S: turns a parking thread handed on itself, without climbsim.
-    pub turns_handed: AtomicU64,
+    pub handed: AtomicU64,
+}
+
+/// `Header::looks`: the looks at the kernel that climbsim asks for after threads ran.
+#[repr(C)]
+pub struct Looks {
+    /// C: bumped when a scheduling decision is due after threads ran: every thread waiting on
+    /// descriptors climbsim does not model (a pipe, an eventfd) looks at them again first, and
+    /// says so in `Slot::checked_epoch`, since what a thread that ran wrote may have woken it.
+    pub check_epoch: AtomicU32,
+    /// S bumps it (and wakes the futex) when a thread has looked again for `check_epoch`.
+    pub checks_word: AtomicU32,
+}
+
+/// `Header::spin`: who spins while parked, instead of sleeping on its futex.
+#[repr(C)]
+pub struct Spin {
+    /// C: how long (wall time) a parked thread spins before it sleeps on its futex: 0 on one
+    /// CPU or where the machine is busy (a spin would take the CPU from the very thread it waits
+    /// for). climbsim alone decides, for both sides.
+    pub park_spin_ns: AtomicU64,
+    /// S: until when (CLOCK_MONOTONIC, ns) the thread that took the long spin
+    /// ([`LONG_PARK_SPIN_NS`]) spins; a thread that parks takes it when this has passed, and
+    /// gives it back (0) when it stops spinning. A thread killed while it spins holds it only
+    /// until then.
+    pub long_spin_until: AtomicU64,
+}
+
+/// `Header::port`: the servo port's two streams, the controller's requests (tx) and the
+/// replies (rx), as offsets both sides count.
+#[repr(C)]
+pub struct PortStream {
+    /// C: the servo port's device number (the pty slave's st_rdev); 0 before there is one.
+    pub rdev: AtomicU64,
+    /// S: bytes the controller has written to the port.
+    pub tx_total: AtomicU64,
+    /// C: of those, the bytes climbsim has read (and so time-stamped).
+    pub tx_read: AtomicU64,
+    /// S: of `tx_total`, the bytes that went through `Shared::port_tx_ring` (the ring's stream
+    /// offset).
+    pub tx_ring_written: AtomicU64,
+    /// C: of those, the bytes climbsim has taken from the ring.
+    pub tx_ring_read: AtomicU64,
+    /// S: threads writing into the ring now. A writer counts itself, then looks at `mode`;
+    /// climbsim sets [`mode::ENDING`], then waits for this to be 0 before it takes what the
+    /// ring holds for the clean-up's servos.
+    pub tx_ring_writers: AtomicU32,
+    /// C: odd while climbsim rewrites `held_runs` (a sequence lock: the shim reads them again).
+    pub held_seq: AtomicU32,
+    /// C: when the next reply byte is due on the port ([`NEVER`]: none is).
+    pub next_due_ns: AtomicU64,
+    /// C: reply bytes climbsim has written to the port, in all (a stream offset).
+    pub rx_written: AtomicU64,
+    /// S: of those, the bytes the controller has read, or flushed while they were visible.
+    pub rx_taken: AtomicU64,
     /// C: replies written ahead of their time: the bytes from `HeldRun::start` on become visible
     /// at `HeldRun::due_ns` (and not before the runs ahead of them in the stream). The shim hides
     /// what is not visible yet from reads, polls and FIONREAD, so that a Sync Read's eight
     /// replies cost one write and no hand-over each. Unused runs have `due_ns` 0.
     pub held_runs: [HeldRun; HELD_RUNS],
-    /// S: of `port_tx_total`, the bytes that went through `Shared::port_tx_ring` (the ring's
-    /// stream offset).
-    pub port_tx_ring_written: AtomicU64,
-    /// C: of those, the bytes climbsim has taken from the ring.
-    pub port_tx_ring_read: AtomicU64,
-    /// S: threads writing into the ring now. A writer counts itself, then looks at `mode`;
-    /// climbsim sets [`mode::ENDING`], then waits for this to be 0 before it takes what the
-    /// ring holds for the clean-up's servos.
-    pub port_tx_ring_writers: AtomicU32,
 }
 
 impl Header {
@@ -282,7 +318,7 @@ impl Header {
     /// they are.)
     pub fn port_visible_at(&self, written: u64, now: u64) -> (u64, u64) {
         let (mut visible, mut next_due) = (written, NEVER);
-        for run in &self.held_runs {
+        for run in &self.port.held_runs {
             let due = run.due_ns.load(core::sync::atomic::Ordering::Relaxed);
             let start = run.start.load(core::sync::atomic::Ordering::Relaxed);
             if due > now && start < visible {
@@ -347,7 +383,7 @@ pub struct Slot {
     /// S, under `Header::futex_lock`: the order it queued in (wake-ups go first come, first
     /// served, as the kernel's do among equal priorities).
     pub futex_ticket: AtomicU64,
-    /// S: the last `Header::check_epoch` at which this thread, waiting on descriptors climbsim
+    /// S: the last `Header::looks.check_epoch` at which this thread, waiting on descriptors climbsim
     /// does not model, found none of them ready.
     pub checked_epoch: AtomicU32,
     /// C: signal timers fired for this thread that it has not sent itself yet (see
@@ -364,7 +400,7 @@ pub struct Slot {
     /// S: the thread's `pthread_t` (what `pthread_self` returns in it): a join names the
     /// thread it waits for by it.
     pub thread: AtomicU64,
-    /// S: 1 while the thread hands its turn on (see `Header::hand_ons_begun`): set before the
+    /// S: 1 while the thread hands its turn on (see `Header::turns.hand_ons_begun`): set before the
     /// hand-over is counted as begun, cleared after it is counted as ended, so that a hand-over
     /// whose thread was killed in it can be found (the slot's thread is gone) and written off.
     pub handing: AtomicU32,
@@ -486,8 +522,8 @@ impl Shared {
     /// Bytes in the port's ring that climbsim has not taken.
     pub fn port_tx_ring_unread(&self) -> u64 {
         use core::sync::atomic::Ordering::Acquire;
-        let read = self.header.port_tx_ring_read.load(Acquire);
-        self.header.port_tx_ring_written.load(Acquire).saturating_sub(read)
+        let read = self.header.port.tx_ring_read.load(Acquire);
+        self.header.port.tx_ring_written.load(Acquire).saturating_sub(read)
     }
 
     /// The ring's place for byte `offset` of its stream (both sides count the stream, the ring

@@ -64,7 +64,7 @@ pub(crate) fn trapped(number: i64, a: [i64; 6], program_mask: u64) -> Option<c_l
 
 fn charged_call(shared: &Shared, what: u32) {
     crate::park::note_call(shared, what);
-    crate::park::charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+    crate::park::charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
 }
 
 /// Take a free timer (or one whose process has gone), busy for its process to fill in.

@@ -95,7 +95,7 @@ pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout:
         // SAFETY: the caller's timespec.
         let Some(ns) = timespec_ns(unsafe { &*timeout }) else { return Some(-EINVAL) };
         if ns == 0 {
-            crate::park::charge(shared, shared.header.syscall_ns.load(Ordering::Relaxed));
+            crate::park::charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
             return Some(-EAGAIN);
         }
         sim_now(shared).saturating_add(ns)
