@@ -46,10 +46,11 @@ fn said_it_ends(shared: &Shared, pid: i32) -> bool {
 /// This process is ending: a parent waiting for it runs again from now.
 pub(crate) fn wake_waiting_parent(shared: &Shared, pid: i32, parent: i32) {
     for slot in shared.live_slots() {
-        let Wait::Child(awaited) = slot.wait() else { continue };
+        // The state first (Acquire): the wait read after it is the one its park published.
         if slot.pid.load(Ordering::Relaxed) != parent || slot.state() != state::BLOCKED {
             continue;
         }
+        let Wait::Child(awaited) = slot.wait() else { continue };
         if awaited <= 0 || awaited == i64::from(pid) {
             slot.make_ready(None);
         }
