@@ -68,6 +68,18 @@ fn compare(transcript: &std::path::Path, robot: &std::path::Path, out: &std::pat
         .expect("run climbsim compare")
 }
 
+/// `climbsim compare TRANSCRIPT` on the flat line with the shipped robot, into `out`.
+fn compare_on_flat_line(transcript: &std::path::Path, out: &std::path::Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["compare"])
+        .arg(transcript)
+        .args(["--scenario", "scenarios/flat-line.toml", "--out"])
+        .arg(out)
+        .current_dir(support::repo())
+        .output()
+        .expect("run climbsim compare")
+}
+
 #[test]
 fn a_tapped_session_of_the_reference_controller_tells_the_real_robot_from_the_shipped_world() {
     let dir = support::scratch_dir("real-robot");
@@ -439,14 +451,7 @@ fn a_fast_sync_read_session_is_compared_per_servo() {
     let path = dir.join("fast.jsonl");
     fast_read_session(&path, &[1, 2, 3, 4, 5, 6, 7, 8], |id| 2048 + i32::from(id));
     let out = dir.join("compared");
-    let compared = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["compare"])
-        .arg(&path)
-        .args(["--scenario", "scenarios/flat-line.toml", "--out"])
-        .arg(&out)
-        .current_dir(support::repo())
-        .output()
-        .expect("run climbsim compare");
+    let compared = compare_on_flat_line(&path, &out);
     let text = support::output_text(&compared);
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("compare.json")).unwrap_or_else(|e| panic!("{e}: {text}"))).expect("JSON");
     assert_eq!(report["replies_compared"], 800, "eight servos in each of 100 combined replies: {text}");
@@ -492,14 +497,7 @@ fn the_robots_missed_replies_and_bus_errors_are_on_the_compare_recordings_log() 
     }
     recorder.finish_with(&RealRecord::End { t: 1_100_000_000, why: "written by the test".into(), from_controller: 0, from_servos: 0 }).expect("complete");
     let out = dir.join("compared");
-    let compared = Command::new(env!("CARGO_BIN_EXE_climbsim"))
-        .args(["compare"])
-        .arg(&path)
-        .args(["--scenario", "scenarios/flat-line.toml", "--out"])
-        .arg(&out)
-        .current_dir(support::repo())
-        .output()
-        .expect("run climbsim compare");
+    let compared = compare_on_flat_line(&path, &out);
     let text = support::output_text(&compared);
     let bytes = std::fs::read(out.join("compare.mcap")).unwrap_or_else(|e| panic!("compare.mcap: {e}: {text}"));
     let mut lines = Vec::new();
