@@ -21,6 +21,7 @@
 //! | [`Slot::unreserve`] | starting | free | S any: a creation or an exec that failed |
 //! | [`Slot::start_in_turn`] | starting, running | ready | S own: a new thread or process waits for its first turn |
 //! | [`Slot::park`] | running | blocked, yielded | S own: a wait, or time given up |
+//! | [`Slot::park_again`] | running | blocked, yielded | S own: the same wait, after a release that was not for it |
 //! | [`Slot::make_ready`] | blocked, yielded | ready | C: at its instant; S any: a waker (futex, peer, child, signal); S own: the kernel woke it |
 //! | [`Slot::give_turn`] | ready | running | C, or S any: a thread handing the turn on as it parks |
 //! | [`Slot::let_go_at_end`] | blocked, yielded, ready | running | C: the run ended; S own: the run ended or climbsim is gone |
