@@ -217,8 +217,8 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
                 // the kernel: the instance is readable for them, whose instants climbsim keeps
                 // (it lets this thread go when they show). Told then, climbsim asked every
                 // waiter at an instant the host chose, and this one, at a reply's instant, woke
-                // by its own look or by climbsim's release as the two raced: a Node.js
-                // controller's schedule differed in about one loaded run in six.
+                // by its own look or by climbsim's release as the two raced, and the schedule
+                // would depend on the host (docs/performance-virtual-time.md measured it).
                 let port_bytes_in_kernel = interest.port && {
                     let stream = crate::held::stream_now(shared);
                     stream.written > stream.taken
