@@ -126,7 +126,7 @@ pub(crate) fn my_slot() -> Option<&'static Slot> {
 
 /// Whether process `pid` is followed (one of its threads has a slot).
 fn followed(shared: &Shared, pid: i32) -> bool {
-    shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == pid && !matches!(s.state(), state::FREE | state::EXITED))
+    shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == pid && s.is_live())
 }
 
 /// A thread that has just claimed `slot` waits, ready, for its turn (without climbsim, or
@@ -199,7 +199,7 @@ pub(crate) fn creating_thread<T>(create: impl FnOnce() -> T) -> T {
 /// fails the run naming it, rather than leave a thread unfollowed without a word.
 pub(crate) fn take_free_slot(shared: &Shared, take: fn(&Slot) -> bool) -> Option<(usize, &Slot)> {
     for (index, slot) in shared.slots.iter().enumerate().skip(1) {
-        if !matches!(slot.state(), state::FREE | state::EXITED) || !crate::marker::exec_over(slot) {
+        if slot.is_live() || !crate::marker::exec_over(slot) {
             continue;
         }
         // Scans stop at the high-water mark: it is raised before the slot is taken.

@@ -279,7 +279,7 @@ impl VirtualTime {
     }
 
     fn controller_attached(&self) -> bool {
-        self.shared().live_slots().iter().any(|s| matches!(s.state(), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY))
+        self.shared().live_slots().iter().any(abi::Slot::is_live)
     }
 
     /// Hold time until the process about to be started has loaded the shim (it takes this slot).

@@ -151,5 +151,5 @@ fn alive(slot: &Slot) -> bool {
 /// The thread also holds another slot that is in use (one it moved to, as a thread created
 /// with explicit scheduling does).
 fn followed_elsewhere(shared: &Shared, index: usize, tid: i32) -> bool {
-    shared.live_slots().iter().enumerate().any(|(other, s)| other != index && s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state(), state::FREE | state::EXITED))
+    shared.live_slots().iter().enumerate().any(|(other, s)| other != index && s.tid.load(Ordering::Relaxed) == tid && s.is_live())
 }

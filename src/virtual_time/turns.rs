@@ -7,7 +7,7 @@
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::abi::protocol::{ChildWait, Decider};
+use super::abi::protocol::ChildWait;
 use super::abi::{self, NEVER, Slot, Wait, release, state};
 use super::futex::wake;
 use super::{VirtualTime, lock, watchdog};
@@ -45,7 +45,7 @@ impl VirtualTime {
             .live_slots()
             .iter()
             .enumerate()
-            .filter(|(_, s)| !matches!(s.state(), state::FREE | state::EXITED))
+            .filter(|(_, s)| s.is_live())
             .map(|(i, s)| {
                 let deadline = s.deadline_ns.load(Ordering::Relaxed);
                 let until = if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) };
@@ -67,7 +67,7 @@ impl VirtualTime {
         let child_wait = |slots: &[Slot], s: &Slot| {
             if waits_on_live_child(slots, s) || watchdog::has_unfollowed_child(slots, s) { ChildWait::Blocked } else { ChildWait::Returning }
         };
-        let running = matches!(self.shared().who_decides(child_wait), Decider::AnotherRuns);
+        let running = self.shared().another_runs(child_wait);
         running || {
             let begun = header.turns.hand_ons_begun.load(Ordering::SeqCst);
             let mut hand_ons = lock(&self.hand_ons);
@@ -141,7 +141,7 @@ pub(super) fn waits_on_live_child(slots: &[Slot], parent: &Slot) -> bool {
     let pid = parent.pid.load(Ordering::Relaxed);
     let Wait::Child(awaited) = parent.wait() else { return false };
     slots.iter().any(|child| {
-        let live = matches!(child.state(), state::RUNNING | state::RESERVED | state::BLOCKED | state::YIELDED | state::READY);
+        let live = child.is_live();
         live && child.parent.load(Ordering::Relaxed) == pid && (awaited <= 0 || i64::from(child.pid.load(Ordering::Relaxed)) == awaited)
     })
 }

@@ -245,7 +245,7 @@ fn reserved_thread_orphaned(slot: &Slot) -> bool {
 fn followed_tracer(shared: &Shared, slot: &Slot) -> Option<i32> {
     let status = std::fs::read_to_string(format!("{}/status", stat_path(slot)?)).ok()?;
     let tracer: i32 = status.lines().find_map(|line| line.strip_prefix("TracerPid:"))?.trim().parse().ok()?;
-    let followed = shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == tracer && !matches!(s.state(), state::FREE | state::EXITED));
+    let followed = shared.live_slots().iter().any(|s| s.pid.load(Ordering::Relaxed) == tracer && s.is_live());
     (tracer > 0 && followed).then_some(tracer)
 }
 
@@ -335,7 +335,7 @@ fn livelock(shared: &Shared, after: Duration, now: u64) -> String {
     let threads: Vec<String> = shared
         .live_slots()
         .iter()
-        .filter(|s| !matches!(s.state(), state::FREE | state::EXITED))
+        .filter(|s| s.is_live())
         .map(|slot| {
             let (thread, task) = thread_name(slot);
             let followed = state::name(slot.state());

@@ -357,6 +357,14 @@ pub enum Decider<'a> {
     Turn(&'a Slot),
 }
 
+/// Step 1 of the rule of the turn, as [`Shared::runners`] found it.
+enum Runners {
+    /// Another thread runs, is being created, or is returning from waitpid.
+    Another,
+    /// None does; `child_unknown`: a thread is in waitpid with a fate the asker cannot tell.
+    Nobody { child_unknown: bool },
+}
+
 /// Why climbsim decides (see [`Decider::Climbsim`]).
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 pub enum Why {
@@ -382,8 +390,9 @@ impl Shared {
 
     /// Who decides what happens next, once the asker has published its own state: the one
     /// rule of the turn, for the shim's thread that parks or ends (it hands the turn on itself
-    /// when the answer is [`Decider::Turn`], else tells climbsim) and for climbsim's scheduler
-    /// (it waits while [`Decider::AnotherRuns`], else decides). In order:
+    /// when the answer is [`Decider::Turn`], else tells climbsim). climbsim's scheduler waits
+    /// while step 1 holds ([`Shared::another_runs`]), then settles the rest itself: the looks,
+    /// the refusal, the turns. In order:
     ///
     /// 1. another thread runs (running, starting, or `child_wait` says it is returning from
     ///    waitpid): it decides later;
@@ -393,27 +402,40 @@ impl Shared {
     /// 3. the turn, to the ready thread whose turn it is ([`Shared::next_turn`]);
     /// 4. climbsim, with no thread ready.
     pub fn who_decides(&self, child_wait: impl Fn(&[Slot], &Slot) -> ChildWait) -> Decider<'_> {
-        let slots = self.live_slots();
-        let mut climbsim = None;
-        for slot in slots {
-            match slot.state() {
-                RUNNING | RESERVED => return Decider::AnotherRuns,
-                BLOCKED if slot.in_waitpid() => match child_wait(slots, slot) {
-                    ChildWait::Returning => return Decider::AnotherRuns,
-                    ChildWait::Unknown => climbsim = climbsim.or(Some(Why::ChildWait)),
-                    ChildWait::Blocked => {}
-                },
-                BLOCKED if self.must_look(slot) => climbsim = climbsim.or(Some(Why::MustLook)),
-                _ => {}
-            }
-        }
+        let Runners::Nobody { child_unknown } = self.runners(child_wait) else { return Decider::AnotherRuns };
         if self.header.refused.load(Acquire) != 0 {
             return Decider::Climbsim(Why::Refused);
         }
-        if let Some(why) = climbsim {
-            return Decider::Climbsim(why);
+        if self.live_slots().iter().any(|slot| self.must_look(slot)) {
+            return Decider::Climbsim(Why::MustLook);
+        }
+        if child_unknown {
+            return Decider::Climbsim(Why::ChildWait);
         }
         self.next_turn().map_or(Decider::Climbsim(Why::NoneReady), Decider::Turn)
+    }
+
+    /// Step 1 of the rule of the turn ([`Shared::who_decides`]): another thread runs, is being
+    /// created, or is returning from the kernel's waitpid (as `child_wait` tells).
+    pub fn another_runs(&self, child_wait: impl Fn(&[Slot], &Slot) -> ChildWait) -> bool {
+        matches!(self.runners(child_wait), Runners::Another)
+    }
+
+    fn runners(&self, child_wait: impl Fn(&[Slot], &Slot) -> ChildWait) -> Runners {
+        let slots = self.live_slots();
+        let mut child_unknown = false;
+        for slot in slots {
+            match slot.state() {
+                RUNNING | RESERVED => return Runners::Another,
+                BLOCKED if slot.in_waitpid() => match child_wait(slots, slot) {
+                    ChildWait::Returning => return Runners::Another,
+                    ChildWait::Unknown => child_unknown = true,
+                    ChildWait::Blocked => {}
+                },
+                _ => {}
+            }
+        }
+        Runners::Nobody { child_unknown }
     }
 
     /// `waiter` joins a thread that is followed and has not ended: it is blocked until that
@@ -704,12 +726,14 @@ mod tests {
         // The lowest ready thread has the turn.
         let shared = block_with(&[BLOCKED, READY, READY]);
         assert!(is(shared.who_decides(never), &shared.slots[1]));
+        assert!(!shared.another_runs(never), "ready threads wait for the turn: none runs");
         // A thread that runs, or one being created, decides later, whatever else waits.
         for runner in [RUNNING, RESERVED] {
             let shared = block_with(&[READY, BLOCKED, runner]);
             shared.slots[1].set_wait(Wait::Kernel { port: false, conns: 0 });
             shared.header.refused.store(1, Relaxed);
             assert!(matches!(shared.who_decides(never), Decider::AnotherRuns), "{}", state::name(runner));
+            assert!(shared.another_runs(never), "{}", state::name(runner));
         }
         // A wait on the kernel: climbsim asks for a look before any turn.
         let shared = block_with(&[READY, BLOCKED]);
@@ -722,6 +746,8 @@ mod tests {
         let shared = block_with(&[READY, BLOCKED]);
         shared.slots[1].set_wait(Wait::Child(-1));
         assert!(matches!(shared.who_decides(|_, _| ChildWait::Returning), Decider::AnotherRuns));
+        assert!(shared.another_runs(|_, _| ChildWait::Returning));
+        assert!(!shared.another_runs(|_, _| ChildWait::Unknown) && !shared.another_runs(|_, _| ChildWait::Blocked));
         assert!(matches!(shared.who_decides(|_, _| ChildWait::Unknown), Decider::Climbsim(Why::ChildWait)));
         assert!(is(shared.who_decides(|_, _| ChildWait::Blocked), &shared.slots[0]));
         // The asker is seen as it published itself: parked, exited or ready, never running.

@@ -15,7 +15,7 @@
 use core::ffi::{c_int, c_long};
 use core::sync::atomic::Ordering;
 
-use crate::abi::{NEVER, Shared, SigTimer, call, release, state, timer_kind, timer_state};
+use crate::abi::{NEVER, Shared, SigTimer, call, release, timer_kind, timer_state};
 use crate::native;
 use crate::sys::{self, nr};
 
@@ -94,7 +94,7 @@ const SENT_AS_THEY_ARE: [c_int; 4] = [0, 9, 18, 19];
 
 /// The process a followed thread `tid` belongs to.
 fn pid_of_thread(shared: &Shared, tid: i32) -> Option<i32> {
-    shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && !matches!(s.state(), state::FREE | state::EXITED)).map(|s| s.pid.load(Ordering::Relaxed))
+    shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && s.is_live()).map(|s| s.pid.load(Ordering::Relaxed))
 }
 
 /// `kill`, `tgkill` or `tkill` of a followed process or thread (`tid` 0: the process) by
