@@ -18,16 +18,16 @@ use crate::runner::view::{LiveAddress, ViewOptions};
 use crate::scenario::{ExternalController, Scenario};
 use crate::sensor_server::SensorFeed;
 use crate::transport::{Adapter, BusHandle, Clock as BusClock, VirtualPort};
-use crate::virtual_time::VirtualTime;
 
-use super::clock::{Pace, TimeBase, VirtualClock, WallClock};
-use super::feed::{WorldFailed, observer_hook, start_sensor_server};
+use super::clock::Pace;
+use super::feed::{WorldFailed, observer_hook};
 use super::observe::{require_line, scenario_bus};
 use super::outputs::{RunOutcome, failures, fault_summary, finish_timing_report, record_failure, settings_json, write_outputs};
 use super::process::{Controller, Launch, param_env, resolve_command};
 use super::recording::{RecordSpec, finish_recording, record_sensor_reads, start_recording};
-use super::serve::pty::{after_the_run, drive_pty, serve_after_the_run, serve_pty};
+use super::serve::pty::{after_the_run, serve_after_the_run, serve_pty};
 use super::ticks::{HandleTicks, Ticked, run_ticks};
+use super::time_base::{TickSource, Timekeeping, spawn_logged};
 use super::{Console, During as _, Result, RunnerError};
 
 /// The external controller's bus timing report in a run's output folder.
@@ -63,6 +63,7 @@ struct WatchedTicks<'a> {
     world: HandleTicks,
     controller: &'a mut Controller,
     clock: BusClock,
+    time: TickSource,
     exit: Option<Exit>,
     error: Option<RunnerError>,
     /// Under virtual time, the controller's process went on without the shim (it exec'd with
@@ -81,17 +82,17 @@ impl Ticked for WatchedTicks<'_> {
         }
         // Under virtual time the exit is seen when the shim saw it (at one simulated instant on
         // every run), not whenever the kernel's reaping comes round on the wall clock.
-        let status = match self.clock.virtual_time() {
+        let status = match self.time.controller_ended_before(at) {
+            None => self.controller.try_wait(),
             Some(_) if self.unfollowed => self.controller.try_wait(),
             // Seen at the first tick after the exit's own simulated time (the world may be
             // catching up with a controller that ran ahead).
-            Some(vt) if vt.first_process_ended_before(at) => {
+            Some(true) => {
                 let status = self.controller.wait_for_ending();
                 self.unfollowed = matches!(status, Ok(None));
                 status
             }
-            Some(_) => Ok(None),
-            None => self.controller.try_wait(),
+            Some(false) => Ok(None),
         };
         match status {
             Ok(None) => ControlFlow::Continue(()),
@@ -132,12 +133,8 @@ pub fn run_external(
     let foxglove_url = observer.start_view(&view, &mut bus)?;
     let observer = Arc::new(Mutex::new(observer));
     let recorder = options.record.map(|spec| start_recording(spec, "run", scenario, robot, &bus, baud)).transpose()?;
-    let virtual_time = match options.pace.time {
-        TimeBase::Virtual(settings) => Some(VirtualTime::create(settings)?),
-        TimeBase::Wall => None,
-    };
-    let _ends = virtual_time.as_ref().map(VirtualTime::end_on_drop);
-    let clock = virtual_time.as_ref().map_or_else(|| BusClock::scaled(options.pace.speed), |vt| BusClock::on_virtual_time(Arc::clone(vt)));
+    let time = Timekeeping::assemble(&options.pace)?;
+    let clock = time.bus_clock();
     let handle = BusHandle::with_clock(bus, None, recorder, clock.clone());
     let feed = Arc::new(SensorFeed::default());
     record_sensor_reads(&handle, &feed);
@@ -147,21 +144,14 @@ pub fn run_external(
     // wait for that nor delay a reply (sharing one thread cost replies milliseconds of lateness).
     let runtime = |name: &str| tokio::runtime::Builder::new_multi_thread().worker_threads(1).thread_name(name).enable_all().build().during(|| format!("cannot start the {name} thread"));
     let sensor_runtime = runtime("sensors")?;
-    let sensors_url = sensor_runtime.block_on(start_sensor_server(Arc::clone(&feed), virtual_time.as_ref()))?;
+    let sensors_url = sensor_runtime.block_on(time.start_sensor_server(Arc::clone(&feed)))?;
     let pty_runtime = runtime("pty")?;
     let port = pty_runtime.block_on(async {
         let port = Arc::new(VirtualPort::open(options.link).during(|| "cannot open the pty".to_owned())?);
-        match &virtual_time {
-            Some(vt) => drive_pty(vt, Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal),
-            None => {
-                let session = serve_pty(Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal);
-                tokio::spawn(async move {
-                    if let Err(error) = session.await {
-                        warn!(%error, "pty session ended");
-                    }
-                });
-            }
-        }
+        time.serve_pty(Arc::clone(&port), Arc::clone(&handle), Adapter::Ideal, |port, handle, adapter| {
+            spawn_logged("pty session", serve_pty(port, handle, adapter));
+            Ok(())
+        })?;
         Ok::<_, RunnerError>(port)
     })?;
 
@@ -178,12 +168,9 @@ pub fn run_external(
         ("CLIMBSIM_OUT".to_owned(), out_dir.display().to_string()),
     ];
     env.extend(param_env(&external.param_text()));
-    if let Some(vt) = &virtual_time {
-        env.extend(vt.controller_env()?);
-        vt.reserve_process();
-    }
-    let speed = if virtual_time.is_some() { 1.0 } else { options.pace.speed };
-    let launch = Launch { command: &command, env, speed, virtual_time: virtual_time.is_some(), log_path: &log_path };
+    env.extend(time.controller_env()?);
+    time.before_launch();
+    let launch = Launch { command: &command, env, speed: time.controller_speed(), virtual_time: time.is_virtual(), log_path: &log_path };
     // The world starts with the controller: a controller that cannot start leaves no half run.
     let capture_errors = Arc::new(Mutex::new(None::<String>));
     let mut controller = match Controller::start(&launch) {
@@ -193,9 +180,7 @@ pub fn run_external(
             return Err(error);
         }
     };
-    if let Some(vt) = &virtual_time {
-        vt.process_started(controller.id());
-    }
+    time.launched(controller.id());
     let started = Instant::now();
     info!(pid = controller.id(), port = %port.path().display(), sensors = %sensors_url, speed = options.pace.speed, "controller started");
     if options.announce {
@@ -210,21 +195,23 @@ pub fn run_external(
     // already gone.
     let duration = Duration::from_secs_f64(scenario.world.duration_s);
     let hook = observer_hook(Arc::clone(&observer), Arc::clone(&feed), Arc::clone(&capture_errors), WorldFailed::Ends);
-    let mut ticks = WatchedTicks { world: HandleTicks::new(Arc::clone(&handle), hook, Some(duration)), controller: &mut controller, clock: clock.clone(), exit: None, error: None, unfollowed: false };
-    let ended = match &virtual_time {
-        Some(vt) => run_ticks(&mut VirtualClock::new(Arc::clone(vt), stop), &mut ticks, stop),
-        None => run_ticks(&mut WallClock::on(clock.clone()), &mut ticks, stop),
+    let ticks_on = time.tick_source();
+    let mut ticks = WatchedTicks {
+        world: HandleTicks::new(Arc::clone(&handle), hook, Some(duration)),
+        controller: &mut controller,
+        clock: clock.clone(),
+        time: ticks_on.clone(),
+        exit: None,
+        error: None,
+        unfollowed: false,
     };
+    let ended = run_ticks(&mut *ticks_on.clock(stop), &mut ticks, stop);
     let (early_exit, error) = (ticks.exit.take(), ticks.error.take());
     drop(ticks);
     // A controller thread may have run on past the world's last tick: the time the run ended
     // at and the stop signal wait for it to park, so that neither depends on the race. (Not
     // after a failure or an interruption: the threads may never park then.)
-    if let Some(vt) = &virtual_time
-        && ended.clock_failure.is_none()
-        && !ended.interrupted
-        && !vt.await_parked(PARKED_AT_THE_END_WITHIN, stop)
-    {
+    if ended.clock_failure.is_none() && !ended.interrupted && !time.await_parked(PARKED_AT_THE_END_WITHIN, stop) {
         warn!("a controller thread still ran {PARKED_AT_THE_END_WITHIN:?} after the world's last tick (computing without calls?): it is asked to stop as it runs");
     }
     let pace = ended.pace;
@@ -232,14 +219,15 @@ pub fn run_external(
     // The controller's clean-up runs on the wall clock: it can neither hang nor move the world.
     // It is asked to stop first, while parked at the run's last instant.
     let mut clean_up = None;
-    if let Some(vt) = &virtual_time {
+    if time.is_virtual() {
         controller.ask_to_stop()?;
-        vt.end();
+    }
+    if let Some(unread) = time.end() {
         // The servos still answer while it cleans up (they do on a real robot): on the wall
         // clock, on a bus of their own, so that nothing of it reaches the run's outputs.
         match after_the_run(&handle) {
             Ok(servos) => {
-                let session = serve_after_the_run(Arc::clone(&port), servos, vt.take_port_ring_rest());
+                let session = serve_after_the_run(Arc::clone(&port), servos, unread);
                 clean_up = Some(pty_runtime.spawn(async move {
                     if let Err(error) = session.await {
                         warn!(%error, "the pty session after the run ended");
@@ -277,20 +265,9 @@ pub fn run_external(
     summary.insert("controller_exit".to_owned(), json!(exit.status.to_string()));
     summary.insert("controller_exit_code".to_owned(), json!(exit.status.code()));
     summary.insert("controller_exited_at_s".to_owned(), json!(exit.at_s));
-    summary.insert("clock".to_owned(), json!(if virtual_time.is_some() { "virtual" } else { "wall" }));
-    if let Some(vt) = &virtual_time {
-        let stats = vt.stats();
-        summary.insert("virtual_time.released_at_deadline".to_owned(), json!(stats.released_at_deadline));
-        summary.insert("virtual_time.released_for_data".to_owned(), json!(stats.released_for_data));
-        summary.insert("virtual_time.turns".to_owned(), json!(stats.turns));
-        summary.insert("virtual_time.turns_handed".to_owned(), json!(stats.turns_handed));
-        summary.insert("virtual_time.timers_fired".to_owned(), json!(stats.timers_fired));
-        summary.insert("virtual_time.signals_fired".to_owned(), json!(stats.signals_fired));
-        summary.insert("virtual_time.jumps".to_owned(), json!(stats.jumps));
-        summary.insert("virtual_time.controller_cpu".to_owned(), json!(vt.settings().controller_cpu));
-    }
+    time.summarise(&mut summary);
     // Under virtual time nothing is late by construction: there is no pace to keep.
-    let pace_problems = if virtual_time.is_some() { Vec::new() } else { report.pace_problems(options.pace.tolerance) };
+    let pace_problems = if time.is_virtual() { Vec::new() } else { report.pace_problems(options.pace.tolerance) };
     summary.insert("pace.speed".to_owned(), json!(options.pace.speed));
     summary.insert("pace.tolerance_ms".to_owned(), json!(options.pace.tolerance.as_secs_f64() * 1e3));
     summary.insert("pace.tick_late_p99_ms".to_owned(), json!(report.physics_lateness_us.map(|q| q.p99_us / 1e3)));

@@ -7,32 +7,11 @@ use std::sync::{Arc, Mutex, PoisonError};
 use serde_json::json;
 use tracing::warn;
 
-use crate::sensor_server::{SensorFeed, SensorServer, VirtualSensorServer};
+use crate::sensor_server::SensorFeed;
 use crate::sim::RobotWorld;
-use crate::virtual_time::{Serves, VirtualTime};
 
 use super::observe::{Observer, plan_pose, robot_relative};
 use super::ticks::TickHook;
-use super::{During as _, Result};
-
-/// Serve `feed` on an ephemeral localhost port; its base URL. On the wall clock the server is a
-/// task of the current runtime; under virtual time the scheduler answers each request at its
-/// simulated instant.
-pub async fn start_sensor_server(feed: Arc<SensorFeed>, virtual_time: Option<&Arc<VirtualTime>>) -> Result<String> {
-    if let Some(vt) = virtual_time {
-        let (server, url) = VirtualSensorServer::bind(feed, Arc::clone(vt)).during(|| "cannot start the sensor server".to_owned())?;
-        vt.drive(Serves::Sensors, server);
-        return Ok(url);
-    }
-    let server = SensorServer::bind(std::net::SocketAddr::from(([127, 0, 0, 1], 0))).await.during(|| "cannot start the sensor server".to_owned())?;
-    let url = server.url().during(|| "the sensor server has no address".to_owned())?;
-    tokio::spawn(async move {
-        if let Err(error) = server.run(feed).await {
-            warn!(%error, "sensor server stopped");
-        }
-    });
-    Ok(url)
-}
 
 /// How often `/state` is published in a world without a weld line (with one, it comes with each
 /// camera frame).

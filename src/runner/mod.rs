@@ -29,6 +29,7 @@ pub mod tap;
 pub mod tap_view;
 pub mod tap_world;
 pub mod ticks;
+pub mod time_base;
 pub mod view;
 
 use std::path::{Path, PathBuf};

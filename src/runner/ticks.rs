@@ -11,7 +11,8 @@ use std::time::Duration;
 use crate::bus::Bus;
 use crate::transport::{BusHandle, PhysicsPace};
 
-use super::clock::{Clock, ClockStop, VirtualClock, WallClock};
+use super::clock::{Clock, ClockStop};
+use super::time_base::TickSource;
 
 /// What the loop drives: a world and what runs with it.
 pub trait Ticked {
@@ -120,17 +121,14 @@ pub struct Pacer {
 }
 
 impl Pacer {
-    /// Tick `handle`'s world on its clock, calling `hook` after every tick.
-    pub fn start(handle: Arc<BusHandle>, hook: TickHook) -> Self {
+    /// Tick `handle`'s world on `source`'s clock, calling `hook` after every tick. Under virtual
+    /// time the world follows whichever controller is attached.
+    pub fn start(handle: Arc<BusHandle>, hook: TickHook, source: TickSource) -> Self {
         let stop = Arc::new(AtomicBool::new(false));
         let stopping = Arc::clone(&stop);
         let thread = std::thread::spawn(move || {
             let mut ticks = HandleTicks::new(Arc::clone(&handle), hook, None);
-            match handle.clock().virtual_time() {
-                // Under virtual time the world follows whichever controller is attached.
-                Some(virtual_time) => run_ticks(&mut VirtualClock::new(Arc::clone(virtual_time), &stopping), &mut ticks, &stopping).pace,
-                None => run_ticks(&mut WallClock::on(handle.clock()), &mut ticks, &stopping).pace,
-            }
+            run_ticks(&mut *source.clock(&stopping), &mut ticks, &stopping).pace
         });
         Self { stop, thread }
     }

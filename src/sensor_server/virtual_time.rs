@@ -15,13 +15,13 @@ use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use tracing::debug;
 
 use super::{Answer, SensorFeed, SensorServerError, answer, response, take_request};
-use crate::virtual_time::VirtualTime;
+use crate::virtual_time::SensorLedger;
 
 pub struct VirtualSensorServer {
     listener: TcpListener,
     clients: Vec<Client>,
     feed: Arc<SensorFeed>,
-    virtual_time: Arc<VirtualTime>,
+    ledger: Arc<SensorLedger>,
 }
 
 struct Client {
@@ -33,15 +33,15 @@ struct Client {
 
 impl VirtualSensorServer {
     /// Listen on an ephemeral localhost port; the URL controllers get.
-    pub fn bind(feed: Arc<SensorFeed>, virtual_time: Arc<VirtualTime>) -> Result<(Self, String), SensorServerError> {
+    pub fn bind(feed: Arc<SensorFeed>, ledger: Arc<SensorLedger>) -> Result<(Self, String), SensorServerError> {
         let addr = SocketAddrV4::new(Ipv4Addr::LOCALHOST, 0);
         let listener = TcpListener::bind(addr).map_err(|source| SensorServerError::Bind { addr: addr.into(), source })?;
         listener.set_nonblocking(true)?;
         let std::net::SocketAddr::V4(local) = listener.local_addr()? else {
             return Err(SensorServerError::Io(std::io::Error::other("an IPv4 listener has an IPv4 address")));
         };
-        virtual_time.attach_sensor_server(local);
-        Ok((Self { listener, clients: Vec::new(), feed, virtual_time }, format!("http://{local}")))
+        ledger.attach_server(local);
+        Ok((Self { listener, clients: Vec::new(), feed, ledger }, format!("http://{local}")))
     }
 
     /// Accept, read and answer whatever is there, without waiting.
@@ -55,8 +55,8 @@ impl VirtualSensorServer {
                 self.clients.push(Client { stream, port: peer.port(), buffer: Vec::new() });
             }
         }
-        let (feed, virtual_time) = (&self.feed, &self.virtual_time);
-        self.clients.retain_mut(|client| serve(client, feed, virtual_time));
+        let (feed, ledger) = (&self.feed, &self.ledger);
+        self.clients.retain_mut(|client| serve(client, feed, ledger));
     }
 }
 
@@ -69,7 +69,7 @@ fn connection_waiting(listener: &TcpListener) -> bool {
 
 /// Read what the client sent and answer every whole request in it; whether to keep the
 /// connection.
-fn serve(client: &mut Client, feed: &SensorFeed, virtual_time: &VirtualTime) -> bool {
+fn serve(client: &mut Client, feed: &SensorFeed, ledger: &SensorLedger) -> bool {
     let mut chunk = [0u8; 2048];
     let mut read = 0;
     let mut keep = loop {
@@ -98,12 +98,12 @@ fn serve(client: &mut Client, feed: &SensorFeed, virtual_time: &VirtualTime) -> 
         if let Err(error) = &written {
             debug!(%error, "sensor client gone before its answer");
         }
-        virtual_time.sensor_response_written(client.port, bytes.len(), !keep_alive);
+        ledger.response_written(client.port, bytes.len(), !keep_alive);
         keep = keep_alive && written.is_ok();
     }
     // A kept connection is looked at on every poll and mostly has nothing new.
     if read > 0 {
-        virtual_time.sensor_request_read(client.port, read);
+        ledger.request_read(client.port, read);
     }
     keep
 }

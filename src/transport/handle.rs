@@ -9,21 +9,22 @@ use tracing::warn;
 use crate::bus::{Bus, TraceWriter, Transaction};
 use crate::protocol::RawPacket;
 use crate::transcript::Recorder;
-use crate::virtual_time::VirtualTime;
+use crate::virtual_time::PortLedger;
 
 use super::stats::{LineStats, LoopKey, PhysicsPace, ReportExtras, TimingReport};
 
 /// The emulator's monotonic time base: every timestamp is a `Duration` of simulated time since
 /// `origin`. Simulated time runs `speed` times as fast as the wall clock (`--speed N`, with the
 /// controller's own clocks scaled alike); at the default 1 the two are the same. Under virtual
-/// time it is the scheduler's clock instead, and the wall-clock methods do not apply.
+/// time it is the scheduler's clock instead (read through the port's ledger, which the reply
+/// timing needs too), and the wall-clock methods do not apply.
 #[derive(Debug, Clone)]
 pub struct Clock {
     origin: Instant,
     /// Simulated time at `origin` (zero but for [`Clock::wall_from`]).
     offset: Duration,
     speed: f64,
-    virtual_time: Option<Arc<VirtualTime>>,
+    virtual_port: Option<Arc<PortLedger>>,
 }
 
 impl Default for Clock {
@@ -36,7 +37,7 @@ impl Clock {
     /// A clock starting now whose time runs `speed` (> 0, finite) times the wall clock's rate.
     pub fn scaled(speed: f64) -> Self {
         let speed = if speed.is_finite() && speed > 0.0 { speed } else { 1.0 };
-        Self { origin: Instant::now(), offset: Duration::ZERO, speed, virtual_time: None }
+        Self { origin: Instant::now(), offset: Duration::ZERO, speed, virtual_port: None }
     }
 
     /// A clock on the wall's time that reads `now` at once and goes on from there: for what
@@ -45,14 +46,16 @@ impl Clock {
         Self { offset: now, ..Self::scaled(1.0) }
     }
 
-    /// Simulated time as `virtual_time`'s scheduler moves it (`--clock virtual`).
-    pub fn on_virtual_time(virtual_time: Arc<VirtualTime>) -> Self {
-        Self { origin: Instant::now(), offset: Duration::ZERO, speed: 1.0, virtual_time: Some(virtual_time) }
+    /// Simulated time as the virtual-time scheduler moves it (`--clock virtual`), read from
+    /// the servo port's ledger.
+    pub fn on_virtual_time(port: Arc<PortLedger>) -> Self {
+        Self { origin: Instant::now(), offset: Duration::ZERO, speed: 1.0, virtual_port: Some(port) }
     }
 
-    /// The scheduler, if time is virtual: reply timing waits on its timers, not the wall's.
-    pub fn virtual_time(&self) -> Option<&Arc<VirtualTime>> {
-        self.virtual_time.as_ref()
+    /// The port's ledger, if time is virtual: reply timing waits on its timers, not the wall's,
+    /// and writes replies ahead of their instants.
+    pub fn virtual_port(&self) -> Option<&Arc<PortLedger>> {
+        self.virtual_port.as_ref()
     }
 
     pub fn speed(&self) -> f64 {
@@ -60,8 +63,8 @@ impl Clock {
     }
 
     pub fn now(&self) -> Duration {
-        match &self.virtual_time {
-            Some(virtual_time) => virtual_time.now(),
+        match &self.virtual_port {
+            Some(port) => port.now(),
             None => self.offset + self.origin.elapsed().mul_f64(self.speed),
         }
     }

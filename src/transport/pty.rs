@@ -25,7 +25,7 @@ use tracing::{debug, info, warn};
 
 use super::busy_poll::BusyPoll;
 use super::{LineSettings, queued_bytes};
-use crate::virtual_time::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, VirtualTime, await_pty_hand_over};
+use crate::virtual_time::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, PortLedger, await_pty_hand_over};
 
 /// How long a read waits in poll(2) before parking on the reactor.
 const QUICK_WAIT_MS: u8 = 1;
@@ -157,11 +157,11 @@ impl VirtualPort {
     }
 
     /// A byte stream over the master for a session inside the virtual-time scheduler
-    /// ([`VirtualTime::drive`]): reads and writes never wait on a reactor, and the scheduler
+    /// ([`crate::virtual_time::VirtualTime::drive`]): reads and writes never wait on a reactor, and the scheduler
     /// polls the session whenever the controller is parked.
-    pub fn virtual_stream(self: &Arc<Self>, virtual_time: Arc<VirtualTime>) -> VirtualTimeStream {
-        virtual_time.attach_port(self.master.as_raw_fd(), self.slave.as_raw_fd());
-        VirtualTimeStream { port: Arc::clone(self), virtual_time }
+    pub fn virtual_stream(self: &Arc<Self>, ledger: Arc<PortLedger>) -> VirtualTimeStream {
+        ledger.attach(self.master.as_raw_fd(), self.slave.as_raw_fd());
+        VirtualTimeStream { port: Arc::clone(self), ledger }
     }
 
     fn master_fd(&self) -> BorrowedFd<'_> {
@@ -176,7 +176,7 @@ impl VirtualPort {
 /// the controller, parked now, must find them as soon as it is let go.
 pub struct VirtualTimeStream {
     port: Arc<VirtualPort>,
-    virtual_time: Arc<VirtualTime>,
+    ledger: Arc<PortLedger>,
 }
 
 /// A hand-over slower than this is reported (with what it waited for).
@@ -186,7 +186,7 @@ impl AsyncRead for VirtualTimeStream {
     fn poll_read(self: Pin<&mut Self>, _cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
         // What the shim saw written is in the block's ring (and then nothing counted waits in
         // the pty before it); the rest, in the pty.
-        let taken = self.virtual_time.take_port_ring(buf.initialize_unfilled());
+        let taken = self.ledger.take_ring(buf.initialize_unfilled());
         if taken > 0 {
             buf.advance(taken);
             return Poll::Ready(Ok(()));
@@ -194,7 +194,7 @@ impl AsyncRead for VirtualTimeStream {
         match nix::unistd::read(self.port.master_fd(), buf.initialize_unfilled()) {
             Ok(n) => {
                 buf.advance(n);
-                self.virtual_time.port_read(n);
+                self.ledger.read(n);
                 Poll::Ready(Ok(()))
             }
             Err(nix::errno::Errno::EAGAIN | nix::errno::Errno::EIO) => Poll::Pending,
@@ -207,7 +207,7 @@ impl AsyncWrite for VirtualTimeStream {
     fn poll_write(self: Pin<&mut Self>, _cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
         let slave = self.port.slave.as_raw_fd();
         let before = queued_bytes(slave).unwrap_or(0);
-        let taken_before = self.virtual_time.port_taken_total();
+        let taken_before = self.ledger.taken_total();
         let mut fds = [PollFd::new(self.port.master_fd(), PollFlags::POLLOUT)];
         let deadline = Instant::now() + PTY_FULL_FOR;
         let written = loop {
@@ -227,17 +227,17 @@ impl AsyncWrite for VirtualTimeStream {
         };
         let handing_over = Instant::now();
         // What the controller took meanwhile (a read or a flush the shim counted) was handed over.
-        let handed_over = || queued_bytes(slave).unwrap_or(0) as u64 + (self.virtual_time.port_taken_total() - taken_before);
+        let handed_over = || queued_bytes(slave).unwrap_or(0) as u64 + (self.ledger.taken_total() - taken_before);
         if !await_pty_hand_over(|| handed_over() >= (before + written) as u64) {
             warn!(
                 bytes = written,
                 before,
                 queued = queued_bytes(slave).unwrap_or(0),
-                taken_meanwhile = self.virtual_time.port_taken_total() - taken_before,
-                threads = self.virtual_time.threads_now(),
+                taken_meanwhile = self.ledger.taken_total() - taken_before,
+                threads = self.ledger.threads_now(),
                 "reply bytes not visible to the controller after {PTY_HAND_OVER_WITHIN:?} (the kernel's pty worker did not run)"
             );
-            self.virtual_time.hand_over_never_came(written, "reply");
+            self.ledger.hand_over_never_came(written, "reply");
         }
         if handing_over.elapsed() > SLOW_HAND_OVER {
             warn!(
@@ -250,7 +250,7 @@ impl AsyncWrite for VirtualTimeStream {
         } else if handing_over.elapsed() > Duration::from_millis(5) {
             debug!(waited_ms = handing_over.elapsed().as_secs_f64() * 1e3, queued = queued_bytes(slave).unwrap_or(0), before, written, "the pty's hand-over was slow");
         }
-        self.virtual_time.port_written(&data[..written]);
+        self.ledger.written(&data[..written]);
         Poll::Ready(Ok(written))
     }
 

@@ -11,7 +11,7 @@ use tracing::{Instrument, debug, info_span, trace};
 
 use crate::bus::{Bus, Reply, Timing, Transaction, wire};
 use crate::protocol::{DEFAULT_MAX_LEN, Decoder, FrameError, RawPacket};
-use crate::virtual_time::VirtualTime;
+use crate::virtual_time::PortLedger;
 
 use super::stats::{Answered, LineStats};
 use super::{AdapterModel, BusHandle, Clock, LineSettings, TransportError};
@@ -141,9 +141,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             // A partial packet waits for at most the inter-byte gap: if the line stays quiet that
             // long, drop it (and find any packet that was hidden behind a false header).
             let read = if self.decoder.pending() > 0 {
-                match self.clock.virtual_time() {
-                    Some(virtual_time) => {
-                        let quiet = virtual_time.timer(self.clock.now() + self.gap);
+                match self.clock.virtual_port() {
+                    Some(port) => {
+                        let quiet = port.timer(self.clock.now() + self.gap);
                         tokio::select! {
                             biased;
                             read = self.stream.read(&mut self.buf) => Some(read),
@@ -227,8 +227,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             return;
         }
         // Under virtual time replies still on their way sit in the pty too: only visible ones count.
-        let unread = match self.clock.virtual_time() {
-            Some(virtual_time) => Some(virtual_time.port_unread_visible()),
+        let unread = match self.clock.virtual_port() {
+            Some(port) => Some(port.unread_visible()),
             None => self.line.unread_by_controller(),
         };
         let Some(bytes) = unread.filter(|&b| b > 0) else { return };
@@ -260,10 +260,10 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         let byte_time = transaction.byte_time;
         let plan = self.hand_over_plan(&replies, byte_time);
         if self.timing == Timing::Wire
-            && let Some(virtual_time) = self.clock.virtual_time().cloned()
-            && virtual_time.port_holds_room_for(plan.len())
+            && let Some(port) = self.clock.virtual_port().cloned()
+            && port.holds_room_for(plan.len())
         {
-            return self.deliver_ahead(&virtual_time, &transaction, replies, plan).await;
+            return self.deliver_ahead(&port, &transaction, replies, plan).await;
         }
         let mut closed = false;
         let (last_reply, last_due) = plan.last().map_or((0, Duration::ZERO), |h| (h.reply, h.due));
@@ -312,12 +312,12 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     }
 
     /// Under virtual time: write every reply now, in one write, each hand-over marked with its
-    /// instant; the shim shows each byte only from then on (src/virtual_time/held.rs). Exact as
+    /// instant; the shim shows each byte only from then on (src/virtual_time/port.rs). Exact as
     /// the timed writes, without a hand-over between climbsim and the controller per reply.
-    async fn deliver_ahead(&mut self, virtual_time: &Arc<VirtualTime>, transaction: &Transaction, replies: Vec<Reply>, plan: Vec<HandOver>) -> Result<bool, TransportError> {
+    async fn deliver_ahead(&mut self, port: &Arc<PortLedger>, transaction: &Transaction, replies: Vec<Reply>, plan: Vec<HandOver>) -> Result<bool, TransportError> {
         let (last_reply, last_due) = plan.last().map_or((0, Duration::ZERO), |h| (h.reply, h.due));
         self.count_answer(transaction, &replies, last_due.max(self.clock.now()), last_reply, last_due);
-        let base = virtual_time.port_written_total();
+        let base = port.written_total();
         let mut offset = base;
         let mut runs = Vec::with_capacity(plan.len());
         let mut out = std::mem::take(&mut self.out);
@@ -329,7 +329,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
             offset += bytes.len() as u64;
             trace!(from = ?replies[hand_over.reply].from, bytes = bytes.len(), due = ?hand_over.due, "reply bytes written ahead");
         }
-        virtual_time.hold_port_bytes(&runs);
+        port.hold_bytes(&runs);
         let written = self.stream.write_all(&out).await;
         out.clear();
         self.out = out;
@@ -353,7 +353,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     /// written again.
     fn early_bytes_ahead(&mut self, n: usize) {
         let at = self.clock.now();
-        let (Some(mut ahead), Some(virtual_time)) = (self.ahead.take(), self.clock.virtual_time().cloned()) else {
+        let (Some(mut ahead), Some(port)) = (self.ahead.take(), self.clock.virtual_port().cloned()) else {
             self.early_bytes(n, &mut []);
             return;
         };
@@ -364,7 +364,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
         let changed = ahead.replies[first_reply..].iter().zip(&before).any(|(reply, was)| reply.bytes != *was);
         if changed && let Some(&(start, _)) = ahead.plan.get(first) {
             let rest: Vec<u8> = ahead.plan[first..].iter().flat_map(|(_, h)| ahead.replies[h.reply].bytes[h.bytes.clone()].iter().copied()).collect();
-            virtual_time.rewrite_held_bytes(start, &rest);
+            port.rewrite_held_bytes(start, &rest);
         }
         self.ahead = Some(ahead);
     }
@@ -403,8 +403,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     /// Wait until `due`, reading whatever the controller sends meanwhile: bytes that overlap
     /// `undelivered` replies on the wire collide with them. True if the controller closed.
     async fn wait_watching(&mut self, undelivered: &mut [Reply], due: Duration) -> Result<bool, TransportError> {
-        if let Some(virtual_time) = self.clock.virtual_time().cloned() {
-            return self.wait_watching_virtual(&virtual_time, undelivered, due).await;
+        if let Some(port) = self.clock.virtual_port().cloned() {
+            return self.wait_watching_virtual(&port, undelivered, due).await;
         }
         loop {
             let now = self.clock.now();
@@ -451,9 +451,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Session<'_, S> {
     /// [`Session::wait_watching`] under virtual time: the scheduler fires the timer at `due`
     /// exactly, with the controller parked; whatever it sends before then is read at its
     /// simulated instant (no spin, no wake-up margin).
-    async fn wait_watching_virtual(&mut self, virtual_time: &Arc<VirtualTime>, undelivered: &mut [Reply], due: Duration) -> Result<bool, TransportError> {
+    async fn wait_watching_virtual(&mut self, port: &Arc<PortLedger>, undelivered: &mut [Reply], due: Duration) -> Result<bool, TransportError> {
         while self.clock.now() < due {
-            let reached = virtual_time.timer(due);
+            let reached = port.timer(due);
             let read = tokio::select! {
                 biased;
                 read = self.stream.read(&mut self.buf) => Some(read?),

@@ -14,3 +14,10 @@ pub enum VtError {
     #[error("interrupted")]
     Interrupted,
 }
+
+/// The guard of `mutex`, poisoned or not: a panic elsewhere (a driven future's) must not take
+/// the scheduler's bookkeeping down with it, and every value behind these locks stays whole
+/// between statements.
+pub(super) fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}

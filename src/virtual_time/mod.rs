@@ -17,7 +17,7 @@ pub mod abi;
 mod block;
 mod error;
 mod futex;
-mod held;
+mod hand_ons;
 mod port;
 mod quiet;
 mod real_world;
@@ -29,18 +29,19 @@ mod turns;
 mod watchdog;
 
 use std::future::Future;
-use std::os::fd::RawFd;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex};
 use std::task::{Context, Waker};
 use std::time::Duration;
 
 use abi::{NEVER, mode, release, state};
 use block::Block;
 pub use error::VtError;
+use error::lock;
 use futex::{futex_wait, wake};
-pub use held::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, await_pty_hand_over};
+pub use port::{PTY_FULL_FOR, PTY_HAND_OVER_WITHIN, PortLedger, await_pty_hand_over};
+pub use sensors::SensorLedger;
 pub use shim_file::{shim_bytes, shim_path};
 pub use timer::Timer;
 
@@ -125,14 +126,6 @@ pub enum Serves {
     Sensors,
 }
 
-/// The servo port's two ends, as climbsim holds them (owned by the port, which the driven
-/// session keeps alive).
-#[derive(Debug, Clone, Copy)]
-struct PortFds {
-    master: RawFd,
-    slave: RawFd,
-}
-
 /// What the scheduler did in a run (summary.json's `virtual_time.*`): the wall-time cost of
 /// virtual time is mostly one hand-over per release.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
@@ -162,18 +155,18 @@ pub struct VirtualTime {
     /// Spin before sleeping on a futex: only where the controller has a core of its own.
     spin: bool,
     stats: Mutex<VtStats>,
-    block: Block,
+    block: Arc<Block>,
     settings: VtSettings,
+    /// The port session's timers, fired here at their instants.
     timers: Arc<timer::TimerWheel>,
     driven: Mutex<Vec<Driven>>,
-    port: Mutex<Option<PortFds>>,
-    held: Mutex<held::HeldBytes>,
+    /// Handed to the pty and its session.
+    port: Arc<PortLedger>,
+    /// Handed to the sensor server.
+    sensors: Arc<SensorLedger>,
     quiet: Mutex<quiet::Quiet>,
     real_world: Mutex<real_world::RealWorld>,
-    /// Why the run can no longer repeat (reply bytes that did not reach the controller's side
-    /// of the pty in time): the run fails with it at the next step of the scheduler.
-    cannot_repeat: Mutex<Option<String>>,
-    hand_ons: Mutex<turns::HandOns>,
+    hand_ons: Mutex<hand_ons::HandOns>,
 }
 
 impl std::fmt::Debug for VirtualTime {
@@ -182,17 +175,8 @@ impl std::fmt::Debug for VirtualTime {
     }
 }
 
-fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
-    mutex.lock().unwrap_or_else(PoisonError::into_inner)
-}
-
 /// The pty session's timers (`timer.rs`'s wheel).
 impl VirtualTime {
-    /// A future that completes when simulated time reaches `due`.
-    pub fn timer(&self, due: Duration) -> Timer {
-        self.timers.timer(due)
-    }
-
     fn next_timer(&self) -> u64 {
         self.timers.next_due()
     }
@@ -208,7 +192,7 @@ impl VirtualTime {
 
 impl VirtualTime {
     pub fn create(settings: VtSettings) -> Result<Arc<Self>, VtError> {
-        let block = Block::create()?;
+        let block = Arc::new(Block::create()?);
         let header = &block.shared().header;
         header.abi.store(abi::ABI, Ordering::Relaxed);
         header.clock.realtime_epoch_ns.store(settings.epoch_unix_s.saturating_mul(1_000_000_000), Ordering::Relaxed);
@@ -224,22 +208,32 @@ impl VirtualTime {
         // Slot 0 is the process climbsim starts (reserve_process).
         header.slots_high.store(1, Ordering::Relaxed);
         header.magic.store(abi::MAGIC, Ordering::Release);
+        let timers = Arc::<timer::TimerWheel>::default();
         Ok(Arc::new(Self {
+            port: Arc::new(PortLedger::new(Arc::clone(&block), Arc::clone(&timers))),
+            sensors: Arc::new(SensorLedger::new(Arc::clone(&block))),
             waits_for_controller: AtomicBool::new(false),
             last_poll: Mutex::new(std::time::Instant::now()),
             spin: std::thread::available_parallelism().is_ok_and(|n| n.get() > 1),
             stats: Mutex::default(),
             block,
             settings,
-            timers: Arc::default(),
+            timers,
             driven: Mutex::default(),
-            port: Mutex::default(),
-            held: Mutex::default(),
             quiet: Mutex::new(quiet::Quiet::new()),
             real_world: Mutex::new(real_world::RealWorld::new()),
             hand_ons: Mutex::default(),
-            cannot_repeat: Mutex::default(),
         }))
+    }
+
+    /// The servo port's ledger, for the pty and its session.
+    pub fn port(&self) -> &Arc<PortLedger> {
+        &self.port
+    }
+
+    /// The sensor connections' ledger, for the sensor server.
+    pub fn sensors(&self) -> &Arc<SensorLedger> {
+        &self.sensors
     }
 
     pub fn settings(&self) -> VtSettings {
@@ -315,11 +309,7 @@ impl VirtualTime {
 
     /// Whether bytes wait for climbsim on the port, and on the sensor connections.
     fn held_by(&self) -> (bool, bool) {
-        let shared = self.shared();
-        let header = &shared.header;
-        let port = header.port.tx_read.load(Ordering::Acquire) != header.port.tx_total.load(Ordering::Acquire);
-        let sensors = shared.conns.iter().any(|c| c.client_port.load(Ordering::Acquire) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire));
-        (port, sensors)
+        (self.port.unread_by_climbsim(), self.sensors.unread_by_climbsim())
     }
 
     /// Run `future` inside the scheduler: polled whenever the controller is parked, never on a
@@ -365,12 +355,6 @@ impl VirtualTime {
         }
     }
 
-    /// The run can no longer repeat, for `why` (the first reason is kept): it fails at the
-    /// scheduler's next step, rather than going on with what the controller did not see.
-    pub fn cannot_repeat(&self, why: String) {
-        lock(&self.cannot_repeat).get_or_insert(why);
-    }
-
     /// The scheduler: bring simulated time to `due` (a world tick), letting the controller run
     /// everything it has due before then, in order. Returns with every controller thread parked.
     pub fn advance_to(&self, due: Duration, stop: &AtomicBool) -> Result<(), VtError> {
@@ -390,7 +374,7 @@ impl VirtualTime {
             }
         }
         loop {
-            if let Some(why) = lock(&self.cannot_repeat).take() {
+            if let Some(why) = self.port.take_cannot_repeat() {
                 return Err(VtError::Stuck(why));
             }
             // The world catches up with the controller before climbsim looks at anything the
@@ -420,7 +404,7 @@ impl VirtualTime {
             }
             // Replies written ahead show at their instants: a thread waiting on the port is let
             // go then (a spinning one moves there by itself if it runs first).
-            let next_reply = next_timer.min(self.next_held_due(now));
+            let next_reply = next_timer.min(self.port.next_held_due(now));
             let plan = self.let_go_at(now, next_timer, next_reply);
             if plan.released {
                 continue;
@@ -436,7 +420,7 @@ impl VirtualTime {
                     lock(&self.stats).jumps += 1;
                     self.trace_jump(plan.next);
                     let now = header.clock.now_ns.fetch_max(plan.next, Ordering::AcqRel).max(plan.next);
-                    self.let_go_at(now, next_timer, next_timer.min(self.next_held_due(now)));
+                    self.let_go_at(now, next_timer, next_timer.min(self.port.next_held_due(now)));
                     return Ok(());
                 }
                 header.clock.now_ns.fetch_max(due, Ordering::AcqRel);
@@ -571,8 +555,7 @@ impl VirtualTime {
     /// Wait a moment for bytes the controller sent that the kernel has not handed over yet: on
     /// the port until its master is readable (1 ms at most), on a sensor connection 20 µs.
     fn wait_for_bytes_in_flight(&self) {
-        let port = *lock(&self.port);
-        match port {
+        match self.port.fds() {
             // Bytes in the ring are taken at the next poll, with no kernel in between (a session
             // that no longer takes them leaves them held, which the watchdog judges).
             Some(_) if self.shared().port_tx_ring_unread() > 0 => std::thread::yield_now(),

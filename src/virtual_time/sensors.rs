@@ -1,15 +1,31 @@
-//! The sensor server's connections as the scheduler holds them: where the server listens (how
-//! the shim knows which connections to follow) and the counts of request and response bytes
-//! (time waits until climbsim has read every request byte the shim counted, and a thread
-//! waiting on a connection is let go once its response is there).
+//! The sensor server's ledger: where the server listens (how the shim knows which connections
+//! to follow) and the counts of request and response bytes on each connection. Handed to the
+//! sensor server, which knows nothing else of virtual time; time waits until climbsim has read
+//! every request byte the shim counted, and a thread waiting on a connection is let go once its
+//! response is there.
 
+use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
-use super::{VirtualTime, abi};
+use super::abi::{self, Shared};
+use super::block::Block;
 
-impl VirtualTime {
+/// The sensor connections' ledger (see the module doc).
+pub struct SensorLedger {
+    block: Arc<Block>,
+}
+
+impl SensorLedger {
+    pub(super) fn new(block: Arc<Block>) -> Self {
+        Self { block }
+    }
+
+    fn shared(&self) -> &Shared {
+        self.block.shared()
+    }
+
     /// The sensor server controllers connect to: connections to it are followed.
-    pub fn attach_sensor_server(&self, address: std::net::SocketAddrV4) {
+    pub fn attach_server(&self, address: std::net::SocketAddrV4) {
         let header = &self.shared().header;
         header.sensor_ip.store(u32::from_ne_bytes(address.ip().octets()), Ordering::Relaxed);
         header.sensor_port.store(u32::from(address.port()), Ordering::Release);
@@ -22,7 +38,7 @@ impl VirtualTime {
 
     /// The sensor server has read (and, a request being whole, answered) `bytes` more from
     /// the connection from `client_port`.
-    pub fn sensor_request_read(&self, client_port: u16, bytes: usize) {
+    pub fn request_read(&self, client_port: u16, bytes: usize) {
         if let Some(conn) = self.conn(client_port) {
             conn.read.fetch_add(bytes as u64, Ordering::AcqRel);
         }
@@ -30,7 +46,7 @@ impl VirtualTime {
 
     /// The sensor server wrote `bytes` of response to `client_port` (`closed`: and then closed
     /// its end, which the controller reads as one more "byte", the end of the stream).
-    pub fn sensor_response_written(&self, client_port: u16, bytes: usize, closed: bool) {
+    pub fn response_written(&self, client_port: u16, bytes: usize, closed: bool) {
         if let Some(conn) = self.conn(client_port) {
             conn.resp_written.fetch_add(bytes as u64 + u64::from(closed), Ordering::AcqRel);
         }
@@ -39,5 +55,10 @@ impl VirtualTime {
     /// A response waits on one of the connections in `mask`.
     pub(super) fn response_waiting(&self, mask: u64) -> bool {
         self.shared().conns.iter().enumerate().any(|(i, c)| mask & (1 << i) != 0 && c.resp_written.load(Ordering::Acquire) > c.resp_taken.load(Ordering::Acquire))
+    }
+
+    /// Whether request bytes a controller sent wait for climbsim (by the shim's count).
+    pub(super) fn unread_by_climbsim(&self) -> bool {
+        self.shared().conns.iter().any(|c| c.client_port.load(Ordering::Acquire) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire))
     }
 }

@@ -10,8 +10,9 @@ use std::sync::atomic::Ordering;
 
 use tracing::debug;
 
+use super::VirtualTime;
 use super::abi::{NEVER, release, state, timer_state};
-use super::{VirtualTime, lock};
+use super::error::lock;
 
 impl VirtualTime {
     /// The next armed signal timer's instant.

@@ -1,5 +1,5 @@
 //! Timers on simulated time: the pty session's replies and inter-byte gaps wait on them, and
-//! the scheduler fires them at their instant (see [`VirtualTime::timer`](super::VirtualTime::timer)).
+//! the scheduler fires them at their instant (see [`PortLedger::timer`](super::PortLedger::timer)).
 //! The wheel knows nothing of the scheduler: the scheduler asks it what is due next and fires
 //! it, and a [`Timer`] holds only the wheel.
 

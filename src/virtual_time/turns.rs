@@ -5,12 +5,12 @@
 //! may move the clock (the horizon).
 
 use std::sync::atomic::Ordering;
-use std::time::{Duration, Instant};
 
 use super::abi::protocol::ChildWait;
-use super::abi::{self, NEVER, Slot, Wait, release, state};
+use super::abi::{NEVER, Slot, Wait, release, state};
+use super::error::lock;
 use super::futex::wake;
-use super::{VirtualTime, lock, watchdog};
+use super::{VirtualTime, watchdog};
 
 impl VirtualTime {
     /// Give the turn to the ready thread in the lowest slot, if there is one (and no thread
@@ -33,27 +33,8 @@ impl VirtualTime {
     /// waited on.
     pub(super) fn trace_jump(&self, to: u64) {
         if tracing::enabled!(tracing::Level::TRACE) {
-            tracing::trace!(from_s = self.now_ns() as f64 / 1e9, to_s = to as f64 / 1e9, "jump; {}", self.threads_now());
+            tracing::trace!(from_s = self.now_ns() as f64 / 1e9, to_s = to as f64 / 1e9, "jump; {}", watchdog::threads_now(self.shared()));
         }
-    }
-
-    /// What each followed thread (not free nor exited) is doing now, for a diagnostic: its
-    /// slot, thread id, state, what it waits on and until when, and its last call.
-    pub fn threads_now(&self) -> String {
-        let threads: Vec<String> = self
-            .shared()
-            .live_slots()
-            .iter()
-            .enumerate()
-            .filter(|(_, s)| s.is_live())
-            .map(|(i, s)| {
-                let deadline = s.deadline_ns.load(Ordering::Relaxed);
-                let until = if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) };
-                let (tid, wait, last) = (s.tid.load(Ordering::Relaxed), s.wait(), abi::call::name(s.last_call.load(Ordering::Relaxed)));
-                format!("#{i} tid {tid} {} waits {wait:?} until {until} last {last}", state::name(s.state()))
-            })
-            .collect();
-        threads.join("; ")
     }
 
     /// A thread runs, or may: one is being created, is in a waitpid the kernel is about to
@@ -73,66 +54,6 @@ impl VirtualTime {
             let mut hand_ons = lock(&self.hand_ons);
             begun != ended.wrapping_add(hand_ons.written_off) && !hand_ons.write_off_dead(self.shared(), begun, ended)
         }
-    }
-}
-
-/// How long (wall time) the hand-over counts may stand unequal and unchanged before climbsim
-/// looks for hand-overs whose threads were killed in them (a pool's worker ended by SIGTERM).
-const HAND_ON_STALL: Duration = Duration::from_millis(20);
-
-/// Hand-overs of the turn between threads that never ended (see `Header::turns.hand_ons_begun`).
-#[derive(Default)]
-pub(super) struct HandOns {
-    /// What the counts differ by with no hand-over under way (`begun == ended + written_off`):
-    /// hand-overs whose threads died in them. A thread can die (a `multiprocessing` worker
-    /// ended by SIGTERM, a thread the program's `exit` ends) between its mark and its count
-    /// on either side, so this is not counted up per dead mark but taken from the counts once
-    /// no live thread is marked.
-    pub(super) written_off: u64,
-    /// The counts (begun, ended) last seen unequal, and since when.
-    stalled: Option<(u64, u64, Instant)>,
-}
-
-impl HandOns {
-    /// The counts stand at `begun` and `ended` (read before this), further apart than what was
-    /// written off: once they have stood so for a while, the marks of threads that are gone are
-    /// cleared, and if no thread is marked then, whatever the counts differ by is written off.
-    /// Whether no hand-over is under way.
-    fn write_off_dead(&mut self, shared: &abi::Shared, begun: u64, ended: u64) -> bool {
-        match self.stalled {
-            Some((b, e, since)) if (b, e) == (begun, ended) => {
-                if since.elapsed() < HAND_ON_STALL {
-                    return false;
-                }
-            }
-            _ => {
-                self.stalled = Some((begun, ended, Instant::now()));
-                return false;
-            }
-        }
-        self.stalled = None;
-        let mut marked = false;
-        for slot in shared.live_slots() {
-            if slot.handing.load(Ordering::SeqCst) == 0 {
-                continue;
-            }
-            let gone = || watchdog::stat_path(slot).is_none_or(|task| !watchdog::lives(&format!("{task}/stat")));
-            if gone() {
-                // Its mark kept the slot from being taken again.
-                tracing::debug!(tid = slot.tid.load(Ordering::Relaxed), "a controller thread died handing its turn on");
-                slot.handing.store(0, Ordering::SeqCst);
-            } else {
-                marked = true;
-            }
-        }
-        // The counts were read before the marks: a hand-over that began since is not in them,
-        // and one in them that has ended since ends up counted twice (the counts then differ
-        // again, and are taken afresh after the next stall: climbsim waits, never decides early).
-        if marked {
-            return false;
-        }
-        self.written_off = begun.wrapping_sub(ended);
-        true
     }
 }
 
@@ -178,11 +99,11 @@ impl VirtualTime {
                 continue;
             }
             let wait = slot.wait();
-            let response = wait.conns() != 0 && self.response_waiting(wait.conns());
+            let response = wait.conns() != 0 && self.sensors.response_waiting(wait.conns());
             let on_port = wait.port();
             // An edge-triggered epoll registration waits for bytes past those it has reported.
             let port_ready = on_port && {
-                let (unread, visible) = *unread.get_or_insert_with(|| self.port_unread_and_visible());
+                let (unread, visible) = *unread.get_or_insert_with(|| self.port.unread_and_visible());
                 unread > 0 && visible > slot.port_seen.load(Ordering::Relaxed)
             };
             if port_ready || response {
@@ -238,8 +159,11 @@ pub(super) struct LetGo {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::time::Duration;
+
+    use super::super::abi::Parked;
+    use super::super::hand_ons::HAND_ON_STALL;
     use crate::virtual_time::VtSettings;
-    use abi::Parked;
 
     /// A thread whose own look at the kernel found what woke it marks itself ready; if
     /// climbsim's look at the same instant passed it over, time moved on while it waited for
@@ -265,8 +189,8 @@ mod tests {
     fn a_run_that_cannot_repeat_fails_at_the_next_step_with_its_reason() {
         let vt = VirtualTime::create(VtSettings::default()).expect("a block");
         let stop = std::sync::atomic::AtomicBool::new(false);
-        vt.cannot_repeat("the reply did not reach the controller".to_owned());
-        vt.cannot_repeat("a later reason".to_owned());
+        vt.port().cannot_repeat("the reply did not reach the controller".to_owned());
+        vt.port().cannot_repeat("a later reason".to_owned());
         match vt.advance_to(Duration::from_millis(2), &stop) {
             Err(crate::virtual_time::VtError::Stuck(why)) => assert_eq!(why, "the reply did not reach the controller"),
             other => panic!("the run went on: {other:?}"),

@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::abi::{Shared, Slot, call, state};
+use super::abi::{self, NEVER, Shared, Slot, call, state};
 use super::error::VtError;
 use crate::proc_stat::{STATE, cpu_ticks, stat_field};
 
@@ -199,6 +199,24 @@ impl Watchdog {
             thread.cpu = None;
         }
     }
+}
+
+/// What each followed thread (not free nor exited) is doing now, for a diagnostic: its
+/// slot, thread id, state, what it waits on and until when, and its last call.
+pub(super) fn threads_now(shared: &Shared) -> String {
+    let threads: Vec<String> = shared
+        .live_slots()
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.is_live())
+        .map(|(i, s)| {
+            let deadline = s.deadline_ns.load(Ordering::Relaxed);
+            let until = if deadline == NEVER { "never".to_owned() } else { format!("{:.6}", deadline as f64 / 1e9) };
+            let (tid, wait, last) = (s.tid.load(Ordering::Relaxed), s.wait(), abi::call::name(s.last_call.load(Ordering::Relaxed)));
+            format!("#{i} tid {tid} {} waits {wait:?} until {until} last {last}", state::name(s.state()))
+        })
+        .collect();
+    threads.join("; ")
 }
 
 fn running(shared: &Shared) -> impl Iterator<Item = (usize, &Slot)> {

@@ -23,16 +23,16 @@ use crate::robot::{RobotDescription, RobotOverrides};
 use crate::runner::view::ViewOptions;
 use crate::scenario::Scenario;
 use crate::sensor_server::SensorFeed;
-use crate::transport::{Adapter, BusHandle, Clock as BusClock, PhysicsPace, VirtualPort};
-use crate::virtual_time::VirtualTime;
+use crate::transport::{Adapter, BusHandle, PhysicsPace, VirtualPort};
 
 use super::clock::{Pace, TimeBase};
-use super::feed::{WorldFailed, observer_hook, start_sensor_server};
+use super::feed::{WorldFailed, observer_hook};
 use super::observe::scenario_bus;
 use super::outputs::finish_timing_report;
 use super::process::faketime_env;
 use super::recording::{RecordSpec, finish_recording, record_sensor_reads, start_recording};
 use super::ticks::Pacer;
+use super::time_base::Timekeeping;
 use super::{Console, During as _, Result, RunnerError};
 
 /// Every transport the bus is served on besides the pty, which is always there.
@@ -92,20 +92,16 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
     if speed_scaled && transports.device.is_some() {
         return Err(RunnerError::Invalid("--speed with --device: the controller on a serial device keeps real time; serve it at --speed 1".to_owned()));
     }
-    let virtual_time = match pace.time {
-        TimeBase::Virtual(settings) => {
-            if scenario.is_none() {
-                return Err(RunnerError::Invalid("serve --clock virtual needs a scenario: on the bench there is no world whose time could wait for the controller".to_owned()));
-            }
-            if transports.tcp.is_some() || transports.tcp_connect.is_some() || transports.can.is_some() || transports.device.is_some() {
-                return Err(RunnerError::Invalid("serve --clock virtual serves the pty only: a controller on TCP, CAN or a serial device keeps real time".to_owned()));
-            }
-            let vt = VirtualTime::create(settings)?;
-            vt.wait_for_controllers();
-            Some(vt)
+    if matches!(pace.time, TimeBase::Virtual(_)) {
+        if scenario.is_none() {
+            return Err(RunnerError::Invalid("serve --clock virtual needs a scenario: on the bench there is no world whose time could wait for the controller".to_owned()));
         }
-        TimeBase::Wall => None,
-    };
+        if transports.tcp.is_some() || transports.tcp_connect.is_some() || transports.can.is_some() || transports.device.is_some() {
+            return Err(RunnerError::Invalid("serve --clock virtual serves the pty only: a controller on TCP, CAN or a serial device keeps real time".to_owned()));
+        }
+    }
+    let time = Timekeeping::assemble(&pace)?;
+    time.wait_for_controllers();
     // Said before anything starts: a controller must be started with these to keep the pace.
     let faketime = if speed_scaled { Some(faketime_env(pace.speed).during(|| format!("--speed {}", pace.speed))?) } else { None };
     if let Some(bps) = baud {
@@ -142,9 +138,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
         }
         None => None,
     };
-    let _ends = virtual_time.as_ref().map(VirtualTime::end_on_drop);
-    let clock = virtual_time.as_ref().map_or_else(|| BusClock::scaled(pace.speed), |vt| BusClock::on_virtual_time(Arc::clone(vt)));
-    let handle = BusHandle::with_clock(bus, trace, recorder, clock);
+    let handle = BusHandle::with_clock(bus, trace, recorder, time.bus_clock());
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().during(|| "cannot start the runtime".to_owned())?;
     let port = runtime.block_on(async {
         let port = Arc::new(VirtualPort::open(transports.link.as_deref()).during(|| "cannot open the pty".to_owned())?);
@@ -180,13 +174,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
             console.say(&format!("speed: {}x; start your controller with its clocks scaled alike: {} <command>", pace.speed, assignments.join(" ")));
         }
         // Under virtual time the session runs inside the scheduler, at exact simulated instants.
-        let pty_thread = match &virtual_time {
-            Some(vt) => {
-                pty::drive_pty(vt, Arc::clone(&port), Arc::clone(&handle), transports.adapter);
-                None
-            }
-            None => Some(pty::start_thread(Arc::clone(&port), Arc::clone(&handle), transports.adapter)?),
-        };
+        let pty_thread = time.serve_pty(Arc::clone(&port), Arc::clone(&handle), transports.adapter, pty::start_thread)?;
         // A world runs on the wall clock: the pacer advances it every firmware tick against
         // absolute deadlines, so it moves between packets too (packets advance it as well). The
         // bench needs none: its servos are brought up to date exactly when a packet arrives.
@@ -194,10 +182,10 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
             Some(observer) => {
                 let feed = Arc::new(SensorFeed::default());
                 record_sensor_reads(&handle, &feed);
-                let url = start_sensor_server(Arc::clone(&feed), virtual_time.as_ref()).await?;
+                let url = time.start_sensor_server(Arc::clone(&feed)).await?;
                 console.say(&format!("sensors: {url}"));
-                if let Some(vt) = &virtual_time {
-                    let mut env = vt.controller_env()?;
+                if time.is_virtual() {
+                    let mut env = time.controller_env()?;
                     env.push(("DXL_PORT".to_owned(), port.path().display().to_string()));
                     env.push(("CLIMBSIM_SENSORS".to_owned(), url.clone()));
                     let assignments: Vec<String> = env.iter().map(|(k, v)| format!("{k}='{v}'")).collect();
@@ -207,7 +195,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
                     ));
                 }
                 let errors = Arc::new(Mutex::new(None));
-                Some(Pacer::start(Arc::clone(&handle), observer_hook(observer, feed, errors, WorldFailed::GoesOn)))
+                Some(Pacer::start(Arc::clone(&handle), observer_hook(observer, feed, errors, WorldFailed::GoesOn), time.tick_source()))
             }
             None => None,
         };
@@ -219,9 +207,7 @@ pub fn serve(options: ServeOptions, robot: &RobotDescription, stop: &AtomicBool,
             warn!("the pty session had stopped before shutdown");
         }
         // The controller's clean-up runs on the wall clock from here.
-        if let Some(vt) = &virtual_time {
-            vt.end();
-        }
+        time.end();
         if can_thread.as_ref().is_some_and(std::thread::JoinHandle::is_finished) {
             warn!("the CAN session had stopped before shutdown");
         }

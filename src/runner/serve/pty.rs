@@ -8,16 +8,12 @@ use crate::device::StillPlant;
 use crate::transport::{Adapter, AdapterModel, BusHandle, Clock, TransportError, VirtualPort, serve_stream_through};
 
 use crate::runner::{During as _, Result};
-use crate::virtual_time::{Serves, VirtualTime};
-use tracing::warn;
 
-/// Serve the pty until the process ends, the controller behind `adapter`. The port outlives
-/// every controller connection.
+/// Serve the pty on the wall clock until the process ends, the controller behind `adapter`.
+/// The port outlives every controller connection. (Under virtual time the scheduler drives the
+/// session: `runner::time_base`.)
 pub async fn serve_pty(port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) -> Result<(), TransportError> {
     let line = port.line();
-    if let Some(virtual_time) = handle.clock().virtual_time() {
-        return serve_stream_through(port.virtual_stream(Arc::clone(virtual_time)), handle, &line, AdapterModel::new(adapter)).await;
-    }
     let spin_for_requests = handle.with_bus(|bus| bus.timing()) == Timing::Off;
     serve_stream_through(port.stream(spin_for_requests)?, handle, &line, AdapterModel::new(adapter)).await
 }
@@ -41,17 +37,6 @@ pub async fn serve_after_the_run(port: Arc<VirtualPort>, handle: Arc<BusHandle>,
     let (read, write) = tokio::io::split(port.stream(false)?);
     let stream = tokio::io::join(std::io::Cursor::new(written_before).chain(read), write);
     serve_stream_through(stream, handle, &line, None).await
-}
-
-/// Serve `port` inside the virtual-time scheduler: the session acts only at exact simulated
-/// instants, with the controller parked.
-pub fn drive_pty(virtual_time: &VirtualTime, port: Arc<VirtualPort>, handle: Arc<BusHandle>, adapter: Adapter) {
-    let session = serve_pty(port, handle, adapter);
-    virtual_time.drive(Serves::Port, async move {
-        if let Err(error) = session.await {
-            warn!(%error, "pty session ended");
-        }
-    });
 }
 
 /// Serve `port` on a thread of its own: precise reply timing spins, and must not stall anything.
