@@ -73,6 +73,12 @@ fn a_controller_that_ends_by_itself_passes_only_with_a_zero_exit() {
     assert_eq!(output.status.code(), Some(1), "{}", text(&output));
     let output = climbsim(&["check", &early.display().to_string(), "--out", &runs]);
     assert_eq!(output.status.code(), Some(1), "exit 0 before the end fails unless ends_by_itself: {}", text(&output));
+    // One that had not finished by the scenario's end (blocked for good, or too slow) fails
+    // too, saying so: stopped, it would otherwise have passed.
+    let unfinished = scenario(&dir, "unfinished", 1.0, "sleep 30\nexit 0", "ends_by_itself = true");
+    let output = climbsim(&["check", &unfinished.display().to_string(), "--out", &runs]);
+    assert_eq!(output.status.code(), Some(1), "{}", text(&output));
+    assert!(text(&output).contains("controller still running at the scenario's end (t = 1 s, simulated), though it ends by itself"), "{}", text(&output));
 }
 
 /// Whether `pid` is still running (a zombie waiting to be reaped is not).

@@ -101,7 +101,8 @@ fn the_official_sdk_sees_the_wire_models_latencies_exactly_and_an_absent_servos_
 #[test]
 fn the_servos_answer_a_controllers_clean_up_after_the_run_and_it_is_not_counted_in_the_run() {
     let dir = support::scratch_dir("vt-clean-up");
-    let path = scenario_1mbps(&dir, "clean-up", 1.0, &["tests/vt/clean_up.py"]);
+    // It runs until it is stopped (and cleans up then): not a program that ends by itself.
+    let path = support::vt::scenario_with(&dir, "clean-up", 1.0, &["tests/vt/clean_up.py"], false, "\n[bus]\nbaud_bps = 1000000\n");
     let out = dir.join("out");
     let (output, _) = run_virtual(&path, &out);
     assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));

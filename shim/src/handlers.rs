@@ -10,7 +10,7 @@ use core::ffi::{c_int, c_long, c_void};
 use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use crate::native;
-use crate::sys::nr;
+use crate::sys::{self, nr};
 
 pub(crate) const SIGSYS: c_int = 31;
 pub(crate) const SIGSYS_BIT: u64 = 1 << (SIGSYS - 1);
@@ -158,6 +158,29 @@ pub(crate) unsafe fn forward_to_program(signal: c_int, info: *mut c_void, contex
             // SAFETY: as the kernel would have called it.
             unsafe { handler(signal) };
         }
+    }
+}
+
+/// A signal the shim handles for its own ends that was sent (`kill`, `raise`, another process),
+/// not raised by a fault or the filter: the program's, as if the shim were not there. Ignored
+/// if the program ignores it; its handler if it has one; by default the kernel's action, for
+/// which the default is put back and the signal sent again (it ends the process, as it would
+/// have).
+///
+/// # Safety
+/// The kernel's arguments of a signal being handled.
+#[cfg(target_arch = "x86_64")]
+pub(crate) unsafe fn forward_sent(signal: c_int, info: *mut c_void, context: *mut c_void) {
+    let Some(wish) = wish_for(signal) else { return };
+    match wish.load().handler {
+        SIG_IGN => {}
+        SIG_DFL => {
+            // SAFETY: as the caller's; the default action is taken from here.
+            unsafe { forward_to_program(signal, info, context) };
+            native::call3(nr::TGKILL, sys::getpid() as c_long, sys::gettid() as c_long, signal as c_long);
+        }
+        // SAFETY: the kernel's arguments, for the program's handler.
+        _ => unsafe { forward_to_program(signal, info, context) },
     }
 }
 

@@ -244,10 +244,13 @@ fn install_go_filter(start: u64, end: u64) -> Result<(), &'static [u8]> {
 
 #[cfg(target_arch = "x86_64")]
 unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut c_void) {
-    // Only the filter's traps (si_code SYS_SECCOMP); a SIGSYS sent with kill(2) carries no call.
+    // Only the filter's traps (si_code SYS_SECCOMP) carry a call; a SIGSYS sent with kill(2) or
+    // raised by the program is the program's own.
     const SYS_SECCOMP: c_int = 1;
     // SAFETY: the kernel's siginfo: si_signo, si_errno, si_code are its first three ints.
     if unsafe { *info.cast::<c_int>().add(2) } != SYS_SECCOMP {
+        // SAFETY: the kernel's arguments of this signal.
+        unsafe { crate::handlers::forward_sent(handlers::SIGSYS, info, context) };
         return;
     }
     let saved_errno = sys::errno();

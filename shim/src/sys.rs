@@ -52,6 +52,9 @@ pub struct iovec {
 pub const POLLIN: i16 = 0x1;
 pub const F_GETFL: c_int = 3;
 pub const O_NONBLOCK: c_int = 0o4000;
+pub const O_ACCMODE: c_int = 0o3;
+pub const O_WRONLY: c_int = 0o1;
+pub const O_PATH: c_int = 0o10000000;
 pub const POLLPRI: i16 = 0x2;
 pub const POLLOUT: i16 = 0x4;
 
@@ -67,6 +70,8 @@ pub const CLOCK_TAI: clockid_t = 11;
 pub const TIMER_ABSTIME: c_int = 1;
 
 pub const EINVAL: c_int = 22;
+pub const EFAULT: c_int = 14;
+pub const EOPNOTSUPP: c_int = 95;
 pub const EINTR: c_int = 4;
 pub const EAGAIN: c_int = 11;
 /// A path relative to the working directory, for the `*at` calls.
@@ -127,6 +132,7 @@ pub mod nr {
     pub const EXECVEAT: i64 = 322;
     pub const MEMFD_CREATE: i64 = 319;
     pub const PRLIMIT64: i64 = 302;
+    pub const PROCESS_VM_READV: i64 = 310;
     pub const FCNTL: i64 = 72;
     pub const READLINKAT: i64 = 267;
     pub const IO_URING_SETUP: i64 = 425;
@@ -161,6 +167,7 @@ pub mod nr {
     pub const EXECVEAT: i64 = 281;
     pub const MEMFD_CREATE: i64 = 279;
     pub const PRLIMIT64: i64 = 261;
+    pub const PROCESS_VM_READV: i64 = 270;
     pub const FCNTL: i64 = 25;
     pub const READLINKAT: i64 = 78;
     pub const IO_URING_SETUP: i64 = 425;
@@ -249,6 +256,44 @@ pub fn futex_wake(word: &AtomicU32) {
     native::call3(nr::FUTEX, word.as_ptr() as c_long, FUTEX_WAKE, i32::MAX as c_long);
 }
 
+/// Copy `len` bytes of the program's memory at `from` to `to`, as the kernel copies a call's
+/// arguments in (`copy_from_user`); false if any of it is not readable, where Linux answers
+/// EFAULT. The shim reads a call's arguments before the kernel sees them, and a bad pointer must
+/// be the program's EFAULT, not a crash inside the shim. Made with `process_vm_readv` on this
+/// process (natively: no side effect, one system call); where that is refused (a sandbox's own
+/// filter), the memory is read directly, as a program's own code would.
+pub fn copy_from_program(from: *const u8, to: *mut u8, len: usize) -> bool {
+    const EFAULT_RC: c_long = -(EFAULT as c_long);
+    if len == 0 {
+        return true;
+    }
+    if from.is_null() {
+        return false;
+    }
+    let local = iovec { iov_base: to.cast(), iov_len: len };
+    let remote = iovec { iov_base: from.cast_mut().cast(), iov_len: len };
+    let rc = native::call6(nr::PROCESS_VM_READV, getpid() as c_long, &local as *const iovec as c_long, 1, &remote as *const iovec as c_long, 1, 0);
+    match rc {
+        rc if rc == len as c_long => true,
+        // Part of it, or none: the rest is not mapped.
+        rc if rc >= 0 || rc == EFAULT_RC => false,
+        _ => {
+            // SAFETY: the program passed this memory to a call that reads it; as readable as
+            // its own code takes it to be.
+            unsafe { core::ptr::copy_nonoverlapping(from, to, len) };
+            true
+        }
+    }
+}
+
+/// The program's value of type `T` at `from`, copied as [`copy_from_program`] does (`None`:
+/// not readable, EFAULT).
+pub fn read_from_program<T: Copy>(from: *const T) -> Option<T> {
+    let mut value = core::mem::MaybeUninit::<T>::uninit();
+    // SAFETY: on success every byte of `value` was written.
+    copy_from_program(from.cast(), value.as_mut_ptr().cast(), core::mem::size_of::<T>()).then(|| unsafe { value.assume_init() })
+}
+
 /// The character device number of `fd`, if it is one.
 pub fn char_device(fd: c_int) -> Option<u64> {
     let mut stat = [0u8; 256];
@@ -315,6 +360,29 @@ fn host_clock_ns(clock: clockid_t) -> u64 {
     // SAFETY: a valid timespec for the call.
     unsafe { clock_gettime(clock, &mut ts) };
     to_ns(&ts)
+}
+
+/// The program's timeout at `from` in ns, as Linux takes a call's timeout: none (`None`) for a
+/// null pointer; EFAULT if it is not readable; EINVAL unless 0 <= tv_sec and
+/// 0 <= tv_nsec < 1e9.
+pub(crate) fn program_timespec(from: *const timespec) -> Result<Option<u64>, c_int> {
+    if from.is_null() {
+        return Ok(None);
+    }
+    let ts = read_from_program(from).ok_or(EFAULT)?;
+    if ts.tv_sec < 0 || !(0..1_000_000_000).contains(&ts.tv_nsec) {
+        return Err(EINVAL);
+    }
+    Ok(Some(to_ns(&ts)))
+}
+
+/// The most descriptors this process may have open (RLIMIT_NOFILE's soft limit), past which a
+/// poll is EINVAL. Asked only for an array longer than any limit Linux allows below (64).
+pub(crate) fn open_files_limit() -> u64 {
+    const RLIMIT_NOFILE: c_long = 7;
+    let mut limit = [u64::MAX; 2];
+    native::call4(nr::PRLIMIT64, 0, RLIMIT_NOFILE, 0, limit.as_mut_ptr() as c_long);
+    limit[0]
 }
 
 /// A timespec in ns (negative parts as 0).

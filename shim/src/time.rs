@@ -108,15 +108,19 @@ pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *
     let shared = shared()?;
     let running = active().is_some();
     let absolute = flags & sys::TIMER_ABSTIME != 0;
-    if request.is_null() || clock_at(shared, clock, 0).is_none() || (!running && !absolute) {
+    // Clocks the shim answers that Linux cannot sleep on: their reads only.
+    if matches!(clock, sys::CLOCK_MONOTONIC_RAW | sys::CLOCK_REALTIME_COARSE | sys::CLOCK_MONOTONIC_COARSE) {
+        return Some(sys::EOPNOTSUPP);
+    }
+    if clock_at(shared, clock, 0).is_none() || (!running && !absolute) {
         return None;
     }
-    // SAFETY: the caller's timespec (non-null).
-    let request = unsafe { &*request };
-    if request.tv_nsec < 0 || request.tv_nsec >= 1_000_000_000 || request.tv_sec < 0 {
-        return Some(sys::EINVAL);
-    }
-    let asked = to_ns(request);
+    // Linux's order after the clock: the request's memory (EFAULT), then its value (EINVAL).
+    let asked = match sys::program_timespec(request) {
+        Ok(Some(asked)) => asked,
+        Ok(None) => return Some(sys::EFAULT),
+        Err(error) => return Some(error),
+    };
     let deadline = if absolute { sim_time_of(shared, clock, asked).unwrap_or(0) } else { sim_now(shared).saturating_add(asked) };
     if !running {
         // The caller's sleep was absolute: it has no remainder to report.

@@ -17,8 +17,8 @@ use crate::block::active;
 use crate::park::Looked;
 use crate::park::{charge, note_call, park};
 use crate::slot::my_slot;
-use crate::sys::{self, fd_set, nfds_t, pollfd, real, timespec, timeval};
-use crate::time::{from_ns, sim_now, to_ns};
+use crate::sys::{self, fd_set, nfds_t, pollfd, program_timespec, real, timespec, timeval};
+use crate::time::{from_ns, sim_now};
 
 /// How long a timer set to fire at once may take to show on its descriptor (wall time).
 const TIMER_SHOWN_WITHIN_NS: u64 = 10_000_000;
@@ -264,6 +264,16 @@ fn readable_now(fd: c_int) -> bool {
     unsafe { poll(&mut entry, 1, 0) != 0 }
 }
 
+/// Whether a read of `fd` may wait in the kernel. Not if the call fails at once, which the read
+/// itself then says as Linux does: no such descriptor (EBADF), one not open for reading (a
+/// pipe's write end, an `O_PATH` descriptor: EBADF). Nor in non-blocking mode, where the read
+/// says what there is.
+fn read_may_block(fd: c_int) -> bool {
+    // SAFETY: fcntl F_GETFL on the caller's descriptor.
+    let flags = unsafe { sys::fcntl(fd, sys::F_GETFL) };
+    flags != -1 && flags & sys::O_NONBLOCK == 0 && flags & sys::O_ACCMODE != sys::O_WRONLY && flags & sys::O_PATH == 0
+}
+
 /// A blocking read (or receive) of a descriptor other than the port, about to be made: if the
 /// kernel has nothing for it yet, wait for that on simulated time first, so that the thread
 /// counts as blocked (a pipe's reader: a shell's `$(…)`, Python's `subprocess`, a pipe to a
@@ -273,11 +283,7 @@ pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) {
     let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
     let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
     let saved = crate::sys::errno();
-    let ready = readable_now(fd);
-    // A descriptor in non-blocking mode (or none at all: fcntl fails, -1 has the bit) never
-    // waits in the kernel: the read itself says what there is.
-    // SAFETY: fcntl F_GETFL on the caller's descriptor.
-    if ready || unsafe { sys::fcntl(fd, sys::F_GETFL) } & sys::O_NONBLOCK != 0 {
+    if readable_now(fd) || !read_may_block(fd) {
         crate::sys::set_errno(saved);
         return;
     }
@@ -299,18 +305,38 @@ pub(crate) fn wall_ms(wall_ns: Option<u64>) -> c_int {
     wall_ns.map_or(-1, |ns| ns.div_ceil(1_000_000).min(i32::MAX as u64) as c_int)
 }
 
-fn poll_interest(shared: &'static Shared, fds: *mut pollfd, count: nfds_t) -> Interest {
-    let mut interest = Interest::default();
-    for index in 0..count as usize {
-        // SAFETY: the caller's array of `count` pollfds.
-        let entry = unsafe { *fds.add(index) };
-        if entry.fd < 0 {
-            continue;
-        }
-        let read = entry.events & (sys::POLLIN | sys::POLLPRI) != 0;
-        interest.add(shared, entry.fd, read, entry.events & sys::POLLOUT != 0);
+/// What a poll of the caller's `count` entries at `fds` waits on; or Linux's answer to its
+/// arguments (an errno): more entries than the process may have descriptors, EINVAL; an array
+/// that is not readable, EFAULT.
+fn poll_interest(shared: &'static Shared, fds: *mut pollfd, count: nfds_t) -> Result<Interest, c_int> {
+    // (A limit below 64 is met by the kernel's own answer to the first real call.)
+    if count > 64 && count > sys::open_files_limit() {
+        return Err(sys::EINVAL);
     }
-    interest
+    let mut interest = Interest::default();
+    // Read as the kernel reads it, a page's worth at a time (see `copy_from_program`).
+    const CHUNK: usize = 256;
+    let mut chunk = [pollfd { fd: -1, events: 0, revents: 0 }; CHUNK];
+    let count = count as usize;
+    let mut start = 0;
+    while start < count {
+        let len = (count - start).min(CHUNK);
+        if !sys::copy_from_program(fds.wrapping_add(start).cast(), chunk.as_mut_ptr().cast(), len * core::mem::size_of::<pollfd>()) {
+            return Err(sys::EFAULT);
+        }
+        for entry in chunk[..len].iter().filter(|entry| entry.fd >= 0) {
+            let read = entry.events & (sys::POLLIN | sys::POLLPRI) != 0;
+            interest.add(shared, entry.fd, read, entry.events & sys::POLLOUT != 0);
+        }
+        start += len;
+    }
+    Ok(interest)
+}
+
+/// A call refused with `errno` before it did anything, as Linux refuses it.
+fn refused(errno: c_int) -> c_int {
+    sys::set_errno(errno);
+    -1
 }
 
 #[unsafe(no_mangle)]
@@ -320,7 +346,10 @@ pub unsafe extern "C" fn poll(fds: *mut pollfd, count: nfds_t, timeout_ms: c_int
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(fds, count, timeout_ms) };
     };
-    let interest = poll_interest(shared, fds, count);
+    let interest = match poll_interest(shared, fds, count) {
+        Ok(interest) => interest,
+        Err(errno) => return refused(errno),
+    };
     // SAFETY: the caller's arguments, with our timeout.
     wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| crate::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, interest.port_fd))
 }
@@ -332,9 +361,15 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(fds, count, timeout, sigmask) };
     };
-    let interest = poll_interest(shared, fds, count);
-    // SAFETY: the caller's timespec, if any.
-    let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
+    // Linux's order: the timeout (EFAULT, then EINVAL), the count, the array.
+    let asked = match program_timespec(timeout) {
+        Ok(asked) => asked,
+        Err(errno) => return refused(errno),
+    };
+    let interest = match poll_interest(shared, fds, count) {
+        Ok(interest) => interest,
+        Err(errno) => return refused(errno),
+    };
     wait(shared, call::POLL, interest, asked, &mut |wall| {
         let limit = wall.map(from_ns);
         let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
@@ -343,45 +378,70 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
     })
 }
 
-fn is_set(set: *const fd_set, fd: usize) -> bool {
-    // SAFETY: the caller's fd_set, 1024 bits; fd < nfds <= 1024 is checked by the caller.
-    !set.is_null() && unsafe { (*set).bits[fd / 64] } & (1 << (fd % 64)) != 0
-}
-
-/// The sets of a select, saved so that each real call starts from the caller's own.
+/// The sets of a select, saved so that each real call starts from the caller's own: the words
+/// that hold `count` bits of each, as the kernel reads them (a program may allocate no more).
 struct SelectSets {
-    read: *mut fd_set,
-    write: *mut fd_set,
-    error: *mut fd_set,
+    sets: [*mut fd_set; 3],
     saved: [Option<fd_set>; 3],
+    /// The descriptors the call looks at (below `count`), and the 64-bit words that hold them.
+    count: usize,
+    words: usize,
 }
 
 impl SelectSets {
-    fn new(read: *mut fd_set, write: *mut fd_set, error: *mut fd_set) -> Self {
-        // SAFETY: the caller's sets, where not null.
-        let copy = |set: *mut fd_set| (!set.is_null()).then(|| unsafe { *set });
-        Self { read, write, error, saved: [copy(read), copy(write), copy(error)] }
+    /// The caller's sets, or Linux's answer (an errno): EINVAL for a negative count, EFAULT for
+    /// a set that is not readable.
+    fn new(count: c_int, read: *mut fd_set, write: *mut fd_set, error: *mut fd_set) -> Result<Self, c_int> {
+        if count < 0 {
+            return Err(sys::EINVAL);
+        }
+        let count = (count as usize).min(1024);
+        let words = count.div_ceil(64);
+        let copy = |set: *mut fd_set| -> Result<Option<fd_set>, c_int> {
+            if set.is_null() {
+                return Ok(None);
+            }
+            let mut saved = fd_set { bits: [0; 16] };
+            sys::copy_from_program(set.cast(), saved.bits.as_mut_ptr().cast(), words * 8).then_some(Some(saved)).ok_or(sys::EFAULT)
+        };
+        Ok(Self { sets: [read, write, error], saved: [copy(read)?, copy(write)?, copy(error)?], count, words })
     }
 
     fn restore(&self) {
-        for (set, saved) in [self.read, self.write, self.error].into_iter().zip(self.saved) {
+        for (set, saved) in self.sets.into_iter().zip(self.saved) {
             if let Some(saved) = saved {
-                // SAFETY: the caller's set, not null since we saved it.
-                unsafe { *set = saved };
+                // SAFETY: the caller's set, readable (we copied it) and the call's to write.
+                unsafe { core::ptr::copy_nonoverlapping(saved.bits.as_ptr(), set.cast::<u64>(), self.words) };
             }
         }
     }
 
-    fn interest(&self, shared: &'static Shared, count: c_int) -> Interest {
+    fn is_set(&self, which: usize, fd: usize) -> bool {
+        self.saved[which].is_some_and(|set| set.bits[fd / 64] & (1 << (fd % 64)) != 0)
+    }
+
+    fn interest(&self, shared: &'static Shared) -> Interest {
         let mut interest = Interest::default();
-        for fd in 0..count.clamp(0, 1024) as usize {
-            let (read, write, error) = (is_set(self.read, fd), is_set(self.write, fd), is_set(self.error, fd));
+        for fd in 0..self.count {
+            let (read, write, error) = (self.is_set(0, fd), self.is_set(1, fd), self.is_set(2, fd));
             if read || write || error {
                 interest.add(shared, fd as c_int, read, write || error);
             }
         }
         interest
     }
+}
+
+/// A select's timeout at `from` in ns, as Linux takes it (see `program_timespec`).
+fn program_timeval(from: *const timeval) -> Result<Option<u64>, c_int> {
+    if from.is_null() {
+        return Ok(None);
+    }
+    let tv = sys::read_from_program(from).ok_or(sys::EFAULT)?;
+    if tv.tv_sec < 0 || !(0..1_000_000).contains(&tv.tv_usec) {
+        return Err(sys::EINVAL);
+    }
+    Ok(Some((tv.tv_sec as u64).saturating_mul(1_000_000_000).saturating_add(tv.tv_usec as u64 * 1000)))
 }
 
 #[unsafe(no_mangle)]
@@ -391,10 +451,12 @@ pub unsafe extern "C" fn select(count: c_int, read: *mut fd_set, write: *mut fd_
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(count, read, write, error, timeout) };
     };
-    let sets = SelectSets::new(read, write, error);
-    let interest = sets.interest(shared, count);
-    // SAFETY: the caller's timeval, if any.
-    let asked = (!timeout.is_null()).then(|| unsafe { ((*timeout).tv_sec.max(0) as u64) * 1_000_000_000 + ((*timeout).tv_usec.max(0) as u64) * 1000 });
+    // Linux's order: the timeout (EFAULT, then EINVAL), the count, the sets.
+    let (asked, sets) = match program_timeval(timeout).and_then(|asked| Ok((asked, SelectSets::new(count, read, write, error)?))) {
+        Ok(checked) => checked,
+        Err(errno) => return refused(errno),
+    };
+    let interest = sets.interest(shared);
     let result = wait(shared, call::SELECT, interest, asked, &mut |wall| {
         sets.restore();
         let mut limit = wall.map(|ns| timeval { tv_sec: (ns / 1_000_000_000) as i64, tv_usec: (ns % 1_000_000_000).div_ceil(1000) as i64 });
@@ -417,10 +479,11 @@ pub unsafe extern "C" fn pselect(count: c_int, read: *mut fd_set, write: *mut fd
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(count, read, write, error, timeout, sigmask) };
     };
-    let sets = SelectSets::new(read, write, error);
-    let interest = sets.interest(shared, count);
-    // SAFETY: the caller's timespec, if any.
-    let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
+    let (asked, sets) = match program_timespec(timeout).and_then(|asked| Ok((asked, SelectSets::new(count, read, write, error)?))) {
+        Ok(checked) => checked,
+        Err(errno) => return refused(errno),
+    };
+    let interest = sets.interest(shared);
     wait(shared, call::SELECT, interest, asked, &mut |wall| {
         sets.restore();
         let limit = wall.map(from_ns);

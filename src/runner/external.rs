@@ -215,7 +215,9 @@ pub fn run_external(
         warn!("a controller thread still ran {PARKED_AT_THE_END_WITHIN:?} after the world's last tick (computing without calls?): it is asked to stop as it runs");
     }
     let pace = ended.pace;
-    let sim_s = clock.now().as_secs_f64();
+    // The world's time at the end: the scenario's end at most (under virtual time the clock may
+    // have jumped past it to a controller thread's deadline, which the world never reached).
+    let sim_s = clock.now().min(duration).as_secs_f64();
     // The controller's clean-up runs on the wall clock: it can neither hang nor move the world.
     // It is asked to stop first, while parked at the run's last instant.
     let mut clean_up = None;
@@ -309,6 +311,15 @@ pub fn run_external(
 /// Why the controller's exit fails the run: any early exit of a controller that should run to
 /// the end, a non-zero exit or a signal of one that ends by itself.
 fn controller_failures(exit: &Exit, external: &ExternalController, duration_s: f64, log_tail: &str, log_path: &Path) -> Vec<String> {
+    if !exit.early && external.ends_by_itself {
+        // A program that finishes a scripted task and had not: blocked for good, or slower than
+        // the scenario allows. Stopped, it is no pass.
+        let message = format!(
+            "controller still running at the scenario's end (t = {duration_s} s, simulated), though it ends by itself (ends_by_itself = true): it had not finished its task by then; it was stopped ({})",
+            exit.status
+        );
+        return vec![with_log_tail(message, log_tail, log_path)];
+    }
     if !exit.early {
         return Vec::new();
     }
@@ -316,11 +327,16 @@ fn controller_failures(exit: &Exit, external: &ExternalController, duration_s: f
         return Vec::new();
     }
     let why = if external.ends_by_itself { "failed" } else { "ended before the scenario did" };
-    let mut message = format!("controller {why}: {} at t = {:.2} s of {duration_s} s (simulated)", exit.status, exit.at_s);
+    let message = format!("controller {why}: {} at t = {:.2} s of {duration_s} s (simulated)", exit.status, exit.at_s);
+    vec![with_log_tail(message, log_tail, log_path)]
+}
+
+/// `message`, then the controller's last lines (or that its log is empty).
+fn with_log_tail(mut message: String, log_tail: &str, log_path: &Path) -> String {
     if log_tail.trim().is_empty() {
         message.push_str(&format!("; {} is empty", log_path.display()));
     } else {
         message.push_str(&format!("; last lines of {}:\n      {}", log_path.display(), log_tail.lines().collect::<Vec<_>>().join("\n      ")));
     }
-    vec![message]
+    message
 }

@@ -174,7 +174,8 @@ pub struct ExternalController {
     /// `{name}` in an argument is replaced by `params.name`.
     pub command: Vec<String>,
     /// The program ends by itself (a scripted task): exiting with status 0 then ends the run
-    /// there, and only a non-zero exit or a signal fails it. Without this, a controller that
+    /// there; a non-zero exit, a signal, or still running at the scenario's end (it had not
+    /// finished) fails it. Without this, a controller that
     /// ends before the scenario does fails the run, whatever its exit status.
     #[serde(default)]
     pub ends_by_itself: bool,

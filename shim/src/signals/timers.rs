@@ -74,11 +74,12 @@ fn remaining(timer: Option<&SigTimer>, now: u64) -> (u64, u64) {
     (timer.deadline_ns.load(Ordering::Relaxed).saturating_sub(now).max(1), interval)
 }
 
-/// Arm (`value` ns from `now`, then every `interval` ns) or disarm (`value` 0).
+/// Arm (`value` ns from `now`, then every `interval` ns) or disarm (`value` 0, which clears the
+/// interval too, as Linux does for both kinds of timer).
 fn arm(timer: &SigTimer, now: u64, value: u64, interval: u64) {
     change(timer, |t| {
         t.deadline_ns.store(if value == 0 { NEVER } else { now.saturating_add(value) }, Ordering::Relaxed);
-        t.interval_ns.store(interval, Ordering::Relaxed);
+        t.interval_ns.store(if value == 0 { 0 } else { interval }, Ordering::Relaxed);
         value != 0
     });
 }
@@ -114,15 +115,12 @@ fn write_itimer(old: *mut [timeval; 2], (left, interval): (u64, u64)) {
 pub(super) fn setitimer(shared: &Shared, new: *const [timeval; 2], old: *mut [timeval; 2]) -> c_long {
     charged_call(shared, call::TIMER);
     let now = sim_now(shared);
-    let wanted = if new.is_null() {
-        None
-    } else {
-        // SAFETY: the caller's struct itimerval.
-        let [interval, value] = unsafe { &*new };
-        match (timeval_ns(interval), timeval_ns(value)) {
-            (Some(interval), Some(value)) => Some((value, interval)),
-            _ => return -EINVAL,
-        }
+    // A null new value disarms the timer (Linux's "misfeature", kept for old programs).
+    let new = if new.is_null() { Some([timeval { tv_sec: 0, tv_usec: 0 }; 2]) } else { sys::read_from_program(new) };
+    let Some([interval, value]) = new else { return -c_long::from(sys::EFAULT) };
+    let wanted = match (timeval_ns(&interval), timeval_ns(&value)) {
+        (Some(interval), Some(value)) => Some((value, interval)),
+        _ => return -EINVAL,
     };
     let timer = itimer(shared, wanted.is_some_and(|(value, _)| value != 0));
     write_itimer(old, remaining(timer, now));

@@ -1,0 +1,54 @@
+//! Linux's answers on `--clock virtual`: a call the shim follows answers a wrong argument as the
+//! kernel does (EBADF, EFAULT, EINVAL, EOPNOTSUPP) and at once, and the corner cases of the
+//! timers and signals it follows behave as Linux's. One C program asks each in turn; its lines
+//! were read natively on Linux 6.18 with glibc 2.36 (2026-12-07) (`cc tests/vt/linux_answers.c && ./a.out`)
+//! and must read the same on virtual time, in every run.
+
+mod support;
+
+use support::vt::{compiled_c, controller_log_repeated, scenario};
+
+/// What `tests/vt/linux_answers.c` prints natively.
+const LINUX_SAYS: &str = "\
+read of a pipe's write end: -1 EBADF at once
+raw read of a pipe's write end: -1 EBADF at once
+write to a pipe's read end: -1 EBADF at once
+read of a closed descriptor: -1 EBADF at once
+poll(NULL, 1, 0): -1 EFAULT at once
+poll(16, 1, 10): -1 EFAULT at once
+ppoll(NULL, 1, 0): -1 EFAULT at once
+poll(NULL, 0, 10): 0 after a while
+poll of 2^30 descriptors: -1 EINVAL at once
+select(-1): -1 EINVAL at once
+select with tv_usec -1: -1 EINVAL at once
+nanosleep of 1e9 ns: -1 EINVAL at once
+nanosleep of -1 s: -1 EINVAL at once
+nanosleep(NULL): -1 EFAULT at once
+clock_nanosleep(CLOCK_MONOTONIC_RAW, 10 ms): -1 EOPNOTSUPP at once
+clock_nanosleep(CLOCK_MONOTONIC_COARSE, 10 ms): -1 EOPNOTSUPP at once
+clock_nanosleep(CLOCK_REALTIME_COARSE, 10 ms): -1 EOPNOTSUPP at once
+clock_nanosleep(CLOCK_THREAD_CPUTIME_ID, 10 ms): -1 EINVAL at once
+clock_nanosleep(clock 99, 10 ms): -1 EINVAL at once
+clock_nanosleep(CLOCK_BOOTTIME, 10 ms): 0 after a while
+clock_nanosleep(CLOCK_MONOTONIC, 1e9 ns): -1 EINVAL at once
+clock_gettime(clock 99): -1 EINVAL at once
+clock_getres(clock 99): -1 EINVAL at once
+setitimer with a zero value and a 10 ms interval: 0 alarms in 50 ms; getitimer says value 0.000000 interval 0.000000
+setitimer with tv_usec 1e6: -1 EINVAL at once
+setitimer(99): -1 EINVAL at once
+raise(SIGSYS): the handler ran 1 time(s)
+kill(self, SIGSYS): the handler ran 2 time(s)
+";
+
+#[test]
+fn wrong_arguments_and_timer_corners_get_linuxs_answers_at_once() {
+    let dir = support::scratch_dir("vt-linux-answers");
+    let program = compiled_c(&dir, "linux_answers");
+    let path = scenario(&dir, "linux_answers", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    // Line by line, so that a failure names the call.
+    for (virtual_line, linux_line) in log.lines().zip(LINUX_SAYS.lines()) {
+        assert_eq!(virtual_line, linux_line, "on virtual time (left) against Linux (right); the whole log:\n{log}");
+    }
+    assert_eq!(log.lines().count(), LINUX_SAYS.lines().count(), "the program stopped early; its log:\n{log}");
+}
