@@ -81,6 +81,25 @@ fn a_controller_that_ends_by_itself_passes_only_with_a_zero_exit() {
     assert!(text(&output).contains("controller still running at the scenario's end (t = 1 s, simulated), though it ends by itself"), "{}", text(&output));
 }
 
+/// A controller that runs until stopped may end as it likes when asked (SIGTERM), but one that
+/// crashes in its own ending (libuv's assertion, a segfault in a SIGTERM handler) fails the run:
+/// what it does there (a final report, the torque off) is lost. Both clocks.
+#[test]
+fn a_controller_that_crashes_as_it_stops_fails_the_run() {
+    let dir = support::scratch_dir("ext-crash-on-stop");
+    let crashes = scenario(&dir, "crashes", 1.0, "trap 'echo stopping; kill -ABRT $$' TERM\nwhile :; do sleep 0.05; done", "");
+    let stops = scenario(&dir, "stops", 1.0, "trap 'echo stopping; exit 0' TERM\nwhile :; do sleep 0.05; done", "");
+    for clock in ["virtual", "wall"] {
+        let out = dir.join(format!("crashes-{clock}")).display().to_string();
+        let output = climbsim(&["run", &crashes.display().to_string(), "--clock", clock, "--set", "expect={}", "--pace-tolerance-ms", "1000", "--out", &out]);
+        assert_eq!(output.status.code(), Some(1), "{clock}: {}", text(&output));
+        assert!(text(&output).contains("controller crashed as it stopped at the scenario's end (asked with SIGTERM): signal: 6 (SIGABRT)"), "{clock}: {}", text(&output));
+        let out = dir.join(format!("stops-{clock}")).display().to_string();
+        let output = climbsim(&["run", &stops.display().to_string(), "--clock", clock, "--set", "expect={}", "--pace-tolerance-ms", "1000", "--out", &out]);
+        assert!(output.status.success(), "{clock}: {}", text(&output));
+    }
+}
+
 /// Whether `pid` is still running (a zombie waiting to be reaped is not).
 fn running(pid: u32) -> bool {
     std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|stat| stat.rsplit(')').next().is_some_and(|rest| !rest.trim_start().starts_with('Z')))

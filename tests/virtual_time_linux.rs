@@ -17,6 +17,9 @@ read of a closed descriptor: -1 EBADF at once
 poll(NULL, 1, 0): -1 EFAULT at once
 poll(16, 1, 10): -1 EFAULT at once
 ppoll(NULL, 1, 0): -1 EFAULT at once
+poll of an array past its mapping's end: -1 EFAULT at once
+poll of the same array inside it: 0 at once
+select of an unmapped set: -1 EFAULT at once
 poll(NULL, 0, 10): 0 after a while
 poll of 2^30 descriptors: -1 EINVAL at once
 select(-1): -1 EINVAL at once
@@ -51,4 +54,19 @@ fn wrong_arguments_and_timer_corners_get_linuxs_answers_at_once() {
         assert_eq!(virtual_line, linux_line, "on virtual time (left) against Linux (right); the whole log:\n{log}");
     }
     assert_eq!(log.lines().count(), LINUX_SAYS.lines().count(), "the program stopped early; its log:\n{log}");
+}
+
+/// A process that ends through a raw `exit_group` (Go's way, or a fatal signal) while another
+/// of its threads sleeps ends at its instant: not when that sleep would have ended, which lay
+/// past the scenario's end and made the run last to it.
+#[test]
+fn a_process_that_ends_by_a_raw_exit_group_while_a_thread_sleeps_ends_at_its_instant() {
+    let dir = support::scratch_dir("vt-raw-exit");
+    let program = compiled_c(&dir, "raw_exit");
+    let path = scenario(&dir, "raw_exit", 5.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    assert_eq!(log, "done at 1000.100\n");
+    let summary = support::vt::summary(&dir.join("a"));
+    let ended = summary["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
+    assert!((0.1..0.11).contains(&ended), "ended at {ended} s: {summary:?}");
 }

@@ -72,6 +72,23 @@ fn nodejs_with_npms_serialport_and_a_worker_thread_repeats_exactly() {
     assert!(log.contains("loop: 100 cycles in 200"), "{log}");
 }
 
+/// The same controller run until it is stopped, as services run: at the scenario's end its
+/// SIGTERM handler reports and closes the port. libuv's infinite epoll_wait, let go as the run
+/// ended, once came back empty and libuv aborted (`uv__io_poll: Assertion 'timeout != -1'`),
+/// losing the report, and the run passed.
+#[test]
+fn nodejs_ends_on_sigterm_with_its_report() {
+    let dir = support::scratch_dir("vt-node-sigterm");
+    let node = node();
+    let script = repo().join("tests/vt/node/serialport_controller.js");
+    let command = [node.to_str().expect("utf-8 path"), script.to_str().expect("utf-8 path"), "--until-stopped"];
+    let path = support::vt::scenario_with(&dir, "node-sigterm", 2.0, &command, false, "\n[bus]\nbaud_bps = 1000000\n");
+    let log = controller_log_repeated(&path, &dir);
+    assert!(log.contains("ping 1-8: 8 found"), "{log}");
+    assert!(log.contains("stats: 99 cycles, 396 replies\nloop: 99 cycles, longest period 20."), "{log}");
+    assert_eq!(support::vt::summary(&dir.join("a"))["controller_exit"], "exit status: 0");
+}
+
 /// Debian's jSSC (libjssc-java: scripts/test.sh installs it).
 const JSSC_JAR: &str = "/usr/share/java/jssc.jar";
 
@@ -113,6 +130,19 @@ fn go_built_with_cgo_with_goroutines_and_a_channel_repeats_exactly() {
     assert!(log.contains("go with cgo: true"), "{log}");
     // Go's timers wake from epoll waits whose timeouts are whole milliseconds.
     assert!(log.contains("loop: 100 cycles in 2000."), "{log}");
+}
+
+/// The same Go controller run until it is stopped: os/signal takes the SIGTERM of the run's end
+/// in its own goroutine, and the loop reports and ends.
+#[test]
+fn go_ends_on_sigterm_through_os_signal_with_its_report() {
+    let dir = support::scratch_dir("vt-go-sigterm");
+    let program = compiled_go(&dir, ".", true);
+    let path = support::vt::scenario_with(&dir, "go-sigterm", 2.0, &[program.to_str().expect("utf-8 path"), "--until-stopped"], false, "\n[bus]\nbaud_bps = 1000000\n");
+    let log = controller_log_repeated(&path, &dir);
+    assert!(log.contains("ping 1-8: 8 found"), "{log}");
+    assert!(log.contains(" cycles, longest period 20."), "{log}");
+    assert_eq!(support::vt::summary(&dir.join("a"))["controller_exit"], "exit status: 0");
 }
 
 #[test]

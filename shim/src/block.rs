@@ -4,29 +4,19 @@
 //! followed, but knows nothing of slots or turns.
 
 use core::ffi::{c_char, c_int};
-use core::sync::atomic::{AtomicBool, AtomicI32, AtomicPtr, AtomicU64, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicPtr, AtomicU64, Ordering};
 
 use crate::abi::{self, Shared, mode};
 use crate::sys::{self, real};
 
 /// The block, once mapped.
 static SHARED: AtomicPtr<Shared> = AtomicPtr::new(core::ptr::null_mut());
-/// This process's id (kept up to date across fork), to find its descriptors' entries.
-static PID: AtomicI32 = AtomicI32::new(0);
 /// Set once climbsim is found gone: the process goes on as after the run's end.
 pub(crate) static ORPHANED: AtomicBool = AtomicBool::new(false);
 /// The wall clock (CLOCK_MONOTONIC) when climbsim was found gone.
 static ORPHANED_AT: AtomicU64 = AtomicU64::new(0);
 
-/// This process's id, as the shim last noted it (at start, and in a forked child).
-pub(crate) fn pid() -> i32 {
-    PID.load(Ordering::Relaxed)
-}
-
-/// Note this process's id (at start, and in a forked child).
-pub(crate) fn note_pid() {
-    PID.store(sys::getpid(), Ordering::Relaxed);
-}
+pub(crate) use sys::{note_pid, noted_pid as pid};
 
 /// The block if virtual time is on (the run has not ended, climbsim is there).
 pub(crate) fn active() -> Option<&'static Shared> {

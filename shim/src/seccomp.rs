@@ -59,6 +59,7 @@ const GO_OWN_CALLS: &[i64] = &[nr::READ, nr::WRITE, nr::CLOSE, nr::IOCTL, nr::PO
 
 /// clone's flag for a thread of the same process: only those clones trap (see `clone_thread`).
 const CLONE_THREAD: u32 = 0x0001_0000;
+const CLONE_VM: i64 = 0x0000_0100;
 const CLONE_SETTLS: i64 = 0x0008_0000;
 const CLONE_CHILD_CLEARTID: i64 = 0x0020_0000;
 
@@ -294,8 +295,14 @@ unsafe fn clone_thread(gregs: *mut i64, info: *mut c_void, a: [i64; 6]) {
     if stack == 0 {
         // No stack of its own (never so from libc or a runtime): made here, where the new
         // thread shares this frame, as the kernel would have it.
+        let rc = native_call(nr::CLONE, a);
+        // A raw fork's child is a process of its own: it notes its id before it runs on (libc's
+        // fork does again, in its handler).
+        if rc == 0 && flags & CLONE_VM == 0 {
+            crate::block::note_pid();
+        }
         // SAFETY: the return value goes where the caller's `syscall` leaves it.
-        unsafe { *gregs.add(context::RAX) = native_call(nr::CLONE, a) };
+        unsafe { *gregs.add(context::RAX) = rc };
         return;
     }
     let clear_tid = if flags & CLONE_CHILD_CLEARTID != 0 { a[3] as usize } else { 0 };

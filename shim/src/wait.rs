@@ -139,6 +139,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
             match park_blocked(shared, deadline, parked_on) {
                 release::DEADLINE => {}
                 release::SIGNAL => return interrupted(),
+                release::ENDING => return real_wait(rest_on_the_wall(shared, deadline)),
                 _ => return real_wait(Some(1_000_000_000)),
             }
         }
@@ -159,10 +160,16 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
         // Climbsim made the bytes visible before it released us; the guard only covers a kernel
         // that is slow to show them.
         release::DATA => real_wait(Some(1_000_000_000)),
-        release::ENDING => real_wait(Some(deadline.saturating_sub(sim_now(shared)))),
+        release::ENDING => real_wait(rest_on_the_wall(shared, deadline)),
         release::SIGNAL => interrupted(),
         _ => real_wait(Some(0)),
     }
+}
+
+/// What is left of a wait until `deadline` once the run has ended, as the kernel's timeout:
+/// none for a wait without one (`NEVER`), which must not come back empty-handed.
+fn rest_on_the_wall(shared: &Shared, deadline: u64) -> Option<u64> {
+    (deadline != crate::abi::NEVER).then(|| deadline.saturating_sub(sim_now(shared)))
 }
 
 /// A wait of the poll family that a signal interrupted (its handler has run): EINTR, as the
@@ -206,7 +213,7 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
 /// another followed thread (tokio's eventfd, asyncio's self-pipe, a child's output) wakes this
 /// one at the instant it was made, not whenever the host got round to it.
 fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
-    let Some(slot) = my_slot() else { return real_wait(Some(deadline.saturating_sub(sim_now(shared)))) };
+    let Some(slot) = my_slot() else { return real_wait(rest_on_the_wall(shared, deadline)) };
     let publish = || crate::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: interest.port, conns: interest.conns });
     publish();
     loop {
@@ -233,8 +240,10 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
         });
         let ready = match looked {
             Looked::Released(release::SIGNAL) => return interrupted(),
+            // Let go as the run ended: the rest of the wait on the wall clock (a wait with no
+            // timeout that returned nothing would break its caller: libuv asserts on it).
+            Looked::Released(release::ENDING) | Looked::Ended => return real_wait(rest_on_the_wall(shared, deadline)),
             Looked::Released(why) => return real_wait(Some(if why == release::DATA { 1_000_000_000 } else { 0 })),
-            Looked::Ended => return real_wait(Some(deadline.saturating_sub(sim_now(shared)))),
             Looked::Found(ready) => ready,
         };
         // Woken by the real world, and only now, in our turn, saying what is ready. The look

@@ -4,6 +4,7 @@
 //! pace, or a capture that failed is a failed run.
 
 use std::ops::ControlFlow;
+use std::os::unix::process::ExitStatusExt as _;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -321,7 +322,13 @@ fn controller_failures(exit: &Exit, external: &ExternalController, duration_s: f
         return vec![with_log_tail(message, log_tail, log_path)];
     }
     if !exit.early {
-        return Vec::new();
+        // Asked to stop at the scenario's end (SIGTERM), it may end as it likes (0, 143, the
+        // signal itself) but not crash: a controller that dies in its own ending (an assertion,
+        // a segfault) loses what it does there (its final report, the servos' torque off).
+        return match exit.status.signal().filter(|signal| CRASH_SIGNALS.contains(signal)) {
+            Some(_) => vec![with_log_tail(format!("controller crashed as it stopped at the scenario's end (asked with SIGTERM): {}", exit.status), log_tail, log_path)],
+            None => Vec::new(),
+        };
     }
     if external.ends_by_itself && exit.status.success() {
         return Vec::new();
@@ -330,6 +337,9 @@ fn controller_failures(exit: &Exit, external: &ExternalController, duration_s: f
     let message = format!("controller {why}: {} at t = {:.2} s of {duration_s} s (simulated)", exit.status, exit.at_s);
     vec![with_log_tail(message, log_tail, log_path)]
 }
+
+/// The signals a program dies of when it crashes (not those it is stopped with).
+const CRASH_SIGNALS: [i32; 7] = [libc::SIGABRT, libc::SIGSEGV, libc::SIGBUS, libc::SIGFPE, libc::SIGILL, libc::SIGSYS, libc::SIGTRAP];
 
 /// `message`, then the controller's last lines (or that its log is empty).
 fn with_log_tail(mut message: String, log_tail: &str, log_path: &Path) -> String {

@@ -9,6 +9,7 @@
 #include <signal.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/select.h>
 #include <sys/syscall.h>
 #include <sys/time.h>
@@ -69,6 +70,25 @@ int main(void) {
     t = now_ms(); errno = 0;
     rc = ppoll(NULL, 1, &zero, NULL);
     say("ppoll(NULL, 1, 0)", rc, errno, t);
+    /* An array whose second entry lies past the end of its mapping: EFAULT; the same array
+     * moved back into the mapping: polled. */
+    long page = sysconf(_SC_PAGESIZE);
+    char *pages = mmap(NULL, 2 * page, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    munmap(pages + page, page);
+    struct pollfd *straddling = (struct pollfd *)(pages + page - sizeof(struct pollfd));
+    straddling[0] = (struct pollfd){pipefd[0], POLLIN, 0};
+    t = now_ms(); errno = 0;
+    rc = poll(straddling, 2, 0);
+    say("poll of an array past its mapping's end", rc, errno, t);
+    struct pollfd *inside = straddling - 1;
+    inside[0] = inside[1] = (struct pollfd){pipefd[0], POLLIN, 0};
+    t = now_ms(); errno = 0;
+    rc = poll(inside, 2, 0);
+    say("poll of the same array inside it", rc, errno, t);
+    fd_set *unmapped_set = (fd_set *)(pages + page);
+    t = now_ms(); errno = 0;
+    rc = select(pipefd[0] + 1, unmapped_set, NULL, NULL, &(struct timeval){0, 0});
+    say("select of an unmapped set", rc, errno, t);
     /* poll of nothing with no array: a sleep. */
     t = now_ms(); errno = 0;
     rc = poll(NULL, 0, 10);

@@ -2,13 +2,15 @@
 // netpoller watches it with epoll) and set raw with the termios ioctls, replies awaited with
 // SetReadDeadline, a control loop on time.Sleep and a statistics goroutine fed through a
 // channel, with select timeouts. Built with cgo (cgo.go: dynamically linked, its threads made
-// by libc) it runs on virtual time; built without, it is static, and refused.
+// by libc) it runs on virtual time; built without, it is static, and refused. It ends after 100
+// cycles; with --until-stopped it runs until SIGTERM (os/signal), as services do, and reports then.
 package main
 
 import (
 	"errors"
 	"fmt"
 	"os"
+	"os/signal"
 	"strconv"
 	"syscall"
 	"time"
@@ -153,11 +155,18 @@ func main() {
 		}
 	}()
 
+	untilStopped := len(os.Args) > 1 && os.Args[1] == "--until-stopped"
+	stop := make(chan os.Signal, 1)
+	if untilStopped {
+		signal.Notify(stop, syscall.SIGTERM)
+	}
 	start := time.Now()
 	next := start
 	previous := start
 	var longest time.Duration
-	for n := 0; n < 100; n++ {
+	n := 0
+loop:
+	for ; n < 100 || untilStopped; n++ {
 		next = next.Add(20 * time.Millisecond)
 		port.Write(packet(0xfe, 0x82, 128, 0, 4, 0, 1, 2, 3, 4))
 		answered := 0
@@ -173,7 +182,16 @@ func main() {
 		}
 		port.Write(packet(0xfe, 0x83, params...))
 		cycles <- cycle{float64(time.Since(start).Microseconds()) / 1e3, answered}
-		time.Sleep(time.Until(next))
+		if !untilStopped {
+			time.Sleep(time.Until(next))
+		} else {
+			select {
+			case <-stop:
+				n++
+				break loop
+			case <-time.After(time.Until(next)):
+			}
+		}
 		now := time.Now()
 		if now.Sub(previous) > longest {
 			longest = now.Sub(previous)
@@ -182,6 +200,11 @@ func main() {
 	}
 	cycles <- cycle{0, -1}
 	<-done
-	fmt.Printf("loop: 100 cycles in %.3f ms, longest period %.3f ms\n", float64(time.Since(start).Nanoseconds())/1e6, float64(longest.Nanoseconds())/1e6)
+	if untilStopped {
+		// Stopped, the report comes after the run's end, on the wall clock: no time of it is told.
+		fmt.Printf("loop: %d cycles, longest period %.3f ms\n", n, float64(longest.Nanoseconds())/1e6)
+	} else {
+		fmt.Printf("loop: %d cycles in %.3f ms, longest period %.3f ms\n", n, float64(time.Since(start).Nanoseconds())/1e6, float64(longest.Nanoseconds())/1e6)
+	}
 	port.Close()
 }

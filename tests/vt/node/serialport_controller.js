@@ -1,5 +1,6 @@
 // A wheel controller as Node.js programs are written: npm's serialport, promises and timers on
-// libuv's loop, and a statistics worker thread fed with postMessage.
+// libuv's loop, and a statistics worker thread fed with postMessage. It ends after 100 cycles;
+// with --until-stopped it runs until SIGTERM, as services do, and reports then.
 'use strict';
 const { SerialPort } = require('serialport');
 const { Worker } = require('worker_threads');
@@ -57,6 +58,18 @@ const stats = new Worker(`
     cycles += 1; answered += m.answered;
   });`, { eval: true });
 
+function report(cycles, start, longest) {
+  stats.postMessage('end');
+  stats.once('message', (line) => {
+    console.log(line);
+    // Stopped, the report comes after the run's end, on the wall clock: no time of it is told.
+    const took = untilStopped ? '' : ` in ${(performance.now() - start).toFixed(3)} ms`;
+    console.log(`loop: ${cycles} cycles${took}, longest period ${longest.toFixed(3)} ms`);
+    port.close(() => process.exit(0));
+  });
+}
+
+const untilStopped = process.argv.includes('--until-stopped');
 port.on('open', async () => {
   let found = 0;
   for (let id = 1; id <= 8; id++) found += (await transact(packet(id, 0x01, []), 1, 10)).length;
@@ -73,14 +86,15 @@ port.on('open', async () => {
     port.write(packet(0xfe, 0x83, [...u16(104), ...u16(4), ...WHEELS.flatMap((id) => [id, ...u32(goal)])]));
     stats.postMessage({ at: now - start, answered: replies.length });
     cycles += 1;
-    if (cycles === 100) {
+    if (cycles === 100 && !untilStopped) {
       clearInterval(timer);
-      stats.postMessage('end');
-      stats.once('message', (line) => {
-        console.log(line);
-        console.log(`loop: 100 cycles in ${(performance.now() - start).toFixed(3)} ms, longest period ${longest.toFixed(3)} ms`);
-        port.close(() => process.exit(0));
-      });
+      report(cycles, start, longest);
     }
   }, 20);
+  if (untilStopped) {
+    process.on('SIGTERM', () => {
+      clearInterval(timer);
+      report(cycles, start, longest);
+    });
+  }
 });
