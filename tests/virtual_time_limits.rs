@@ -164,3 +164,22 @@ fn a_controller_that_traces_its_own_child_fails_naming_the_tracer_instead_of_han
     assert!(failures.contains("one of the controller's own processes"), "{failures}");
     assert!(wall < Duration::from_secs(20), "{wall:?}");
 }
+
+/// A controller that writes over virtual time's shared block (a stray pointer, a program that
+/// maps it itself) and aborts: nothing read back from the block can be trusted, and the run
+/// fails saying so, every time. It used to fail, or once in two runs pass, with whatever the
+/// scribbled words said (a thread limit hit, a controller still running, an end at
+/// 18 446 744 073 s), and climbsim's own summary overflowed on a count read back from it.
+#[test]
+fn a_controller_that_writes_over_the_shared_block_fails_the_run_saying_so() {
+    let dir = support::scratch_dir("vt-scribbler");
+    let program = compiled_c(&dir, "scribbler");
+    let path = scenario(&dir, "scribbler", 3.0, &[program.to_str().expect("utf-8 path")], true);
+    for run in ["a", "b", "c"] {
+        let (output, wall) = run_virtual(&path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+        let failures = summary(&dir.join(run))["failures"].as_array().expect("failures").clone();
+        assert!(failures[0].as_str().is_some_and(|f| f.contains("the controller wrote over virtual time's shared block")), "{failures:?}");
+        assert!(wall < Duration::from_secs(20), "{wall:?}");
+    }
+}

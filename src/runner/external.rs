@@ -259,9 +259,11 @@ pub fn run_external(
     }
     let observer = Arc::try_unwrap(observer).map_err(|_| RunnerError::Invalid("the observer is still shared at the run's end".to_owned()))?.into_inner().unwrap_or_else(PoisonError::into_inner);
     let mut summary = observer.summary(scenario.capture.on_line_tolerance_m);
-    if let Some(failure) = observer.world_failure() {
+    let world_failed = observer.world_failure();
+    if let Some(failure) = world_failed {
         record_failure(&mut summary, failure);
     }
+    let world_failed = world_failed.is_some();
     summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
     summary.insert("physics_ticks".to_owned(), json!(pace.ticks));
     summary.insert("physics_overruns".to_owned(), json!(pace.overruns));
@@ -288,7 +290,10 @@ pub fn run_external(
     if interrupted {
         summary.insert("interrupted_at_s".to_owned(), json!(sim_s));
     }
-    let mut run_failures = controller_failures(&exit, external, scenario.world.duration_s, &controller.log_tail(), &log_path);
+    // The scenario ran to its end (not cut short by an interruption, a clock that could not go
+    // on, or a world the robot cannot be in): only then is a controller still running late.
+    let reached_end = !interrupted && ended.clock_failure.is_none() && !world_failed;
+    let mut run_failures = controller_failures(&exit, external, scenario.world.duration_s, reached_end, &controller.log_tail(), &log_path);
     if let Some(why) = &ended.clock_failure {
         run_failures.insert(0, why.clone());
     }
@@ -310,8 +315,15 @@ pub fn run_external(
 }
 
 /// Why the controller's exit fails the run: any early exit of a controller that should run to
-/// the end, a non-zero exit or a signal of one that ends by itself.
-fn controller_failures(exit: &Exit, external: &ExternalController, duration_s: f64, log_tail: &str, log_path: &Path) -> Vec<String> {
+/// the end, a non-zero exit or a signal of one that ends by itself, one that ends by itself
+/// still running at the scenario's end, and a crash as it was stopped.
+fn controller_failures(exit: &Exit, external: &ExternalController, duration_s: f64, reached_end: bool, log_tail: &str, log_path: &Path) -> Vec<String> {
+    let crashed = exit.status.signal().is_some_and(|signal| CRASH_SIGNALS.contains(&signal));
+    if !exit.early && !reached_end {
+        // The run stopped before the scenario's end for a reason of its own (said first): of
+        // the controller, only a crash is worth saying, without claiming when it came.
+        return if crashed { vec![with_log_tail(format!("controller ended with {} (seen as the run stopped at t = {:.2} s)", exit.status, exit.at_s), log_tail, log_path)] } else { Vec::new() };
+    }
     if !exit.early && external.ends_by_itself {
         // A program that finishes a scripted task and had not: blocked for good, or slower than
         // the scenario allows. Stopped, it is no pass.
@@ -325,10 +337,7 @@ fn controller_failures(exit: &Exit, external: &ExternalController, duration_s: f
         // Asked to stop at the scenario's end (SIGTERM), it may end as it likes (0, 143, the
         // signal itself) but not crash: a controller that dies in its own ending (an assertion,
         // a segfault) loses what it does there (its final report, the servos' torque off).
-        return match exit.status.signal().filter(|signal| CRASH_SIGNALS.contains(signal)) {
-            Some(_) => vec![with_log_tail(format!("controller crashed as it stopped at the scenario's end (asked with SIGTERM): {}", exit.status), log_tail, log_path)],
-            None => Vec::new(),
-        };
+        return if crashed { vec![with_log_tail(format!("controller crashed as it stopped at the scenario's end (asked with SIGTERM): {}", exit.status), log_tail, log_path)] } else { Vec::new() };
     }
     if external.ends_by_itself && exit.status.success() {
         return Vec::new();

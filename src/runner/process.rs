@@ -217,11 +217,16 @@ impl Controller {
         Ok(nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).map_err(|_| RunnerError::Invalid("pid out of range".to_owned()))?))
     }
 
-    /// Send `signal` to the controller's process group and to every process marked as its run's.
+    /// Send `signal` to the controller's process group and to every process marked as its run's
+    /// that left the group (`setsid`): once each. A second SIGTERM to a process the group's
+    /// already reached ran its handler twice, as the host's timing had it (a Node.js controller
+    /// printed its report twice in one run of ten beside busy loops).
     fn signal_all(&self, pgid: nix::unistd::Pid, signal: nix::sys::signal::Signal) {
         let _ = nix::sys::signal::killpg(pgid, signal);
         for pid in marked_processes(&self.marker) {
-            let _ = nix::sys::signal::kill(pid, signal);
+            if nix::unistd::getpgid(Some(pid)) != Ok(pgid) {
+                let _ = nix::sys::signal::kill(pid, signal);
+            }
         }
     }
 

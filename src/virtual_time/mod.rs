@@ -243,7 +243,7 @@ impl VirtualTime {
     pub fn stats(&self) -> VtStats {
         let handed = self.shared().header.turns.handed.load(Ordering::Relaxed);
         let stats = *lock(&self.stats);
-        VtStats { turns: stats.turns + handed, turns_handed: handed, ..stats }
+        VtStats { turns: stats.turns.saturating_add(handed), turns_handed: handed, ..stats }
     }
 
     fn shared(&self) -> &abi::Shared {
@@ -298,6 +298,24 @@ impl VirtualTime {
         let slot = &self.shared().slots[0];
         let at = u64::try_from(at.as_nanos()).unwrap_or(NEVER);
         slot.state() == state::EXITED && slot.exited_ns.load(Ordering::Relaxed) < at
+    }
+
+    /// Whether the controller has written over the block's header (a stray pointer, a program
+    /// that maps it itself): nothing read back from the block can then be trusted — its clock,
+    /// its threads' states, their ends — and the run fails saying so, rather than with whatever
+    /// the scribbled words would say (a limit hit, a controller that never ended).
+    fn block_overwritten(&self) -> Option<String> {
+        let header = &self.shared().header;
+        let intact = header.magic.load(Ordering::Acquire) == abi::MAGIC
+            && header.abi.load(Ordering::Acquire) == abi::ABI
+            && header.climbsim_pid.load(Ordering::Acquire) == std::process::id() as i32
+            && matches!(header.mode.load(Ordering::Acquire), mode::VIRTUAL | mode::ENDING);
+        (!intact).then(|| {
+            format!(
+                "virtual time: the controller wrote over virtual time's shared block ({}), whose header no longer reads as climbsim wrote it: nothing it holds (the clock, the threads' states) can be trusted, and the run cannot go on",
+                self.block.path().display()
+            )
+        })
     }
 
     /// Bytes the controller sent that climbsim has not read yet (on the port or to the sensor
@@ -374,6 +392,9 @@ impl VirtualTime {
             }
         }
         loop {
+            if let Some(why) = self.block_overwritten() {
+                return Err(VtError::Stuck(why));
+            }
             if let Some(why) = self.port.take_cannot_repeat() {
                 return Err(VtError::Stuck(why));
             }
@@ -384,6 +405,11 @@ impl VirtualTime {
                 return Ok(());
             }
             let settled = self.settle(&mut watchdog, stop, due)?;
+            // (What the controller did meanwhile may have been to write over the block: before
+            // anything read from it is judged.)
+            if let Some(why) = self.block_overwritten() {
+                return Err(VtError::Stuck(why));
+            }
             // Judged with every thread parked: the thread that met the refusal has printed
             // what it makes of it (judged at once, the run could end before it wrote).
             if settled == Settled::Parked
@@ -481,6 +507,9 @@ impl VirtualTime {
                 self.wait_for_bytes_in_flight();
                 watchdog.check_held(self.held_by())?;
                 continue;
+            }
+            if let Some(why) = self.block_overwritten() {
+                return Err(VtError::Stuck(why));
             }
             if stop.load(Ordering::Relaxed) || header.mode.load(Ordering::Acquire) != mode::VIRTUAL {
                 return Err(VtError::Interrupted);

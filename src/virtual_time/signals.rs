@@ -32,7 +32,7 @@ impl VirtualTime {
             let interval = timer.interval_ns.load(Ordering::Relaxed);
             // A period shorter than the time since the deadline: the missed expirations are
             // the signal's overrun, as on a kernel.
-            let expirations = (now - deadline).checked_div(interval).map_or(1, |missed| missed + 1);
+            let expirations = (now - deadline).checked_div(interval).map_or(1, |missed| missed.saturating_add(1));
             let next = if interval == 0 { NEVER } else { deadline.saturating_add(interval.saturating_mul(expirations)) };
             timer.deadline_ns.store(next, Ordering::Relaxed);
             let (pid, tid, signo) = (timer.pid.load(Ordering::Relaxed), timer.tid.load(Ordering::Relaxed), timer.signo.load(Ordering::Relaxed));

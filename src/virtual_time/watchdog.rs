@@ -396,7 +396,7 @@ fn cpu_ns(slot: &Slot) -> Option<u64> {
         return Some(ns);
     }
     let ticks = cpu_ticks(&std::fs::read_to_string(format!("{task}/stat")).ok()?)?;
-    Some(ticks * 10_000_000)
+    Some(ticks.saturating_mul(10_000_000))
 }
 
 /// The slot's process has a child that is not followed (it dropped the shim) and has not
