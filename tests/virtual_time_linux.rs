@@ -70,3 +70,30 @@ fn a_process_that_ends_by_a_raw_exit_group_while_a_thread_sleeps_ends_at_its_ins
     let ended = summary["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
     assert!((0.1..0.11).contains(&ended), "ended at {ended} s: {summary:?}");
 }
+
+/// `system()`: glibc waits for its shell with a `wait4` inside libc, which is followed as the
+/// symbols are; the shell's own sleep then moves the clock. It failed after 2 s "blocked in
+/// system call 61 (wait4)".
+#[test]
+fn system_waits_for_its_shell_on_simulated_time() {
+    let dir = support::scratch_dir("vt-system");
+    let program = compiled_c(&dir, "system_call");
+    let path = scenario(&dir, "system_call", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    assert_eq!(log, "from the shell\nsystem returned 0 after 200 ms\n");
+}
+
+/// A main thread that ends with `pthread_exit` while another thread works on: the process ends
+/// with its last thread, and every run says so at the same instant.
+#[test]
+fn a_process_whose_main_thread_exits_first_ends_with_its_last_thread_in_every_run() {
+    let dir = support::scratch_dir("vt-pthread-exit");
+    let program = compiled_c(&dir, "pthread_exit_main");
+    let path = scenario(&dir, "pthread_exit_main", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    assert_eq!(log, "main ends its thread\nworker done at 100.000 ms\n");
+    let (a, b) = (support::vt::repeatable(&dir.join("a")), support::vt::repeatable(&dir.join("b")));
+    assert_eq!(a["controller_exited_at_s"], b["controller_exited_at_s"], "{a:?}\n{b:?}");
+    let ended = a["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
+    assert!((0.1..0.102).contains(&ended), "{ended}");
+}

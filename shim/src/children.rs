@@ -14,8 +14,13 @@ use crate::sys::real;
 
 const WNOHANG: c_int = 1;
 
-/// Run the real wait `wait` for `child` (-1: any) as a blocked thread.
-fn blocked_in_wait(options: c_int, child: i64, wait: impl FnOnce() -> c_int) -> c_int {
+/// Run the real wait `wait` for `child` (-1: any) as a blocked thread. The real call is the
+/// shim's own (a trap of it goes to the kernel, with the program's signal mask).
+fn blocked_in_wait<T>(options: c_int, child: i64, wait: impl FnOnce() -> T) -> T {
+    let wait = || {
+        let _own = crate::sys::OwnCalls::enter();
+        wait()
+    };
     let Some(shared) = active() else { return wait() };
     note_call(shared, call::WAIT_CHILD);
     let slot = my_slot();
@@ -55,6 +60,14 @@ pub(crate) fn wake_waiting_parent(shared: &Shared, pid: i32, parent: i32) {
             slot.make_ready(None);
         }
     }
+}
+
+/// A trapped `wait4` or `waitid` (`number`, with the kernel's arguments `a`) whose real call is
+/// `real`: the kernel's return, a negative errno on failure.
+pub(crate) fn trapped_wait(number: i64, a: [i64; 6], real: impl FnOnce() -> core::ffi::c_long) -> core::ffi::c_long {
+    const P_PID: i64 = 1;
+    let (options, child) = if number == crate::sys::nr::WAITID { (a[3] as c_int, if a[0] == P_PID { a[1] } else { -1 }) } else { (a[2] as c_int, i64::from(a[0] as c_int)) };
+    blocked_in_wait(options, child, real)
 }
 
 #[unsafe(no_mangle)]

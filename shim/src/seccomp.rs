@@ -51,6 +51,8 @@ const TRAPPED: &[i64] = &[
     nr::KILL,
     nr::TGKILL,
     nr::TKILL,
+    nr::WAIT4,
+    nr::WAITID,
 ];
 
 /// What a Go program's own code traps for besides (see `install_go_filter`).
@@ -357,6 +359,11 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
             return result;
         }
         nr::RT_SIGACTION => return handlers::sigaction_call(a),
+        // A wait for a child made inside libc (`system`, `posix_spawn`'s callers) or raw: the
+        // parent counts as blocked while the kernel waits, as through the symbols. The shim's
+        // own symbols make theirs as the shim's calls, with the program's mask.
+        nr::WAIT4 | nr::WAITID if !crate::sys::in_shim() => return crate::children::trapped_wait(number, a, || native_as_program_for_now(number, a, sigmask)),
+        nr::WAIT4 | nr::WAITID => return native_as_program(number, a, sigmask),
         // A Go program's own reads, writes and waits (only those trap: see GO_OWN_CALLS).
         // Its other signals wait meanwhile, as in a trapped futex wait.
         _ if GO_OWN_CALLS.contains(&number) && !crate::sys::in_shim() => return own_io_call(number, a),
@@ -444,6 +451,17 @@ fn own_io_call(number: i64, a: [i64; 6]) -> c_long {
 fn native_as_program(number: i64, a: [i64; 6], sigmask: &u64) -> c_long {
     use_program_mask(sigmask);
     native_call(number, a)
+}
+
+/// [`native_as_program`] for the call only: the handler's own mask again afterwards, for the
+/// shim goes on after it (a thread woken from a wait for its child waits for its turn, where no
+/// handler of the program may run).
+fn native_as_program_for_now(number: i64, a: [i64; 6], sigmask: &u64) -> c_long {
+    let mut handler_mask = 0u64;
+    native::call4(nr::RT_SIGPROCMASK, SIG_SETMASK, sigmask as *const u64 as c_long, &mut handler_mask as *mut u64 as c_long, 8);
+    let result = native_call(number, a);
+    native::call4(nr::RT_SIGPROCMASK, SIG_SETMASK, &handler_mask as *const u64 as c_long, 0, 8);
+    result
 }
 
 /// From here on, inside the handler, the program's own signal mask (the one the kernel saved).

@@ -101,7 +101,9 @@ pub mod nr {
     pub const GETPID: i64 = 39;
     pub const CLONE: i64 = 56;
     pub const EXECVE: i64 = 59;
+    pub const WAIT4: i64 = 61;
     pub const KILL: i64 = 62;
+    pub const WAITID: i64 = 247;
     pub const GETTIMEOFDAY: i64 = 96;
     pub const GETPPID: i64 = 110;
     pub const GETUID: i64 = 102;

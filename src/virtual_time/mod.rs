@@ -294,10 +294,27 @@ impl VirtualTime {
     /// simulated instant before `at`. Not at `at` itself: a world tick at the instant a thread
     /// is let go runs beside it, and whether that thread has ended by the tick's look is the
     /// host's race; every run sees such an end at the next tick.
+    ///
+    /// The process ends with its last thread, which need not be the first (a `pthread_exit`
+    /// from main leaves the others running): every slot of its pid must have exited, and the
+    /// latest of their ends is the process's.
     pub fn first_process_ended_before(&self, at: Duration) -> bool {
-        let slot = &self.shared().slots[0];
-        let at = u64::try_from(at.as_nanos()).unwrap_or(NEVER);
-        slot.state() == state::EXITED && slot.exited_ns.load(Ordering::Relaxed) < at
+        let shared = self.shared();
+        let first = &shared.slots[0];
+        if first.state() != state::EXITED {
+            return false;
+        }
+        let pid = first.pid.load(Ordering::Relaxed);
+        let mut ended_ns = 0;
+        for slot in shared.live_slots().iter().filter(|s| s.pid.load(Ordering::Relaxed) == pid) {
+            if slot.is_live() {
+                return false;
+            }
+            if slot.state() == state::EXITED {
+                ended_ns = ended_ns.max(slot.exited_ns.load(Ordering::Relaxed));
+            }
+        }
+        ended_ns < u64::try_from(at.as_nanos()).unwrap_or(NEVER)
     }
 
     /// Whether the controller has written over the block's header (a stray pointer, a program

@@ -2,9 +2,12 @@
 """A wheel controller as asyncio programs are written: the port's descriptor watched with
 `loop.add_reader` (pyserial, non-blocking), replies awaited with a timeout, and a statistics
 task fed through an `asyncio.Queue`. Pings servos 1-8, then 100 cycles of a 50 Hz Sync Read of
-the wheels' Present Velocity and a Sync Write of their Goal Velocity."""
+the wheels' Present Velocity and a Sync Write of their Goal Velocity. With --until-stopped it runs
+until SIGTERM (`loop.add_signal_handler`), as services do, and reports then."""
 import asyncio
 import os
+import signal
+import sys
 import time
 
 import serial
@@ -89,19 +92,37 @@ async def main():
     queue = asyncio.Queue()
     stats = asyncio.create_task(statistics(queue))
     sync_read = packet(0xFE, 0x82, [128, 0, 4, 0, *WHEELS])
+    until_stopped = "--until-stopped" in sys.argv[1:]
+    stop = asyncio.Event()
+    if until_stopped:
+        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, stop.set)
     start = time.monotonic()
     longest, previous = 0.0, start
-    for cycle in range(100):
+    cycle = 0
+    while until_stopped or cycle < 100:
         now = time.monotonic()
         longest, previous = max(longest, now - previous), now
         replies = await bus.transact(sync_read, len(WHEELS), 0.01)
         goal = (cycle % 50) * 2
         port.write(packet(0xFE, 0x83, [104, 0, 4, 0, *[b for w in WHEELS for b in (w, goal, 0, 0, 0)]]))
         await queue.put(len(replies))
-        await asyncio.sleep(start + 0.02 * (cycle + 1) - time.monotonic())
+        pause = start + 0.02 * (cycle + 1) - time.monotonic()
+        cycle += 1
+        if not until_stopped:
+            await asyncio.sleep(pause)
+            continue
+        try:
+            await asyncio.wait_for(stop.wait(), max(pause, 0))
+            break
+        except asyncio.TimeoutError:
+            pass
     await queue.put(None)
     await stats
-    print(f"loop: 100 cycles in {(time.monotonic() - start) * 1e3:.3f} ms, longest period {longest * 1e3:.3f} ms", flush=True)
+    if until_stopped:
+        # Stopped, the report comes after the run's end, on the wall clock: no time of it is told.
+        print(f"loop: {cycle} cycles, longest period {longest * 1e3:.3f} ms", flush=True)
+    else:
+        print(f"loop: {cycle} cycles in {(time.monotonic() - start) * 1e3:.3f} ms, longest period {longest * 1e3:.3f} ms", flush=True)
 
 
 asyncio.run(main())

@@ -5,13 +5,16 @@
 // std::condition_variable, whose wait_until reads steady_clock::now() while it holds the mutex.
 // Built by tests/virtual_time.rs with the system's c++.
 #include <fcntl.h>
+#include <signal.h>
 #include <termios.h>
 #include <unistd.h>
 
 #include <chrono>
+#include <atomic>
 #include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <deque>
 #include <mutex>
 #include <thread>
@@ -53,8 +56,17 @@ struct Cycle {
     size_t replies;
 };
 
-int main() {
+// With --until-stopped it runs until SIGTERM, as services do, and reports then.
+static std::atomic<bool> stopping{false};
+
+int main(int argc, char **argv) {
     setvbuf(stdout, nullptr, _IOLBF, 0);
+    const bool until_stopped = argc > 1 && std::strcmp(argv[1], "--until-stopped") == 0;
+    if (until_stopped) {
+        struct sigaction on_term {};
+        on_term.sa_handler = [](int) { stopping = true; };
+        sigaction(SIGTERM, &on_term, nullptr);
+    }
     const char *path = std::getenv("DXL_PORT");
     if (!path) return 2;
     port = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK);
@@ -101,7 +113,8 @@ int main() {
     auto next = start;
     auto previous = start;
     Clock::duration longest{};
-    for (int cycle = 0; cycle < 100; cycle++) {
+    int cycle = 0;
+    for (; until_stopped ? !stopping : cycle < 100; cycle++) {
         next += std::chrono::milliseconds(20);
         // Sync Read of Present Velocity (128, 4 bytes) from the wheels 1-4: four 15-byte statuses.
         tcflush(port, TCIFLUSH);
@@ -131,7 +144,12 @@ int main() {
     }
     changed.notify_one();
     stats.join();
-    std::printf("loop: 100 cycles in %.3f ms, longest period %.3f ms\n", std::chrono::duration<double, std::milli>(Clock::now() - start).count(),
-                std::chrono::duration<double, std::milli>(longest).count());
+    if (until_stopped) {
+        // Stopped, the report comes after the run's end, on the wall clock: no time of it is told.
+        std::printf("loop: %d cycles, longest period %.3f ms\n", cycle, std::chrono::duration<double, std::milli>(longest).count());
+    } else {
+        std::printf("loop: %d cycles in %.3f ms, longest period %.3f ms\n", cycle, std::chrono::duration<double, std::milli>(Clock::now() - start).count(),
+                    std::chrono::duration<double, std::milli>(longest).count());
+    }
     return 0;
 }

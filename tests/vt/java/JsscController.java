@@ -1,6 +1,9 @@
 // A wheel controller as Java programs are written: jSSC (Debian's libjssc-java) for the port,
-// a control loop on the main thread and a statistics thread fed through a BlockingQueue.
+// a control loop on the main thread and a statistics thread fed through a BlockingQueue. With
+// --until-stopped it runs until SIGTERM, as services do: a shutdown hook stops the loop and
+// waits for its report.
 import java.util.concurrent.BlockingQueue;
+import java.util.concurrent.CountDownLatch;
 import java.util.concurrent.LinkedBlockingQueue;
 import java.util.concurrent.TimeUnit;
 import jssc.SerialPort;
@@ -8,6 +11,7 @@ import jssc.SerialPortTimeoutException;
 
 public class JsscController {
     static final int[] WHEELS = {1, 2, 3, 4};
+    static volatile boolean stopping = false;
 
     static int crc16(byte[] data, int length) {
         int crc = 0;
@@ -73,10 +77,19 @@ public class JsscController {
         });
         stats.start();
 
+        boolean untilStopped = args.length > 0 && args[0].equals("--until-stopped");
+        CountDownLatch reported = new CountDownLatch(1);
+        if (untilStopped) {
+            Runtime.getRuntime().addShutdownHook(new Thread(() -> {
+                stopping = true;
+                try { reported.await(); } catch (InterruptedException e) { }
+            }));
+        }
         long start = System.nanoTime();
         long next = start;
         long longest = 0, previous = start;
-        for (int cycle = 0; cycle < 100; cycle++) {
+        int cycle = 0;
+        for (; untilStopped ? !stopping : cycle < 100; cycle++) {
             next += 20_000_000L;
             port.writeBytes(packet(0xfe, 0x82, 128, 0, 4, 0, 1, 2, 3, 4));
             int answered = 0;
@@ -95,7 +108,13 @@ public class JsscController {
         }
         queue.put(new Cycle(0, -1));
         stats.join();
-        System.out.printf("loop: 100 cycles in %.3f ms, longest period %.3f ms%n", (System.nanoTime() - start) / 1e6, longest / 1e6);
+        if (untilStopped) {
+            // Stopped, the report comes after the run's end, on the wall clock: no time of it is told.
+            System.out.printf("loop: %d cycles, longest period %.3f ms%n", cycle, longest / 1e6);
+        } else {
+            System.out.printf("loop: %d cycles in %.3f ms, longest period %.3f ms%n", cycle, (System.nanoTime() - start) / 1e6, longest / 1e6);
+        }
         port.closePort();
+        reported.countDown();
     }
 }
