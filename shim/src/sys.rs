@@ -401,9 +401,9 @@ pub(crate) fn thread_cpu_ns() -> u64 {
 
 /// Set once `rdtsc` faults in this process (`tsc.rs`: a Go program). The vDSO's clocks execute
 /// it, so the shim's own reads of the host's clocks go to the kernel instead: through the vDSO
-/// each would fault into the handler that answers the counter, and once the run has ended that
-/// handler reads the host's clock itself, which faulted again without end until the signal
-/// stack overflowed (a Go controller died of SIGSEGV as it was asked to stop).
+/// each would fault into the handler that answers the counter with simulated ticks, and once
+/// the run has ended that handler reads the host's clock itself, which would fault again
+/// without end (docs/performance-virtual-time.md has the incident).
 static VDSO_CLOCKS_FAULT: AtomicBool = AtomicBool::new(false);
 
 /// From here on the vDSO's clocks fault in this process (see [`VDSO_CLOCKS_FAULT`]).

@@ -219,8 +219,7 @@ impl Controller {
 
     /// Send `signal` to the controller's process group and to every process marked as its run's
     /// that left the group (`setsid`): once each. A second SIGTERM to a process the group's
-    /// already reached ran its handler twice, as the host's timing had it (a Node.js controller
-    /// printed its report twice in one run of ten beside busy loops).
+    /// already reached could run its handler twice, as the host's timing had it.
     fn signal_all(&self, pgid: nix::unistd::Pid, signal: nix::sys::signal::Signal) {
         let _ = nix::sys::signal::killpg(pgid, signal);
         for pid in marked_processes(&self.marker) {

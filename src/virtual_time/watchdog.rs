@@ -205,7 +205,7 @@ impl Watchdog {
 /// A running thread of process `pid` is gone without a word from its shim: its process may have
 /// ended with it (a raw `exit_group`, as Go ends; a fatal signal), and then its parked threads
 /// are gone too. They are written off now, at the instant the process ended, not found gone at
-/// their deadlines (a sleep of 10 s made such a process end 10 s late).
+/// their deadlines.
 fn write_off_gone_threads_of(shared: &Shared, pid: i32) {
     for slot in shared.live_slots().iter().filter(|s| s.is_live() && s.pid.load(Ordering::Relaxed) == pid) {
         if matches!(task_state(slot), TaskState::Gone) {
