@@ -6,7 +6,19 @@
 
 mod support;
 
+use std::path::PathBuf;
+
 use support::vt::{compiled_c, controller_log_repeated, scenario};
+
+/// `tests/vt/NAME.c` compiled and run twice as a controller that ends by itself, in a world
+/// `duration_s` long, with identical outputs: its scratch folder (runs `a` and `b`) and its log.
+fn c_program_repeated(scratch: &str, name: &str, duration_s: f64) -> (PathBuf, String) {
+    let dir = support::scratch_dir(scratch);
+    let program = compiled_c(&dir, name);
+    let path = scenario(&dir, name, duration_s, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    (dir, log)
+}
 
 /// What `tests/vt/linux_answers.c` prints natively.
 const LINUX_SAYS: &str = "\
@@ -45,10 +57,7 @@ kill(self, SIGSYS): the handler ran 2 time(s)
 
 #[test]
 fn wrong_arguments_and_timer_corners_get_linuxs_answers_at_once() {
-    let dir = support::scratch_dir("vt-linux-answers");
-    let program = compiled_c(&dir, "linux_answers");
-    let path = scenario(&dir, "linux_answers", 2.0, &[program.to_str().expect("utf-8 path")], true);
-    let log = controller_log_repeated(&path, &dir);
+    let (_, log) = c_program_repeated("vt-linux-answers", "linux_answers", 2.0);
     // Line by line, so that a failure names the call.
     for (virtual_line, linux_line) in log.lines().zip(LINUX_SAYS.lines()) {
         assert_eq!(virtual_line, linux_line, "on virtual time (left) against Linux (right); the whole log:\n{log}");
@@ -61,10 +70,7 @@ fn wrong_arguments_and_timer_corners_get_linuxs_answers_at_once() {
 /// past the scenario's end and made the run last to it.
 #[test]
 fn a_process_that_ends_by_a_raw_exit_group_while_a_thread_sleeps_ends_at_its_instant() {
-    let dir = support::scratch_dir("vt-raw-exit");
-    let program = compiled_c(&dir, "raw_exit");
-    let path = scenario(&dir, "raw_exit", 5.0, &[program.to_str().expect("utf-8 path")], true);
-    let log = controller_log_repeated(&path, &dir);
+    let (dir, log) = c_program_repeated("vt-raw-exit", "raw_exit", 5.0);
     assert_eq!(log, "done at 1000.100\n");
     let summary = support::vt::summary(&dir.join("a"));
     let ended = summary["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
@@ -76,10 +82,7 @@ fn a_process_that_ends_by_a_raw_exit_group_while_a_thread_sleeps_ends_at_its_ins
 /// system call 61 (wait4)".
 #[test]
 fn system_waits_for_its_shell_on_simulated_time() {
-    let dir = support::scratch_dir("vt-system");
-    let program = compiled_c(&dir, "system_call");
-    let path = scenario(&dir, "system_call", 2.0, &[program.to_str().expect("utf-8 path")], true);
-    let log = controller_log_repeated(&path, &dir);
+    let (_, log) = c_program_repeated("vt-system", "system_call", 2.0);
     assert_eq!(log, "from the shell\nsystem returned 0 after 200 ms\n");
 }
 
@@ -87,10 +90,7 @@ fn system_waits_for_its_shell_on_simulated_time() {
 /// with its last thread, and every run says so at the same instant.
 #[test]
 fn a_process_whose_main_thread_exits_first_ends_with_its_last_thread_in_every_run() {
-    let dir = support::scratch_dir("vt-pthread-exit");
-    let program = compiled_c(&dir, "pthread_exit_main");
-    let path = scenario(&dir, "pthread_exit_main", 2.0, &[program.to_str().expect("utf-8 path")], true);
-    let log = controller_log_repeated(&path, &dir);
+    let (dir, log) = c_program_repeated("vt-pthread-exit", "pthread_exit_main", 2.0);
     assert_eq!(log, "main ends its thread\nworker done at 100.000 ms\n");
     let (a, b) = (support::vt::repeatable(&dir.join("a")), support::vt::repeatable(&dir.join("b")));
     assert_eq!(a["controller_exited_at_s"], b["controller_exited_at_s"], "{a:?}\n{b:?}");
