@@ -54,10 +54,17 @@ fn asyncio_on_pyserial_with_a_statistics_task_repeats_exactly() {
     assert!(log.contains("loop: 100 cycles in 2000."), "{log}");
 }
 
-/// The tokio and asyncio controllers run until they are stopped: `tokio::signal` and asyncio's
-/// `add_signal_handler` take the SIGTERM of the run's end, and each loop reports and ends.
+/// The Rust controllers (std threads, tokio) and the asyncio one run until they are stopped: a
+/// `sigaction` flag, `tokio::signal` and asyncio's `add_signal_handler` take the SIGTERM of the
+/// run's end, and each loop reports and ends. (The Python SDK's reference line follower ends
+/// so in every check of `scenarios/external-line-follower*.toml`.)
 #[test]
-fn tokio_and_asyncio_end_on_sigterm_with_their_reports() {
+fn rust_and_asyncio_end_on_sigterm_with_their_reports() {
+    let dir = support::scratch_dir("vt-rust-sigterm");
+    let controller = example("vt_threads_controller");
+    for log in stopped_controller_reports(&dir, "rust-sigterm", &[controller.to_str().expect("utf-8 path"), "--until-stopped"]) {
+        assert!(log.contains(" cycles, longest period "), "{log}");
+    }
     let dir = support::scratch_dir("vt-tokio-sigterm");
     let controller = example("vt_tokio_controller");
     for log in stopped_controller_reports(&dir, "tokio-sigterm", &[controller.to_str().expect("utf-8 path"), "--until-stopped"]) {
