@@ -426,18 +426,33 @@ fn host_clock_ns(clock: clockid_t) -> u64 {
     to_ns(&ts)
 }
 
+/// A time argument in ns if Linux takes it as valid (0 <= tv_sec, 0 <= tv_nsec < 1e9; else the
+/// call is EINVAL).
+pub(crate) fn timespec_ns(ts: &timespec) -> Option<u64> {
+    (ts.tv_sec >= 0 && (0..1_000_000_000).contains(&ts.tv_nsec)).then(|| to_ns(ts))
+}
+
+/// [`timespec_ns`] for a `timeval` (0 <= tv_usec < 1e6).
+pub(crate) fn timeval_ns(tv: &timeval) -> Option<u64> {
+    (tv.tv_sec >= 0 && (0..1_000_000).contains(&tv.tv_usec)).then(|| (tv.tv_sec as u64).saturating_mul(1_000_000_000).saturating_add(tv.tv_usec as u64 * 1000))
+}
+
 /// The program's timeout at `from` in ns, as Linux takes a call's timeout: none (`None`) for a
-/// null pointer; EFAULT if it is not readable; EINVAL unless 0 <= tv_sec and
-/// 0 <= tv_nsec < 1e9.
+/// null pointer; EFAULT if it is not readable; EINVAL if it is not valid ([`timespec_ns`]).
 pub(crate) fn program_timespec(from: *const timespec) -> Result<Option<u64>, c_int> {
+    program_time(from, timespec_ns)
+}
+
+/// [`program_timespec`] for a `timeval` (select's).
+pub(crate) fn program_timeval(from: *const timeval) -> Result<Option<u64>, c_int> {
+    program_time(from, timeval_ns)
+}
+
+fn program_time<T: Copy>(from: *const T, ns: fn(&T) -> Option<u64>) -> Result<Option<u64>, c_int> {
     if from.is_null() {
         return Ok(None);
     }
-    let ts = read_from_program(from).ok_or(EFAULT)?;
-    if ts.tv_sec < 0 || !(0..1_000_000_000).contains(&ts.tv_nsec) {
-        return Err(EINVAL);
-    }
-    Ok(Some(to_ns(&ts)))
+    ns(&read_from_program(from).ok_or(EFAULT)?).map(Some).ok_or(EINVAL)
 }
 
 /// The most descriptors this process may have open (RLIMIT_NOFILE's soft limit), past which a

@@ -17,7 +17,7 @@ use crate::block::active;
 use crate::park::Looked;
 use crate::park::{charge, note_call, park};
 use crate::slot::my_slot;
-use crate::sys::{self, fd_set, nfds_t, pollfd, program_timespec, real, timespec, timeval};
+use crate::sys::{self, fd_set, nfds_t, pollfd, program_timespec, program_timeval, real, timespec, timeval};
 use crate::time::{from_ns, sim_now};
 
 /// How long a timer set to fire at once may take to show on its descriptor (wall time).
@@ -175,8 +175,7 @@ fn rest_on_the_wall(shared: &Shared, deadline: u64) -> Option<u64> {
 /// A wait of the poll family that a signal interrupted (its handler has run): EINTR, as the
 /// kernel answers whatever SA_RESTART says.
 fn interrupted() -> c_int {
-    sys::set_errno(sys::EINTR);
-    -1
+    refused(sys::EINTR)
 }
 
 /// Block until `deadline` or data on what `wait` names (see `park`).
@@ -392,9 +391,8 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
 struct SelectSets {
     sets: [*mut fd_set; 3],
     saved: [Option<fd_set>; 3],
-    /// The descriptors the call looks at (below `count`), and the 64-bit words that hold them.
+    /// The descriptors the call looks at: those below `count`.
     count: usize,
-    words: usize,
 }
 
 impl SelectSets {
@@ -405,7 +403,7 @@ impl SelectSets {
             return Err(sys::EINVAL);
         }
         let count = (count as usize).min(1024);
-        let words = count.div_ceil(64);
+        let words = Self::words_for(count);
         let copy = |set: *mut fd_set| -> Result<Option<fd_set>, c_int> {
             if set.is_null() {
                 return Ok(None);
@@ -413,14 +411,19 @@ impl SelectSets {
             let mut saved = fd_set { bits: [0; 16] };
             sys::copy_from_program(set.cast(), saved.bits.as_mut_ptr().cast(), words * 8).then_some(Some(saved)).ok_or(sys::EFAULT)
         };
-        Ok(Self { sets: [read, write, error], saved: [copy(read)?, copy(write)?, copy(error)?], count, words })
+        Ok(Self { sets: [read, write, error], saved: [copy(read)?, copy(write)?, copy(error)?], count })
+    }
+
+    /// The 64-bit words of a set that hold `count` descriptors.
+    fn words_for(count: usize) -> usize {
+        count.div_ceil(64)
     }
 
     fn restore(&self) {
         for (set, saved) in self.sets.into_iter().zip(self.saved) {
             if let Some(saved) = saved {
                 // SAFETY: the caller's set, readable (we copied it) and the call's to write.
-                unsafe { core::ptr::copy_nonoverlapping(saved.bits.as_ptr(), set.cast::<u64>(), self.words) };
+                unsafe { core::ptr::copy_nonoverlapping(saved.bits.as_ptr(), set.cast::<u64>(), Self::words_for(self.count)) };
             }
         }
     }
@@ -439,18 +442,6 @@ impl SelectSets {
         }
         interest
     }
-}
-
-/// A select's timeout at `from` in ns, as Linux takes it (see `program_timespec`).
-fn program_timeval(from: *const timeval) -> Result<Option<u64>, c_int> {
-    if from.is_null() {
-        return Ok(None);
-    }
-    let tv = sys::read_from_program(from).ok_or(sys::EFAULT)?;
-    if tv.tv_sec < 0 || !(0..1_000_000).contains(&tv.tv_usec) {
-        return Err(sys::EINVAL);
-    }
-    Ok(Some((tv.tv_sec as u64).saturating_mul(1_000_000_000).saturating_add(tv.tv_usec as u64 * 1000)))
 }
 
 #[unsafe(no_mangle)]

@@ -259,11 +259,10 @@ pub fn run_external(
     }
     let observer = Arc::try_unwrap(observer).map_err(|_| RunnerError::Invalid("the observer is still shared at the run's end".to_owned()))?.into_inner().unwrap_or_else(PoisonError::into_inner);
     let mut summary = observer.summary(scenario.capture.on_line_tolerance_m);
-    let world_failed = observer.world_failure();
-    if let Some(failure) = world_failed {
+    let world_failure = observer.world_failure();
+    if let Some(failure) = world_failure {
         record_failure(&mut summary, failure);
     }
-    let world_failed = world_failed.is_some();
     summary.insert("realtime_factor".to_owned(), json!(sim_s / wall_s.max(1e-9)));
     summary.insert("physics_ticks".to_owned(), json!(pace.ticks));
     summary.insert("physics_overruns".to_owned(), json!(pace.overruns));
@@ -292,7 +291,7 @@ pub fn run_external(
     }
     // The scenario ran to its end (not cut short by an interruption, a clock that could not go
     // on, or a world the robot cannot be in): only then is a controller still running late.
-    let reached_end = !interrupted && ended.clock_failure.is_none() && !world_failed;
+    let reached_end = !interrupted && ended.clock_failure.is_none() && world_failure.is_none();
     let mut run_failures = controller_failures(&exit, external, scenario.world.duration_s, reached_end, &controller.log_tail(), &log_path);
     if let Some(why) = &ended.clock_failure {
         run_failures.insert(0, why.clone());

@@ -33,9 +33,7 @@ pub struct Timekeeping {
 }
 
 enum Kind {
-    Wall {
-        speed: f64,
-    },
+    Wall,
     Virtual {
         scheduler: Arc<VirtualTime>,
         /// The run ends (every parked thread let go, the block removed) however it is left.
@@ -48,7 +46,7 @@ impl Timekeeping {
     /// here: it fails (a full /dev/shm) before anything starts.
     pub fn assemble(pace: &Pace) -> Result<Self> {
         Ok(match pace.time {
-            TimeBase::Wall => Self { bus_clock: BusClock::scaled(pace.speed), kind: Kind::Wall { speed: pace.speed } },
+            TimeBase::Wall => Self { bus_clock: BusClock::scaled(pace.speed), kind: Kind::Wall },
             TimeBase::Virtual(settings) => Self::on_virtual_time(settings)?,
         })
     }
@@ -62,7 +60,7 @@ impl Timekeeping {
     fn scheduler(&self) -> Option<&Arc<VirtualTime>> {
         match &self.kind {
             Kind::Virtual { scheduler, .. } => Some(scheduler),
-            Kind::Wall { .. } => None,
+            Kind::Wall => None,
         }
     }
 
@@ -79,7 +77,7 @@ impl Timekeeping {
     /// What paces the world's ticks, for a loop on this thread or another.
     pub fn tick_source(&self) -> TickSource {
         match &self.kind {
-            Kind::Wall { .. } => TickSource::Wall(self.bus_clock.clone()),
+            Kind::Wall => TickSource::Wall(self.bus_clock.clone()),
             Kind::Virtual { scheduler, .. } => TickSource::Virtual(Arc::clone(scheduler)),
         }
     }
@@ -103,11 +101,7 @@ impl Timekeeping {
         }
         let server = SensorServer::bind(std::net::SocketAddr::from(([127, 0, 0, 1], 0))).await.during(|| "cannot start the sensor server".to_owned())?;
         let url = server.url().during(|| "the sensor server has no address".to_owned())?;
-        tokio::spawn(async move {
-            if let Err(error) = server.run(feed).await {
-                warn!(%error, "sensor server stopped");
-            }
-        });
+        spawn_logged("sensor server", server.run(feed));
         Ok(url)
     }
 
@@ -135,12 +129,10 @@ impl Timekeeping {
     }
 
     /// Simulated seconds per wall-clock second for the controller's own clocks (libfaketime
-    /// scales them above 1; under virtual time the shim answers them).
+    /// scales them above 1; under virtual time the shim answers them): the bus clock's (1 on
+    /// virtual time).
     pub fn controller_speed(&self) -> f64 {
-        match self.kind {
-            Kind::Wall { speed } => speed,
-            Kind::Virtual { .. } => 1.0,
-        }
+        self.bus_clock.speed()
     }
 
     /// The controller's process is about to start: under virtual time, time holds until it has

@@ -6,13 +6,14 @@
 use std::collections::{BTreeMap, HashSet};
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::task::{Context, Poll};
 use std::time::Duration;
 
 use tracing::debug;
 
 use super::abi::NEVER;
+use super::error::lock;
 
 /// The timers registered and not yet taken by their futures.
 #[derive(Default)]
@@ -28,7 +29,7 @@ struct Timers {
 
 impl TimerWheel {
     fn timers(&self) -> MutexGuard<'_, Timers> {
-        self.0.lock().unwrap_or_else(PoisonError::into_inner)
+        lock(&self.0)
     }
 
     /// A future that completes when `fire` reaches `due`.

@@ -5,8 +5,8 @@ use core::ffi::{c_int, c_long};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, SIG_TIMERS, Shared, SigTimer, call, timer_kind, timer_state};
-use crate::now::{clock_at, from_ns, sim_now, sim_time_of, to_ns};
-use crate::sys::{self, timespec, timeval};
+use crate::now::{clock_at, from_ns, sim_now, sim_time_of};
+use crate::sys::{self, timespec, timespec_ns, timeval, timeval_ns};
 
 use super::{EAGAIN, EINVAL, charged_call, take_timer};
 
@@ -94,10 +94,6 @@ pub(super) fn alarm(shared: &Shared, seconds: u32) -> c_long {
     left.div_ceil(1_000_000_000) as c_long
 }
 
-fn timeval_ns(tv: &timeval) -> Option<u64> {
-    (tv.tv_sec >= 0 && (0..1_000_000).contains(&tv.tv_usec)).then(|| tv.tv_sec as u64 * 1_000_000_000 + tv.tv_usec as u64 * 1000)
-}
-
 fn ns_timeval(ns: u64) -> timeval {
     // The kernel rounds a remainder up to the next microsecond (never 0 while armed).
     let micros = ns.div_ceil(1000);
@@ -176,10 +172,6 @@ pub(super) fn posix_timer(shared: &Shared, id: i64) -> Option<&SigTimer> {
         charged_call(shared, call::TIMER);
         timer
     })
-}
-
-pub(super) fn timespec_ns(ts: &timespec) -> Option<u64> {
-    (ts.tv_sec >= 0 && (0..1_000_000_000).contains(&ts.tv_nsec)).then(|| to_ns(ts))
 }
 
 fn write_itimerspec(out: *mut [timespec; 2], (left, interval): (u64, u64)) {

@@ -7,9 +7,8 @@ use crate::abi::{NEVER, Shared, Wait, call, release};
 use crate::native;
 use crate::now::sim_now;
 use crate::park::Looked;
-use crate::sys::{nr, timespec};
+use crate::sys::{nr, timespec, timespec_ns};
 
-use super::timers::timespec_ns;
 use super::{EAGAIN, EINTR, EINVAL};
 use crate::handlers::program_mask;
 
