@@ -55,6 +55,20 @@ raise(SIGSYS): the handler ran 1 time(s)
 kill(self, SIGSYS): the handler ran 2 time(s)
 ";
 
+/// What `tests/vt/vdso_clocks.c` prints natively.
+const LINUX_CLOCKS_SAY: &str = "\
+timespec_get: 1.50 s after the start
+ftime: 1.50 s after the start
+times: 1.50 s after the start
+times with a buffer: answered
+the vDSO's clock_gettime: 1.50 s after the start
+its monotonic clock against libc's: 0.00 s apart
+the vDSO's gettimeofday: 1.50 s after the start, time zone filled: yes
+the vDSO's time: the same second as clock_gettime
+the vDSO's thread CPU clock: 0, read
+the vDSO's clock -1: -22
+";
+
 #[test]
 fn wrong_arguments_and_timer_corners_get_linuxs_answers_at_once() {
     let (_, log) = c_program_repeated("vt-linux-answers", "linux_answers", 2.0);
@@ -63,6 +77,15 @@ fn wrong_arguments_and_timer_corners_get_linuxs_answers_at_once() {
         assert_eq!(virtual_line, linux_line, "on virtual time (left) against Linux (right); the whole log:\n{log}");
     }
     assert_eq!(log.lines().count(), LINUX_SAYS.lines().count(), "the program stopped early; its log:\n{log}");
+}
+
+/// Clock reads around libc's `clock_gettime` (glibc's own through the vDSO, the vDSO called
+/// directly as a runtime that finds it itself does, `times`) read simulated time, as the
+/// kernel's clock natively: each read the host's clock before, a silent wrong answer.
+#[test]
+fn clock_reads_through_the_vdso_and_times_tell_simulated_time() {
+    let (_, log) = c_program_repeated("vt-vdso-clocks", "vdso_clocks", 3.0);
+    assert_eq!(log, LINUX_CLOCKS_SAY, "on virtual time (left) against Linux (right)");
 }
 
 /// A process that ends through a raw `exit_group` (Go's way, or a fatal signal) while another

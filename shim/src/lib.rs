@@ -63,6 +63,8 @@ mod tsc {
     pub(crate) fn around_exec(_: bool) {}
 }
 mod turn;
+#[cfg(target_arch = "x86_64")]
+mod vdso;
 mod wait;
 
 use core::ffi::{c_char, c_int, c_void};
@@ -82,7 +84,7 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
         if seccomp::inherited() {
             // First: climbsim holds time until the exec that started this program is over.
             marker::close_inherited_exec_marker();
-            program::inspect(envp, false);
+            let _ = program::inspect(envp, false);
             spawn::remember_shim_environment();
             if let Err(why) = seccomp::install_passthrough() {
                 say_failure(why, b"");
@@ -108,7 +110,9 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
     signals::delete_posix_timers_of(sys::getpid());
     spawn::resolve_exec_functions();
     spawn::remember_shim_environment();
-    program::inspect(envp, true);
+    if let Some(vdso) = program::inspect(envp, true) {
+        patch_vdso(&vdso);
+    }
     if let Err(why) = seccomp::install() {
         say_failure(why, b"; only calls through libc's symbols are followed");
     }
@@ -118,6 +122,21 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
     }
     // The main thread is followed from the start: before its first call it is already running.
     slot::my_slot();
+}
+
+/// The vDSO's clocks patched to the shim's, or the vDSO hidden (`program.rs`).
+#[cfg(target_arch = "x86_64")]
+fn patch_vdso(vdso: &program::VdsoEntry) {
+    if let Err(why) = vdso::patch(vdso.image) {
+        vdso.hide();
+        say_failure(why, b"; it is hidden, and a runtime that reads it itself traps every clock read");
+    }
+}
+
+/// Elsewhere the vDSO is hidden: such a runtime's clock reads trap.
+#[cfg(not(target_arch = "x86_64"))]
+fn patch_vdso(vdso: &program::VdsoEntry) {
+    vdso.hide();
 }
 
 /// A line on stderr: what the shim could not do at start (`why`), and what follows from it.

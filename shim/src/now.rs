@@ -48,3 +48,31 @@ pub(crate) use crate::sys::{real_monotonic_ns, thread_cpu_ns, to_ns};
 pub(crate) fn from_ns(ns: u64) -> timespec {
     timespec { tv_sec: (ns / 1_000_000_000) as time_t, tv_nsec: (ns % 1_000_000_000) as i64 }
 }
+
+/// A spin's limit on the host's monotonic clock, read once every [`SpinLimit::EVERY`] turns of
+/// the loop: the shim reads the host's clocks with a system call once the vDSO is patched, and
+/// what a spin must do quickly is test its own condition.
+pub(crate) struct SpinLimit {
+    until: u64,
+    turns: u32,
+    passed: bool,
+}
+
+impl SpinLimit {
+    /// Turns of a spin between two clock reads (a `pause` is tens of nanoseconds: the limit
+    /// is overrun by a microsecond or two at most).
+    const EVERY: u32 = 32;
+
+    pub(crate) fn until(until: u64) -> SpinLimit {
+        SpinLimit { until, turns: 0, passed: false }
+    }
+
+    /// Whether the limit has passed, as last read (once it has, for good).
+    pub(crate) fn passed(&mut self) -> bool {
+        self.turns = self.turns.wrapping_add(1);
+        if !self.passed && self.turns.is_multiple_of(Self::EVERY) {
+            self.passed = real_monotonic_ns() >= self.until;
+        }
+        self.passed
+    }
+}

@@ -2,12 +2,12 @@
 //! (above the environment on the initial stack) and the main executable's program headers.
 //!
 //! Three things come of it, all for runtimes that bypass libc:
-//! - The vDSO is hidden: its entry in the auxiliary vector becomes AT_IGNORE before the
-//!   program's own start code runs. libc found it long before (its clock reads are the shim's
-//!   symbols anyway); a runtime that looks it up itself (Go's `runtime.sysargs`) finds none and
-//!   reads the clock with the `clock_gettime` system call, which traps. Patching the vDSO's code
-//!   (Shadow's way) would keep those reads cheaper, but needs the vDSO's pages made writable and
-//!   its ELF symbols parsed; one word of the stack does the same here.
+//! - The vDSO's entry, for `vdso.rs` to patch the vDSO's clocks to the shim's: libc found the
+//!   vDSO long before, and its internal clock reads (`timespec_get`, `ftime`) call it; a
+//!   runtime that looks it up itself (Go's `runtime.sysargs`) calls it too, and each reads
+//!   simulated time for a function call's cost. A vDSO the shim cannot patch is hidden
+//!   instead: its entry becomes AT_IGNORE before the program's own start code runs, so such a
+//!   runtime reads the clock with the `clock_gettime` system call, which traps.
 //! - A Go program's own code range: Go makes its reads, writes, closes and waits with its own
 //!   `syscall` instructions, from its text. The seccomp layer traps those calls made from there
 //!   (and only there: after an exec the inherited filter must not trap a new program's loader).
@@ -43,12 +43,29 @@ pub(crate) fn go_text() -> Option<(u64, u64)> {
     (end > start).then_some((start, end))
 }
 
+/// The vDSO's entry in the auxiliary vector.
+pub(crate) struct VdsoEntry {
+    /// Its type word, on the writable initial stack.
+    kind: *mut u64,
+    /// Where the vDSO's image is.
+    pub(crate) image: u64,
+}
+
+impl VdsoEntry {
+    /// Hide the vDSO from whoever looks it up from now on (a vDSO the shim could not patch).
+    pub(crate) fn hide(&self) {
+        // SAFETY: the entry's own type word, on the writable initial stack.
+        unsafe { *self.kind = AT_IGNORE };
+    }
+}
+
 /// Look at the program (from the constructor, with the environment pointer the loader passed):
-/// note a Go program's text and, if the program is `followed`, hide the vDSO and fix the random
-/// bytes. (A dormant shim under an inherited filter only needs to know whether its handler
-/// must run on the signal stack.)
-pub(crate) fn inspect(envp: *const *const c_char, followed: bool) {
-    let Some(auxv) = auxiliary_vector(envp) else { return };
+/// note a Go program's text and, if the program is `followed`, fix the random bytes and find
+/// the vDSO's entry (for `vdso.rs` to patch). (A dormant shim under an inherited filter only
+/// needs to know whether its handler must run on the signal stack.)
+pub(crate) fn inspect(envp: *const *const c_char, followed: bool) -> Option<VdsoEntry> {
+    let auxv = auxiliary_vector(envp)?;
+    let mut vdso = None;
     let (mut phdr, mut phnum) = (0u64, 0u64);
     let mut index = 0;
     loop {
@@ -63,8 +80,8 @@ pub(crate) fn inspect(envp: *const *const c_char, followed: bool) {
                 unsafe { core::ptr::copy_nonoverlapping(SAME_RANDOM_BYTES.as_ptr(), value as *mut u8, 16) };
             }
             AT_SYSINFO_EHDR if followed => {
-                // SAFETY: the entry's own type word, on the writable initial stack.
-                unsafe { *auxv.add(2 * index) = AT_IGNORE };
+                // SAFETY: the entry's type word, within the vector.
+                vdso = Some(VdsoEntry { kind: unsafe { auxv.add(2 * index) }, image: value });
             }
             _ => {}
         }
@@ -78,6 +95,7 @@ pub(crate) fn inspect(envp: *const *const c_char, followed: bool) {
         GO_TEXT[0].store(start, Ordering::Relaxed);
         GO_TEXT[1].store(end, Ordering::Relaxed);
     }
+    vdso
 }
 
 /// The auxiliary vector: after the environment's terminating null on the initial stack. Checked

@@ -31,6 +31,7 @@ const TRAPPED: &[i64] = &[
     nr::EXECVE,
     nr::GETTIMEOFDAY,
     nr::TIME,
+    nr::TIMES,
     nr::FUTEX,
     nr::CLOCK_GETTIME,
     nr::CLOCK_NANOSLEEP,
@@ -394,16 +395,10 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
     let _own = crate::sys::OwnCalls::enter();
     let handled = match number {
         nr::FUTEX => crate::futex::emulate(&crate::futex::Args { uaddr: a[0] as usize, op: a[1] as i32, val: a[2] as u32, timeout_or_val2: a[3] as usize, uaddr2: a[4] as usize, val3: a[5] as u32 }),
-        nr::CLOCK_GETTIME => clock_gettime(a[0] as c_int, a[1] as *mut sys::timespec),
-        nr::GETTIMEOFDAY => gettimeofday(a[0] as *mut sys::timeval),
-        nr::TIME => crate::time::read_clock(sys::CLOCK_REALTIME).map(|ns| {
-            let seconds = (ns / 1_000_000_000) as c_long;
-            if a[0] != 0 {
-                // SAFETY: the caller's time_t.
-                unsafe { *(a[0] as *mut c_long) = seconds };
-            }
-            seconds
-        }),
+        nr::CLOCK_GETTIME => crate::time::answer_clock_gettime(a[0] as c_int, a[1] as *mut sys::timespec).map(c_long::from),
+        nr::GETTIMEOFDAY => crate::time::answer_gettimeofday(a[0] as *mut sys::timeval, a[1] as *mut c_void).map(c_long::from),
+        nr::TIME => crate::time::answer_time(a[0] as *mut sys::time_t),
+        nr::TIMES => crate::time::answer_times(a[0] as *mut c_void),
         nr::NANOSLEEP => crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec, a[1] as *mut sys::timespec).map(|e| -c_long::from(e)),
         nr::CLOCK_NANOSLEEP => crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec, a[3] as *mut sys::timespec).map(|e| -c_long::from(e)),
         nr::SCHED_YIELD => crate::block::active().map(|shared| {
@@ -472,24 +467,4 @@ fn use_program_mask(sigmask: &u64) {
 #[cfg(not(target_arch = "x86_64"))]
 fn dispatch(number: i64, a: [i64; 6], _sigmask: &mut u64) -> c_long {
     native_call(number, a)
-}
-
-fn clock_gettime(clock: c_int, ts: *mut sys::timespec) -> Option<c_long> {
-    if ts.is_null() {
-        return None;
-    }
-    let ns = crate::time::read_clock(clock)?;
-    // SAFETY: the caller's timespec.
-    unsafe { *ts = crate::time::from_ns(ns) };
-    Some(0)
-}
-
-fn gettimeofday(tv: *mut sys::timeval) -> Option<c_long> {
-    if tv.is_null() {
-        return None;
-    }
-    let ns = crate::time::read_clock(sys::CLOCK_REALTIME)?;
-    // SAFETY: the caller's timeval.
-    unsafe { *tv = sys::timeval { tv_sec: (ns / 1_000_000_000) as sys::time_t, tv_usec: ((ns % 1_000_000_000) / 1000) as c_long } };
-    Some(0)
 }

@@ -64,18 +64,19 @@ fn clear_tid_word(thread: usize) -> Option<&'static AtomicU32> {
 fn wait_cleared(shared: &Shared, word: &AtomicU32, until: &timespec) -> bool {
     let deadline = crate::time::to_ns(until);
     let spin_until = crate::time::real_monotonic_ns().saturating_add(shared.header.spin.park_spin_ns.load(Ordering::Relaxed));
+    let mut spin = crate::now::SpinLimit::until(spin_until.min(deadline));
     loop {
         let tid = word.load(Ordering::Acquire);
         if tid == 0 {
             return true;
         }
+        if !spin.passed() {
+            core::hint::spin_loop();
+            continue;
+        }
         let now = crate::time::real_monotonic_ns();
         if now >= deadline {
             return false;
-        }
-        if now < spin_until {
-            core::hint::spin_loop();
-            continue;
         }
         sys::futex_wait(word, tid, deadline - now);
     }

@@ -23,14 +23,45 @@ pub(crate) fn read_clock(clock: clockid_t) -> Option<u64> {
     clock_at(shared, clock, sim_now(shared))
 }
 
+/// `clock_gettime` answered into the caller's `ts` if the shim answers `clock`: the one answer
+/// of the interposer, the trapped system call and the patched vDSO alike.
+pub(crate) fn answer_clock_gettime(clock: clockid_t, ts: *mut timespec) -> Option<c_int> {
+    if ts.is_null() {
+        return None;
+    }
+    let ns = read_clock(clock)?;
+    // SAFETY: the caller's timespec.
+    unsafe { *ts = from_ns(ns) };
+    Some(0)
+}
+
+/// `gettimeofday` answered into the caller's `tv` (the kernel's time zone into `tz`, obsolete:
+/// zeros unless settimeofday set it), as [`answer_clock_gettime`]: 0, or the kernel's -errno
+/// for the time zone.
+pub(crate) fn answer_gettimeofday(tv: *mut timeval, tz: *mut c_void) -> Option<c_int> {
+    if tv.is_null() {
+        return None;
+    }
+    let ns = read_clock(sys::CLOCK_REALTIME)?;
+    // SAFETY: the caller's timeval.
+    unsafe { *tv = timeval { tv_sec: (ns / 1_000_000_000) as time_t, tv_usec: ((ns % 1_000_000_000) / 1000) as i64 } };
+    Some(if tz.is_null() { 0 } else { crate::native::call2(sys::nr::GETTIMEOFDAY, 0, tz as core::ffi::c_long) as c_int })
+}
+
+/// `time` answered (and written to `out`, if given), as [`answer_clock_gettime`].
+pub(crate) fn answer_time(out: *mut time_t) -> Option<time_t> {
+    let seconds = (read_clock(sys::CLOCK_REALTIME)? / 1_000_000_000) as time_t;
+    if !out.is_null() {
+        // SAFETY: the caller's time_t.
+        unsafe { *out = seconds };
+    }
+    Some(seconds)
+}
+
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn clock_gettime(clock: clockid_t, ts: *mut timespec) -> c_int {
-    if !ts.is_null()
-        && let Some(ns) = read_clock(clock)
-    {
-        // SAFETY: the caller's timespec.
-        unsafe { *ts = from_ns(ns) };
-        return 0;
+    if let Some(answer) = answer_clock_gettime(clock, ts) {
+        return answer;
     }
     let next = real!(clock_gettime: fn(clockid_t, *mut timespec) -> c_int);
     // SAFETY: passing the caller's arguments through.
@@ -39,12 +70,13 @@ pub unsafe extern "C" fn clock_gettime(clock: clockid_t, ts: *mut timespec) -> c
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn gettimeofday(tv: *mut timeval, tz: *mut c_void) -> c_int {
-    if !tv.is_null()
-        && let Some(ns) = read_clock(sys::CLOCK_REALTIME)
-    {
-        // SAFETY: the caller's timeval.
-        unsafe { *tv = timeval { tv_sec: (ns / 1_000_000_000) as time_t, tv_usec: ((ns % 1_000_000_000) / 1000) as i64 } };
-        return 0;
+    match answer_gettimeofday(tv, tz) {
+        Some(0) => return 0,
+        Some(error) => {
+            sys::set_errno(-error);
+            return -1;
+        }
+        None => {}
     }
     let next = real!(gettimeofday: fn(*mut timeval, *mut c_void) -> c_int);
     // SAFETY: passing the caller's arguments through.
@@ -53,17 +85,22 @@ pub unsafe extern "C" fn gettimeofday(tv: *mut timeval, tz: *mut c_void) -> c_in
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn time(out: *mut time_t) -> time_t {
-    if let Some(ns) = read_clock(sys::CLOCK_REALTIME) {
-        let seconds = (ns / 1_000_000_000) as time_t;
-        if !out.is_null() {
-            // SAFETY: the caller's time_t.
-            unsafe { *out = seconds };
-        }
+    if let Some(seconds) = answer_time(out) {
         return seconds;
     }
     let next = real!(time: fn(*mut time_t) -> time_t);
     // SAFETY: passing the caller's argument through.
     unsafe { next(out) }
+}
+
+/// `times` (trapped: glibc's is the system call): the kernel's CPU times into `buffer`, and
+/// the clock ticks since boot on simulated time (CLOCK_BOOTTIME at the kernel's USER_HZ).
+pub(crate) fn answer_times(buffer: *mut c_void) -> Option<core::ffi::c_long> {
+    const TICK_NS: u64 = 1_000_000_000 / 100;
+    let ns = read_clock(sys::CLOCK_BOOTTIME)?;
+    let kernel = crate::native::call1(sys::nr::TIMES, buffer as core::ffi::c_long);
+    // A buffer the kernel could not write: its EFAULT.
+    Some(if kernel < 0 && kernel > -4096 { kernel } else { (ns / TICK_NS) as core::ffi::c_long })
 }
 
 /// Sleep until simulated time `deadline`: blocked until climbsim's clock gets there. After the

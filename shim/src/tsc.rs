@@ -42,7 +42,7 @@ pub(crate) fn install() -> Result<(), &'static [u8]> {
         return Err(b"the kernel cannot make rdtsc fault (PR_SET_TSC)");
     }
     TRAPPED.store(true, Ordering::Relaxed);
-    crate::sys::vdso_clocks_fault();
+    crate::sys::host_clocks_by_syscall();
     Ok(())
 }
 

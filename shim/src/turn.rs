@@ -8,7 +8,7 @@ use core::sync::atomic::Ordering;
 use crate::abi::protocol::{ChildWait, Decider};
 use crate::abi::{self, Shared, Slot, mode, state};
 use crate::block::{ORPHANED, active, climbsim_gone, notify_scheduler};
-use crate::now::{real_monotonic_ns, sim_now};
+use crate::now::{SpinLimit, real_monotonic_ns, sim_now};
 use crate::sys;
 
 thread_local! {
@@ -80,7 +80,8 @@ pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
         spin_until = long_until;
     }
     let turns = header.turns.given.load(Ordering::Acquire);
-    while slot.state() != state::RUNNING && real_monotonic_ns() < spin_until && header.turns.given.load(Ordering::Acquire) == turns {
+    let mut limit = SpinLimit::until(spin_until);
+    while slot.state() != state::RUNNING && !limit.passed() && header.turns.given.load(Ordering::Acquire) == turns {
         core::hint::spin_loop();
     }
     if long {
