@@ -83,22 +83,23 @@ impl Ticked for WatchedTicks<'_> {
         }
         // Under virtual time the exit is seen when the shim saw it (at one simulated instant on
         // every run), not whenever the kernel's reaping comes round on the wall clock.
-        let status = match self.time.controller_ended_before(at) {
-            None => self.controller.try_wait(),
-            Some(_) if self.unfollowed => self.controller.try_wait(),
+        let (status, seen_at) = match self.time.controller_ended_before(at) {
+            None => (self.controller.try_wait(), self.clock.now()),
+            Some(_) if self.unfollowed => (self.controller.try_wait(), self.clock.now()),
             // Seen at the first tick after the exit's own simulated time (the world may be
-            // catching up with a controller that ran ahead).
+            // catching up with a controller that ran ahead): at that tick's instant, which the
+            // bus clock may have passed by the host's race (0.101 or 0.102 s in 1 run of 30).
             Some(true) => {
                 let status = self.controller.wait_for_ending();
                 self.unfollowed = matches!(status, Ok(None));
-                status
+                (status, at)
             }
-            Some(false) => Ok(None),
+            Some(false) => (Ok(None), at),
         };
         match status {
             Ok(None) => ControlFlow::Continue(()),
             Ok(Some(status)) => {
-                self.exit = Some(Exit { status, at_s: self.clock.now().as_secs_f64(), early: true });
+                self.exit = Some(Exit { status, at_s: seen_at.as_secs_f64(), early: true });
                 ControlFlow::Break(())
             }
             Err(error) => {
