@@ -88,6 +88,25 @@ fn clock_reads_through_the_vdso_and_times_tell_simulated_time() {
     assert_eq!(log, LINUX_CLOCKS_SAY, "on virtual time (left) against Linux (right)");
 }
 
+/// System calls made with the program's own `syscall` instruction (Rust's rustix, Go) are
+/// followed as libc's are: the raw read of a pipe a forked child writes waits for the child on
+/// simulated time (it kept the turn, and the run failed after 2 s "blocked in system call 0"),
+/// and raw timeouts are simulated time.
+#[test]
+fn raw_system_calls_from_the_programs_own_code_are_followed() {
+    let (_, log) = c_program_repeated("vt-raw-calls", "raw_calls", 2.0);
+    assert_eq!(
+        log,
+        "raw read of a pipe the child writes at 100 ms: 1 after 100.000 ms\n\
+         raw poll(NULL, 0, 50): 0 after 50.000 ms\n\
+         raw ppoll(NULL, 0, 20 ms): 0 after 20.000 ms\n\
+         raw epoll_wait of an empty pipe, 30 ms: 0 after 30.000 ms\n\
+         raw read of a pipe's write end: -EBADF after 0.000 ms\n\
+         raw write to the pipe: 1 after 0.000 ms\n\
+         raw read of it: 1 after 0.000 ms\n"
+    );
+}
+
 /// A process that ends through a raw `exit_group` (Go's way, or a fatal signal) while another
 /// of its threads sleeps ends at its instant: not when that sleep would have ended, which lay
 /// past the scenario's end and made the run last to it.

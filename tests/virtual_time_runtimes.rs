@@ -212,6 +212,18 @@ fn go_reads_its_clock_through_the_patched_vdso_and_repeats_exactly() {
     assert!(log.contains(" reads in 100.000 ms"), "{log}");
 }
 
+/// A Rust program on rustix, whose Linux backend makes its own system calls: its read of a
+/// child's answer waits for the child on simulated time, and its poll's timeout is simulated.
+#[test]
+fn rustix_raw_system_calls_are_followed_and_repeat_exactly() {
+    let dir = support::scratch_dir("vt-rustix");
+    let program = example("vt_rustix_raw_calls");
+    let path = scenario(&dir, "rustix", 1.0, &[program.to_str().expect("utf-8 path")], true);
+    let log = controller_log_repeated(&path, &dir);
+    assert!(log.starts_with("read \"ready\" after 100.0"), "{log}");
+    assert!(log.contains("the child ended: exit status: 0\npoll of an empty pipe: 0 ready after 30.000 ms\n"), "{log}");
+}
+
 /// The Go controller run until it is stopped: os/signal takes the SIGTERM of the run's end in
 /// its own goroutine, and the loop reports and ends. Its rdtsc, which faults into the shim, made
 /// it die of SIGSEGV there (the fault's handler read the host's clock through the vDSO, which

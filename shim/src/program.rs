@@ -8,15 +8,18 @@
 //!   simulated time for a function call's cost. A vDSO the shim cannot patch is hidden
 //!   instead: its entry becomes AT_IGNORE before the program's own start code runs, so such a
 //!   runtime reads the clock with the `clock_gettime` system call, which traps.
-//! - A Go program's own code range: Go makes its reads, writes, closes and waits with its own
-//!   `syscall` instructions, from its text. The seccomp layer traps those calls made from there
-//!   (and only there: after an exec the inherited filter must not trap a new program's loader).
+//! - The main program's own code range, if it is a Go program or position-independent: Go
+//!   makes its reads, writes, closes and waits with its own `syscall` instructions, from its
+//!   text, and so does a Rust program on `rustix`'s raw backend (`polling`, `async-io`). The
+//!   seccomp layer traps those calls made from there (and only there: after an exec the
+//!   inherited filter must not trap a new program's loader, nor a static program's libc; a
+//!   position-independent program's text lies at a random address, a Go program's at its own).
 //! - The kernel's 16 random bytes for the program (AT_RANDOM) are the same in every run. libc
 //!   took its stack guard and pointer guard from them before; Go seeds its hash functions and
 //!   its scheduler's random choices from them (with `rdtsc`, tsc.rs), and a run must repeat.
 
 use core::ffi::c_char;
-use core::sync::atomic::{AtomicU64, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 const AT_NULL: u64 = 0;
 const AT_IGNORE: u64 = 1;
@@ -34,13 +37,21 @@ const PF_X: u32 = 1;
 /// The Go linker's build-id note (`.note.go.buildid`): owner "Go", type 4.
 const NT_GO_BUILDID: u32 = 4;
 
-/// The executable range of a Go main program (start, end), or (0, 0).
-static GO_TEXT: [AtomicU64; 2] = [AtomicU64::new(0), AtomicU64::new(0)];
+/// The executable range of the main program (start, end) whose own system calls are followed
+/// (a Go program's, or a position-independent one's), or (0, 0).
+static OWN_TEXT: [AtomicU64; 2] = [AtomicU64::new(0), AtomicU64::new(0)];
+/// Whether the main program is a Go program.
+static IS_GO: AtomicBool = AtomicBool::new(false);
 
-/// The main program's text if it is a Go program: its own system calls are followed there.
-pub(crate) fn go_text() -> Option<(u64, u64)> {
-    let (start, end) = (GO_TEXT[0].load(Ordering::Relaxed), GO_TEXT[1].load(Ordering::Relaxed));
+/// The main program's text if its own system calls are followed there (see [`OWN_TEXT`]).
+pub(crate) fn own_text() -> Option<(u64, u64)> {
+    let (start, end) = (OWN_TEXT[0].load(Ordering::Relaxed), OWN_TEXT[1].load(Ordering::Relaxed));
     (end > start).then_some((start, end))
+}
+
+/// The main program's text if it is a Go program.
+pub(crate) fn go_text() -> Option<(u64, u64)> {
+    own_text().filter(|_| IS_GO.load(Ordering::Relaxed))
 }
 
 /// The vDSO's entry in the auxiliary vector.
@@ -90,10 +101,11 @@ pub(crate) fn inspect(envp: *const *const c_char, followed: bool) -> Option<Vdso
     if phdr != 0
         && phnum > 0
         && phnum < 256
-        && let Some((start, end)) = go_program_text(phdr, phnum as usize)
+        && let Some(((start, end), is_go)) = own_program_text(phdr, phnum as usize)
     {
-        GO_TEXT[0].store(start, Ordering::Relaxed);
-        GO_TEXT[1].store(end, Ordering::Relaxed);
+        OWN_TEXT[0].store(start, Ordering::Relaxed);
+        OWN_TEXT[1].store(end, Ordering::Relaxed);
+        IS_GO.store(is_go, Ordering::Relaxed);
     }
     vdso
 }
@@ -151,20 +163,21 @@ struct ProgramHeader {
     align: u64,
 }
 
-/// If the main program carries Go's build-id note: its executable segment's range in memory.
-fn go_program_text(phdr: u64, count: usize) -> Option<(u64, u64)> {
+/// If the main program is a Go program (it carries Go's build-id note) or position-independent
+/// (loaded at a bias): its executable segment's range in memory, and whether it is Go.
+fn own_program_text(phdr: u64, count: usize) -> Option<((u64, u64), bool)> {
     // SAFETY: the loader's program headers of the main program, `count` of them, mapped.
     let headers = unsafe { core::slice::from_raw_parts(phdr as *const ProgramHeader, count) };
     // A position-independent program is loaded at a bias: where its headers are, less where
     // they say they are.
     let bias = headers.iter().find(|h| h.kind == PT_PHDR).map_or(0, |h| phdr.wrapping_sub(h.vaddr));
     let is_go = headers.iter().filter(|h| h.kind == PT_NOTE).any(|h| has_go_note(bias.wrapping_add(h.vaddr), h.memsz));
-    if !is_go {
+    if !is_go && bias == 0 {
         return None;
     }
     let text = headers.iter().find(|h| h.kind == PT_LOAD && h.flags & PF_X != 0)?;
     let start = bias.wrapping_add(text.vaddr);
-    Some((start, start.checked_add(text.memsz)?))
+    Some(((start, start.checked_add(text.memsz)?), is_go))
 }
 
 /// Whether the notes at `address` (`size` bytes, mapped: notes lie in a loaded segment)

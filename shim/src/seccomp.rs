@@ -56,9 +56,11 @@ const TRAPPED: &[i64] = &[
     nr::WAITID,
 ];
 
-/// What a Go program's own code traps for besides (see `install_go_filter`).
+/// What the main program's own code traps for besides (see `install_own_text_filter`): the
+/// calls a runtime that bypasses libc makes itself (Go; Rust's `rustix`).
 #[cfg(target_arch = "x86_64")]
-const GO_OWN_CALLS: &[i64] = &[nr::READ, nr::WRITE, nr::CLOSE, nr::IOCTL, nr::POLL, nr::SELECT, nr::EPOLL_WAIT, nr::EPOLL_CTL, nr::EPOLL_PWAIT];
+const OWN_CALLS: &[i64] =
+    &[nr::READ, nr::WRITE, nr::WRITEV, nr::CLOSE, nr::IOCTL, nr::POLL, nr::PPOLL, nr::SELECT, nr::EPOLL_WAIT, nr::EPOLL_CTL, nr::EPOLL_PWAIT, nr::EPOLL_PWAIT2, nr::RECVFROM, nr::SENDTO];
 
 /// clone's flag for a thread of the same process: only those clones trap (see `clone_thread`).
 const CLONE_THREAD: u32 = 0x0001_0000;
@@ -223,26 +225,26 @@ fn install_filter() -> Result<(), &'static [u8]> {
     // 17: the followed calls trap; everything else goes through.
     filter.trap_listed(TRAPPED);
     filter.install()?;
-    match crate::program::go_text() {
-        Some((start, end)) => install_go_filter(start, end),
+    match crate::program::own_text() {
+        Some((start, end)) => install_own_text_filter(start, end),
         None => Ok(()),
     }
 }
 
-/// A Go program's own reads, writes, closes, ioctls and waits (made with its own `syscall`
-/// instructions, from its text) trap too; the same calls made anywhere else (libc's, the
-/// loader's after an exec) do not. A second filter: the kernel runs both, and a trap wins over
-/// an allow.
+/// The main program's own reads, writes, closes, ioctls and waits (made with its own `syscall`
+/// instructions, from its text: a Go program's, or a position-independent program's, see
+/// `program::own_text`) trap too; the same calls made anywhere else (libc's, the loader's after
+/// an exec) do not. A second filter: the kernel runs both, and a trap wins over an allow.
 #[cfg(target_arch = "x86_64")]
-fn install_go_filter(start: u64, end: u64) -> Result<(), &'static [u8]> {
+fn install_own_text_filter(start: u64, end: u64) -> Result<(), &'static [u8]> {
     if start >> 32 != (end - 1) >> 32 {
-        return Err(b"a Go program's text spans a 4 GiB boundary");
+        return Err(b"the program's text spans a 4 GiB boundary");
     }
     let mut filter = Filter::new();
     filter.allow_other_abis();
     filter.if_made_from(start, end, 1, 0);
     filter.push(RET_K, 0, 0, RET_ALLOW);
-    filter.trap_listed(GO_OWN_CALLS);
+    filter.trap_listed(OWN_CALLS);
     filter.install()
 }
 
@@ -365,9 +367,9 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         // own symbols make theirs as the shim's calls, with the program's mask.
         nr::WAIT4 | nr::WAITID if !crate::sys::in_shim() => return crate::children::trapped_wait(number, a, || native_as_program_for_now(number, a, sigmask)),
         nr::WAIT4 | nr::WAITID => return native_as_program(number, a, sigmask),
-        // A Go program's own reads, writes and waits (only those trap: see GO_OWN_CALLS).
+        // The program's own reads, writes and waits (only those trap: see OWN_CALLS).
         // Its other signals wait meanwhile, as in a trapped futex wait.
-        _ if GO_OWN_CALLS.contains(&number) && !crate::sys::in_shim() => return own_io_call(number, a),
+        _ if OWN_CALLS.contains(&number) && !crate::sys::in_shim() => return own_io_call(number, a),
         // Not under the own-calls mark either: a handler that sigsuspend runs is the program's.
         nr::ALARM
         | nr::SETITIMER
@@ -416,8 +418,8 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
     handled.unwrap_or_else(|| native_as_program(number, a, sigmask))
 }
 
-/// A call a Go program made itself: what its libc symbol does in the shim, as if the program had
-/// called libc, and the result in the kernel's convention (a negative errno).
+/// A call the program made itself (Go, `rustix`): what its libc symbol does in the shim, as if
+/// the program had called libc, and the result in the kernel's convention (a negative errno).
 #[cfg(target_arch = "x86_64")]
 fn own_io_call(number: i64, a: [i64; 6]) -> c_long {
     let fd = a[0] as c_int;
@@ -426,14 +428,20 @@ fn own_io_call(number: i64, a: [i64; 6]) -> c_long {
         match number {
             nr::READ => crate::io::read(fd, a[1] as *mut c_void, a[2] as usize) as c_long,
             nr::WRITE => crate::io::write(fd, a[1] as *const u8, a[2] as usize) as c_long,
+            nr::WRITEV => crate::io::writev(fd, a[1] as *const sys::iovec, a[2] as c_int) as c_long,
+            nr::RECVFROM => crate::io::recvfrom(fd, a[1] as *mut c_void, a[2] as usize, a[3] as c_int, a[4] as *mut c_void, a[5] as *mut u32) as c_long,
+            nr::SENDTO => crate::net::sendto(fd, a[1] as *const c_void, a[2] as usize, a[3] as c_int, a[4] as *const c_void, a[5] as u32) as c_long,
             nr::CLOSE => c_long::from(crate::io::close(fd)),
             nr::IOCTL => c_long::from(crate::io::ioctl(fd, a[1] as u64, a[2] as *mut c_void)),
             nr::POLL => c_long::from(crate::wait::poll(a[0] as *mut sys::pollfd, a[1] as sys::nfds_t, a[2] as c_int)),
+            // The kernel's sigset size (the fifth argument) is what libc passes for itself.
+            nr::PPOLL => c_long::from(crate::wait::ppoll(a[0] as *mut sys::pollfd, a[1] as sys::nfds_t, a[2] as *const sys::timespec, a[3] as *const sys::fd_set)),
             nr::SELECT => c_long::from(crate::wait::select(fd, a[1] as *mut sys::fd_set, a[2] as *mut sys::fd_set, a[3] as *mut sys::fd_set, a[4] as *mut sys::timeval)),
             nr::EPOLL_WAIT => c_long::from(crate::epoll::epoll_wait(fd, a[1] as *mut c_void, a[2] as c_int, a[3] as c_int)),
             nr::EPOLL_CTL => c_long::from(crate::epoll::epoll_ctl(fd, a[1] as c_int, a[2] as c_int, a[3] as *mut c_void)),
             // The kernel's sigset size (the sixth argument) is what libc passes for itself.
             nr::EPOLL_PWAIT => c_long::from(crate::epoll::epoll_pwait(fd, a[1] as *mut c_void, a[2] as c_int, a[3] as c_int, a[4] as *const c_void)),
+            nr::EPOLL_PWAIT2 => c_long::from(crate::epoll::epoll_pwait2(fd, a[1] as *mut c_void, a[2] as c_int, a[3] as *const sys::timespec, a[4] as *const c_void)),
             _ => return native_call(number, a),
         }
     };

@@ -84,6 +84,9 @@ const RTLD_NEXT: *mut c_void = -1isize as *mut c_void;
 pub mod nr {
     pub const READ: i64 = 0;
     pub const WRITE: i64 = 1;
+    pub const WRITEV: i64 = 20;
+    pub const SENDTO: i64 = 44;
+    pub const RECVFROM: i64 = 45;
     pub const CLOSE: i64 = 3;
     pub const FSTAT: i64 = 5;
     pub const POLL: i64 = 7;
@@ -131,6 +134,8 @@ pub mod nr {
     pub const TGKILL: i64 = 234;
     pub const OPENAT: i64 = 257;
     pub const EPOLL_PWAIT: i64 = 281;
+    pub const PPOLL: i64 = 271;
+    pub const EPOLL_PWAIT2: i64 = 441;
     pub const RT_TGSIGQUEUEINFO: i64 = 297;
     pub const SECCOMP: i64 = 317;
     pub const EXECVEAT: i64 = 322;
