@@ -91,6 +91,7 @@ pub mod nr {
     pub const FSTAT: i64 = 5;
     pub const POLL: i64 = 7;
     pub const MMAP: i64 = 9;
+    pub const MUNMAP: i64 = 11;
     pub const MPROTECT: i64 = 10;
     pub const RT_SIGACTION: i64 = 13;
     pub const RT_SIGPROCMASK: i64 = 14;
@@ -172,6 +173,7 @@ pub mod nr {
     pub const GETTID: i64 = 178;
     pub const EXECVE: i64 = 221;
     pub const MMAP: i64 = 222;
+    pub const MUNMAP: i64 = 215;
     pub const SECCOMP: i64 = 277;
     pub const EXECVEAT: i64 = 281;
     pub const MEMFD_CREATE: i64 = 279;

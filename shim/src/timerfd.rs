@@ -3,8 +3,8 @@
 //! never armed until that time has come: then it is set to fire at once, so that the kernel
 //! shows the descriptor readable, and a read returns the simulated expirations.
 
-use core::ffi::{c_int, c_void};
-use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
+use core::ffi::{c_int, c_long, c_void};
+use core::sync::atomic::{AtomicBool, AtomicI32, AtomicPtr, AtomicU64, Ordering};
 
 use crate::abi::{NEVER, Parked, Shared, Wait, release};
 use crate::block::active;
@@ -12,12 +12,11 @@ use crate::park::{charge, note_call, park};
 use crate::sys::{real, timespec};
 use crate::time::{clock_at, from_ns, sim_now, sim_time_of, to_ns};
 
-/// Timers followed at once in a process.
-pub(crate) const TIMERS: usize = crate::abi::TIMERFDS;
-
-struct Timer {
-    /// The descriptor; -1: free.
-    fd: AtomicI32,
+/// A followed timer, by its descriptor's number: no table of a fixed size, so a process may
+/// have as many as it may have descriptors. Zeroed memory is a free entry.
+pub(crate) struct Timer {
+    /// The descriptor is a followed timerfd.
+    followed: AtomicBool,
     clock: AtomicI32,
     /// Simulated time of the next expiry ([`NEVER`]: disarmed).
     expiry: AtomicU64,
@@ -26,9 +25,46 @@ struct Timer {
     shown: AtomicBool,
 }
 
-#[allow(clippy::declare_interior_mutable_const)]
-const FREE: Timer = Timer { fd: AtomicI32::new(-1), clock: AtomicI32::new(0), expiry: AtomicU64::new(NEVER), interval: AtomicU64::new(0), shown: AtomicBool::new(false) };
-static TABLE: [Timer; TIMERS] = [FREE; TIMERS];
+/// Descriptors a chunk of the table covers (32 KiB of this process's memory, mapped when a
+/// timerfd first gets a number in its range).
+const CHUNK: usize = 1024;
+/// The chunks: descriptors below [`crate::abi::TIMERFD_DESCRIPTORS`].
+const CHUNKS: usize = crate::abi::TIMERFD_DESCRIPTORS / CHUNK;
+static TABLE: [AtomicPtr<Timer>; CHUNKS] = [const { AtomicPtr::new(core::ptr::null_mut()) }; CHUNKS];
+
+/// The entry of descriptor `fd` (its chunk mapped if `map` and not yet there).
+fn entry(fd: c_int, map: bool) -> Option<&'static Timer> {
+    let fd = usize::try_from(fd).ok()?;
+    let chunk = TABLE.get(fd / CHUNK)?;
+    let mut entries = chunk.load(Ordering::Acquire);
+    if entries.is_null() {
+        if !map {
+            return None;
+        }
+        entries = map_chunk(chunk)?;
+    }
+    // SAFETY: a mapped chunk of CHUNK entries, never unmapped; the index is below CHUNK.
+    Some(unsafe { &*entries.add(fd % CHUNK) })
+}
+
+/// Map a zeroed chunk of entries into `chunk` (or take the one another thread mapped first).
+fn map_chunk(chunk: &AtomicPtr<Timer>) -> Option<*mut Timer> {
+    const PROT_READ_WRITE: c_long = 3;
+    const MAP_PRIVATE_ANONYMOUS: c_long = 0x22;
+    let bytes = CHUNK * core::mem::size_of::<Timer>();
+    let mapped = crate::native::call6(crate::sys::nr::MMAP, 0, bytes as c_long, PROT_READ_WRITE, MAP_PRIVATE_ANONYMOUS, -1, 0);
+    if (-4095..0).contains(&mapped) {
+        return None;
+    }
+    let mapped = mapped as *mut Timer;
+    match chunk.compare_exchange(core::ptr::null_mut(), mapped, Ordering::AcqRel, Ordering::Acquire) {
+        Ok(_) => Some(mapped),
+        Err(theirs) => {
+            crate::native::call2(crate::sys::nr::MUNMAP, mapped as c_long, bytes as c_long);
+            Some(theirs)
+        }
+    }
+}
 
 #[repr(C)]
 pub(crate) struct Itimerspec {
@@ -45,37 +81,34 @@ unsafe extern "C" {
     fn fcntl(fd: c_int, command: c_int, ...) -> c_int;
 }
 
-/// The followed timer on `fd`, and its index.
-pub(crate) fn timer_of(fd: c_int) -> Option<usize> {
-    if fd < 0 {
-        return None;
-    }
-    TABLE.iter().position(|t| t.fd.load(Ordering::Acquire) == fd)
+/// The followed timer on `fd`.
+pub(crate) fn timer_of(fd: c_int) -> Option<&'static Timer> {
+    entry(fd, false).filter(|timer| timer.followed.load(Ordering::Acquire))
 }
 
 /// The descriptor is closed: its timer is no longer followed.
 pub(crate) fn forget(fd: c_int) {
-    if let Some(index) = timer_of(fd) {
-        TABLE[index].fd.store(-1, Ordering::Release);
+    if let Some(timer) = timer_of(fd) {
+        timer.followed.store(false, Ordering::Release);
     }
 }
 
-/// When timer `index` expires next (simulated ns; [`NEVER`]: disarmed).
-pub(crate) fn expiry(index: usize) -> u64 {
-    TABLE[index].expiry.load(Ordering::Acquire)
+/// When the timer on `fd` expires next (simulated ns; [`NEVER`]: disarmed, or none).
+pub(crate) fn expiry(fd: c_int) -> u64 {
+    timer_of(fd).map_or(NEVER, |timer| timer.expiry.load(Ordering::Acquire))
 }
 
-/// Timer `index` has expired by now: make its descriptor readable for real (the kernel's timer
-/// fires at once), so that a poll of it sees what simulated time says. Whether it had to.
-pub(crate) fn show_if_expired(shared: &Shared, index: usize) -> bool {
-    let timer = &TABLE[index];
+/// The timer on `fd` has expired by now: make its descriptor readable for real (the kernel's
+/// timer fires at once), so that a poll of it sees what simulated time says. Whether it had to.
+pub(crate) fn show_if_expired(shared: &Shared, fd: c_int) -> bool {
+    let Some(timer) = timer_of(fd) else { return false };
     if timer.expiry.load(Ordering::Acquire) > sim_now(shared) || timer.shown.swap(true, Ordering::AcqRel) {
         return false;
     }
     let settime = real!(timerfd_settime: fn(c_int, c_int, *const Itimerspec, *mut Itimerspec) -> c_int);
     let now = Itimerspec { interval: timespec { tv_sec: 0, tv_nsec: 0 }, value: timespec { tv_sec: 0, tv_nsec: 1 } };
     // SAFETY: the program's own timerfd, a valid itimerspec, no old value wanted.
-    unsafe { settime(timer.fd.load(Ordering::Relaxed), 0, &now, core::ptr::null_mut()) };
+    unsafe { settime(fd, 0, &now, core::ptr::null_mut()) };
     true
 }
 
@@ -88,14 +121,14 @@ pub unsafe extern "C" fn timerfd_create(clock: c_int, flags: c_int) -> c_int {
         && let Some(shared) = active()
         && clock_at(shared, clock, 0).is_some()
     {
-        forget(fd);
-        match TABLE.iter().find(|t| t.fd.compare_exchange(-1, -2, Ordering::AcqRel, Ordering::Relaxed).is_ok()) {
+        // A number the kernel just gave out: no other thread holds it.
+        match entry(fd, true) {
             Some(timer) => {
                 timer.clock.store(clock, Ordering::Relaxed);
                 timer.expiry.store(NEVER, Ordering::Relaxed);
                 timer.interval.store(0, Ordering::Relaxed);
                 timer.shown.store(false, Ordering::Relaxed);
-                timer.fd.store(fd, Ordering::Release);
+                timer.followed.store(true, Ordering::Release);
             }
             None => crate::block::refuse(crate::abi::refused::TIMERFDS),
         }
@@ -103,8 +136,7 @@ pub unsafe extern "C" fn timerfd_create(clock: c_int, flags: c_int) -> c_int {
     fd
 }
 
-fn remaining(shared: &Shared, index: usize) -> Itimerspec {
-    let timer = &TABLE[index];
+fn remaining(shared: &Shared, timer: &Timer) -> Itimerspec {
     let (expiry, interval) = (timer.expiry.load(Ordering::Acquire), timer.interval.load(Ordering::Relaxed));
     let left = if expiry == NEVER { 0 } else { expiry.saturating_sub(sim_now(shared)).max(1) };
     Itimerspec { interval: from_ns(interval), value: from_ns(left) }
@@ -113,7 +145,7 @@ fn remaining(shared: &Shared, index: usize) -> Itimerspec {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn timerfd_settime(fd: c_int, flags: c_int, new: *const Itimerspec, old: *mut Itimerspec) -> c_int {
     let next = real!(timerfd_settime: fn(c_int, c_int, *const Itimerspec, *mut Itimerspec) -> c_int);
-    let (Some(shared), Some(index)) = (active(), timer_of(fd)) else {
+    let (Some(shared), Some(timer)) = (active(), timer_of(fd)) else {
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(fd, flags, new, old) };
     };
@@ -124,14 +156,13 @@ pub unsafe extern "C" fn timerfd_settime(fd: c_int, flags: c_int, new: *const It
     note_call(shared, crate::abi::call::SLEEP);
     if !old.is_null() {
         // SAFETY: the caller's itimerspec.
-        unsafe { old.write(remaining(shared, index)) };
+        unsafe { old.write(remaining(shared, timer)) };
     }
     // The real timer stays disarmed (and any shown expiry is taken back) until simulated time
     // says otherwise.
     let disarmed = Itimerspec { interval: timespec { tv_sec: 0, tv_nsec: 0 }, value: timespec { tv_sec: 0, tv_nsec: 0 } };
     // SAFETY: the program's own timerfd.
     unsafe { next(fd, 0, &disarmed, core::ptr::null_mut()) };
-    let timer = &TABLE[index];
     // SAFETY: the caller's itimerspec (not null).
     let new = unsafe { &*new };
     let value = to_ns(&new.value);
@@ -152,14 +183,14 @@ pub unsafe extern "C" fn timerfd_settime(fd: c_int, flags: c_int, new: *const It
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn timerfd_gettime(fd: c_int, current: *mut Itimerspec) -> c_int {
-    let (Some(shared), Some(index)) = (active(), timer_of(fd)) else {
+    let (Some(shared), Some(timer)) = (active(), timer_of(fd)) else {
         let next = real!(timerfd_gettime: fn(c_int, *mut Itimerspec) -> c_int);
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(fd, current) };
     };
     if !current.is_null() {
         // SAFETY: the caller's itimerspec.
-        unsafe { current.write(remaining(shared, index)) };
+        unsafe { current.write(remaining(shared, timer)) };
     }
     0
 }
@@ -168,8 +199,7 @@ pub unsafe extern "C" fn timerfd_gettime(fd: c_int, current: *mut Itimerspec) ->
 /// expiry if the descriptor blocks; returns the expirations since the last read, as 8 bytes.
 pub(crate) fn read(fd: c_int, buf: *mut c_void, len: usize) -> Option<isize> {
     let shared = active()?;
-    let index = timer_of(fd)?;
-    let timer = &TABLE[index];
+    let timer = timer_of(fd)?;
     note_call(shared, crate::abi::call::READ);
     if len < 8 {
         crate::sys::set_errno(22);

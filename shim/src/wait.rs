@@ -12,7 +12,7 @@
 use core::ffi::c_int;
 use core::sync::atomic::Ordering;
 
-use crate::abi::{Parked, Shared, Wait, call, release};
+use crate::abi::{self, Parked, Shared, Wait, call, release};
 use crate::block::active;
 use crate::park::Looked;
 use crate::park::{charge, note_call, park};
@@ -34,8 +34,8 @@ pub(crate) struct Interest {
     pub(crate) port_fd: Option<c_int>,
     /// Sensor connections (bit i: `Shared::conns[i]`).
     conns: u64,
-    /// Timers on simulated time (bit i: timerfd.rs's entry i).
-    timers: u64,
+    /// Timers on simulated time: their descriptors.
+    timers: Timers,
     other: bool,
     /// The epoll wait this is (its results are taken by a look: see `wait_on_real_world`).
     pub(crate) epoll: Option<EpollCall>,
@@ -43,9 +43,9 @@ pub(crate) struct Interest {
 
 impl Interest {
     pub(crate) fn add(&mut self, shared: &'static Shared, fd: c_int, read: bool, write_or_error: bool) {
-        if let Some(index) = crate::timerfd::timer_of(fd) {
+        if crate::timerfd::timer_of(fd).is_some() {
             if read {
-                self.timers |= 1 << index;
+                self.timers.add(fd);
             }
             if !write_or_error {
                 return;
@@ -76,14 +76,14 @@ impl Interest {
 
     /// The earliest expiry among the timers waited on (simulated ns; NEVER: none).
     fn timer_deadline(&self) -> u64 {
-        (0..crate::timerfd::TIMERS).filter(|i| self.timers & (1 << i) != 0).map(crate::timerfd::expiry).min().unwrap_or(crate::abi::NEVER)
+        self.timers.fds().iter().map(|&fd| crate::timerfd::expiry(fd)).min().unwrap_or(crate::abi::NEVER)
     }
 
     /// Make the timers that have expired readable for real; whether any had to be.
     fn show_expired_timers(&self, shared: &Shared) -> bool {
         let mut shown = false;
-        for index in (0..crate::timerfd::TIMERS).filter(|i| self.timers & (1 << i) != 0) {
-            shown |= crate::timerfd::show_if_expired(shared, index);
+        for &fd in self.timers.fds() {
+            shown |= crate::timerfd::show_if_expired(shared, fd);
         }
         shown
     }
@@ -91,6 +91,39 @@ impl Interest {
     /// A wait for what climbsim models among these descriptors.
     fn data(&self) -> Wait {
         Wait::Data { port: self.port, conns: self.conns }
+    }
+}
+
+/// The timerfds one wait waits on, at most [`abi::TIMERFDS_IN_ONE_WAIT`] (more fail the run,
+/// naming the limit).
+#[derive(Clone, Copy)]
+struct Timers {
+    fds: [c_int; abi::TIMERFDS_IN_ONE_WAIT],
+    count: usize,
+}
+
+impl Default for Timers {
+    fn default() -> Self {
+        Timers { fds: [-1; abi::TIMERFDS_IN_ONE_WAIT], count: 0 }
+    }
+}
+
+impl Timers {
+    fn add(&mut self, fd: c_int) {
+        if self.fds().contains(&fd) {
+            return;
+        }
+        match self.fds.get_mut(self.count) {
+            Some(free) => {
+                *free = fd;
+                self.count += 1;
+            }
+            None => crate::block::refuse(abi::refused::TIMERFDS),
+        }
+    }
+
+    fn fds(&self) -> &[c_int] {
+        &self.fds[..self.count]
     }
 }
 
@@ -127,7 +160,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     let now = sim_now(shared);
     let asked = timeout_ns.map_or(crate::abi::NEVER, |t| now.saturating_add(t));
     let deadline = asked.min(interest.timer_deadline());
-    if interest.timers != 0 && deadline < asked {
+    if !interest.timers.fds().is_empty() && deadline < asked {
         // Woken by a timer's expiry (or sooner): its descriptor is then ready.
         let parked_on = interest.data();
         if interest.other {

@@ -17,8 +17,11 @@ pub const ABI: u32 = 18;
 pub const SLOTS: usize = 4096;
 /// epoll registrations followed per process (all its epoll instances together).
 pub const EPOLL_ENTRIES: usize = 1024;
-/// timerfds followed per process.
-pub const TIMERFDS: usize = 64;
+/// timerfds followed in one wait (poll, select, an epoll instance's registrations); a process
+/// may have as many as it has descriptors (below 1 048 576, Linux's default `fs.nr_open`).
+pub const TIMERFDS_IN_ONE_WAIT: usize = 64;
+/// The descriptor numbers below which a timerfd is followed.
+pub const TIMERFD_DESCRIPTORS: usize = 1 << 20;
 /// Sensor-server connections followed at once.
 pub const CONNS: usize = 64;
 /// Signal timers (`alarm`, `setitimer`, `timer_create`) followed at once, all processes
@@ -73,7 +76,7 @@ pub mod refused {
         } else if bits & EPOLL != 0 {
             ("epoll registrations in one process", super::EPOLL_ENTRIES)
         } else if bits & TIMERFDS != 0 {
-            ("timerfds in one process", super::TIMERFDS)
+            ("timerfds in one wait (poll, select, epoll), numbered below 1048576", super::TIMERFDS_IN_ONE_WAIT)
         } else if bits & CONNS != 0 {
             ("connections to the sensor server at once", super::CONNS)
         } else if bits & SIG_TIMERS != 0 {
