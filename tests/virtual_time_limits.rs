@@ -9,7 +9,7 @@ use std::time::Duration;
 mod support;
 
 use support::output_text;
-use support::vt::{compiled_c, compiled_c_source, controller_log_repeated, run_virtual, run_virtual_with, scenario, summary};
+use support::vt::{compiled_c, compiled_c_source, controller_log_repeated, log_repeated_in, run_virtual, run_virtual_with, scenario, summary};
 
 #[test]
 fn a_busy_loop_fails_the_run_naming_the_thread_past_the_compute_limit() {
@@ -192,8 +192,7 @@ fn a_controller_that_writes_over_the_shared_block_fails_the_run_saying_so() {
 fn timerfds_are_followed_as_many_as_the_program_opens() {
     let dir = support::scratch_dir("vt-many-timerfds");
     let program = compiled_c(&dir, "many_timerfds");
-    let path = scenario(&dir, "many-timerfds", 2.0, &[program.to_str().expect("utf-8 path")], true);
-    let log = controller_log_repeated(&path, &dir);
+    let log = log_repeated_in(&dir, "many-timerfds", 2.0, &[program.to_str().expect("utf-8 path")]);
     assert_eq!(
         log,
         "read 300 timers, 300 expirations, the last at 300.299 ms\n\

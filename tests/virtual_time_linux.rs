@@ -8,15 +8,14 @@ mod support;
 
 use std::path::PathBuf;
 
-use support::vt::{compiled_c, controller_log_repeated, scenario};
+use support::vt::{compiled_c, log_repeated_in};
 
 /// `tests/vt/NAME.c` compiled and run twice as a controller that ends by itself, in a world
 /// `duration_s` long, with identical outputs: its scratch folder (runs `a` and `b`) and its log.
 fn c_program_repeated(scratch: &str, name: &str, duration_s: f64) -> (PathBuf, String) {
     let dir = support::scratch_dir(scratch);
     let program = compiled_c(&dir, name);
-    let path = scenario(&dir, name, duration_s, &[program.to_str().expect("utf-8 path")], true);
-    let log = controller_log_repeated(&path, &dir);
+    let log = log_repeated_in(&dir, name, duration_s, &[program.to_str().expect("utf-8 path")]);
     (dir, log)
 }
 

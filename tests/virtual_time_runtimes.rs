@@ -7,7 +7,7 @@ use std::process::Command;
 
 mod support;
 
-use support::vt::{compiled_cpp, compiled_go, controller_log_repeated, example, on_path, run_virtual, scenario, scenario_1mbps};
+use support::vt::{compiled_cpp, compiled_go, controller_log_repeated, example, log_repeated_in, on_path, run_virtual, scenario, scenario_1mbps};
 use support::{output_text, repo};
 
 /// A wheel controller of one runtime (`command`, in `dir`), run twice at 1 Mbps for 3 s with
@@ -206,8 +206,7 @@ fn go_built_with_cgo_with_goroutines_and_a_channel_repeats_exactly() {
 fn go_reads_its_clock_through_the_patched_vdso_and_repeats_exactly() {
     let dir = support::scratch_dir("vt-go-clock");
     let program = compiled_go(&dir, "./clockloop", true);
-    let path = scenario(&dir, "go-clock", 1.0, &[program.to_str().expect("utf-8 path"), "1"], true);
-    let log = controller_log_repeated(&path, &dir);
+    let log = log_repeated_in(&dir, "go-clock", 1.0, &[program.to_str().expect("utf-8 path"), "1"]);
     assert!(log.contains("clock loop: 1 goroutines, each read the clock: true, backwards 0, cgo true"), "{log}");
     assert!(log.contains(" reads in 100.000 ms"), "{log}");
 }
@@ -216,10 +215,8 @@ fn go_reads_its_clock_through_the_patched_vdso_and_repeats_exactly() {
 /// child's answer waits for the child on simulated time, and its poll's timeout is simulated.
 #[test]
 fn rustix_raw_system_calls_are_followed_and_repeat_exactly() {
-    let dir = support::scratch_dir("vt-rustix");
     let program = example("vt_rustix_raw_calls");
-    let path = scenario(&dir, "rustix", 1.0, &[program.to_str().expect("utf-8 path")], true);
-    let log = controller_log_repeated(&path, &dir);
+    let log = log_repeated_in(&support::scratch_dir("vt-rustix"), "rustix", 1.0, &[program.to_str().expect("utf-8 path")]);
     assert!(log.starts_with("read \"ready\" after 100.0"), "{log}");
     assert!(log.contains("the child ended: exit status: 0\npoll of an empty pipe: 0 ready after 30.000 ms\n"), "{log}");
 }

@@ -61,9 +61,14 @@ pub fn repeatable(out: &Path) -> serde_json::Map<String, serde_json::Value> {
 /// A controller `command` (relative to the repository, or absolute) that ends by itself, run
 /// twice for `duration_s` in a scratch folder `vt-NAME` with identical outputs; its log.
 pub fn command_log_repeated(name: &str, duration_s: f64, command: &[&str]) -> String {
-    let dir = scratch_dir(&format!("vt-{name}"));
-    let path = scenario(&dir, name, duration_s, command, true);
-    controller_log_repeated(&path, &dir)
+    log_repeated_in(&scratch_dir(&format!("vt-{name}")), name, duration_s, command)
+}
+
+/// `command` run twice from the scratch folder `dir` as a controller that ends by itself, in a
+/// world `duration_s` long, with identical outputs; its log.
+pub fn log_repeated_in(dir: &Path, name: &str, duration_s: f64, command: &[&str]) -> String {
+    let path = scenario(dir, name, duration_s, command, true);
+    controller_log_repeated(&path, dir)
 }
 
 /// Run `path` on virtual time twice: both succeed, and the controller prints the same and the
