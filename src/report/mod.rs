@@ -25,7 +25,7 @@ use thiserror::Error;
 pub use atomic::write_atomically;
 pub use path::{HeightGrid, PathView, plot_path};
 pub use plot::{PLOT_SIZE_PX, PlotFiles, PlotLabels, PlotSeries, plot_metric_vs_parameter, plot_series};
-pub use summary::{SETTINGS_JSON, SUMMARY_JSON, Summary, summarise, write_settings_json, write_summary_json};
+pub use summary::{SCHEDULER_JSON, SETTINGS_JSON, SUMMARY_JSON, Summary, summarise, write_scheduler_json, write_settings_json, write_summary_json};
 pub use timeseries::{CsvRows, TIMESERIES_CSV, TimeSeries, TimeSeriesWriter, read_timeseries_csv, write_timeseries_csv};
 pub use timing::write_timing_report;
 pub use workbook::{REPORT_XLSX, SHEET_RAW_DATA, SHEET_SETTINGS, SHEET_STEP_CHARACTERISTICS, write_workbook};

@@ -73,6 +73,15 @@ pub fn write_summary_json(out_dir: &Path, summary: &Summary) -> Result<PathBuf, 
     write_json(&out_dir.join(SUMMARY_JSON), summary)
 }
 
+/// How the host ran a controller's threads under virtual time (see `runner::time_base`): apart
+/// from `summary.json`, which repeats between identical runs, while these counts need not.
+pub const SCHEDULER_JSON: &str = "scheduler.json";
+
+/// Writes `counts` to `out_dir/scheduler.json` atomically and returns the file's path.
+pub fn write_scheduler_json(out_dir: &Path, counts: &Value) -> Result<PathBuf, ReportError> {
+    write_json(&out_dir.join(SCHEDULER_JSON), counts)
+}
+
 /// Writes the run's settings (the scenario and options, as the caller assembled them) to
 /// `out_dir/settings.json` atomically and returns the file's path.
 pub fn write_settings_json(out_dir: &Path, settings: &Value) -> Result<PathBuf, ReportError> {

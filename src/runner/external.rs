@@ -271,6 +271,9 @@ pub fn run_external(
     summary.insert("controller_exit_code".to_owned(), json!(exit.status.code()));
     summary.insert("controller_exited_at_s".to_owned(), json!(exit.at_s));
     time.summarise(&mut summary);
+    if let Some(counts) = time.scheduler_counts() {
+        crate::report::write_scheduler_json(out_dir, &counts)?;
+    }
     // Under virtual time nothing is late by construction: there is no pace to keep.
     let pace_problems = if time.is_virtual() { Vec::new() } else { report.pace_problems(options.pace.tolerance) };
     summary.insert("pace.speed".to_owned(), json!(options.pace.speed));

@@ -165,19 +165,31 @@ impl Timekeeping {
         Some(scheduler.port().take_ring_rest())
     }
 
-    /// `summary.json`'s `clock` and `virtual_time.*`.
+    /// `summary.json`'s `clock` and `virtual_time.*`: what repeats between identical runs (the
+    /// timers and signals fired at their simulated instants).
     pub fn summarise(&self, summary: &mut std::collections::BTreeMap<String, Value>) {
         summary.insert("clock".to_owned(), json!(if self.is_virtual() { "virtual" } else { "wall" }));
         let Some(scheduler) = self.scheduler() else { return };
         let stats = scheduler.stats();
-        summary.insert("virtual_time.released_at_deadline".to_owned(), json!(stats.released_at_deadline));
-        summary.insert("virtual_time.released_for_data".to_owned(), json!(stats.released_for_data));
-        summary.insert("virtual_time.turns".to_owned(), json!(stats.turns));
-        summary.insert("virtual_time.turns_handed".to_owned(), json!(stats.turns_handed));
         summary.insert("virtual_time.timers_fired".to_owned(), json!(stats.timers_fired));
         summary.insert("virtual_time.signals_fired".to_owned(), json!(stats.signals_fired));
-        summary.insert("virtual_time.jumps".to_owned(), json!(stats.jumps));
         summary.insert("virtual_time.controller_cpu".to_owned(), json!(scheduler.settings().controller_cpu));
+    }
+
+    /// `scheduler.json`: how the host ran the controller's threads (the turns climbsim gave and
+    /// the threads handed on, the clock's jumps, the threads let go at a deadline or for data).
+    /// Not in the summary, which repeats between identical runs: these need not (a thread that
+    /// finds the thread it joins already gone does not park, and takes no turn; in another run
+    /// it parks, looks, and takes one). `None` on the wall clock.
+    pub fn scheduler_counts(&self) -> Option<Value> {
+        let stats = self.scheduler()?.stats();
+        Some(json!({
+            "turns": stats.turns,
+            "turns_handed": stats.turns_handed,
+            "jumps": stats.jumps,
+            "released_at_deadline": stats.released_at_deadline,
+            "released_for_data": stats.released_for_data,
+        }))
     }
 }
 

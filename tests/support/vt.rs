@@ -76,15 +76,20 @@ pub fn log_repeated_in(dir: &Path, name: &str, duration_s: f64, command: &[&str]
 pub fn controller_log_repeated(path: &Path, dir: &Path) -> String {
     let mut logs = Vec::new();
     let mut series = Vec::new();
+    let mut summaries = Vec::new();
     for run in ["a", "b"] {
         let (output, _) = run_virtual(path, &dir.join(run));
         assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
         logs.push(std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log"));
         series.push(std::fs::read(dir.join(run).join("timeseries.csv")).expect("timeseries.csv"));
+        summaries.push(repeatable(&dir.join(run)));
+        assert!(dir.join(run).join("scheduler.json").is_file(), "the scheduler's counts beside the summary");
     }
     assert_eq!(logs[0], logs[1], "the controller's own timings differ between runs");
     // The world too: a run that ends at another instant (a thread's end seen late) differs here.
     assert!(series[0] == series[1], "timeseries.csv differs between runs (in {})", dir.display());
+    // And the summary, but for the wall-clock ratio (the scheduler's counts are scheduler.json's).
+    assert_eq!(summaries[0], summaries[1], "summary.json differs between runs (in {})", dir.display());
     logs.swap_remove(0)
 }
 
