@@ -38,6 +38,8 @@ select with tv_usec -1: -1 EINVAL at once
 nanosleep of 1e9 ns: -1 EINVAL at once
 nanosleep of -1 s: -1 EINVAL at once
 nanosleep(NULL): -1 EFAULT at once
+epoll_pwait2 with an unmapped timeout: -1 EFAULT at once
+epoll_pwait2 with a timeout of 1e9 ns: -1 EINVAL at once
 clock_nanosleep(CLOCK_MONOTONIC_RAW, 10 ms): -1 EOPNOTSUPP at once
 clock_nanosleep(CLOCK_MONOTONIC_COARSE, 10 ms): -1 EOPNOTSUPP at once
 clock_nanosleep(CLOCK_REALTIME_COARSE, 10 ms): -1 EOPNOTSUPP at once

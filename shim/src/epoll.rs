@@ -9,7 +9,7 @@ use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU64, Ordering};
 use crate::abi::call;
 use crate::block::{active, shared};
 use crate::sys::{real, timespec};
-use crate::time::{from_ns, to_ns};
+use crate::time::from_ns;
 use crate::wait::{EpollCall, Interest, ms_timeout, wait, wall_ms};
 
 /// Registrations followed at once (all epoll instances of a process together).
@@ -328,8 +328,11 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout, sigmask) };
     };
-    // SAFETY: the caller's timespec, if any.
-    let asked = (!timeout.is_null()).then(|| to_ns(unsafe { &*timeout }));
+    // A timeout the program cannot have meant: Linux's EFAULT or EINVAL, at once.
+    let asked = match crate::sys::program_timespec(timeout) {
+        Ok(asked) => asked,
+        Err(errno) => return crate::wait::refused(errno),
+    };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
     let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     wait(shared, call::POLL, interest, asked, &mut |wall| {

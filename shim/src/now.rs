@@ -72,7 +72,8 @@ impl SpinLimit {
     /// Whether the limit has passed, as last read (once it has, for good).
     pub(crate) fn passed(&mut self) -> bool {
         self.turns = self.turns.wrapping_add(1);
-        if !self.passed && self.turns.is_multiple_of(Self::EVERY) {
+        // At the first turn, then every EVERY: a limit already past spins no more.
+        if !self.passed && self.turns % Self::EVERY == 1 {
             self.passed = real_monotonic_ns() >= self.until;
         }
         self.passed

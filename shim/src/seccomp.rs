@@ -162,11 +162,29 @@ impl Filter {
     /// Five instructions: on to `inside` instructions past them when the call was made from
     /// [start, end) (one 4 GiB range), else `outside` past them.
     fn if_made_from(&mut self, start: u64, end: u64, inside: u8, outside: u8) {
+        let (start_high, end_high, end_low) = ((start >> 32) as u32, (end >> 32) as u32, end as u32);
         self.push(LD_W_ABS, 0, 0, IP_HIGH);
-        self.push(JEQ_K, 0, 3 + outside, (start >> 32) as u32);
-        self.push(LD_W_ABS, 0, 0, IP_LOW);
-        self.push(JGE_K, 0, 1 + outside, start as u32);
-        self.push(JGE_K, outside, inside, end as u32);
+        if end_high == start_high {
+            self.push(JEQ_K, 0, 3 + outside, start_high);
+            self.push(LD_W_ABS, 0, 0, IP_LOW);
+            self.push(JGE_K, 0, 1 + outside, start as u32);
+            self.push(JGE_K, outside, inside, end_low);
+        } else if end_low == 0 {
+            // It ends at a 4 GiB boundary: past its start in its own 4 GiB is inside.
+            self.push(JEQ_K, 0, 2 + outside, start_high);
+            self.push(LD_W_ABS, 0, 0, IP_LOW);
+            self.push(JGE_K, inside, outside, start as u32);
+        } else {
+            // Across one boundary (a position-independent program's text lies where address
+            // randomisation put it): past its start in the first 4 GiB, or before its end in
+            // the next. `install_own_text_filter` refuses a range wider than that.
+            self.push(JEQ_K, 0, 2, start_high);
+            self.push(LD_W_ABS, 0, 0, IP_LOW);
+            self.push(JGE_K, 3 + inside, 3 + outside, start as u32);
+            self.push(JEQ_K, 0, 2 + outside, end_high);
+            self.push(LD_W_ABS, 0, 0, IP_LOW);
+            self.push(JGE_K, outside, inside, end_low);
+        }
     }
 
     /// The listed calls trap, everything else is allowed: ends the program.
@@ -237,8 +255,8 @@ fn install_filter() -> Result<(), &'static [u8]> {
 /// an exec) do not. A second filter: the kernel runs both, and a trap wins over an allow.
 #[cfg(target_arch = "x86_64")]
 fn install_own_text_filter(start: u64, end: u64) -> Result<(), &'static [u8]> {
-    if start >> 32 != (end - 1) >> 32 {
-        return Err(b"the program's text spans a 4 GiB boundary");
+    if (end >> 32).saturating_sub(start >> 32) > 1 {
+        return Err(b"the program's text is larger than 4 GiB");
     }
     let mut filter = Filter::new();
     filter.allow_other_abis();

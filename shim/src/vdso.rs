@@ -78,16 +78,26 @@ unsafe fn write_jump(at: *mut u8, target: usize) {
 
 /// The vDSO's `clock_gettime`: simulated time for the clocks the shim answers, else the
 /// kernel's. A vDSO function returns the system call's raw result (0, or -errno).
+///
+/// Inside a libc call the shim makes for itself (`sys::OwnCalls`: a join's slice on the wall
+/// clock), glibc's own clock reads are the host's, as they were before the patch: an older
+/// glibc's timed join works its timeout out from the clock, against a deadline the shim gave
+/// on the host's.
 unsafe extern "C" fn clock_gettime_in_vdso(clock: clockid_t, ts: *mut timespec) -> c_int {
-    time::answer_clock_gettime(clock, ts).unwrap_or_else(|| native::call2(nr::CLOCK_GETTIME, clock as c_long, ts as c_long) as c_int)
+    answered(|| time::answer_clock_gettime(clock, ts)).unwrap_or_else(|| native::call2(nr::CLOCK_GETTIME, clock as c_long, ts as c_long) as c_int)
 }
 
 unsafe extern "C" fn gettimeofday_in_vdso(tv: *mut timeval, tz: *mut c_void) -> c_int {
-    time::answer_gettimeofday(tv, tz).unwrap_or_else(|| native::call2(nr::GETTIMEOFDAY, tv as c_long, tz as c_long) as c_int)
+    answered(|| time::answer_gettimeofday(tv, tz)).unwrap_or_else(|| native::call2(nr::GETTIMEOFDAY, tv as c_long, tz as c_long) as c_int)
 }
 
 unsafe extern "C" fn time_in_vdso(out: *mut time_t) -> time_t {
-    time::answer_time(out).unwrap_or_else(|| native::call1(nr::TIME, out as c_long) as time_t)
+    answered(|| time::answer_time(out)).unwrap_or_else(|| native::call1(nr::TIME, out as c_long) as time_t)
+}
+
+/// The shim's answer, unless the shim is at work in this thread (see `clock_gettime_in_vdso`).
+fn answered<T>(answer: impl FnOnce() -> Option<T>) -> Option<T> {
+    if sys::in_shim() { None } else { answer() }
 }
 
 /// A mapped ELF image: its start, the extent of its one loaded segment, inside which every

@@ -375,7 +375,7 @@ fn poll_interest(shared: &'static Shared, fds: *mut pollfd, count: nfds_t) -> Re
 }
 
 /// A call refused with `errno` before it did anything, as Linux refuses it.
-fn refused(errno: c_int) -> c_int {
+pub(crate) fn refused(errno: c_int) -> c_int {
     sys::set_errno(errno);
     -1
 }

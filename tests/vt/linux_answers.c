@@ -9,6 +9,7 @@
 #include <signal.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/epoll.h>
 #include <sys/mman.h>
 #include <sys/select.h>
 #include <sys/syscall.h>
@@ -121,6 +122,17 @@ int main(void) {
     t = now_ms(); errno = 0;
     rc = nanosleep(NULL, NULL);
     say("nanosleep(NULL)", rc, errno, t);
+
+    /* epoll_pwait2's timeout is checked as ppoll's: EFAULT for an unmapped one, EINVAL for a bad one. */
+    int epoll = epoll_create1(0);
+    struct epoll_event event;
+    t = now_ms(); errno = 0;
+    rc = epoll_pwait2(epoll, &event, 1, (const struct timespec *)16, NULL);
+    say("epoll_pwait2 with an unmapped timeout", rc, errno, t);
+    t = now_ms(); errno = 0;
+    rc = epoll_pwait2(epoll, &event, 1, &bad_ns, NULL);
+    say("epoll_pwait2 with a timeout of 1e9 ns", rc, errno, t);
+    close(epoll);
 
     /* clock_nanosleep returns the error itself. Clocks that cannot sleep: EOPNOTSUPP; a clock
      * that does not exist or a thread's CPU clock: EINVAL. */
