@@ -65,15 +65,16 @@ impl SpinLimit {
     /// vDSO read every turn).
     const EVERY: u32 = 256;
 
-    pub(crate) fn until(until: u64) -> SpinLimit {
-        SpinLimit { until, turns: 0, passed: false }
+    /// A limit at `until`, the host's clock reading `now` (which the caller has just read: a
+    /// limit already past spins no turn).
+    pub(crate) fn until(until: u64, now: u64) -> SpinLimit {
+        SpinLimit { until, turns: 0, passed: now >= until }
     }
 
     /// Whether the limit has passed, as last read (once it has, for good).
     pub(crate) fn passed(&mut self) -> bool {
         self.turns = self.turns.wrapping_add(1);
-        // At the first turn, then every EVERY: a limit already past spins no more.
-        if !self.passed && self.turns % Self::EVERY == 1 {
+        if !self.passed && self.turns.is_multiple_of(Self::EVERY) {
             self.passed = real_monotonic_ns() >= self.until;
         }
         self.passed

@@ -358,7 +358,7 @@ fn with_shim(envp: *const *const c_char) -> *const *const c_char {
     let theirs_len = if their_preload.is_null() { 0 } else { c_len(their_preload) - PRELOAD.len() };
     let string_bytes = PRELOAD.len() + shim_value.len() + 1 + theirs_len + 1;
     let array_bytes = (count + 2) * core::mem::size_of::<*const c_char>();
-    let Some(memory) = fresh_pages(array_bytes + string_bytes) else { return envp };
+    let Some(memory) = sys::fresh_pages(array_bytes + string_bytes) else { return envp };
     let array = memory.cast::<*const c_char>();
     // SAFETY: `memory` holds array_bytes + string_bytes writable bytes; the sources are C strings.
     unsafe {
@@ -387,14 +387,6 @@ fn with_shim(envp: *const *const c_char) -> *const *const c_char {
         *array.add(out) = core::ptr::null();
     }
     array.cast_const()
-}
-
-/// Zeroed, writable pages of at least `bytes` (an anonymous mapping, made natively).
-fn fresh_pages(bytes: usize) -> Option<*mut u8> {
-    const PROT_READ_WRITE: i64 = 3;
-    const MAP_PRIVATE_ANONYMOUS: i64 = 0x22;
-    let address = crate::native::call6(sys::nr::MMAP, 0, bytes as i64, PROT_READ_WRITE, MAP_PRIVATE_ANONYMOUS, -1, 0);
-    (address > 0).then_some(address as *mut u8)
 }
 
 /// An exec trapped by the filter (execve, or execveat with `at` = (dirfd, flags)): with the shim

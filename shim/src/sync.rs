@@ -63,8 +63,9 @@ fn clear_tid_word(thread: usize) -> Option<&'static AtomicU32> {
 /// kernel wakes when it clears the word. Whether it was cleared.
 fn wait_cleared(shared: &Shared, word: &AtomicU32, until: &timespec) -> bool {
     let deadline = crate::time::to_ns(until);
-    let spin_until = crate::time::real_monotonic_ns().saturating_add(shared.header.spin.park_spin_ns.load(Ordering::Relaxed));
-    let mut spin = crate::now::SpinLimit::until(spin_until.min(deadline));
+    let now = crate::time::real_monotonic_ns();
+    let spin_until = now.saturating_add(shared.header.spin.park_spin_ns.load(Ordering::Relaxed));
+    let mut spin = crate::now::SpinLimit::until(spin_until.min(deadline), now);
     loop {
         let tid = word.load(Ordering::Acquire);
         if tid == 0 {

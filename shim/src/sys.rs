@@ -475,6 +475,19 @@ pub(crate) fn open_files_limit() -> u64 {
     limit[0]
 }
 
+/// Zeroed, writable pages of at least `bytes` (an anonymous mapping, made natively).
+pub(crate) fn fresh_pages(bytes: usize) -> Option<*mut u8> {
+    const PROT_READ_WRITE: c_long = 3;
+    const MAP_PRIVATE_ANONYMOUS: c_long = 0x22;
+    let address = native::call6(nr::MMAP, 0, bytes as c_long, PROT_READ_WRITE, MAP_PRIVATE_ANONYMOUS, -1, 0);
+    (address > 0).then_some(address as *mut u8)
+}
+
+/// Give back pages [`fresh_pages`] made (`bytes` as asked then).
+pub(crate) fn release_pages(pages: *mut u8, bytes: usize) {
+    native::call2(nr::MUNMAP, pages as c_long, bytes as c_long);
+}
+
 /// A timespec in ns (negative parts as 0).
 pub(crate) fn to_ns(ts: &timespec) -> u64 {
     (ts.tv_sec.max(0) as u64).saturating_mul(1_000_000_000).saturating_add(ts.tv_nsec.max(0) as u64)

@@ -3,7 +3,7 @@
 //! never armed until that time has come: then it is set to fire at once, so that the kernel
 //! shows the descriptor readable, and a read returns the simulated expirations.
 
-use core::ffi::{c_int, c_long, c_void};
+use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicBool, AtomicI32, AtomicPtr, AtomicU64, Ordering};
 
 use crate::abi::{NEVER, Parked, Shared, Wait, release};
@@ -49,18 +49,12 @@ fn entry(fd: c_int, map: bool) -> Option<&'static Timer> {
 
 /// Map a zeroed chunk of entries into `chunk` (or take the one another thread mapped first).
 fn map_chunk(chunk: &AtomicPtr<Timer>) -> Option<*mut Timer> {
-    const PROT_READ_WRITE: c_long = 3;
-    const MAP_PRIVATE_ANONYMOUS: c_long = 0x22;
     let bytes = CHUNK * core::mem::size_of::<Timer>();
-    let mapped = crate::native::call6(crate::sys::nr::MMAP, 0, bytes as c_long, PROT_READ_WRITE, MAP_PRIVATE_ANONYMOUS, -1, 0);
-    if (-4095..0).contains(&mapped) {
-        return None;
-    }
-    let mapped = mapped as *mut Timer;
-    match chunk.compare_exchange(core::ptr::null_mut(), mapped, Ordering::AcqRel, Ordering::Acquire) {
-        Ok(_) => Some(mapped),
+    let mapped = crate::sys::fresh_pages(bytes)?;
+    match chunk.compare_exchange(core::ptr::null_mut(), mapped.cast(), Ordering::AcqRel, Ordering::Acquire) {
+        Ok(_) => Some(mapped.cast()),
         Err(theirs) => {
-            crate::native::call2(crate::sys::nr::MUNMAP, mapped as c_long, bytes as c_long);
+            crate::sys::release_pages(mapped, bytes);
             Some(theirs)
         }
     }

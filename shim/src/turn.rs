@@ -80,7 +80,7 @@ pub(crate) fn spin_while_not_running(shared: &Shared, slot: &Slot) {
         spin_until = long_until;
     }
     let turns = header.turns.given.load(Ordering::Acquire);
-    let mut limit = SpinLimit::until(spin_until);
+    let mut limit = SpinLimit::until(spin_until, now);
     while slot.state() != state::RUNNING && !limit.passed() && header.turns.given.load(Ordering::Acquire) == turns {
         core::hint::spin_loop();
     }

@@ -83,9 +83,9 @@ impl Ticked for WatchedTicks<'_> {
         }
         // Under virtual time the exit is seen when the shim saw it (at one simulated instant on
         // every run), not whenever the kernel's reaping comes round on the wall clock.
-        let (status, seen_at) = match self.time.controller_ended_before(at) {
+        // A process that went on without the shim is watched as on the wall clock.
+        let (status, seen_at) = match self.time.controller_ended_before(at).filter(|_| !self.unfollowed) {
             None => (self.controller.try_wait(), self.clock.now()),
-            Some(_) if self.unfollowed => (self.controller.try_wait(), self.clock.now()),
             // Seen at the first tick after the exit's own simulated time (the world may be
             // catching up with a controller that ran ahead): at that tick's instant, which the
             // bus clock may have passed by the host's race (0.101 or 0.102 s in 1 run of 30).
