@@ -123,6 +123,49 @@ fn a_sched_yield_loop_lets_the_thread_it_waits_for_run_and_moves_the_clock() {
     assert!(log.contains(" yields, 0.3000"), "{log}");
 }
 
+/// `tests/vt/spin_wait.c MODE…` run twice on virtual time: its log (the same in both runs) and
+/// the first run's summary.
+fn spin_wait_log(name: &str, mode: &[&str]) -> (String, serde_json::Map<String, serde_json::Value>) {
+    let dir = support::scratch_dir(&format!("vt-spin-{name}"));
+    let program = compiled_c(&dir, "spin_wait");
+    let mut command = vec![program.to_str().expect("utf-8 path")];
+    command.extend_from_slice(mode);
+    let path = scenario(&dir, name, 2.0, &command, true);
+    let log = controller_log_repeated(&path, &dir);
+    (log, summary(&dir.join("a")))
+}
+
+#[test]
+fn a_thread_spinning_on_a_flag_gives_way_to_the_ready_thread_that_sets_it() {
+    // Without preemption the spinner kept the turn, the setter never ran, and the run failed at
+    // the compute limit.
+    let (log, summary) = spin_wait_log("ready", &["ready"]);
+    assert!(log.contains("flag seen 0.000000 s after the start"), "{log}");
+    assert_eq!(summary["virtual_time.threads_gave_way"], true, "{summary:?}");
+}
+
+#[test]
+fn a_thread_spinning_on_a_flag_lets_time_move_to_the_sleeping_setter() {
+    // Charged a quantum (10 ms) at a time, up to the setter's own instant: seen at 300 ms
+    // exactly, not at the quantum after it.
+    let (log, _) = spin_wait_log("sleeper", &["sleeper"]);
+    assert!(log.contains("flag seen 0.300000 s after the start"), "{log}");
+}
+
+#[test]
+fn a_lone_thread_spinning_on_a_flag_its_signal_handler_sets_lets_the_timer_fire() {
+    // setitimer's 50 ms, after the 1 µs that the call itself costs.
+    let (log, _) = spin_wait_log("alarm", &["alarm"]);
+    assert!(log.contains("flag seen 0.050001 s after the start"), "{log}");
+}
+
+#[test]
+fn two_threads_handing_a_token_back_and_forth_by_spinning_both_get_their_turns() {
+    let (log, _) = spin_wait_log("pingpong", &["pingpong", "20"]);
+    // Computation is free: twenty rounds at the instant they started.
+    assert!(log.contains("20 rounds played, 0.000000 s after the start"), "{log}");
+}
+
 #[test]
 fn io_uring_is_refused_naming_it() {
     let dir = support::scratch_dir("vt-io-uring");

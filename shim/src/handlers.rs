@@ -73,21 +73,26 @@ impl Wish {
 
 static PROGRAM_SIGSYS: Wish = Wish::new();
 static PROGRAM_SIGSEGV: Wish = Wish::new();
+static PROGRAM_GIVE_WAY: Wish = Wish::new();
 /// Set once the shim's SIGSEGV handler is installed (`keep_sigsegv`).
 static SIGSEGV_KEPT: AtomicBool = AtomicBool::new(false);
+/// Set once the shim's handler of climbsim's request to give way is installed (`keep_give_way`).
+static GIVE_WAY_KEPT: AtomicBool = AtomicBool::new(false);
+const GIVE_WAY_BIT: u64 = 1 << (crate::abi::GIVE_WAY_SIGNAL - 1);
 
 /// The program's wish for `signal`, if the shim keeps that signal.
 fn wish_for(signal: c_int) -> Option<&'static Wish> {
     match signal {
         SIGSYS => Some(&PROGRAM_SIGSYS),
         SIGSEGV if SIGSEGV_KEPT.load(Ordering::Relaxed) => Some(&PROGRAM_SIGSEGV),
+        crate::abi::GIVE_WAY_SIGNAL if GIVE_WAY_KEPT.load(Ordering::Relaxed) => Some(&PROGRAM_GIVE_WAY),
         _ => None,
     }
 }
 
 /// The signals the program may never block.
 pub(crate) fn kept_signals() -> u64 {
-    SIGSYS_BIT | if SIGSEGV_KEPT.load(Ordering::Relaxed) { SIGSEGV_BIT } else { 0 }
+    SIGSYS_BIT | if SIGSEGV_KEPT.load(Ordering::Relaxed) { SIGSEGV_BIT } else { 0 } | if GIVE_WAY_KEPT.load(Ordering::Relaxed) { GIVE_WAY_BIT } else { 0 }
 }
 
 /// The shim's SIGSEGV handler (tsc.rs's), kept from here on as SIGSYS's is.
@@ -95,6 +100,15 @@ pub(crate) fn kept_signals() -> u64 {
 pub(crate) fn keep_sigsegv(handler: usize) -> Result<(), &'static [u8]> {
     install_own_handler(SIGSEGV, handler).map_err(|_| b"cannot install the SIGSEGV handler for rdtsc".as_slice())?;
     SIGSEGV_KEPT.store(true, Ordering::Relaxed);
+    Ok(())
+}
+
+/// The handler of climbsim's request to give way (give_way.rs's), kept from here on as SIGSYS's
+/// is.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn keep_give_way(handler: usize) -> Result<(), &'static [u8]> {
+    install_own_handler(crate::abi::GIVE_WAY_SIGNAL, handler).map_err(|_| b"cannot install the handler that lets climbsim preempt a computing thread".as_slice())?;
+    GIVE_WAY_KEPT.store(true, Ordering::Relaxed);
     Ok(())
 }
 
@@ -111,7 +125,8 @@ pub(crate) fn install_sigsys(handler: usize) -> Result<(), &'static [u8]> {
 }
 
 /// One of the shim's handlers (SA_SIGINFO), with every signal but the shim's own blocked while it
-/// runs.
+/// runs. SA_RESTART: a request to give way that lands in a system call the shim does not follow
+/// restarts it, as a preemption by the kernel would (a trap or a fault interrupts no call).
 ///
 /// A Go program's own calls trap on a goroutine's stack, which may have 2 KiB left and which the
 /// handler's frames must not overrun: there the handlers run on the signal stack Go gives each
@@ -122,8 +137,10 @@ fn install_own_handler(signal: c_int, handler: usize) -> Result<(), ()> {
     const SA_RESTORER: u64 = 0x0400_0000;
     const SA_NODEFER: u64 = 0x4000_0000;
     const SA_ONSTACK: u64 = 0x0800_0000;
+    const SA_RESTART: u64 = 0x1000_0000;
     let on_stack = if crate::program::go_text().is_some() { SA_ONSTACK } else { 0 };
-    let action = KernelSigaction { handler, flags: SA_SIGINFO | SA_NODEFER | SA_RESTORER | on_stack, restorer: native::PAGE_ADDRESS + native::RESTORER_OFFSET, mask: !(SIGSYS_BIT | SIGSEGV_BIT) };
+    let action =
+        KernelSigaction { handler, flags: SA_SIGINFO | SA_NODEFER | SA_RESTART | SA_RESTORER | on_stack, restorer: native::PAGE_ADDRESS + native::RESTORER_OFFSET, mask: !(SIGSYS_BIT | SIGSEGV_BIT) };
     match native::call4(nr::RT_SIGACTION, signal as c_long, &action as *const KernelSigaction as c_long, 0, 8) {
         0 => Ok(()),
         _ => Err(()),

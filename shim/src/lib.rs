@@ -30,6 +30,7 @@ mod delivery {
 }
 mod epoll;
 mod futex;
+mod give_way;
 mod handlers;
 mod held;
 mod io;
@@ -115,6 +116,9 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
     }
     if let Err(why) = seccomp::install() {
         say_failure(why, b"; only calls through libc's symbols are followed");
+    }
+    if let Err(why) = give_way::install() {
+        say_failure(why, b"; a thread that computes without a followed call keeps its turn");
     }
     #[cfg(target_arch = "x86_64")]
     if let Err(why) = tsc::install() {

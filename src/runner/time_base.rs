@@ -173,6 +173,9 @@ impl Timekeeping {
         let stats = scheduler.stats();
         summary.insert("virtual_time.timers_fired".to_owned(), json!(stats.timers_fired));
         summary.insert("virtual_time.signals_fired".to_owned(), json!(stats.signals_fired));
+        // Whether a thread was preempted: then the run repeats exactly only if what it computed
+        // between its calls had no effect but its wait (docs/virtual-time.md).
+        summary.insert("virtual_time.threads_gave_way".to_owned(), json!(stats.gave_way > 0));
         summary.insert("virtual_time.controller_cpu".to_owned(), json!(scheduler.settings().controller_cpu));
     }
 
@@ -189,6 +192,8 @@ impl Timekeeping {
             "jumps": stats.jumps,
             "released_at_deadline": stats.released_at_deadline,
             "released_for_data": stats.released_for_data,
+            "asked_to_give_way": stats.asked_to_give_way,
+            "gave_way": stats.gave_way,
         }))
     }
 }

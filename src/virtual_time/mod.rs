@@ -19,6 +19,7 @@ mod error;
 mod futex;
 mod hand_ons;
 mod port;
+mod preempt;
 mod quiet;
 mod real_world;
 mod sensors;
@@ -144,6 +145,10 @@ pub struct VtStats {
     pub turns_handed: u64,
     /// Signal timers (alarm, setitimer, timer_create) fired at a controller thread.
     pub signals_fired: u64,
+    /// Threads asked to give way after computing a quantum without a call (preempt.rs), and
+    /// the times they did.
+    pub asked_to_give_way: u64,
+    pub gave_way: u64,
 }
 
 /// climbsim's side of virtual time for one run.
@@ -166,6 +171,8 @@ pub struct VirtualTime {
     sensors: Arc<SensorLedger>,
     quiet: Mutex<quiet::Quiet>,
     real_world: Mutex<real_world::RealWorld>,
+    /// Asks threads that compute without a call to give way (preempt.rs).
+    preempter: Mutex<preempt::Preempter>,
     hand_ons: Mutex<hand_ons::HandOns>,
 }
 
@@ -222,6 +229,7 @@ impl VirtualTime {
             driven: Mutex::default(),
             quiet: Mutex::new(quiet::Quiet::new()),
             real_world: Mutex::new(real_world::RealWorld::new()),
+            preempter: Mutex::default(),
             hand_ons: Mutex::default(),
         }))
     }
@@ -243,7 +251,8 @@ impl VirtualTime {
     pub fn stats(&self) -> VtStats {
         let handed = self.shared().header.turns.handed.load(Ordering::Relaxed);
         let stats = *lock(&self.stats);
-        VtStats { turns: stats.turns.saturating_add(handed), turns_handed: handed, ..stats }
+        let (asked_to_give_way, gave_way) = (lock(&self.preempter).asked, self.shared().header.turns.gave_way.load(Ordering::Relaxed));
+        VtStats { turns: stats.turns.saturating_add(handed), turns_handed: handed, asked_to_give_way, gave_way, ..stats }
     }
 
     fn shared(&self) -> &abi::Shared {
@@ -488,6 +497,12 @@ impl VirtualTime {
             if watchdog.due() {
                 watchdog.check(self.shared())?;
             }
+            let mut preempter = lock(&self.preempter);
+            if preempter.due() {
+                preempter.check(self.shared());
+            }
+            let sleep_at_most = preempter.sleep_at_most();
+            drop(preempter);
             let seen = header.turns.sched_word.load(Ordering::Acquire);
             if !self.any_running() {
                 // What the threads that ran wrote may have woken threads waiting on the real
@@ -545,7 +560,7 @@ impl VirtualTime {
             if header.turns.sched_word.load(Ordering::Acquire) != seen || self.ran_past(due) {
                 continue;
             }
-            futex_wait(&header.turns.sched_word, seen, Duration::from_millis(10));
+            futex_wait(&header.turns.sched_word, seen, sleep_at_most);
         }
     }
 

@@ -59,12 +59,14 @@ pub struct Watchdog {
     checked: Instant,
     /// Since when bytes the controller sent have not reached climbsim.
     held_since: Option<Instant>,
+    /// `Header::turns.gave_way` as last seen, and when it last grew.
+    gave_way: (u64, Option<Instant>),
 }
 
 impl Watchdog {
     pub fn new(limits: Limits) -> Self {
         let now = Instant::now();
-        Self { limits, threads: HashMap::new(), round: 0, time: (u64::MAX, now), liveness: now, checked: now, held_since: None }
+        Self { limits, threads: HashMap::new(), round: 0, time: (u64::MAX, now), liveness: now, checked: now, held_since: None, gave_way: (0, None) }
     }
 
     /// Called while climbsim waits for bytes the shim counted as sent (on the port, on a
@@ -182,11 +184,20 @@ impl Watchdog {
                 }
             }
         }
+        // Threads that give way to one another (preempt.rs) compute without moving time, as a
+        // thread that computes between calls does: allowed up to the compute limit (a spin that
+        // waits for itself never ends).
+        let gave_way = shared.header.turns.gave_way.load(Ordering::Relaxed);
+        if gave_way != self.gave_way.0 {
+            self.gave_way = (gave_way, Some(Instant::now()));
+        }
+        let giving_way = self.gave_way.1.is_some_and(|at| at.elapsed() < Duration::from_secs(1));
+        let limit = if giving_way { self.limits.compute_limit.max(self.limits.livelock_after) } else { self.limits.livelock_after };
         if computing || started {
             // A computing thread holds simulated time where it is, rightly.
             self.time.1 = Instant::now();
-        } else if self.time.1.elapsed() >= self.limits.livelock_after {
-            return Err(VtError::Stuck(livelock(shared, self.limits.livelock_after, now)));
+        } else if self.time.1.elapsed() >= limit {
+            return Err(VtError::Stuck(livelock(shared, limit, now)));
         }
         Ok(())
     }
@@ -390,7 +401,7 @@ fn livelock(shared: &Shared, after: Duration, now: u64) -> String {
 
 /// The task's CPU time so far (ns): /proc's schedstat, else stat's utime and stime (in the
 /// kernel's 100 Hz ticks).
-fn cpu_ns(slot: &Slot) -> Option<u64> {
+pub(super) fn cpu_ns(slot: &Slot) -> Option<u64> {
     let task = stat_path(slot)?;
     if let Some(ns) = std::fs::read_to_string(format!("{task}/schedstat")).ok().and_then(|s| s.split_whitespace().next()?.parse().ok()) {
         return Some(ns);

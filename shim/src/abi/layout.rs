@@ -9,7 +9,7 @@ use core::sync::atomic::{AtomicI32, AtomicI64, AtomicU8, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 18;
+pub const ABI: u32 = 19;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -36,6 +36,18 @@ pub const TURN_QUANTUM_NS: u64 = 1_000_000;
 /// outlasts the world's ticks up to them (half a millisecond or more), and a thread woken from
 /// its futex then costs tens of microseconds more than one that spun.
 pub const LONG_PARK_SPIN_NS: u64 = 2_000_000;
+/// The CPU time (the thread's own, as the kernel counts it) a running thread may compute
+/// without a followed call before climbsim asks it to give way (`Slot::give_way_asked`,
+/// [`GIVE_WAY_SIGNAL`]); and the simulated time it is charged at most when it does and time must
+/// move for anything to change (`Shared::give_way`): the host's rate.
+pub const COMPUTE_QUANTUM_NS: u64 = 10_000_000;
+/// The signal climbsim sends a thread it asks to give way (`tgkill`): the shim's handler, which
+/// the program can neither replace nor block (its wishes are kept and reported back to it, as
+/// for SIGSYS; the same signal from anyone else goes where the program wished). SIGWINCH: its
+/// default action is to ignore it, so that a thread asked just as it execs (the new program's
+/// handlers are the defaults until its shim starts) is not killed; and a controller's output is
+/// a log, not a terminal, whose size changes would send it.
+pub const GIVE_WAY_SIGNAL: i32 = 28;
 /// `Slot::tid` of a slot reserved for a thread that a trapped clone creates (libc's own thread
 /// creation, a runtime's raw clone): the thread claims it at its first followed call, finding
 /// it by its TLS pointer (`Slot::clone_tls`; 0: any such thread of the process).
@@ -252,6 +264,8 @@ pub struct Turns {
     pub hand_ons_ended: AtomicU64,
     /// S: turns a parking thread handed on itself, without climbsim.
     pub handed: AtomicU64,
+    /// S: times a thread gave way when climbsim asked (see [`COMPUTE_QUANTUM_NS`]).
+    pub gave_way: AtomicU64,
 }
 
 /// `Header::looks`: the looks at the kernel that climbsim asks for after threads ran.
@@ -420,6 +434,12 @@ pub struct Slot {
     /// takes it back to 0 once it has seen the exec over; an exec that failed does so itself
     /// before it closes the marker (0: none).
     pub exec_marker_fd: AtomicI32,
+    /// C: 1 + the thread's `calls` when climbsim asked it to give way (it had computed for
+    /// [`COMPUTE_QUANTUM_NS`] of CPU time since its last followed call; 0: not asked). The
+    /// thread gives way only if it has made no call since (`Shared::give_way`).
+    pub give_way_asked: AtomicU64,
+    /// S: times the thread gave way when asked (climbsim measures its next quantum from then).
+    pub gave_way: AtomicU64,
 }
 
 /// The name of an exec's marker descriptor (`Slot::exec_marker_fd`), a memfd: its link in

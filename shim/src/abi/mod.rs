@@ -10,4 +10,4 @@ mod layout;
 pub mod protocol;
 
 pub use layout::*;
-pub use protocol::{Parked, Wait, state};
+pub use protocol::{GiveWay, Parked, Wait, state};

@@ -35,7 +35,7 @@
 
 use core::sync::atomic::Ordering::{AcqRel, Acquire, Relaxed, Release, SeqCst};
 
-use super::layout::{Shared, Slot, waits};
+use super::layout::{COMPUTE_QUANTUM_NS, NEVER, Shared, Slot, timer_state, waits};
 
 /// `Slot::state`.
 pub mod state {
@@ -357,6 +357,24 @@ pub enum Decider<'a> {
     Turn(&'a Slot),
 }
 
+/// How a running thread that climbsim asked to give way does so (see [`Shared::give_way`]).
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum GiveWay {
+    /// It made a followed call since it was asked, or is not running: the question is stale.
+    Stale,
+    /// Other threads are ready: they run first, at this instant; it is ready again after them
+    /// (a yield after a quantum, `Wait::Turn`), charged nothing.
+    ToReady,
+    /// Nothing is ready, and something else waits for an instant to come (a sleeping thread,
+    /// a timed wait, a reply due on the port, a signal timer): it is charged up to this instant,
+    /// the earliest of those and one quantum of its CPU time from now, at which it is ready
+    /// again after whatever else is due then.
+    Until(u64),
+    /// Nothing else can happen without it (its process's only thread, or every other waits
+    /// for it): it runs on, and simulated time holds, as for any computation.
+    KeepOn,
+}
+
 /// Step 1 of the rule of the turn, as [`Shared::runners`] found it.
 enum Runners {
     /// Another thread runs, is being created, or is returning from waitpid.
@@ -436,6 +454,48 @@ impl Shared {
             }
         }
         Runners::Nobody { child_unknown }
+    }
+
+    /// The rule of preemption, for the thread `me`, which climbsim asked to give way (it had
+    /// computed for [`COMPUTE_QUANTUM_NS`] of CPU time without a followed call, at simulated
+    /// time `now`): other ready threads run first; else, if anything else waits for a later
+    /// instant, time moves to the first such instant (at most a quantum on), as the kernel
+    /// would have let those threads run while this one spins; else it runs on, and simulated time
+    /// holds (computation is free: a model loaded at start costs no simulated time). While a
+    /// thread or process is being created it runs on: the creation may be its own, half done.
+    pub fn give_way(&self, me: &Slot, now: u64) -> GiveWay {
+        let asked = me.give_way_asked.load(Acquire);
+        if asked == 0 || asked - 1 != me.calls.load(Relaxed) || me.state() != RUNNING {
+            return GiveWay::Stale;
+        }
+        let others = || self.live_slots().iter().filter(|s| !core::ptr::eq(*s, me));
+        // A thread or process being created (by this thread, perhaps half-way through
+        // pthread_create or fork): nothing is decided until it has claimed its slot.
+        if others().any(|s| s.state() == RESERVED) {
+            return GiveWay::KeepOn;
+        }
+        if others().any(|s| s.state() == READY) {
+            return GiveWay::ToReady;
+        }
+        let mut until = now.saturating_add(COMPUTE_QUANTUM_NS);
+        let mut waits_for_time = false;
+        for slot in others().filter(|s| matches!(s.state(), BLOCKED | YIELDED)) {
+            let (deadline, wait) = (slot.deadline_ns.load(Relaxed), slot.wait());
+            if deadline != NEVER {
+                until = until.min(deadline);
+                waits_for_time = true;
+            }
+            if wait.port() {
+                until = until.min(self.header.port.next_due_ns.load(Relaxed));
+                waits_for_time = true;
+            }
+            waits_for_time |= wait.conns() != 0;
+        }
+        for timer in self.live_sig_timers().iter().filter(|t| t.state.load(Acquire) == timer_state::ARMED) {
+            until = until.min(timer.deadline_ns.load(Relaxed));
+            waits_for_time = true;
+        }
+        if waits_for_time { GiveWay::Until(until.max(now)) } else { GiveWay::KeepOn }
     }
 
     /// `waiter` joins a thread that is followed and has not ended: it is blocked until that
@@ -691,6 +751,49 @@ mod tests {
         assert!(core::ptr::eq(shared.next_turn().expect("one is ready"), &shared.slots[1]), "all gave their quantum up: the lowest");
         let none = block_with(&[BLOCKED, RUNNING, YIELDED]);
         assert!(none.next_turn().is_none());
+    }
+
+    /// A running thread asked to give way (slot 1, asked at 7 calls, at 100 ms): stale once it
+    /// made a call; to the ready threads first; else up to the first instant anything else
+    /// waits for, at most a quantum on; else (nothing but it can move anything) on.
+    #[test]
+    fn a_thread_asked_to_give_way_yields_to_the_ready_then_to_the_next_instant_then_runs_on() {
+        const NOW: u64 = 100_000_000;
+        let shared = block_with(&[BLOCKED, RUNNING, BLOCKED]);
+        let me = &shared.slots[1];
+        let never = |slot: &Slot| {
+            slot.deadline_ns.store(NEVER, Release);
+            slot.set_wait(Wait::Futex { space: 1 });
+        };
+        never(&shared.slots[0]);
+        never(&shared.slots[2]);
+        me.calls.store(7, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Stale, "not asked");
+        me.give_way_asked.store(8, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::KeepOn, "every other thread waits for another thread");
+        me.calls.store(8, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Stale, "a call since it was asked");
+        me.calls.store(7, Release);
+        shared.slots[2].deadline_ns.store(NOW + 3_000_000, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW + 3_000_000), "a timed wait's instant");
+        shared.slots[2].deadline_ns.store(NOW + 300_000_000, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW + COMPUTE_QUANTUM_NS), "at most a quantum on");
+        shared.slots[2].deadline_ns.store(NEVER, Release);
+        shared.slots[2].set_wait(Wait::Data { port: true, conns: 0 });
+        shared.header.port.next_due_ns.store(NOW + 1_000, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW + 1_000), "a reply due on the port");
+        never(&shared.slots[2]);
+        shared.header.sig_timers_high.store(1, Release);
+        shared.sig_timers[0].state.store(timer_state::ARMED, Release);
+        shared.sig_timers[0].deadline_ns.store(NOW + 2_000, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW + 2_000), "a signal timer");
+        shared.slots[0].state.store(READY, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::ToReady, "the ready first, whatever is due");
+        shared.slots[2].state.store(RESERVED, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::KeepOn, "a thread being created, perhaps by it");
+        shared.slots[2].state.store(BLOCKED, Release);
+        me.state.store(BLOCKED, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Stale, "not running");
     }
 
     /// A thread blocked on what the kernel wakes must be looked at, unless it joins a followed
