@@ -160,6 +160,25 @@ fn a_lone_thread_spinning_on_a_flag_its_signal_handler_sets_lets_the_timer_fire(
 }
 
 #[test]
+fn the_programs_own_sigwinch_reaches_it_and_preemption_goes_on() {
+    // Raised first with the default action (ignored, and the shim's handler stays), then with
+    // a handler of the program's own; the spin after it is still preempted.
+    let (log, _) = spin_wait_log("winch", &["winch"]);
+    assert!(log.contains("own SIGWINCH handled 1 time(s)\nflag seen 0.300000 s after the start"), "{log}");
+}
+
+#[test]
+fn with_preemption_off_a_spinning_thread_keeps_its_turn_until_the_compute_limit() {
+    let dir = support::scratch_dir("vt-spin-off");
+    let program = compiled_c(&dir, "spin_wait");
+    let path = scenario(&dir, "off", 2.0, &[program.to_str().expect("utf-8 path"), "ready"], true);
+    let (output, _) = run_virtual_with(&path, &dir.join("out"), &["--preempt-after-ms", "0", "--compute-limit-s", "1"]);
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("without a call climbsim follows") && failures.contains("past --compute-limit-s 1"), "{failures}");
+}
+
+#[test]
 fn two_threads_handing_a_token_back_and_forth_by_spinning_both_get_their_turns() {
     let (log, _) = spin_wait_log("pingpong", &["pingpong", "20"]);
     // Computation is free: twenty rounds at the instant they started.

@@ -5,14 +5,15 @@
 # distinct controller log and one distinct time series. Usage (from the checkout, after
 # scripts/test.sh has made .venv, the Node.js modules and the Rust examples):
 #   hil/bench/vt-runtimes.sh [RUNS=20] [--loaded] [NAME...]
-# NAMEs: cpp java rust tokio node go python asyncio pipes handoffs yield threads200 (default: all).
+# NAMEs: cpp java rust tokio node go python asyncio pipes handoffs yield threads200 spin pingpong
+# (default: all).
 # climbsim is $CLIMBSIM or target/debug/climbsim.
 set -euo pipefail
 runs="${1:-20}"; shift || true
 loaded=""
 if [[ "${1:-}" == "--loaded" ]]; then loaded="--loaded"; shift; fi
 names=("$@")
-[[ ${#names[@]} -gt 0 ]] || names=(cpp java rust tokio node go python asyncio pipes handoffs yield threads200)
+[[ ${#names[@]} -gt 0 ]] || names=(cpp java rust tokio node go python asyncio pipes handoffs yield threads200 spin pingpong)
 repo="$(pwd)"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
@@ -54,6 +55,10 @@ for name in "${names[@]}"; do
         threads200)
             cc -pthread tests/vt/many_threads.c -o "$work/many_threads"
             make_scenario threads200 2.0 - "$work/many_threads" 200 ;;
+        spin|pingpong)
+            cc -O2 -pthread tests/vt/spin_wait.c -o "$work/spin_wait"
+            if [[ "$name" == spin ]]; then make_scenario spin 2.0 - "$work/spin_wait" sleeper
+            else make_scenario pingpong 2.0 - "$work/spin_wait" pingpong 20; fi ;;
         *) echo "unknown runtime: $name" >&2; exit 2 ;;
     esac
     echo "== $name"

@@ -11,46 +11,46 @@
 use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicU64, Ordering};
 
-use crate::abi::{self, GiveWay, Parked, Shared, Wait};
+use crate::abi::{self, GiveWay, Parked, Shared, Slot, Wait};
 use crate::block::active;
 use crate::now::sim_now;
-use crate::park::park;
+use crate::park::{charge_computation, park};
 use crate::slot::claimed_slot;
 use crate::{handlers, maps, native, sys};
 
-/// Install the handler (once the block is mapped, in every followed process).
+/// Install the handler (once the block is mapped, in every followed process). What the
+/// handler needs that is not async-signal-safe to find is found here: where the shim's code
+/// lies, and libc's clock (resolved with dlsym at its first use), which a park reads.
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn install() -> Result<(), &'static [u8]> {
+    // The mapping that holds this very function: the shim's executable segment.
+    let text = maps::mapping_of(install as *const () as usize).ok_or(b"cannot find the shim's own code in /proc/self/maps".as_slice())?;
+    SHIM_TEXT[0].store(text.0, Ordering::Relaxed);
+    SHIM_TEXT[1].store(text.1, Ordering::Relaxed);
+    let _ = crate::now::real_monotonic_ns();
     handlers::keep_give_way(on_give_way as *const () as usize)
 }
 
-/// The shim's own text (start, end), found at the first request in this process (0, 0: not
-/// yet).
+/// The shim's own text (start, end).
 static SHIM_TEXT: [AtomicU64; 2] = [AtomicU64::new(0), AtomicU64::new(0)];
 
 fn in_shim_text(address: u64) -> bool {
-    let mut text = (SHIM_TEXT[0].load(Ordering::Relaxed), SHIM_TEXT[1].load(Ordering::Relaxed));
-    if text.1 == 0 {
-        // The mapping that holds this very function: the shim's executable segment.
-        let Some(found) = maps::mapping_of(in_shim_text as *const () as usize) else { return true };
-        SHIM_TEXT[0].store(found.0, Ordering::Relaxed);
-        SHIM_TEXT[1].store(found.1, Ordering::Relaxed);
-        text = found;
-    }
+    let (start, end) = (SHIM_TEXT[0].load(Ordering::Relaxed), SHIM_TEXT[1].load(Ordering::Relaxed));
     let page = native::PAGE_ADDRESS as u64;
-    (text.0..text.1).contains(&address) || (page..page + native::PAGE_BYTES as u64).contains(&address)
+    (start..end).contains(&address) || (page..page + native::PAGE_BYTES as u64).contains(&address)
 }
 
 #[cfg(target_arch = "x86_64")]
 unsafe extern "C" fn on_give_way(signal: c_int, info: *mut c_void, context: *mut c_void) {
-    let Some(shared) = active() else { return };
-    if !sent_by_climbsim(shared, info) {
+    let shared = active();
+    if !shared.is_some_and(|shared| sent_by_climbsim(shared, info)) {
         // SAFETY: the kernel's arguments of this signal.
         unsafe { handlers::forward_sent(signal, info, context) };
         return;
     }
     // SAFETY: the kernel's ucontext for this signal, x86_64 layout.
     let rip = unsafe { *context.cast::<u8>().add(handlers::context::GREGS).cast::<u64>().add(handlers::context::RIP) };
+    let Some(shared) = shared else { return };
     if sys::in_shim() || in_shim_text(rip) {
         return;
     }
@@ -80,15 +80,31 @@ fn give_way(shared: &Shared) {
         return;
     }
     let now = sim_now(shared);
-    let until = match shared.give_way(slot, now) {
+    let rule = shared.give_way(slot, now);
+    if rule == GiveWay::Stale {
+        return;
+    }
+    // With --controller-cpu its computation costs simulated time, as at its next call: charged
+    // now (× the factor), which gives the turn up past the quantum as any charge does.
+    if shared.header.clock.cpu_factor_ppm.load(Ordering::Relaxed) != 0 {
+        count_giving_way(shared, slot);
+        charge_computation(shared);
+        return;
+    }
+    let until = match rule {
         GiveWay::Stale | GiveWay::KeepOn => return,
         GiveWay::ToReady => now,
         GiveWay::Until(until) => until,
     };
+    count_giving_way(shared, slot);
+    park(shared, Parked::Yielded, until, Wait::Turn);
+}
+
+/// The thread gives way now: climbsim's question is answered, and measured again from here.
+fn count_giving_way(shared: &Shared, slot: &Slot) {
     slot.give_way_asked.store(0, Ordering::Relaxed);
     slot.gave_way.fetch_add(1, Ordering::Release);
     shared.header.turns.gave_way.fetch_add(1, Ordering::Relaxed);
-    park(shared, Parked::Yielded, until, Wait::Turn);
 }
 
 #[cfg(not(target_arch = "x86_64"))]

@@ -126,7 +126,10 @@ pub(crate) fn install_sigsys(handler: usize) -> Result<(), &'static [u8]> {
 
 /// One of the shim's handlers (SA_SIGINFO), with every signal but the shim's own blocked while it
 /// runs. SA_RESTART: a request to give way that lands in a system call the shim does not follow
-/// restarts it, as a preemption by the kernel would (a trap or a fault interrupts no call).
+/// restarts it where the kernel restarts calls after a handled signal (a read, a write); one
+/// it never restarts (a sleep, poll, connect) returns EINTR, as after any signal (climbsim asks
+/// only a thread that computed for a quantum since its last followed call). A trap or a fault
+/// interrupts no call.
 ///
 /// A Go program's own calls trap on a goroutine's stack, which may have 2 KiB left and which the
 /// handler's frames must not overrun: there the handlers run on the signal stack Go gives each
@@ -191,6 +194,8 @@ pub(crate) unsafe fn forward_sent(signal: c_int, info: *mut c_void, context: *mu
     let Some(wish) = wish_for(signal) else { return };
     match wish.load().handler {
         SIG_IGN => {}
+        // Its default action is to ignore it: nothing to do (and the shim's handler stays).
+        SIG_DFL if signal == crate::abi::GIVE_WAY_SIGNAL => {}
         SIG_DFL => {
             // SAFETY: as the caller's; the default action is taken from here.
             unsafe { forward_to_program(signal, info, context) };

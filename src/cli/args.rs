@@ -56,6 +56,13 @@ pub struct PaceArgs {
     /// loop that neither reads a clock nor waits would hold simulated time for ever. Default 60.
     #[arg(long, value_name = "S", value_parser = parse_compute_limit_s)]
     pub compute_limit_s: Option<f64>,
+    /// Under --clock virtual, the CPU time (ms) a controller thread may compute without a call
+    /// climbsim follows before it gives way to the other threads, as the kernel would preempt
+    /// it (a spin on a flag another thread sets). 0: never; computation is then always free,
+    /// but a thread that spins waiting for another keeps the turn until --compute-limit-s.
+    /// Default 10 (docs/virtual-time.md).
+    #[arg(long, value_name = "MS", value_parser = parse_preempt_after_ms)]
+    pub preempt_after_ms: Option<f64>,
     /// Virtual time: simulated nanoseconds an intercepted call that does not block costs.
     #[arg(long, value_name = "NS", default_value = "1000", hide = true)]
     pub vt_syscall_ns: u64,
@@ -86,6 +93,9 @@ impl PaceArgs {
         if self.compute_limit_s.is_some() && clock != ClockArg::Virtual {
             bail!("--compute-limit-s applies to --clock virtual (on the wall clock a computing controller holds nothing up)");
         }
+        if self.preempt_after_ms.is_some() && clock != ClockArg::Virtual {
+            bail!("--preempt-after-ms applies to --clock virtual (on the wall clock the kernel preempts the controller's threads)");
+        }
         let time = match clock {
             ClockArg::Wall => TimeBase::Wall,
             ClockArg::Virtual => {
@@ -98,6 +108,7 @@ impl PaceArgs {
                     spin_cap_ns: self.vt_spin_cap_us.saturating_mul(1000),
                     controller_cpu: self.controller_cpu.unwrap_or(0.0),
                     compute_limit: self.compute_limit_s.map_or(defaults.compute_limit, Duration::from_secs_f64),
+                    preempt_after: self.preempt_after_ms.map_or(defaults.preempt_after, |ms| Duration::from_secs_f64(ms / 1e3)),
                     ..defaults
                 })
             }
@@ -163,6 +174,14 @@ pub fn parse_compute_limit_s(text: &str) -> Result<f64, String> {
         return Err(format!("{text} is outside 1-86400 (seconds of wall-clock time)"));
     }
     Ok(seconds)
+}
+
+pub fn parse_preempt_after_ms(text: &str) -> Result<f64, String> {
+    let ms: f64 = text.trim().parse().map_err(|_| format!("`{text}` is not a number of milliseconds (CPU time)"))?;
+    if !(ms.is_finite() && (ms == 0.0 || (1.0..=60_000.0).contains(&ms))) {
+        return Err(format!("{text} ms is outside 1-60000 ms of CPU time (0: never preempt)"));
+    }
+    Ok(ms)
 }
 
 pub fn parse_tolerance_ms(text: &str) -> Result<f64, String> {

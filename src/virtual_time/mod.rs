@@ -66,6 +66,9 @@ pub struct VtSettings {
     /// Each controller thread's CPU time is charged × this (`--controller-cpu F`); 0: the
     /// controller's computation is free (and the run deterministic).
     pub controller_cpu: f64,
+    /// CPU time a thread may compute without a followed call before it is asked to give way
+    /// (`--preempt-after-ms`; zero: never, preempt.rs).
+    pub preempt_after: Duration,
 }
 
 impl Default for VtSettings {
@@ -78,6 +81,7 @@ impl Default for VtSettings {
             compute_limit: Duration::from_secs(60),
             epoch_unix_s: 1_704_067_200,
             controller_cpu: 0.0,
+            preempt_after: Duration::from_nanos(abi::COMPUTE_QUANTUM_NS),
         }
     }
 }
@@ -211,6 +215,7 @@ impl VirtualTime {
         header.port.next_due_ns.store(NEVER, Ordering::Relaxed);
         header.climbsim_pid.store(std::process::id() as i32, Ordering::Relaxed);
         header.clock.cpu_factor_ppm.store((settings.controller_cpu.clamp(0.0, 1e6) * 1e6) as u64, Ordering::Relaxed);
+        header.clock.give_way_after_ns.store(u64::try_from(settings.preempt_after.as_nanos()).unwrap_or(u64::MAX), Ordering::Relaxed);
         header.mode.store(mode::VIRTUAL, Ordering::Relaxed);
         // Slot 0 is the process climbsim starts (reserve_process).
         header.slots_high.store(1, Ordering::Relaxed);

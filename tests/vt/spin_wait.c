@@ -3,7 +3,9 @@
  * runs. `sleeper`: a thread sets the flag after a 300 ms sleep. `ready`: a new thread sets it
  * at once (the spinner keeps the CPU it started on). `alarm`: the only thread's SIGALRM
  * handler sets it, 50 ms on (setitimer). `pingpong N`: two threads hand a token back and forth
- * N times, each spinning for its turn. Prints when each wait ended, in simulated time. */
+ * N times, each spinning for its turn. `winch`: the program's own SIGWINCH (the signal climbsim
+ * asks with), raised once ignored by default and once with a handler of its own, then
+ * `sleeper`. Prints when each wait ended, in simulated time. */
 #include <pthread.h>
 #include <signal.h>
 #include <stdatomic.h>
@@ -43,6 +45,13 @@ static void on_alarm(int signal) {
     atomic_store(&flag, 1);
 }
 
+static atomic_int winches;
+
+static void on_winch(int signal) {
+    (void)signal;
+    atomic_fetch_add(&winches, 1);
+}
+
 /* Player `me` (0 or 1) moves when the token is even (0) or odd (1). */
 static void *play(void *arg) {
     long me = (long)arg;
@@ -66,6 +75,13 @@ int main(int argc, char **argv) {
     clock_gettime(CLOCK_MONOTONIC, &start);
     const char *mode = argc > 1 ? argv[1] : "sleeper";
     pthread_t thread;
+    if (strcmp(mode, "winch") == 0) {
+        raise(SIGWINCH);
+        signal(SIGWINCH, on_winch);
+        raise(SIGWINCH);
+        printf("own SIGWINCH handled %d time(s)\n", atomic_load(&winches));
+        mode = "sleeper";
+    }
     if (strcmp(mode, "sleeper") == 0) {
         pthread_create(&thread, NULL, set_after_sleep, NULL);
         spin_for_flag();

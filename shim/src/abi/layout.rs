@@ -9,7 +9,7 @@ use core::sync::atomic::{AtomicI32, AtomicI64, AtomicU8, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 19;
+pub const ABI: u32 = 20;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -38,8 +38,9 @@ pub const TURN_QUANTUM_NS: u64 = 1_000_000;
 pub const LONG_PARK_SPIN_NS: u64 = 2_000_000;
 /// The CPU time (the thread's own, as the kernel counts it) a running thread may compute
 /// without a followed call before climbsim asks it to give way (`Slot::give_way_asked`,
-/// [`GIVE_WAY_SIGNAL`]); and the simulated time it is charged at most when it does and time must
-/// move for anything to change (`Shared::give_way`): the host's rate.
+/// [`GIVE_WAY_SIGNAL`]), by default (`--preempt-after-ms`, `Clock::give_way_after_ns`); and the
+/// simulated time it is charged at most when it does and time must move for anything to change
+/// (`Shared::give_way`): the host's rate.
 pub const COMPUTE_QUANTUM_NS: u64 = 10_000_000;
 /// The signal climbsim sends a thread it asks to give way (`tgkill`): the shim's handler, which
 /// the program can neither replace nor block (its wishes are kept and reported back to it, as
@@ -246,6 +247,9 @@ pub struct Clock {
     pub spin_cap_ns: AtomicU64,
     /// C: each thread's CPU time is also charged, × this / 1e6 (`--controller-cpu`; 0: free).
     pub cpu_factor_ppm: AtomicU64,
+    /// C: the quantum of a thread that computes without a followed call (see
+    /// [`COMPUTE_QUANTUM_NS`]; 0: never asked to give way).
+    pub give_way_after_ns: AtomicU64,
 }
 
 /// `Header::turns`: whose turn it is, and the hand-overs between threads.

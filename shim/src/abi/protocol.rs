@@ -368,7 +368,8 @@ pub enum GiveWay {
     /// Nothing is ready, and something else waits for an instant to come (a sleeping thread,
     /// a timed wait, a reply due on the port, a signal timer): it is charged up to this instant,
     /// the earliest of those and one quantum of its CPU time from now, at which it is ready
-    /// again after whatever else is due then.
+    /// again after whatever else is due then. (At `now` itself when a thread waits on what only
+    /// a look at the kernel tells: climbsim looks first.)
     Until(u64),
     /// Nothing else can happen without it (its process's only thread, or every other waits
     /// for it): it runs on, and simulated time holds, as for any computation.
@@ -457,12 +458,14 @@ impl Shared {
     }
 
     /// The rule of preemption, for the thread `me`, which climbsim asked to give way (it had
-    /// computed for [`COMPUTE_QUANTUM_NS`] of CPU time without a followed call, at simulated
-    /// time `now`): other ready threads run first; else, if anything else waits for a later
-    /// instant, time moves to the first such instant (at most a quantum on), as the kernel
-    /// would have let those threads run while this one spins; else it runs on, and simulated time
-    /// holds (computation is free: a model loaded at start costs no simulated time). While a
-    /// thread or process is being created it runs on: the creation may be its own, half done.
+    /// computed for a quantum, `Clock::give_way_after_ns`, of CPU time without a followed call,
+    /// at simulated time `now`): other ready threads run first; else a thread waiting on what
+    /// only a look at the kernel tells is looked at, at this instant; else, if anything else
+    /// waits for a later instant, time moves to the first such instant (at most a quantum on),
+    /// as the kernel would have let those threads run while this one spins; else it runs on,
+    /// and simulated time holds (computation is free: a model loaded at start costs no
+    /// simulated time). While a thread or process is being created it runs on: the creation
+    /// may be its own, half done.
     pub fn give_way(&self, me: &Slot, now: u64) -> GiveWay {
         let asked = me.give_way_asked.load(Acquire);
         if asked == 0 || asked - 1 != me.calls.load(Relaxed) || me.state() != RUNNING {
@@ -477,7 +480,14 @@ impl Shared {
         if others().any(|s| s.state() == READY) {
             return GiveWay::ToReady;
         }
-        let mut until = now.saturating_add(COMPUTE_QUANTUM_NS);
+        if others().any(|s| self.must_look(s) || (s.state() == BLOCKED && s.in_waitpid())) {
+            return GiveWay::Until(now);
+        }
+        let quantum = match self.header.clock.give_way_after_ns.load(Relaxed) {
+            0 => COMPUTE_QUANTUM_NS,
+            set => set,
+        };
+        let mut until = now.saturating_add(quantum);
         let mut waits_for_time = false;
         for slot in others().filter(|s| matches!(s.state(), BLOCKED | YIELDED)) {
             let (deadline, wait) = (slot.deadline_ns.load(Relaxed), slot.wait());
@@ -768,6 +778,7 @@ mod tests {
         never(&shared.slots[0]);
         never(&shared.slots[2]);
         me.calls.store(7, Release);
+        shared.header.clock.give_way_after_ns.store(COMPUTE_QUANTUM_NS, Release);
         assert_eq!(shared.give_way(me, NOW), GiveWay::Stale, "not asked");
         me.give_way_asked.store(8, Release);
         assert_eq!(shared.give_way(me, NOW), GiveWay::KeepOn, "every other thread waits for another thread");
@@ -792,6 +803,14 @@ mod tests {
         shared.slots[2].state.store(RESERVED, Release);
         assert_eq!(shared.give_way(me, NOW), GiveWay::KeepOn, "a thread being created, perhaps by it");
         shared.slots[2].state.store(BLOCKED, Release);
+        shared.slots[0].state.store(BLOCKED, Release);
+        shared.slots[0].set_wait(Wait::Kernel { port: false, conns: 0 });
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW), "a wait on the kernel is looked at first");
+        never(&shared.slots[0]);
+        shared.sig_timers[0].state.store(timer_state::FREE, Release);
+        shared.header.clock.give_way_after_ns.store(4_000, Release);
+        shared.slots[2].deadline_ns.store(NOW + 300_000_000, Release);
+        assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW + 4_000), "the quantum as climbsim set it");
         me.state.store(BLOCKED, Release);
         assert_eq!(shared.give_way(me, NOW), GiveWay::Stale, "not running");
     }
