@@ -256,7 +256,10 @@ impl VirtualTime {
     pub fn stats(&self) -> VtStats {
         let handed = self.shared().header.turns.handed.load(Ordering::Relaxed);
         let stats = *lock(&self.stats);
-        let (asked_to_give_way, gave_way) = (lock(&self.preempter).asked, self.shared().header.turns.gave_way.load(Ordering::Relaxed));
+        // Each time a thread gave way answered one of climbsim's requests: a count past them is
+        // the controller's writing over the block, not a preemption.
+        let asked_to_give_way = lock(&self.preempter).asked;
+        let gave_way = self.shared().header.turns.gave_way.load(Ordering::Relaxed).min(asked_to_give_way);
         VtStats { turns: stats.turns.saturating_add(handed), turns_handed: handed, asked_to_give_way, gave_way, ..stats }
     }
 
