@@ -18,7 +18,8 @@ static double since_start_ms(void) {
 
 static void *sleeper(void *arg) {
     long i = (long)arg;
-    struct timespec nap = {0, (i + 1) * 1000000L};
+    // Past 999 ms in whole seconds: a tv_nsec of a second or more is EINVAL, as in Linux.
+    struct timespec nap = {(i + 1) / 1000, ((i + 1) % 1000) * 1000000L};
     nanosleep(&nap, NULL);
     woke_ms[i] = since_start_ms();
     return NULL;
