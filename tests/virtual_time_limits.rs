@@ -179,6 +179,20 @@ fn with_preemption_off_a_spinning_thread_keeps_its_turn_until_the_compute_limit(
 }
 
 #[test]
+fn a_thread_asked_to_give_way_while_it_creates_threads_runs_on_under_controller_cpu_too() {
+    // 5000 threads created in one loop: the creator computes for quanta, and is asked to give
+    // way half-way through pthread_create (a slot reserved, the thread not yet made). Charging
+    // its CPU time there parked it, and the run failed for the wrong reason ("did not load
+    // climbsim's shim") instead of naming the limit.
+    let dir = support::scratch_dir("vt-give-way-creating");
+    let program = compiled_c(&dir, "many_threads");
+    let path = scenario(&dir, "creating", 2.0, &[program.to_str().expect("utf-8 path"), "5000"], true);
+    let (output, _) = run_virtual_with(&path, &dir.join("out"), &["--controller-cpu", "1", "--preempt-after-ms", "1"]);
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    assert!(output_text(&output).contains("virtual time follows at most 4095 threads at once"), "{}", output_text(&output));
+}
+
+#[test]
 fn two_threads_handing_a_token_back_and_forth_by_spinning_both_get_their_turns() {
     let (log, _) = spin_wait_log("pingpong", &["pingpong", "20"]);
     // Computation is free: twenty rounds at the instant they started.

@@ -14,7 +14,7 @@ use core::sync::atomic::{AtomicU64, Ordering};
 use crate::abi::{self, GiveWay, Parked, Shared, Slot, Wait};
 use crate::block::active;
 use crate::now::sim_now;
-use crate::park::{charge_computation, park};
+use crate::park::{park, take_computation};
 use crate::slot::claimed_slot;
 use crate::{handlers, maps, native, sys};
 
@@ -80,21 +80,17 @@ fn give_way(shared: &Shared) {
         return;
     }
     let now = sim_now(shared);
-    let rule = shared.give_way(slot, now);
-    if rule == GiveWay::Stale {
-        return;
-    }
-    // With --controller-cpu its computation costs simulated time, as at its next call: charged
-    // now (× the factor), which gives the turn up past the quantum as any charge does.
-    if shared.header.clock.cpu_factor_ppm.load(Ordering::Relaxed) != 0 {
-        count_giving_way(shared, slot);
-        charge_computation(shared);
-        return;
-    }
-    let until = match rule {
+    // (Running on, its computation under --controller-cpu is charged at its next call.)
+    let until = match shared.give_way(slot, now) {
         GiveWay::Stale | GiveWay::KeepOn => return,
         GiveWay::ToReady => now,
         GiveWay::Until(until) => until,
+    };
+    // With --controller-cpu its computation costs its CPU time × F, as at its next call: it is
+    // ready again once that is over (the threads ready or due before then run first).
+    let until = match take_computation(shared) {
+        0 => until,
+        ns => now.saturating_add(ns),
     };
     count_giving_way(shared, slot);
     park(shared, Parked::Yielded, until, Wait::Turn);

@@ -107,6 +107,11 @@ pub(crate) fn keep_sigsegv(handler: usize) -> Result<(), &'static [u8]> {
 /// is.
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn keep_give_way(handler: usize) -> Result<(), &'static [u8]> {
+    // What a library's constructor may have set before the shim's: the program's first wish.
+    let mut before = KernelSigaction { handler: SIG_DFL, flags: 0, restorer: 0, mask: 0 };
+    if native::call4(nr::RT_SIGACTION, crate::abi::GIVE_WAY_SIGNAL as c_long, 0, &mut before as *mut KernelSigaction as c_long, 8) == 0 {
+        PROGRAM_GIVE_WAY.store(before);
+    }
     install_own_handler(crate::abi::GIVE_WAY_SIGNAL, handler).map_err(|_| b"cannot install the handler that lets climbsim preempt a computing thread".as_slice())?;
     GIVE_WAY_KEPT.store(true, Ordering::Relaxed);
     Ok(())

@@ -29,16 +29,25 @@ thread_local! {
 /// With `--controller-cpu F`: the CPU time this thread used since it was last charged, × F.
 /// Time spent parked (spinning for climbsim) is not the controller's and is skipped.
 pub(crate) fn charge_computation(shared: &Shared) {
+    let ns = take_computation(shared);
+    if ns > 0 {
+        charge(shared, ns);
+    }
+}
+
+/// With `--controller-cpu F`: the simulated time (ns) the CPU time this thread used since it
+/// was last charged costs, taken (0: none, or no factor).
+pub(crate) fn take_computation(shared: &Shared) -> u64 {
     let factor = shared.header.clock.cpu_factor_ppm.load(Ordering::Relaxed);
     if factor == 0 {
-        return;
+        return 0;
     }
     let now = thread_cpu_ns();
     let seen = CPU_SEEN.with(|c| c.replace(now));
-    if seen != 0 && now > seen {
-        let ns = u128::from(now - seen) * u128::from(factor) / 1_000_000;
-        charge(shared, u64::try_from(ns).unwrap_or(u64::MAX));
+    if seen == 0 || now <= seen {
+        return 0;
     }
+    u64::try_from(u128::from(now - seen) * u128::from(factor) / 1_000_000).unwrap_or(u64::MAX)
 }
 
 /// Forget the CPU time used until now (after a park: the spin was not the controller's work).

@@ -509,7 +509,7 @@ impl VirtualTime {
             if preempter.due() {
                 preempter.check(self.shared());
             }
-            let sleep_at_most = preempter.sleep_at_most();
+            let sleep_at_most = preempter.sleep_at_most(self.shared());
             drop(preempter);
             let seen = header.turns.sched_word.load(Ordering::Acquire);
             if !self.any_running() {

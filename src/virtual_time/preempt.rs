@@ -23,7 +23,7 @@ use super::watchdog::cpu_ns;
 /// How often (wall time) the running threads' CPU times are compared: a fifth of the default
 /// quantum. A thread's CPU time is first read at the look after its last call, so that one that
 /// makes calls is never read from /proc: it is asked after 1 to 1.4 quanta and one check more
-/// (10 to 16 ms by default).
+/// (10 to 16 ms by default; a quantum shorter than a check is measured no finer).
 const CHECK_EVERY: Duration = Duration::from_nanos(abi::COMPUTE_QUANTUM_NS / 5);
 
 /// A running thread, as last seen: it has made no call and not given way since `cpu_from`.
@@ -51,9 +51,10 @@ impl Preempter {
         self.checked.is_none_or(|at| at.elapsed() >= CHECK_EVERY)
     }
 
-    /// How long climbsim's scheduler may sleep while threads run.
-    pub fn sleep_at_most(&self) -> Duration {
-        CHECK_EVERY
+    /// How long climbsim's scheduler may sleep while threads run: until the next look, or
+    /// 10 ms with preemption off.
+    pub fn sleep_at_most(&self, shared: &Shared) -> Duration {
+        if shared.header.clock.give_way_after_ns.load(Ordering::Relaxed) == 0 { Duration::from_millis(10) } else { CHECK_EVERY }
     }
 
     /// Ask every running thread that has computed for a quantum without a call to give way.
