@@ -16,15 +16,14 @@ use crate::block::active;
 use crate::now::sim_now;
 use crate::park::{park, take_computation};
 use crate::slot::claimed_slot;
-use crate::{handlers, maps, native, sys};
+use crate::{handlers, native, sys};
 
 /// Install the handler (once the block is mapped, in every followed process). What the
 /// handler needs that is not async-signal-safe to find is found here: where the shim's code
 /// lies, and libc's clock (resolved with dlsym at its first use), which a park reads.
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn install() -> Result<(), &'static [u8]> {
-    // The mapping that holds this very function: the shim's executable segment.
-    let text = maps::mapping_of(install as *const () as usize).ok_or(b"cannot find the shim's own code in /proc/self/maps".as_slice())?;
+    let text = crate::program::shim_text().ok_or(b"cannot find the shim's own code in its program headers".as_slice())?;
     SHIM_TEXT[0].store(text.0, Ordering::Relaxed);
     SHIM_TEXT[1].store(text.1, Ordering::Relaxed);
     let _ = crate::now::real_monotonic_ns();

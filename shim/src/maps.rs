@@ -1,6 +1,5 @@
-//! Which mapping an address lies in, from /proc/self/maps: a futex in a shared file mapping is
-//! the same futex in every process that maps the file, at whatever address; and a thread asked
-//! to give way is not interrupted in the shim's own code.
+//! Which file mapping an address lies in, from /proc/self/maps: a futex in a shared file
+//! mapping is the same futex in every process that maps the file, at whatever address.
 
 use core::ffi::c_long;
 
@@ -10,20 +9,6 @@ use crate::sys::nr;
 /// If `addr` lies in a shared mapping of a file: the file (device and inode, folded into 63
 /// bits) and the offset in it.
 pub(crate) fn shared_file_offset(addr: usize) -> Option<(u64, u64)> {
-    find_line(addr, parse_line).flatten()
-}
-
-/// The mapping `addr` lies in: its start and end.
-pub(crate) fn mapping_of(addr: usize) -> Option<(u64, u64)> {
-    find_line(addr, |line, addr| {
-        let (start, end) = range(line)?;
-        (start..end).contains(&(addr as u64)).then_some((start, end))
-    })
-}
-
-/// What `parse` makes of the line of /proc/self/maps that `addr` lies in (`parse` says None
-/// of every other line).
-fn find_line<T>(addr: usize, parse: impl Fn(&[u8], usize) -> Option<T>) -> Option<T> {
     const O_RDONLY_CLOEXEC: c_long = 0o2000000;
     let fd = native::call3(nr::OPENAT, crate::sys::AT_FDCWD, c"/proc/self/maps".as_ptr() as c_long, O_RDONLY_CLOEXEC);
     if fd < 0 {
@@ -47,8 +32,8 @@ fn find_line<T>(addr: usize, parse: impl Fn(&[u8], usize) -> Option<T>) -> Optio
                 }
                 continue;
             }
-            if let Some(hit) = parse(&line[..used], addr) {
-                found = Some(hit);
+            if let Some(hit) = parse_line(&line[..used], addr) {
+                found = hit;
                 break 'reading;
             }
             used = 0;
@@ -61,11 +46,14 @@ fn find_line<T>(addr: usize, parse: impl Fn(&[u8], usize) -> Option<T>) -> Optio
 /// One line of maps (`start-end perms offset major:minor inode path`): None if `addr` is not in
 /// it, Some(None) if it is but not in a shared file mapping.
 fn parse_line(line: &[u8], addr: usize) -> Option<Option<(u64, u64)>> {
-    let (start, end) = range(line)?;
+    let mut fields = line.split(|&b| b == b' ').filter(|f| !f.is_empty());
+    let range = fields.next()?;
+    let dash = range.iter().position(|&b| b == b'-')?;
+    let start = hex(&range[..dash])?;
+    let end = hex(&range[dash + 1..])?;
     if !(start..end).contains(&(addr as u64)) {
         return None;
     }
-    let mut fields = line.split(|&b| b == b' ').filter(|f| !f.is_empty()).skip(1);
     let perms = fields.next().unwrap_or_default();
     let offset = fields.next().and_then(hex);
     let device = fields.next().unwrap_or_default();
@@ -81,13 +69,6 @@ fn parse_line(line: &[u8], addr: usize) -> Option<Option<(u64, u64)>> {
         }
         _ => None,
     })
-}
-
-/// A line's address range (`start-end`).
-fn range(line: &[u8]) -> Option<(u64, u64)> {
-    let range = line.split(|&b| b == b' ').next()?;
-    let dash = range.iter().position(|&b| b == b'-')?;
-    Some((hex(&range[..dash])?, hex(&range[dash + 1..])?))
 }
 
 fn hex(text: &[u8]) -> Option<u64> {

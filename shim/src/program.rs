@@ -175,9 +175,37 @@ fn own_program_text(phdr: u64, count: usize) -> Option<((u64, u64), bool)> {
     if !is_go && bias == 0 {
         return None;
     }
+    Some((executable_segment(headers, bias)?, is_go))
+}
+
+/// The range in memory of the executable segment among `headers`, loaded at `bias`.
+fn executable_segment(headers: &[ProgramHeader], bias: u64) -> Option<(u64, u64)> {
     let text = headers.iter().find(|h| h.kind == PT_LOAD && h.flags & PF_X != 0)?;
     let start = bias.wrapping_add(text.vaddr);
-    Some(((start, start.checked_add(text.memsz)?), is_go))
+    Some((start, start.checked_add(text.memsz)?))
+}
+
+unsafe extern "C" {
+    /// The shim's own ELF header, where the linker put it: the start of its first loaded
+    /// segment (`ld` and `lld` define it in every object whose header is loaded).
+    static __ehdr_start: u8;
+}
+
+/// The range in memory of the shim's own executable segment, from its own ELF and program
+/// headers (no look at /proc: every followed process asks as it starts).
+pub(crate) fn shim_text() -> Option<(u64, u64)> {
+    // Offsets in struct Elf64_Ehdr of e_phoff (u64) and e_phnum (u16).
+    const E_PHOFF: u64 = 32;
+    const E_PHNUM: u64 = 56;
+    let header = &raw const __ehdr_start as u64;
+    // SAFETY: the shim's own ELF header, mapped with its first segment.
+    let (phoff, count) = unsafe { (((header + E_PHOFF) as *const u64).read_unaligned(), ((header + E_PHNUM) as *const u16).read_unaligned()) };
+    // SAFETY: its program headers, `count` of them, mapped with the header they follow.
+    let headers = unsafe { core::slice::from_raw_parts((header + phoff) as *const ProgramHeader, usize::from(count)) };
+    // A shared object is loaded at a bias: where its header is, less where its first segment
+    // (the one that holds the header, at file offset 0) says it is.
+    let first = headers.iter().find(|h| h.kind == PT_LOAD && h.offset == 0)?;
+    executable_segment(headers, header.wrapping_sub(first.vaddr))
 }
 
 /// Whether the notes at `address` (`size` bytes, mapped: notes lie in a loaded segment)

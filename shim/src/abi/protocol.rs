@@ -35,7 +35,7 @@
 
 use core::sync::atomic::Ordering::{AcqRel, Acquire, Relaxed, Release, SeqCst};
 
-use super::layout::{COMPUTE_QUANTUM_NS, NEVER, Shared, Slot, timer_state, waits};
+use super::layout::{NEVER, Shared, Slot, timer_state, waits};
 
 /// `Slot::state`.
 pub mod state {
@@ -483,11 +483,8 @@ impl Shared {
         if others().any(|s| self.must_look(s) || (s.state() == BLOCKED && s.in_waitpid())) {
             return GiveWay::Until(now);
         }
-        let quantum = match self.header.clock.give_way_after_ns.load(Relaxed) {
-            0 => COMPUTE_QUANTUM_NS,
-            set => set,
-        };
-        let mut until = now.saturating_add(quantum);
+        // (climbsim asks only with a quantum set: `--preempt-after-ms 0` asks nothing.)
+        let mut until = now.saturating_add(self.header.clock.give_way_after_ns.load(Relaxed));
         let mut waits_for_time = false;
         for slot in others().filter(|s| matches!(s.state(), BLOCKED | YIELDED)) {
             let (deadline, wait) = (slot.deadline_ns.load(Relaxed), slot.wait());
@@ -530,6 +527,7 @@ impl Shared {
 /// stand in for libc's in the test binary).
 #[cfg(test)]
 mod tests {
+    use super::super::layout::COMPUTE_QUANTUM_NS;
     use super::*;
 
     const ALL: [u32; 7] = [FREE, RESERVED, RUNNING, BLOCKED, YIELDED, EXITED, READY];
