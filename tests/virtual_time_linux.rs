@@ -140,3 +140,40 @@ fn a_process_whose_main_thread_exits_first_ends_with_its_last_thread_in_every_ru
     let ended = a["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
     assert!((0.1..0.102).contains(&ended), "{ended}");
 }
+
+/// What `tests/vt/timed_waits.c` prints on virtual time: each wait ends at the instant another
+/// thread acted (plus the microsecond its call costs: a signal sent, a semaphore posted, a
+/// message sent), or at its own timeout, in simulated time. Natively the same within a
+/// millisecond, but for `futex_waitv`, which is not followed and answers as a kernel without it.
+const TIMED_WAITS_SAY: &str = "\
+select for 100 ms, written at 30 ms: 1 after 30.000 ms, 70.000 ms left
+pselect letting SIGUSR1 through, sent at 20 ms: -1 EINTR after 20.001 ms
+ppoll letting SIGUSR1 through, sent at 20 ms: -1 EINTR after 20.001 ms
+epoll_pwait letting SIGUSR1 through, sent at 20 ms: -1 EINTR after 20.001 ms
+SIGUSR1 handled 3 times, blocked again after: yes
+pthread_timedjoin_np of a thread ending at 40 ms, 200 ms allowed: 0 after 40.000 ms
+pthread_timedjoin_np of a thread ending at 500 ms, 50 ms allowed: -1 ETIMEDOUT after 50.000 ms
+pthread_clockjoin_np of it then, 1 s allowed: 0 after 450.000 ms
+semtimedop for 60 ms, nothing posted: -1 EAGAIN after 60.000 ms
+semtimedop for 60 ms, posted at 25 ms: 0 after 25.001 ms
+semop, posted at 25 ms: 0 after 25.001 ms
+mq_timedreceive for 70 ms, nothing sent: -1 ETIMEDOUT after 70.000 ms
+mq_timedreceive for 70 ms, sent at 35 ms: 5 after 35.001 ms
+recv with an 80 ms SO_RCVTIMEO, nothing sent: -1 EAGAIN after 80.000 ms
+read of it, nothing sent: -1 EAGAIN after 80.000 ms
+recv of it, sent at 10 ms: 1 after 10.000 ms
+futex_waitv for 10 ms: -1 ENOSYS
+";
+
+/// Waits with a timeout or a signal mask of their own (select's time left, the masks of
+/// pselect/ppoll/epoll_pwait, timed joins, System V semaphores, POSIX message queues, a
+/// socket's SO_RCVTIMEO) end at simulated instants, with Linux's answers; each once said
+/// something else with exit 0.
+#[test]
+fn waits_with_their_own_timeouts_and_masks_end_at_simulated_instants() {
+    let (_, log) = c_program_repeated("vt-timed-waits", "timed_waits", 5.0);
+    for (virtual_line, linux_line) in log.lines().zip(TIMED_WAITS_SAY.lines()) {
+        assert_eq!(virtual_line, linux_line, "on virtual time (left) against what it should say (right); the whole log:\n{log}");
+    }
+    assert_eq!(log.lines().count(), TIMED_WAITS_SAY.lines().count(), "the program stopped early; its log:\n{log}");
+}

@@ -173,8 +173,8 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
         return unsafe { next(fd, buf, len) };
     };
     if len == 0 || !crate::wait::is_port(shared, fd) {
-        if len > 0 {
-            await_readable(shared, fd);
+        if len > 0 && !await_readable(shared, fd) {
+            return receive_timed_out();
         }
         // SAFETY: passing the caller's arguments through.
         let received = unsafe { next(fd, buf, len) };
@@ -290,19 +290,28 @@ pub unsafe extern "C" fn close(fd: c_int) -> c_int {
 /// Receives: from the sensor server (counted, net.rs), or from anything else that may block.
 const MSG_DONTWAIT: c_int = 0x40;
 
-/// A receive that may block waits on simulated time first (see `io::await_readable`).
-fn before_receive(fd: c_int, flags: c_int) {
-    if let Some(shared) = active()
-        && flags & MSG_DONTWAIT == 0
-    {
-        await_readable(shared, fd);
+/// A receive that may block waits on simulated time first (see `io::await_readable`); whether
+/// it is to be made (not if the socket's receive timeout passed first: the receive then fails
+/// with EAGAIN, as Linux's does).
+fn before_receive(fd: c_int, flags: c_int) -> bool {
+    match active() {
+        Some(shared) if flags & MSG_DONTWAIT == 0 => await_readable(shared, fd),
+        _ => true,
     }
+}
+
+/// A receive whose socket's timeout (SO_RCVTIMEO) passed with nothing to receive.
+fn receive_timed_out() -> isize {
+    crate::sys::set_errno(crate::sys::EAGAIN);
+    -1
 }
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_int) -> isize {
     let next = real!(recv: fn(c_int, *mut c_void, usize, c_int) -> isize);
-    before_receive(fd, flags);
+    if !before_receive(fd, flags) {
+        return receive_timed_out();
+    }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, buf, len, flags) };
     if flags & 2 == 0 {
@@ -315,7 +324,9 @@ pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags: c_int, addr: *mut c_void, addr_len: *mut u32) -> isize {
     let next = real!(recvfrom: fn(c_int, *mut c_void, usize, c_int, *mut c_void, *mut u32) -> isize);
-    before_receive(fd, flags);
+    if !before_receive(fd, flags) {
+        return receive_timed_out();
+    }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, buf, len, flags, addr, addr_len) };
     if flags & 2 == 0 {
@@ -327,7 +338,9 @@ pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recvmsg(fd: c_int, message: *mut c_void, flags: c_int) -> isize {
     let next = real!(recvmsg: fn(c_int, *mut c_void, c_int) -> isize);
-    before_receive(fd, flags);
+    if !before_receive(fd, flags) {
+        return receive_timed_out();
+    }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, message, flags) };
     if flags & 2 == 0 {

@@ -34,6 +34,8 @@ mod give_way;
 mod handlers;
 mod held;
 mod io;
+#[cfg(target_arch = "x86_64")]
+mod ipc;
 mod maps;
 mod marker;
 mod native;
@@ -49,6 +51,19 @@ mod signals;
 #[cfg(not(target_arch = "x86_64"))]
 mod signals {
     pub(crate) fn delete_posix_timers_of(_: i32) {}
+    /// The waits of the pselect family keep the program's mask while they wait.
+    pub(crate) struct WaitMask;
+    impl WaitMask {
+        pub(crate) fn enter(_: *const core::ffi::c_void) -> Result<Self, core::ffi::c_int> {
+            Ok(WaitMask)
+        }
+        pub(crate) fn lets_one_through(&self) -> bool {
+            false
+        }
+        pub(crate) fn leave(self, rc: core::ffi::c_int) -> core::ffi::c_int {
+            rc
+        }
+    }
 }
 mod slot;
 mod spawn;

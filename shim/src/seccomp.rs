@@ -54,6 +54,11 @@ const TRAPPED: &[i64] = &[
     nr::TKILL,
     nr::WAIT4,
     nr::WAITID,
+    nr::SEMOP,
+    nr::SEMTIMEDOP,
+    nr::MQ_TIMEDSEND,
+    nr::MQ_TIMEDRECEIVE,
+    nr::FUTEX_WAITV,
 ];
 
 /// What the main program's own code traps for besides (see `install_own_text_filter`): the
@@ -415,6 +420,10 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
     let _own = crate::sys::OwnCalls::enter();
     let handled = match number {
         nr::FUTEX => crate::futex::emulate(&crate::futex::Args { uaddr: a[0] as usize, op: a[1] as i32, val: a[2] as u32, timeout_or_val2: a[3] as usize, uaddr2: a[4] as usize, val3: a[5] as u32 }),
+        nr::SEMOP => crate::ipc::semtimedop(a[0], a[1] as usize, a[2], 0),
+        nr::SEMTIMEDOP => crate::ipc::semtimedop(a[0], a[1] as usize, a[2], a[3] as usize),
+        nr::MQ_TIMEDSEND | nr::MQ_TIMEDRECEIVE => crate::ipc::mq_timed(number, a),
+        nr::FUTEX_WAITV => crate::ipc::futex_waitv(),
         nr::CLOCK_GETTIME => crate::time::answer_clock_gettime(a[0] as c_int, a[1] as *mut sys::timespec).map(c_long::from),
         nr::GETTIMEOFDAY => crate::time::answer_gettimeofday(a[0] as *mut sys::timeval, a[1] as *mut c_void).map(c_long::from),
         nr::TIME => crate::time::answer_time(a[0] as *mut sys::time_t),

@@ -198,6 +198,61 @@ pub unsafe extern "C" fn pthread_join(thread: usize, result: *mut *mut c_void) -
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(thread, result) };
     };
+    join(shared, thread, result, NEVER)
+}
+
+/// A join with a deadline on the simulated CLOCK_REALTIME (glibc's futex wait on the thread's
+/// id, which the kernel wakes as the thread ends, would not see that end on simulated time).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pthread_timedjoin_np(thread: usize, result: *mut *mut c_void, at: *const timespec) -> c_int {
+    let Some(shared) = active() else {
+        let next = real!(pthread_timedjoin_np: fn(usize, *mut *mut c_void, *const timespec) -> c_int);
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(thread, result, at) };
+    };
+    timed_join(shared, thread, result, sys::CLOCK_REALTIME, at)
+}
+
+/// A join with a deadline on `clock` (CLOCK_MONOTONIC or CLOCK_REALTIME), on simulated time.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pthread_clockjoin_np(thread: usize, result: *mut *mut c_void, clock: clockid_t, at: *const timespec) -> c_int {
+    let Some(shared) = active() else {
+        let next = real!(pthread_clockjoin_np: fn(usize, *mut *mut c_void, clockid_t, *const timespec) -> c_int);
+        // SAFETY: passing the caller's arguments through.
+        return unsafe { next(thread, result, clock, at) };
+    };
+    timed_join(shared, thread, result, clock, at)
+}
+
+/// glibc's answers, then the join until `at` on `clock` (NULL: none): EINVAL for a clock other
+/// than CLOCK_MONOTONIC and CLOCK_REALTIME or a deadline that is not a time, ETIMEDOUT once it
+/// has passed.
+fn timed_join(shared: &'static Shared, thread: usize, result: *mut *mut c_void, clock: clockid_t, at: *const timespec) -> c_int {
+    const EINVAL: c_int = 22;
+    if clock != sys::CLOCK_MONOTONIC && clock != sys::CLOCK_REALTIME {
+        return EINVAL;
+    }
+    let deadline = if at.is_null() {
+        NEVER
+    } else {
+        match sys::read_from_program(at) {
+            // A negative second is a deadline that has passed (glibc's ETIMEDOUT, if the
+            // thread still runs).
+            Some(at) if at.tv_sec < 0 => 0,
+            Some(at) => match sys::timespec_ns(&at) {
+                Some(at) => crate::time::sim_time_of(shared, clock, at).unwrap_or(0),
+                None => return EINVAL,
+            },
+            // (glibc would fault.)
+            None => return EINVAL,
+        }
+    };
+    join(shared, thread, result, deadline)
+}
+
+/// Join `thread` until simulated `deadline`: the kernel's join in slices of wall time (see
+/// `peer_wait`).
+fn join(shared: &'static Shared, thread: usize, result: *mut *mut c_void, deadline: u64) -> c_int {
     let clockjoin = real!(pthread_clockjoin_np: fn(usize, *mut *mut c_void, clockid_t, *const timespec) -> c_int);
     let cleared = clear_tid_word(thread);
     let mut slice = |until: &timespec| {
@@ -213,7 +268,7 @@ pub unsafe extern "C" fn pthread_join(thread: usize, result: *mut *mut c_void) -
         // SAFETY: the caller's thread and result pointer.
         unsafe { clockjoin(thread, result, sys::CLOCK_MONOTONIC, until) }
     };
-    peer_wait(shared, thread, NEVER, &mut slice)
+    peer_wait(shared, thread, deadline, &mut slice)
 }
 
 /// What a new thread needs to claim the slot its creator reserved.

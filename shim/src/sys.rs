@@ -147,6 +147,13 @@ pub mod nr {
     pub const READLINKAT: i64 = 267;
     pub const IO_URING_SETUP: i64 = 425;
     pub const CLONE3: i64 = 435;
+    pub const SEMOP: i64 = 65;
+    pub const GETSOCKOPT: i64 = 55;
+    pub const SEMCTL: i64 = 66;
+    pub const SEMTIMEDOP: i64 = 220;
+    pub const MQ_TIMEDSEND: i64 = 242;
+    pub const MQ_TIMEDRECEIVE: i64 = 243;
+    pub const FUTEX_WAITV: i64 = 449;
     /// struct stat: st_mode's and st_rdev's offsets.
     pub const ST_MODE: usize = 24;
     pub const ST_RDEV: usize = 40;
@@ -180,6 +187,7 @@ pub mod nr {
     pub const PRLIMIT64: i64 = 261;
     pub const PROCESS_VM_READV: i64 = 270;
     pub const FCNTL: i64 = 25;
+    pub const GETSOCKOPT: i64 = 209;
     pub const READLINKAT: i64 = 78;
     pub const IO_URING_SETUP: i64 = 425;
     pub const ST_MODE: usize = 16;
@@ -349,6 +357,16 @@ pub fn read_from_program<T: Copy>(from: *const T) -> Option<T> {
     let mut value = core::mem::MaybeUninit::<T>::uninit();
     // SAFETY: on success every byte of `value` was written.
     copy_from_program(from.cast(), value.as_mut_ptr().cast(), core::mem::size_of::<T>()).then(|| unsafe { value.assume_init() })
+}
+
+/// A socket's receive timeout (SO_RCVTIMEO) in ns; None: not a socket, or no timeout.
+pub fn receive_timeout(fd: c_int) -> Option<u64> {
+    const SOL_SOCKET: c_long = 1;
+    const SO_RCVTIMEO: c_long = 20;
+    let mut timeout = timeval { tv_sec: 0, tv_usec: 0 };
+    let mut size = core::mem::size_of::<timeval>() as u32;
+    let rc = native::call6(nr::GETSOCKOPT, fd as c_long, SOL_SOCKET, SO_RCVTIMEO, &mut timeout as *mut timeval as c_long, &mut size as *mut u32 as c_long, 0);
+    (rc == 0).then(|| timeval_ns(&timeout)).flatten().filter(|&ns| ns > 0)
 }
 
 /// The character device number of `fd`, if it is one.

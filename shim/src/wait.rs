@@ -211,6 +211,20 @@ fn interrupted() -> c_int {
     refused(sys::EINTR)
 }
 
+/// A wait of the pselect family, `wait`, with the signal mask it asks for (`sigmask`; see
+/// `signals::WaitMask`); or Linux's answer to an unreadable mask (EFAULT).
+pub(crate) fn with_wait_mask(sigmask: *const core::ffi::c_void, wait: impl FnOnce() -> c_int) -> c_int {
+    let mask = match crate::signals::WaitMask::enter(sigmask) {
+        Ok(mask) => mask,
+        Err(errno) => return refused(errno),
+    };
+    if mask.lets_one_through() {
+        return mask.leave(interrupted());
+    }
+    let rc = wait();
+    mask.leave(rc)
+}
+
 /// Block until `deadline` or data on what `wait` names (see `park`).
 pub(crate) fn park_blocked(shared: &'static Shared, deadline: u64, wait: Wait) -> u32 {
     if wait.port() {
@@ -320,22 +334,26 @@ fn read_may_block(fd: c_int) -> bool {
 /// counts as blocked (a pipe's reader: a shell's `$(…)`, Python's `subprocess`, a pipe to a
 /// child) and wakes at the instant the writer wrote, rather than sitting in the kernel where
 /// climbsim cannot see it. A sensor connection waits for climbsim's response the same way.
-pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) {
+/// A socket's receive timeout (SO_RCVTIMEO) is simulated time too: false if it passed with
+/// nothing to read (the read is then not made, and fails with EAGAIN as Linux's does).
+pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> bool {
     let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
     let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
     let saved = crate::sys::errno();
     if readable_now(fd) || !read_may_block(fd) {
         crate::sys::set_errno(saved);
-        return;
+        return true;
     }
     let mut interest = Interest::default();
     interest.add(shared, fd, true, false);
-    wait(shared, call::READ, interest, None, &mut |wall| {
+    let timeout = sys::receive_timeout(fd);
+    let ready = wait(shared, call::READ, interest, timeout, &mut |wall| {
         entry.revents = 0;
         // SAFETY: as above, with the wait's timeout.
         unsafe { poll(&mut entry, 1, wall_ms(wall)) }
     });
     crate::sys::set_errno(saved);
+    !(ready == 0 && timeout.is_some())
 }
 
 pub(crate) fn ms_timeout(timeout_ms: c_int) -> Option<u64> {
@@ -411,11 +429,13 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
         Ok(interest) => interest,
         Err(errno) => return refused(errno),
     };
-    wait(shared, call::POLL, interest, asked, &mut |wall| {
-        let limit = wall.map(from_ns);
-        let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
-        // SAFETY: the caller's arguments, with our timeout.
-        crate::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, interest.port_fd)
+    with_wait_mask(sigmask.cast(), || {
+        wait(shared, call::POLL, interest, asked, &mut |wall| {
+            let limit = wall.map(from_ns);
+            let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
+            // SAFETY: the caller's arguments, with our timeout.
+            crate::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, interest.port_fd)
+        })
     })
 }
 
@@ -490,6 +510,7 @@ pub unsafe extern "C" fn select(count: c_int, read: *mut fd_set, write: *mut fd_
         Err(errno) => return refused(errno),
     };
     let interest = sets.interest(shared);
+    let started = sim_now(shared);
     let result = wait(shared, call::SELECT, interest, asked, &mut |wall| {
         sets.restore();
         let mut limit = wall.map(|ns| timeval { tv_sec: (ns / 1_000_000_000) as i64, tv_usec: (ns % 1_000_000_000).div_ceil(1000) as i64 });
@@ -497,10 +518,12 @@ pub unsafe extern "C" fn select(count: c_int, read: *mut fd_set, write: *mut fd_
         // SAFETY: the caller's sets, with our timeout.
         crate::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr) }, interest.port_fd)
     });
-    if !timeout.is_null() && result == 0 {
-        // Linux reports the time left; a select that timed out has none.
-        // SAFETY: the caller's timeval.
-        unsafe { *timeout = timeval { tv_sec: 0, tv_usec: 0 } };
+    if let Some(asked) = asked {
+        // Linux reports the time left (in whole microseconds, rounded down), whatever ended the
+        // wait; a select that timed out has none.
+        let left = if result == 0 { 0 } else { asked.saturating_sub(sim_now(shared).saturating_sub(started)) };
+        // SAFETY: the caller's timeval (read above: it is there).
+        unsafe { *timeout = timeval { tv_sec: (left / 1_000_000_000) as i64, tv_usec: (left % 1_000_000_000 / 1000) as i64 } };
     }
     result
 }
@@ -517,11 +540,13 @@ pub unsafe extern "C" fn pselect(count: c_int, read: *mut fd_set, write: *mut fd
         Err(errno) => return refused(errno),
     };
     let interest = sets.interest(shared);
-    wait(shared, call::SELECT, interest, asked, &mut |wall| {
-        sets.restore();
-        let limit = wall.map(from_ns);
-        let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
-        // SAFETY: the caller's sets, with our timeout.
-        crate::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, interest.port_fd)
+    with_wait_mask(sigmask.cast(), || {
+        wait(shared, call::SELECT, interest, asked, &mut |wall| {
+            sets.restore();
+            let limit = wall.map(from_ns);
+            let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
+            // SAFETY: the caller's sets, with our timeout.
+            crate::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, interest.port_fd)
+        })
     })
 }

@@ -162,6 +162,7 @@ pub mod call {
     pub const YIELD: u32 = 11;
     pub const SIGNAL_WAIT: u32 = 12;
     pub const TIMER: u32 = 13;
+    pub const IPC: u32 = 14;
 
     pub fn name(call: u32) -> &'static str {
         match call {
@@ -178,6 +179,7 @@ pub mod call {
             YIELD => "sched_yield",
             SIGNAL_WAIT => "a wait for a signal",
             TIMER => "a signal timer's call",
+            IPC => "a semaphore or message queue wait",
             _ => "nothing yet",
         }
     }

@@ -23,6 +23,7 @@ mod timers;
 mod waits;
 
 pub(crate) use timers::delete_posix_timers_of;
+pub(crate) use waits::WaitMask;
 
 const ITIMER_REAL: i64 = 0;
 const EINTR: c_long = 4;

@@ -1,13 +1,13 @@
 //! The waits for a signal: `pause`, `sigsuspend`, `sigtimedwait`, on simulated time.
 
-use core::ffi::c_long;
+use core::ffi::{c_int, c_long, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, Shared, Wait, call, release};
 use crate::native;
 use crate::now::sim_now;
 use crate::park::Looked;
-use crate::sys::{nr, timespec, timespec_ns};
+use crate::sys::{self, nr, timespec, timespec_ns};
 
 use super::{EAGAIN, EINTR, EINVAL};
 use crate::handlers::program_mask;
@@ -111,5 +111,58 @@ pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout:
         }),
         release::DEADLINE => Some(-EAGAIN),
         _ => None,
+    }
+}
+
+/// The signal mask a wait of the pselect family asks for (`pselect`, `ppoll`, `epoll_pwait`:
+/// its `sigmask`), in force while it waits on simulated time, as the kernel puts it in force
+/// while the thread sleeps: the signals it lets through are those climbsim may pick this thread
+/// for and that interrupt the wait, and the handler of one that does runs with it before the
+/// wait returns EINTR; then the program's mask is back. (The wait's real calls are made with it
+/// too, by the caller.)
+pub(crate) struct WaitMask(Option<Masks>);
+
+#[derive(Clone, Copy)]
+struct Masks {
+    during: u64,
+    program: u64,
+}
+
+impl WaitMask {
+    /// The caller's `sigmask` (NULL: none, the wait keeps the program's), in force from now; or
+    /// Linux's answer to it (EFAULT).
+    pub(crate) fn enter(sigmask: *const c_void) -> Result<Self, c_int> {
+        if sigmask.is_null() {
+            return Ok(WaitMask(None));
+        }
+        // (SIGSYS and the shim's other signals stay deliverable, as in every mask the program sets.)
+        let during = sys::read_from_program(sigmask.cast::<u64>()).ok_or(sys::EFAULT)? & !crate::handlers::kept_signals();
+        let program = program_mask();
+        if let Some(slot) = crate::slot::my_slot() {
+            slot.sig_blocked.store(during, Ordering::Relaxed);
+        }
+        Ok(WaitMask(Some(Masks { during, program })))
+    }
+
+    /// A signal the wait's mask lets through is pending already: the wait is interrupted before
+    /// it begins.
+    pub(crate) fn lets_one_through(&self) -> bool {
+        self.0.is_some_and(|masks| pending() & !masks.during != 0)
+    }
+
+    /// The wait ended with `rc` (and errno): the program's mask is back, and if a signal
+    /// interrupted the wait (EINTR) its handler runs first, with the wait's mask, as the kernel's
+    /// own sigsuspend runs it (see `sigsuspend`).
+    pub(crate) fn leave(self, rc: c_int) -> c_int {
+        let Some(masks) = self.0 else { return rc };
+        if let Some(slot) = crate::slot::my_slot() {
+            slot.sig_blocked.store(masks.program, Ordering::Relaxed);
+        }
+        if rc == -1 && sys::errno() == sys::EINTR && pending() & !masks.during != 0 {
+            let during = masks.during as c_long;
+            native::call2(nr::RT_SIGSUSPEND, &during as *const c_long as c_long, 8);
+            sys::set_errno(sys::EINTR);
+        }
+        rc
     }
 }
