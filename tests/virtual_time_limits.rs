@@ -278,3 +278,24 @@ fn timerfds_are_followed_as_many_as_the_program_opens() {
          epoll of 50: 1 ready after 450.999 ms (timer 49)\n"
     );
 }
+
+/// A statically linked child inherits the run's seccomp filter but cannot load the shim that
+/// answers it: its first followed call (a sleep) kills it with SIGSYS. Its parent exits 0, and
+/// the run passed; now it fails, saying what happened and what to do.
+#[test]
+fn a_child_killed_by_the_filter_it_inherited_fails_the_run_saying_why() {
+    let dir = support::scratch_dir("vt-static-child");
+    let parent = compiled_c(&dir, "static_child");
+    let child = dir.join("static_child_static");
+    let compiled = std::process::Command::new("cc").args(["-static", "-o"]).arg(&child).arg(support::repo().join("tests/vt/static_child.c")).output().expect("run cc");
+    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    let path = scenario(&dir, "static-child", 2.0, &[parent.to_str().expect("utf-8 path"), child.to_str().expect("utf-8 path")], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    // (The run fails as the parent's wait returns: whether the parent wrote its line first
+    // depends on the host.)
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("was killed by SIGSYS"), "{failures}");
+    assert!(failures.contains("statically linked"), "{failures}");
+    assert!(wall < Duration::from_secs(20), "{wall:?}");
+}

@@ -143,7 +143,8 @@ fn a_process_whose_main_thread_exits_first_ends_with_its_last_thread_in_every_ru
 
 /// What `tests/vt/timed_waits.c` prints on virtual time: each wait ends at the instant another
 /// thread acted (plus the microsecond its call costs: a signal sent, a semaphore posted, a
-/// message sent), or at its own timeout, in simulated time. Natively the same within a
+/// message sent), or at its own timeout, in simulated time (the timerfd's 30 ms count from its
+/// setting, two clock reads before the wait began). Natively the same within a
 /// millisecond, but for `futex_waitv`, which is not followed and answers as a kernel without it.
 const TIMED_WAITS_SAY: &str = "\
 select for 100 ms, written at 30 ms: 1 after 30.000 ms, 70.000 ms left
@@ -162,13 +163,14 @@ mq_timedreceive for 70 ms, sent at 35 ms: 5 after 35.001 ms
 recv with an 80 ms SO_RCVTIMEO, nothing sent: -1 EAGAIN after 80.000 ms
 read of it, nothing sent: -1 EAGAIN after 80.000 ms
 recv of it, sent at 10 ms: 1 after 10.000 ms
+epoll_wait of an epoll watching a 30 ms timerfd: 1 after 29.998 ms
 futex_waitv for 10 ms: -1 ENOSYS
 ";
 
 /// Waits with a timeout or a signal mask of their own (select's time left, the masks of
 /// pselect/ppoll/epoll_pwait, timed joins, System V semaphores, POSIX message queues, a
-/// socket's SO_RCVTIMEO) end at simulated instants, with Linux's answers; each once said
-/// something else with exit 0.
+/// socket's SO_RCVTIMEO, a timerfd inside a nested epoll) end at simulated instants, with
+/// Linux's answers; each once said something else with exit 0.
 #[test]
 fn waits_with_their_own_timeouts_and_masks_end_at_simulated_instants() {
     let (_, log) = c_program_repeated("vt-timed-waits", "timed_waits", 5.0);

@@ -117,13 +117,39 @@ fn interest(call: EpollCall) -> Interest {
         }
         any = true;
         let events = entry.events.load(Ordering::Relaxed);
-        interest.add(shared, entry.fd.load(Ordering::Relaxed), events & (EPOLLIN | EPOLLPRI) != 0, events & EPOLLOUT != 0);
+        let (fd, read) = (entry.fd.load(Ordering::Relaxed), events & (EPOLLIN | EPOLLPRI) != 0);
+        interest.add(shared, fd, read, events & EPOLLOUT != 0);
+        if read {
+            add_nested_timers(shared, &mut interest, fd, 1);
+        }
     }
     if !any {
         // Registrations made before the shim followed this process (or too many): unknown.
         interest.add_other();
     }
     interest
+}
+
+/// If `fd` is an epoll instance itself (watched by another, `depth` deep), the timerfds it
+/// watches, however deep, are waited on too: their expiries are simulated time, and a timer
+/// shown expired makes the instances that watch it readable in the kernel. (The instance is
+/// otherwise the kernel's to say: `Interest::add` counted it as such.) Linux nests at most 5.
+fn add_nested_timers(shared: &'static crate::abi::Shared, interest: &mut Interest, fd: c_int, depth: u32) {
+    const DEEPEST: u32 = 5;
+    if depth > DEEPEST {
+        return;
+    }
+    for entry in ENTRIES_TABLE.iter().filter(|e| e.epfd.load(Ordering::Acquire) == fd) {
+        let (inner, events) = (entry.fd.load(Ordering::Relaxed), entry.events.load(Ordering::Relaxed));
+        if events & (EPOLLIN | EPOLLPRI) == 0 {
+            continue;
+        }
+        if crate::timerfd::timer_of(inner).is_some() {
+            interest.add(shared, inner, true, false);
+        } else {
+            add_nested_timers(shared, interest, inner, depth + 1);
+        }
+    }
 }
 
 /// The wait's first `first` events were taken at a look; add what is ready now (with the port

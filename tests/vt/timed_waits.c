@@ -3,7 +3,7 @@
  * Natively the lines read the same within a millisecond or so, but for the last: futex_waitv is
  * not followed on virtual time and answers as a kernel without it does (ENOSYS). Another thread
  * acts at a set instant in each case (a write, a signal, its own end, a semaphore's post, a
- * message). Built with the system's cc. */
+ * message, a timer's expiry). Built with the system's cc. */
 #define _GNU_SOURCE
 #include <errno.h>
 #include <fcntl.h>
@@ -21,6 +21,7 @@
 #include <sys/sem.h>
 #include <sys/socket.h>
 #include <sys/syscall.h>
+#include <sys/timerfd.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -249,6 +250,19 @@ int main(void) {
     rc = recv(pair[0], &byte, 1, 0);
     say("recv of it, sent at 10 ms", rc, errno, t);
     pthread_join(thread, NULL);
+
+    /* A timerfd inside an epoll instance that another epoll instance watches. */
+    int timer = timerfd_create(CLOCK_MONOTONIC, 0);
+    struct itimerspec in_30_ms = {{0, 0}, {0, 30000000}};
+    int inner = epoll_create1(0), outer = epoll_create1(0);
+    struct epoll_event watch = {EPOLLIN, {0}};
+    epoll_ctl(inner, EPOLL_CTL_ADD, timer, &watch);
+    epoll_ctl(outer, EPOLL_CTL_ADD, inner, &watch);
+    timerfd_settime(timer, 0, &in_30_ms, NULL);
+    t = now_ms();
+    errno = 0;
+    rc = epoll_wait(outer, &event, 1, 500);
+    say("epoll_wait of an epoll watching a 30 ms timerfd", rc, errno, t);
 
     /* futex_waitv (Linux 5.16): not followed on virtual time, where it answers ENOSYS. */
     uint32_t word = 0;

@@ -81,6 +81,7 @@ pub mod refused {
     pub const CONNS: u32 = 8;
     pub const IO_URING: u32 = 16;
     pub const SIG_TIMERS: u32 = 32;
+    pub const KILLED_BY_SIGSYS: u32 = 64;
 
     /// The run's failure, in words.
     pub fn describe(bits: u32) -> Option<String> {
@@ -94,6 +95,14 @@ pub mod refused {
             ("connections to the sensor server at once", super::CONNS)
         } else if bits & SIG_TIMERS != 0 {
             ("signal timers at once (alarm, setitimer, timer_create; all the controller's processes together)", super::SIG_TIMERS)
+        } else if bits & KILLED_BY_SIGSYS != 0 {
+            return Some(
+                "a process of the controller was killed by SIGSYS, as its parent's wait found: a statically linked program it ran \
+                 inherits the run's seccomp filter but cannot load the shim that answers it, and its first followed call (a sleep, \
+                 a clock read through the kernel, a futex) kills it; link that program dynamically, or run the controller with \
+                 --clock wall (or a seccomp filter of the program's own killed it)"
+                    .to_owned(),
+            );
         } else if bits & IO_URING != 0 {
             return Some(
                 "virtual time cannot follow io_uring (the controller and the kernel share its rings, with no system call to see): \
