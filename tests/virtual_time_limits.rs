@@ -61,14 +61,15 @@ fn a_static_go_controller_is_refused_before_it_runs() {
 
 #[test]
 fn a_controller_blocked_in_a_call_climbsim_does_not_follow_fails_naming_it() {
-    let dir = support::scratch_dir("vt-full-pipe");
-    // A write to a pipe nobody reads, larger than the pipe holds: blocked in the kernel.
-    let script = support::executable_script(&dir, "full_pipe.py", "#!/usr/bin/env python3\nimport os, time\ntime.sleep(0.1)\nr, w = os.pipe()\nos.write(w, b'x' * 1000000)\n");
-    let path = scenario(&dir, "full-pipe", 10.0, &[script.to_str().expect("utf-8 path")], false);
+    let dir = support::scratch_dir("vt-fifo-open");
+    // Opening a FIFO for reading that nobody opens for writing: blocked in the kernel's open.
+    let script = support::executable_script(&dir, "fifo_open.py", "#!/usr/bin/env python3\nimport os, sys, time\ntime.sleep(0.1)\npath = sys.argv[1]\nos.mkfifo(path)\nos.open(path, os.O_RDONLY)\n");
+    let fifo = dir.join("fifo");
+    let path = scenario(&dir, "fifo-open", 10.0, &[script.to_str().expect("utf-8 path"), fifo.to_str().expect("utf-8 path")], false);
     let (output, wall) = run_virtual(&path, &dir.join("out"));
     assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
     let failures = summary(&dir.join("out"))["failures"].to_string();
-    assert!(failures.contains("blocked for 2 s of wall time in system call 1 (write)"), "{failures}");
+    assert!(failures.contains("blocked for 2 s of wall time in system call 257 (openat)"), "{failures}");
     assert!(failures.contains("last followed call: "), "{failures}");
     assert!(wall < Duration::from_secs(20), "{wall:?}");
 }

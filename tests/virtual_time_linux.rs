@@ -179,3 +179,18 @@ fn waits_with_their_own_timeouts_and_masks_end_at_simulated_instants() {
     }
     assert_eq!(log.lines().count(), TIMED_WAITS_SAY.lines().count(), "the program stopped early; its log:\n{log}");
 }
+
+/// A blocking write larger than a pipe (or a socket) holds waits on simulated time for room,
+/// so that a reader that sleeps between its reads moves the clock: blocked in the kernel, the
+/// writer held time still and the run failed after 2 s. Natively (`cc tests/vt/full_pipe.c`)
+/// the writes end after about 805 ms.
+#[test]
+fn a_write_to_a_full_pipe_waits_on_simulated_time_for_room() {
+    let (_, log) = c_program_repeated("vt-full-pipe-write", "full_pipe", 10.0);
+    assert_eq!(
+        log,
+        "write of 1048576 bytes to a pipe: 1048576 after 800.000 ms\n  the child read 1048576 bytes\n\
+         raw write of 1048576 bytes to a pipe: 1048576 after 800.000 ms\n  the child read 1048576 bytes\n\
+         send of 1048576 bytes to a socket: 1048576 after 800.000 ms\n  the thread read 1048576 bytes\n"
+    );
+}

@@ -120,16 +120,35 @@ pub unsafe extern "C" fn connect(fd: c_int, addr: *const c_void, len: u32) -> c_
 pub unsafe extern "C" fn send(fd: c_int, buf: *const c_void, len: usize, flags: c_int) -> isize {
     let next = real!(send: fn(c_int, *const c_void, usize, c_int) -> isize);
     // SAFETY: passing the caller's arguments through.
-    let sent = unsafe { next(fd, buf, len, flags) };
+    let sent = sent_with_room(fd, len, flags, |done, flags| unsafe { next(fd, buf.cast::<u8>().wrapping_add(done).cast(), len - done, flags) });
     count_sent(fd, sent);
     sent
+}
+
+/// MSG_DONTWAIT: this send does not wait.
+const MSG_DONTWAIT: c_int = 0x40;
+
+/// A send of `len` bytes that may wait for room: made a part at a time without waiting, the
+/// thread waiting on simulated time for room between the parts (see `io::write_with_room`).
+/// `send_part(done, flags)` sends what is left after `done` bytes with `flags`.
+fn sent_with_room(fd: c_int, len: usize, flags: c_int, mut send_part: impl FnMut(usize, c_int) -> isize) -> isize {
+    if let Some(shared) = active()
+        && flags & MSG_DONTWAIT == 0
+        && let Some(sent) = crate::io::write_with_room(shared, fd, len, |done| {
+            let sent = send_part(done, flags | MSG_DONTWAIT);
+            if sent < 0 { -(sys::errno() as isize) } else { sent }
+        })
+    {
+        return sent;
+    }
+    send_part(0, flags)
 }
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn sendto(fd: c_int, buf: *const c_void, len: usize, flags: c_int, addr: *const c_void, addr_len: u32) -> isize {
     let next = real!(sendto: fn(c_int, *const c_void, usize, c_int, *const c_void, u32) -> isize);
     // SAFETY: passing the caller's arguments through.
-    let sent = unsafe { next(fd, buf, len, flags, addr, addr_len) };
+    let sent = sent_with_room(fd, len, flags, |done, flags| unsafe { next(fd, buf.cast::<u8>().wrapping_add(done).cast(), len - done, flags, addr, addr_len) });
     count_sent(fd, sent);
     sent
 }

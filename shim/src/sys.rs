@@ -149,6 +149,7 @@ pub mod nr {
     pub const CLONE3: i64 = 435;
     pub const SEMOP: i64 = 65;
     pub const GETSOCKOPT: i64 = 55;
+    pub const PWRITEV2: i64 = 328;
     pub const SEMCTL: i64 = 66;
     pub const SEMTIMEDOP: i64 = 220;
     pub const MQ_TIMEDSEND: i64 = 242;
@@ -188,6 +189,7 @@ pub mod nr {
     pub const PROCESS_VM_READV: i64 = 270;
     pub const FCNTL: i64 = 25;
     pub const GETSOCKOPT: i64 = 209;
+    pub const PWRITEV2: i64 = 287;
     pub const READLINKAT: i64 = 78;
     pub const IO_URING_SETUP: i64 = 425;
     pub const ST_MODE: usize = 16;
@@ -369,8 +371,10 @@ pub fn receive_timeout(fd: c_int) -> Option<u64> {
     (rc == 0).then(|| timeval_ns(&timeout)).flatten().filter(|&ns| ns > 0)
 }
 
-/// The character device number of `fd`, if it is one.
-pub fn char_device(fd: c_int) -> Option<u64> {
+const S_IFMT: u32 = 0o170000;
+
+/// The kind of file `fd` is (st_mode's S_IFMT bits), and its stat buffer; None: not open.
+fn file_kind(fd: c_int) -> Option<(u32, [u8; 256])> {
     let mut stat = [0u8; 256];
     // fstat writes at most sizeof(struct stat) (144 or 128 bytes) into the buffer.
     let rc = native::call2(nr::FSTAT, fd as c_long, stat.as_mut_ptr() as c_long);
@@ -378,9 +382,33 @@ pub fn char_device(fd: c_int) -> Option<u64> {
         return None;
     }
     let mode = u32::from_ne_bytes([stat[nr::ST_MODE], stat[nr::ST_MODE + 1], stat[nr::ST_MODE + 2], stat[nr::ST_MODE + 3]]);
-    const S_IFMT: u32 = 0o170000;
+    Some((mode & S_IFMT, stat))
+}
+
+/// If `fd` is a pipe (or FIFO) or a socket, what a blocking write may wait in for room: its
+/// inode.
+pub fn pipe_or_socket(fd: c_int) -> Option<u64> {
+    const S_IFIFO: u32 = 0o010000;
+    const S_IFSOCK: u32 = 0o140000;
+    /// struct stat's st_ino (after st_dev), on both architectures.
+    const ST_INO: usize = 8;
+    let (kind, stat) = file_kind(fd)?;
+    let mut inode = [0u8; 8];
+    inode.copy_from_slice(&stat[ST_INO..ST_INO + 8]);
+    (kind == S_IFIFO || kind == S_IFSOCK).then_some(u64::from_ne_bytes(inode))
+}
+
+/// Whether `fd` is open and blocking (no O_NONBLOCK).
+pub fn blocking(fd: c_int) -> bool {
+    let flags = native::call2(nr::FCNTL, fd as c_long, F_GETFL as c_long);
+    flags >= 0 && flags & O_NONBLOCK as c_long == 0
+}
+
+/// The character device number of `fd`, if it is one.
+pub fn char_device(fd: c_int) -> Option<u64> {
     const S_IFCHR: u32 = 0o020000;
-    if mode & S_IFMT != S_IFCHR {
+    let (kind, stat) = file_kind(fd)?;
+    if kind != S_IFCHR {
         return None;
     }
     let mut rdev = [0u8; 8];

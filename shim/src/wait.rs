@@ -356,6 +356,22 @@ pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> bool {
     !(ready == 0 && timeout.is_some())
 }
 
+/// A blocking write to `fd` (a pipe or a socket) found no room: wait on simulated time until
+/// the kernel has some (or the reader is gone), as a pipe's reader waits for data (see
+/// [`await_readable`]): blocked, so that the reader runs and time moves. What the wait returned:
+/// -1 (EINTR) if a signal's handler ran meanwhile.
+pub(crate) fn await_writable(shared: &'static Shared, fd: c_int) -> c_int {
+    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
+    let mut entry = pollfd { fd, events: crate::sys::POLLOUT, revents: 0 };
+    let mut interest = Interest::default();
+    interest.add(shared, fd, false, true);
+    wait(shared, call::WRITE, interest, None, &mut |wall| {
+        entry.revents = 0;
+        // SAFETY: one pollfd of ours, with the wait's timeout.
+        unsafe { poll(&mut entry, 1, wall_ms(wall)) }
+    })
+}
+
 pub(crate) fn ms_timeout(timeout_ms: c_int) -> Option<u64> {
     (timeout_ms >= 0).then(|| timeout_ms as u64 * 1_000_000)
 }

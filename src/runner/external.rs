@@ -182,7 +182,7 @@ pub fn run_external(
             return Err(error);
         }
     };
-    time.launched(controller.id());
+    time.launched(controller.id(), controller.output_pipe());
     let started = Instant::now();
     info!(pid = controller.id(), port = %port.path().display(), sensors = %sensors_url, speed = options.pace.speed, "controller started");
     if options.announce {

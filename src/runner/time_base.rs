@@ -143,10 +143,11 @@ impl Timekeeping {
         }
     }
 
-    /// The controller's process has started as `pid` (the watchdog follows it).
-    pub fn launched(&self, pid: u32) {
+    /// The controller's process has started as `pid` (the watchdog follows it), its output
+    /// coming through the pipe `output_pipe` (an inode; see `VirtualTime::process_started`).
+    pub fn launched(&self, pid: u32, output_pipe: u64) {
         if let Some(scheduler) = self.scheduler() {
-            scheduler.process_started(pid);
+            scheduler.process_started(pid, output_pipe);
         }
     }
 

@@ -300,9 +300,14 @@ impl VirtualTime {
         }
     }
 
-    /// The reserved process's pid, once started (for the watchdog).
-    pub fn process_started(&self, pid: u32) {
-        let slot = &self.shared().slots[0];
+    /// The reserved process's pid, once started (for the watchdog), and the pipe climbsim
+    /// copies its output from (an inode; 0: none), which the shim then leaves writes to wait in
+    /// the kernel: climbsim drains it in real time, and simulated time holds meanwhile. (Stored
+    /// before the process has loaded the shim: time is held for it until it has.)
+    pub fn process_started(&self, pid: u32, output_pipe: u64) {
+        let shared = self.shared();
+        shared.header.output_pipe.store(output_pipe, Ordering::Relaxed);
+        let slot = &shared.slots[0];
         slot.pid.store(pid as i32, Ordering::Relaxed);
         slot.tid.store(pid as i32, Ordering::Relaxed);
     }

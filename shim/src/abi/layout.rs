@@ -9,7 +9,7 @@ use core::sync::atomic::{AtomicI32, AtomicI64, AtomicU8, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 20;
+pub const ABI: u32 = 21;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -217,6 +217,10 @@ pub struct Header {
     /// C: the sensor server's TCP port and IPv4 address (network order), 0 before there is one.
     pub sensor_port: AtomicU32,
     pub sensor_ip: AtomicU32,
+    /// C: the inode of the pipe climbsim copies the controller's output (stdout and stderr)
+    /// from, 0 before there is one: drained by climbsim in real time, a write to it waits in the
+    /// kernel (see the shim's `io::write_with_room`).
+    pub output_pipe: AtomicU64,
     /// S: every intercepted call, all threads: the watchdog's sign of life.
     pub calls: AtomicU64,
     /// S: threads in a wait for another thread (wakers look for them only when there are some).
