@@ -258,8 +258,13 @@ fn a_controller_that_writes_over_the_shared_block_fails_the_run_saying_so() {
         let failures = summary(&dir.join(run))["failures"].as_array().expect("failures").clone();
         assert!(failures[0].as_str().is_some_and(|f| f.contains("the controller wrote over virtual time's shared block")), "{failures:?}");
         assert!(wall < Duration::from_secs(20), "{wall:?}");
-        // Nor does a count read back from the block say that threads were preempted.
+        // Nor does a count read back from the block say that threads were preempted, or how
+        // many turns they handed on.
         assert_eq!(summary(&dir.join(run))["virtual_time.threads_gave_way"], false, "run {run}");
+        let counts: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join(run).join("scheduler.json")).expect("scheduler.json")).expect("json");
+        for read_back in ["turns", "turns_handed", "gave_way"] {
+            assert!(counts[read_back].is_null(), "run {run}: {read_back} in {counts}");
+        }
     }
 }
 

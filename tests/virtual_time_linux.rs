@@ -152,6 +152,7 @@ pselect letting SIGUSR1 through, sent at 20 ms: -1 EINTR after 20.001 ms
 ppoll letting SIGUSR1 through, sent at 20 ms: -1 EINTR after 20.001 ms
 epoll_pwait letting SIGUSR1 through, sent at 20 ms: -1 EINTR after 20.001 ms
 SIGUSR1 handled 3 times, blocked again after: yes
+ppoll letting an ignored, pending SIGPIPE through, 50 ms: 0 after 50.000 ms
 pthread_timedjoin_np of a thread ending at 40 ms, 200 ms allowed: 0 after 40.000 ms
 pthread_timedjoin_np of a thread ending at 500 ms, 50 ms allowed: -1 ETIMEDOUT after 50.000 ms
 pthread_clockjoin_np of it then, 1 s allowed: 0 after 450.000 ms
@@ -162,6 +163,8 @@ mq_timedreceive for 70 ms, nothing sent: -1 ETIMEDOUT after 70.000 ms
 mq_timedreceive for 70 ms, sent at 35 ms: 5 after 35.001 ms
 recv with an 80 ms SO_RCVTIMEO, nothing sent: -1 EAGAIN after 80.000 ms
 read of it, nothing sent: -1 EAGAIN after 80.000 ms
+send of 1 MiB with a 40 ms SO_SNDTIMEO, nobody reading: part of it after 40.000 ms
+another, the socket full: -1 EAGAIN after 40.000 ms
 recv of it, sent at 10 ms: 1 after 10.000 ms
 epoll_wait of an epoll watching a 30 ms timerfd: 1 after 29.998 ms
 futex_waitv for 10 ms: -1 ENOSYS
@@ -169,7 +172,7 @@ futex_waitv for 10 ms: -1 ENOSYS
 
 /// Waits with a timeout or a signal mask of their own (select's time left, the masks of
 /// pselect/ppoll/epoll_pwait, timed joins, System V semaphores, POSIX message queues, a
-/// socket's SO_RCVTIMEO, a timerfd inside a nested epoll) end at simulated instants, with
+/// socket's SO_RCVTIMEO and SO_SNDTIMEO, a timerfd inside a nested epoll) end at simulated instants, with
 /// Linux's answers; each once said something else with exit 0.
 #[test]
 fn waits_with_their_own_timeouts_and_masks_end_at_simulated_instants() {
@@ -189,8 +192,19 @@ fn a_write_to_a_full_pipe_waits_on_simulated_time_for_room() {
     let (_, log) = c_program_repeated("vt-full-pipe-write", "full_pipe", 10.0);
     assert_eq!(
         log,
-        "write of 1048576 bytes to a pipe: 1048576 after 800.000 ms\n  the child read 1048576 bytes\n\
-         raw write of 1048576 bytes to a pipe: 1048576 after 800.000 ms\n  the child read 1048576 bytes\n\
+        "write to a pipe of 1048576 bytes: 1048576 after 800.000 ms\n  the child read 1048576 bytes\n\
+         raw write to a pipe of 1048576 bytes: 1048576 after 800.000 ms\n  the child read 1048576 bytes\n\
+         write to a FIFO of 1048576 bytes: 1048576 after 800.000 ms\n  the child read 1048576 bytes\n\
          send of 1048576 bytes to a socket: 1048576 after 800.000 ms\n  the thread read 1048576 bytes\n"
     );
+}
+
+/// A program with a seccomp filter of its own, whose SIGSYS handler answers the calls its
+/// filter traps: each trap goes to the handler whose filter asked for it (the shim's carry the
+/// shim's data), and the program's sleeps are still followed. The shim took the program's trap
+/// for its own, and the process died with SIGSEGV.
+#[test]
+fn a_program_with_its_own_seccomp_filter_gets_its_own_traps() {
+    let (_, log) = c_program_repeated("vt-own-seccomp", "own_seccomp", 2.0);
+    assert_eq!(log, "getppid under the program's own filter: 4242, trapped with data 7 for call 110\nthen a 10 ms sleep: slept\n");
 }

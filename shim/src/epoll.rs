@@ -32,6 +32,9 @@ struct Entry {
 #[allow(clippy::declare_interior_mutable_const)]
 const FREE: Entry = Entry { epfd: AtomicI32::new(-1), fd: AtomicI32::new(-1), events: AtomicU32::new(0), data: AtomicU64::new(0), edge_at: AtomicU64::new(0), writable_edge: AtomicBool::new(false) };
 static ENTRIES_TABLE: [Entry; ENTRIES] = [FREE; ENTRIES];
+/// An epoll instance of this process was registered in another (see `add_nested_timers`): only
+/// then do waits look for the timers of nested instances.
+static NESTED: AtomicBool = AtomicBool::new(false);
 
 const EPOLL_CTL_ADD: c_int = 1;
 const EPOLL_CTL_DEL: c_int = 2;
@@ -65,6 +68,11 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
     let data = if event.is_null() { 0 } else { event_data(event.cast()) };
     match op {
         EPOLL_CTL_ADD | EPOLL_CTL_MOD => {
+            // The descriptor added is an instance with registrations, or the instance added to
+            // is watched by another.
+            if ENTRIES_TABLE.iter().any(|e| e.epfd.load(Ordering::Relaxed) == fd || e.fd.load(Ordering::Relaxed) == epfd) {
+                NESTED.store(true, Ordering::Relaxed);
+            }
             if let Some(entry) = find(epfd, fd) {
                 entry.events.store(events, Ordering::Relaxed);
                 entry.data.store(data, Ordering::Relaxed);
@@ -86,6 +94,7 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
         EPOLL_CTL_DEL => {
             if let Some(entry) = find(epfd, fd) {
                 entry.fd.store(-1, Ordering::Relaxed);
+                entry.events.store(0, Ordering::Relaxed);
                 entry.epfd.store(-1, Ordering::Release);
             }
         }
@@ -119,7 +128,7 @@ fn interest(call: EpollCall) -> Interest {
         let events = entry.events.load(Ordering::Relaxed);
         let (fd, read) = (entry.fd.load(Ordering::Relaxed), events & (EPOLLIN | EPOLLPRI) != 0);
         interest.add(shared, fd, read, events & EPOLLOUT != 0);
-        if read {
+        if read && NESTED.load(Ordering::Relaxed) {
             add_nested_timers(shared, &mut interest, fd, 1);
         }
     }
@@ -141,7 +150,8 @@ fn add_nested_timers(shared: &'static crate::abi::Shared, interest: &mut Interes
     }
     for entry in ENTRIES_TABLE.iter().filter(|e| e.epfd.load(Ordering::Acquire) == fd) {
         let (inner, events) = (entry.fd.load(Ordering::Relaxed), entry.events.load(Ordering::Relaxed));
-        if events & (EPOLLIN | EPOLLPRI) == 0 {
+        // (An entry being filled in or freed by another thread: not yet, or no longer, there.)
+        if inner < 0 || events & (EPOLLIN | EPOLLPRI) == 0 {
             continue;
         }
         if crate::timerfd::timer_of(inner).is_some() {

@@ -53,9 +53,23 @@ pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize
     if port.is_none()
         && let Some(shared) = active()
     {
+        // A pipe opened by name (a FIFO, /proc/self/fd/N) takes no RWF_NOWAIT (EOPNOTSUPP):
+        // once there is room it takes at most PIPE_BUF bytes at a time, which a pipe with room
+        // takes without waiting (with one writer).
+        let mut no_nowait = false;
         let written = write_with_room(shared, fd, count, |done| {
             let rest = iovec { iov_base: buf.wrapping_add(done).cast_mut().cast(), iov_len: count - done };
-            crate::native::call6(crate::sys::nr::PWRITEV2, fd as core::ffi::c_long, &rest as *const iovec as core::ffi::c_long, 1, -1, 0, RWF_NOWAIT) as isize
+            if !no_nowait {
+                let rc = crate::native::call6(crate::sys::nr::PWRITEV2, fd as core::ffi::c_long, &rest as *const iovec as core::ffi::c_long, 1, -1, 0, RWF_NOWAIT) as isize;
+                if rc != -(crate::sys::EOPNOTSUPP as isize) {
+                    return rc;
+                }
+                no_nowait = true;
+            }
+            if !crate::sys::writable_now(fd) {
+                return -(crate::sys::EAGAIN as isize);
+            }
+            crate::native::call3(crate::sys::nr::WRITE, fd as core::ffi::c_long, rest.iov_base as core::ffi::c_long, rest.iov_len.min(PIPE_BUF) as core::ffi::c_long) as isize
         });
         if let Some(written) = written {
             count_written(fd, written, port);
@@ -70,6 +84,8 @@ pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize
 
 /// pwritev2's flag: fail with EAGAIN rather than wait (pipes and sockets honour it).
 const RWF_NOWAIT: core::ffi::c_long = 8;
+/// The most a pipe takes in one write without splitting it.
+const PIPE_BUF: usize = 4096;
 
 /// A blocking write of `total` bytes to `fd`, if it is a pipe or a socket, made without ever
 /// waiting in the kernel: `write_part(done)` writes what is left after `done` bytes without
@@ -113,12 +129,13 @@ pub(crate) fn write_with_room(shared: &'static Shared, fd: c_int, total: usize, 
             return Some(-1);
         }
         empty_looks += 1;
-        if crate::wait::await_writable(shared, fd) < 0 {
-            // A signal's handler ran: what was written, or EINTR.
+        if let Err(errno) = crate::wait::await_writable(shared, fd) {
+            // A signal's handler ran, or the socket's send timeout passed: what was written,
+            // or EINTR (EAGAIN).
             if done > 0 {
                 return Some(done as isize);
             }
-            crate::sys::set_errno(crate::sys::EINTR);
+            crate::sys::set_errno(errno);
             return Some(-1);
         }
     }
@@ -241,8 +258,10 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
         return unsafe { next(fd, buf, len) };
     };
     if len == 0 || !crate::wait::is_port(shared, fd) {
-        if len > 0 && !await_readable(shared, fd) {
-            return receive_timed_out();
+        if len > 0
+            && let Err(errno) = await_readable(shared, fd)
+        {
+            return receive_refused(errno);
         }
         // SAFETY: passing the caller's arguments through.
         let received = unsafe { next(fd, buf, len) };
@@ -358,27 +377,27 @@ pub unsafe extern "C" fn close(fd: c_int) -> c_int {
 /// Receives: from the sensor server (counted, net.rs), or from anything else that may block.
 const MSG_DONTWAIT: c_int = 0x40;
 
-/// A receive that may block waits on simulated time first (see `io::await_readable`); whether
-/// it is to be made (not if the socket's receive timeout passed first: the receive then fails
-/// with EAGAIN, as Linux's does).
-fn before_receive(fd: c_int, flags: c_int) -> bool {
+/// A receive that may block waits on simulated time first (see `io::await_readable`); `Err`:
+/// it is not to be made, and fails with that errno (the socket's receive timeout passed first,
+/// or a signal's handler ran), as Linux's does.
+fn before_receive(fd: c_int, flags: c_int) -> Result<(), c_int> {
     match active() {
         Some(shared) if flags & MSG_DONTWAIT == 0 => await_readable(shared, fd),
-        _ => true,
+        _ => Ok(()),
     }
 }
 
-/// A receive whose socket's timeout (SO_RCVTIMEO) passed with nothing to receive.
-fn receive_timed_out() -> isize {
-    crate::sys::set_errno(crate::sys::EAGAIN);
+/// A receive that [`before_receive`] or `await_readable` ended with `errno`.
+fn receive_refused(errno: c_int) -> isize {
+    crate::sys::set_errno(errno);
     -1
 }
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_int) -> isize {
     let next = real!(recv: fn(c_int, *mut c_void, usize, c_int) -> isize);
-    if !before_receive(fd, flags) {
-        return receive_timed_out();
+    if let Err(errno) = before_receive(fd, flags) {
+        return receive_refused(errno);
     }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, buf, len, flags) };
@@ -392,8 +411,8 @@ pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags: c_int, addr: *mut c_void, addr_len: *mut u32) -> isize {
     let next = real!(recvfrom: fn(c_int, *mut c_void, usize, c_int, *mut c_void, *mut u32) -> isize);
-    if !before_receive(fd, flags) {
-        return receive_timed_out();
+    if let Err(errno) = before_receive(fd, flags) {
+        return receive_refused(errno);
     }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, buf, len, flags, addr, addr_len) };
@@ -406,8 +425,8 @@ pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recvmsg(fd: c_int, message: *mut c_void, flags: c_int) -> isize {
     let next = real!(recvmsg: fn(c_int, *mut c_void, c_int) -> isize);
-    if !before_receive(fd, flags) {
-        return receive_timed_out();
+    if let Err(errno) = before_receive(fd, flags) {
+        return receive_refused(errno);
     }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, message, flags) };

@@ -26,6 +26,8 @@ use crate::time::{sim_now, sim_time_of};
 const EFAULT: c_long = 14;
 const EAGAIN: c_long = 11;
 const EINTR: c_long = 4;
+const EINVAL: c_long = 22;
+const EIDRM: c_long = 43;
 const ENOSYS: c_long = 38;
 const ETIMEDOUT: c_long = 110;
 
@@ -79,6 +81,9 @@ pub(crate) fn semtimedop(semid: c_long, operations: usize, count: c_long, timeou
         _ => sim_now(shared).saturating_add(sys::read_from_program(timeout as *const timespec).and_then(|t| timespec_ns(&t))?),
     };
     match wait_for_kernel(shared, deadline, || could_go_on(semid, ops), attempt) {
+        // The set was there when the wait began: gone since, it was removed (Linux wakes its
+        // sleepers with EIDRM; a new call would say EINVAL).
+        Ok(rc) if rc == -EINVAL => Some(-EIDRM),
         Ok(rc) => Some(rc),
         Err(release::DEADLINE) => Some(-EAGAIN),
         // System V's calls are never restarted after a handler, whatever SA_RESTART says.
@@ -143,7 +148,7 @@ pub(crate) fn mq_timed(number: i64, a: [i64; 6]) -> Option<c_long> {
         Ok(rc) => Some(rc),
         Err(release::DEADLINE) => Some(-ETIMEDOUT),
         // (With SA_RESTART the kernel would restart the call once the handler has run, which
-        // runs only as the trap returns: EINTR, as without it.)
+        // runs only as the trap returns: EINTR, as without it. docs/virtual-time.md says so.)
         Err(release::SIGNAL) => Some(-EINTR),
         Err(_) => None,
     }

@@ -57,9 +57,6 @@ mod signals {
         pub(crate) fn enter(_: *const core::ffi::c_void) -> Result<Self, core::ffi::c_int> {
             Ok(WaitMask)
         }
-        pub(crate) fn lets_one_through(&self) -> bool {
-            false
-        }
         pub(crate) fn leave(self, rc: core::ffi::c_int) -> core::ffi::c_int {
             rc
         }

@@ -121,7 +121,11 @@ const JSET_K: u16 = 0x45;
 const RET_K: u16 = 0x06;
 const AUDIT_ARCH_X86_64: u32 = 0xc000_003e;
 const RET_ALLOW: u32 = 0x7fff_0000;
-const RET_TRAP: u32 = 0x0003_0000;
+/// The shim's filters trap with their own data (`SHIM_TRAP`), which the kernel hands the
+/// handler as si_errno: a trap with other data is a filter of the program's own (a sandbox),
+/// for the program's handler.
+const RET_TRAP: u32 = 0x0003_0000 | SHIM_TRAP as u32;
+const SHIM_TRAP: c_int = 0x5c1;
 const RET_ERRNO: u32 = 0x0005_0000;
 /// Offsets into `struct seccomp_data`: the call's number, its ABI, the instruction pointer's
 /// low and high words, the first argument's low word.
@@ -277,7 +281,11 @@ unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut 
     // raised by the program is the program's own.
     const SYS_SECCOMP: c_int = 1;
     // SAFETY: the kernel's siginfo: si_signo, si_errno, si_code are its first three ints.
-    if unsafe { *info.cast::<c_int>().add(2) } != SYS_SECCOMP {
+    let (data, code) = unsafe { (*info.cast::<c_int>().add(1), *info.cast::<c_int>().add(2)) };
+    if code != SYS_SECCOMP || data != SHIM_TRAP {
+        // Sent, or a trap of the program's own filter (its data in si_errno): its handler's.
+        // (Run here, the call would go to the kernel from the shim's page, which the
+        // program's filter traps too: the handler recursed until the stack overflowed.)
         // SAFETY: the kernel's arguments of this signal.
         unsafe { crate::handlers::forward_sent(handlers::SIGSYS, info, context) };
         return;

@@ -361,13 +361,16 @@ pub fn read_from_program<T: Copy>(from: *const T) -> Option<T> {
     copy_from_program(from.cast(), value.as_mut_ptr().cast(), core::mem::size_of::<T>()).then(|| unsafe { value.assume_init() })
 }
 
-/// A socket's receive timeout (SO_RCVTIMEO) in ns; None: not a socket, or no timeout.
-pub fn receive_timeout(fd: c_int) -> Option<u64> {
+/// Which of a socket's timeouts: SO_RCVTIMEO, SO_SNDTIMEO.
+pub const SO_RCVTIMEO: c_long = 20;
+pub const SO_SNDTIMEO: c_long = 21;
+
+/// A socket's receive or send timeout (`which`) in ns; None: not a socket, or no timeout.
+pub fn socket_timeout(fd: c_int, which: c_long) -> Option<u64> {
     const SOL_SOCKET: c_long = 1;
-    const SO_RCVTIMEO: c_long = 20;
     let mut timeout = timeval { tv_sec: 0, tv_usec: 0 };
     let mut size = core::mem::size_of::<timeval>() as u32;
-    let rc = native::call6(nr::GETSOCKOPT, fd as c_long, SOL_SOCKET, SO_RCVTIMEO, &mut timeout as *mut timeval as c_long, &mut size as *mut u32 as c_long, 0);
+    let rc = native::call6(nr::GETSOCKOPT, fd as c_long, SOL_SOCKET, which, &mut timeout as *mut timeval as c_long, &mut size as *mut u32 as c_long, 0);
     (rc == 0).then(|| timeval_ns(&timeout)).flatten().filter(|&ns| ns > 0)
 }
 
@@ -396,6 +399,14 @@ pub fn pipe_or_socket(fd: c_int) -> Option<u64> {
     let mut inode = [0u8; 8];
     inode.copy_from_slice(&stat[ST_INO..ST_INO + 8]);
     (kind == S_IFIFO || kind == S_IFSOCK).then_some(u64::from_ne_bytes(inode))
+}
+
+/// Whether `fd` has room for a write now (or its reader is gone): a poll that does not wait.
+pub fn writable_now(fd: c_int) -> bool {
+    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
+    let mut entry = pollfd { fd, events: POLLOUT, revents: 0 };
+    // SAFETY: one pollfd of ours; a zero timeout.
+    unsafe { poll(&mut entry, 1, 0) > 0 }
 }
 
 /// Whether `fd` is open and blocking (no O_NONBLOCK).

@@ -218,9 +218,6 @@ pub(crate) fn with_wait_mask(sigmask: *const core::ffi::c_void, wait: impl FnOnc
         Ok(mask) => mask,
         Err(errno) => return refused(errno),
     };
-    if mask.lets_one_through() {
-        return mask.leave(interrupted());
-    }
     let rc = wait();
     mask.leave(rc)
 }
@@ -334,42 +331,57 @@ fn read_may_block(fd: c_int) -> bool {
 /// counts as blocked (a pipe's reader: a shell's `$(…)`, Python's `subprocess`, a pipe to a
 /// child) and wakes at the instant the writer wrote, rather than sitting in the kernel where
 /// climbsim cannot see it. A sensor connection waits for climbsim's response the same way.
-/// A socket's receive timeout (SO_RCVTIMEO) is simulated time too: false if it passed with
-/// nothing to read (the read is then not made, and fails with EAGAIN as Linux's does).
-pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> bool {
+/// A socket's receive timeout (SO_RCVTIMEO) is simulated time too: `Err(errno)` if the read is
+/// not to be made, and is to fail with that errno as Linux's does: EAGAIN when the timeout
+/// passed with nothing to read, EINTR when a signal's handler ran meanwhile (a socket with a
+/// timeout is never restarted; without one the read is made, as a restarted one).
+pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> Result<(), c_int> {
     let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
     let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
     let saved = crate::sys::errno();
     if readable_now(fd) || !read_may_block(fd) {
         crate::sys::set_errno(saved);
-        return true;
+        return Ok(());
     }
     let mut interest = Interest::default();
     interest.add(shared, fd, true, false);
-    let timeout = sys::receive_timeout(fd);
+    let timeout = sys::socket_timeout(fd, sys::SO_RCVTIMEO);
     let ready = wait(shared, call::READ, interest, timeout, &mut |wall| {
         entry.revents = 0;
         // SAFETY: as above, with the wait's timeout.
         unsafe { poll(&mut entry, 1, wall_ms(wall)) }
     });
     crate::sys::set_errno(saved);
-    !(ready == 0 && timeout.is_some())
+    match (ready, timeout) {
+        (0, Some(_)) => Err(sys::EAGAIN),
+        (-1, Some(_)) => Err(sys::EINTR),
+        _ => Ok(()),
+    }
 }
 
 /// A blocking write to `fd` (a pipe or a socket) found no room: wait on simulated time until
 /// the kernel has some (or the reader is gone), as a pipe's reader waits for data (see
-/// [`await_readable`]): blocked, so that the reader runs and time moves. What the wait returned:
-/// -1 (EINTR) if a signal's handler ran meanwhile.
-pub(crate) fn await_writable(shared: &'static Shared, fd: c_int) -> c_int {
+/// [`await_readable`]): blocked, so that the reader runs and time moves. A socket's send
+/// timeout (SO_SNDTIMEO) is simulated time too. `Err(errno)`: the write is to end, with what it
+/// wrote or this errno: EAGAIN when the send timeout passed, EINTR when a signal's handler ran.
+pub(crate) fn await_writable(shared: &'static Shared, fd: c_int) -> Result<(), c_int> {
     let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
     let mut entry = pollfd { fd, events: crate::sys::POLLOUT, revents: 0 };
     let mut interest = Interest::default();
     interest.add(shared, fd, false, true);
-    wait(shared, call::WRITE, interest, None, &mut |wall| {
+    let saved = crate::sys::errno();
+    let timeout = sys::socket_timeout(fd, sys::SO_SNDTIMEO);
+    let ready = wait(shared, call::WRITE, interest, timeout, &mut |wall| {
         entry.revents = 0;
         // SAFETY: one pollfd of ours, with the wait's timeout.
         unsafe { poll(&mut entry, 1, wall_ms(wall)) }
-    })
+    });
+    crate::sys::set_errno(saved);
+    match ready {
+        -1 => Err(sys::EINTR),
+        0 if timeout.is_some() => Err(sys::EAGAIN),
+        _ => Ok(()),
+    }
 }
 
 pub(crate) fn ms_timeout(timeout_ms: c_int) -> Option<u64> {

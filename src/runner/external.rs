@@ -172,7 +172,7 @@ pub fn run_external(
     env.extend(param_env(&external.param_text()));
     env.extend(time.controller_env()?);
     time.before_launch();
-    let launch = Launch { command: &command, env, speed: time.controller_speed(), virtual_time: time.is_virtual(), log_path: &log_path };
+    let launch = Launch { command: &command, env, speed: time.controller_speed(), virtual_time: time.is_virtual(), log_path: &log_path, output_pipe: &|inode| time.controller_output(inode) };
     // The world starts with the controller: a controller that cannot start leaves no half run.
     let capture_errors = Arc::new(Mutex::new(None::<String>));
     let mut controller = match Controller::start(&launch) {
@@ -182,7 +182,7 @@ pub fn run_external(
             return Err(error);
         }
     };
-    time.launched(controller.id(), controller.output_pipe());
+    time.launched(controller.id());
     let started = Instant::now();
     info!(pid = controller.id(), port = %port.path().display(), sensors = %sensors_url, speed = options.pace.speed, "controller started");
     if options.announce {

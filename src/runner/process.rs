@@ -48,6 +48,8 @@ pub struct Launch<'a> {
     /// The program runs on virtual time (the shim's preload is in `env`).
     pub virtual_time: bool,
     pub log_path: &'a Path,
+    /// Told the inode of the pipe the program's output will come through, before it starts.
+    pub output_pipe: &'a dyn Fn(u64),
 }
 
 /// What a controller must be able to preload, for the refusal's words.
@@ -78,8 +80,6 @@ pub struct Controller {
     ended: bool,
     /// When SIGTERM was sent (see [`Controller::ask_to_stop`]).
     asked_to_stop: Option<Instant>,
-    /// The inode of the pipe its output comes through (0: unknown).
-    output_pipe: u64,
 }
 
 /// Resolve `./` and `../` arguments against the scenario's folder, so a scenario can name a
@@ -104,6 +104,7 @@ impl Controller {
         let resolved = find_program(program).during(|| format!("cannot start the controller `{description}`"))?;
         let (log, writer) = CappedLog::start(launch.log_path).during(|| format!("cannot create {}", launch.log_path.display()))?;
         let output_pipe = nix::sys::stat::fstat(&writer).map_or(0, |stat| stat.st_ino);
+        (launch.output_pipe)(output_pipe);
         let mut command = std::process::Command::new(&resolved);
         let marker = format!("{}-{}", std::process::id(), STARTED.fetch_add(1, Ordering::Relaxed));
         // Its own process group, so that stopping it stops what it started (background jobs,
@@ -138,17 +139,11 @@ impl Controller {
             }
         }
         let child = command.spawn().during(|| format!("cannot start the controller `{description}`"))?;
-        Ok(Self { child, description, log_path: launch.log_path.to_owned(), log: Some(log), marker: format!("{RUN_MARKER}={marker}").into_bytes(), ended: false, asked_to_stop: None, output_pipe })
+        Ok(Self { child, description, log_path: launch.log_path.to_owned(), log: Some(log), marker: format!("{RUN_MARKER}={marker}").into_bytes(), ended: false, asked_to_stop: None })
     }
 
     pub fn id(&self) -> u32 {
         self.child.id()
-    }
-
-    /// The inode of the pipe its output (stdout and stderr) comes through, which climbsim
-    /// copies into the log (0: unknown).
-    pub fn output_pipe(&self) -> u64 {
-        self.output_pipe
     }
 
     /// The exit status if the program has ended.

@@ -143,11 +143,18 @@ impl Timekeeping {
         }
     }
 
-    /// The controller's process has started as `pid` (the watchdog follows it), its output
-    /// coming through the pipe `output_pipe` (an inode; see `VirtualTime::process_started`).
-    pub fn launched(&self, pid: u32, output_pipe: u64) {
+    /// The controller's output will come through the pipe `inode` (see
+    /// `VirtualTime::controller_output`).
+    pub fn controller_output(&self, inode: u64) {
         if let Some(scheduler) = self.scheduler() {
-            scheduler.process_started(pid, output_pipe);
+            scheduler.controller_output(inode);
+        }
+    }
+
+    /// The controller's process has started as `pid` (the watchdog follows it).
+    pub fn launched(&self, pid: u32) {
+        if let Some(scheduler) = self.scheduler() {
+            scheduler.process_started(pid);
         }
     }
 
@@ -187,14 +194,16 @@ impl Timekeeping {
     /// it parks, looks, and takes one). `None` on the wall clock.
     pub fn scheduler_counts(&self) -> Option<Value> {
         let stats = self.scheduler()?.stats();
+        // Read back from a block the controller wrote over, they would be its bytes: null.
+        let from_block = |count: u64| (!stats.block_overwritten).then_some(count);
         Some(json!({
-            "turns": stats.turns,
-            "turns_handed": stats.turns_handed,
+            "turns": from_block(stats.turns),
+            "turns_handed": from_block(stats.turns_handed),
             "jumps": stats.jumps,
             "released_at_deadline": stats.released_at_deadline,
             "released_for_data": stats.released_for_data,
             "asked_to_give_way": stats.asked_to_give_way,
-            "gave_way": stats.gave_way,
+            "gave_way": from_block(stats.gave_way),
         }))
     }
 }

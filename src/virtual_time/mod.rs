@@ -153,6 +153,9 @@ pub struct VtStats {
     /// the times they did.
     pub asked_to_give_way: u64,
     pub gave_way: u64,
+    /// The controller wrote over the block (the run failed saying so): the counts the shim
+    /// keeps there (`turns_handed`, and so `turns`; `gave_way`) are not read back.
+    pub block_overwritten: bool,
 }
 
 /// climbsim's side of virtual time for one run.
@@ -254,11 +257,15 @@ impl VirtualTime {
     }
 
     pub fn stats(&self) -> VtStats {
-        let handed = self.shared().header.turns.handed.load(Ordering::Relaxed);
         let stats = *lock(&self.stats);
-        // Each time a thread gave way answered one of climbsim's requests: a count past them is
-        // the controller's writing over the block, not a preemption.
         let asked_to_give_way = lock(&self.preempter).asked;
+        if self.block_overwritten().is_some() {
+            return VtStats { asked_to_give_way, block_overwritten: true, ..stats };
+        }
+        let handed = self.shared().header.turns.handed.load(Ordering::Relaxed);
+        // Each time a thread gave way answered one of climbsim's requests: a count past them is
+        // the controller's writing over the block (one that left the header whole), not a
+        // preemption.
         let gave_way = self.shared().header.turns.gave_way.load(Ordering::Relaxed).min(asked_to_give_way);
         VtStats { turns: stats.turns.saturating_add(handed), turns_handed: handed, asked_to_give_way, gave_way, ..stats }
     }
@@ -300,14 +307,16 @@ impl VirtualTime {
         }
     }
 
-    /// The reserved process's pid, once started (for the watchdog), and the pipe climbsim
-    /// copies its output from (an inode; 0: none), which the shim then leaves writes to wait in
-    /// the kernel: climbsim drains it in real time, and simulated time holds meanwhile. (Stored
-    /// before the process has loaded the shim: time is held for it until it has.)
-    pub fn process_started(&self, pid: u32, output_pipe: u64) {
-        let shared = self.shared();
-        shared.header.output_pipe.store(output_pipe, Ordering::Relaxed);
-        let slot = &shared.slots[0];
+    /// The pipe climbsim copies the controller's output from (an inode; 0: none), before the
+    /// controller starts: the shim leaves a write to it that waits for room to the kernel
+    /// (climbsim drains it in real time, and simulated time holds meanwhile).
+    pub fn controller_output(&self, inode: u64) {
+        self.shared().header.output_pipe.store(inode, Ordering::Release);
+    }
+
+    /// The reserved process's pid, once started (for the watchdog).
+    pub fn process_started(&self, pid: u32) {
+        let slot = &self.shared().slots[0];
         slot.pid.store(pid as i32, Ordering::Relaxed);
         slot.tid.store(pid as i32, Ordering::Relaxed);
     }

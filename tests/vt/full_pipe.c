@@ -3,13 +3,16 @@
  * the reader has made room, as on Linux; on virtual time it waits on simulated time, so the
  * reader's sleeps move the clock (blocked in the kernel, the writer held time still, and the run
  * failed after 2 s of wall time). Then the same through the program's own `syscall`
- * instruction, and a thread writing a full socket that another thread of the process reads. */
+ * instruction, through a FIFO, and a thread writing a full socket that another thread of the
+ * process reads. */
 #define _GNU_SOURCE
+#include <fcntl.h>
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <sys/syscall.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -54,9 +57,19 @@ static long raw_write(long fd, const void *buffer, long count) {
     return result;
 }
 
+/* `how` 0: a pipe; 1: the same, written with a raw call; 2: a FIFO opened by name (which
+ * takes no RWF_NOWAIT). */
 static void through_a_pipe(const char *how, int raw) {
     int ends[2];
-    if (pipe(ends) != 0)
+    char fifo[64];
+    if (raw == 2) {
+        snprintf(fifo, sizeof fifo, "/tmp/climbsim-full-pipe-%d", (int)getpid());
+        unlink(fifo);
+        if (mkfifo(fifo, 0600) != 0 || (ends[0] = open(fifo, O_RDONLY | O_NONBLOCK)) < 0 || (ends[1] = open(fifo, O_WRONLY)) < 0)
+            exit(1);
+        unlink(fifo);
+        fcntl(ends[0], F_SETFL, 0);
+    } else if (pipe(ends) != 0)
         exit(1);
     pid_t child = fork();
     if (child == 0) {
@@ -69,8 +82,8 @@ static void through_a_pipe(const char *how, int raw) {
     close(ends[0]);
     char *data = calloc(1, TOTAL);
     double start = now_ms();
-    long written = raw ? raw_write(ends[1], data, TOTAL) : write(ends[1], data, TOTAL);
-    printf("%s of %d bytes to a pipe: %ld after %.3f ms\n", how, TOTAL, written, now_ms() - start);
+    long written = raw == 1 ? raw_write(ends[1], data, TOTAL) : write(ends[1], data, TOTAL);
+    printf("%s of %d bytes: %ld after %.3f ms\n", how, TOTAL, written, now_ms() - start);
     fflush(stdout);
     close(ends[1]);
     waitpid(child, NULL, 0);
@@ -88,8 +101,9 @@ static void *reader(void *unused) {
 }
 
 int main(void) {
-    through_a_pipe("write", 0);
-    through_a_pipe("raw write", 1);
+    through_a_pipe("write to a pipe", 0);
+    through_a_pipe("raw write to a pipe", 1);
+    through_a_pipe("write to a FIFO", 2);
     if (socketpair(AF_UNIX, SOCK_STREAM, 0, pair) != 0)
         return 1;
     pthread_t thread;

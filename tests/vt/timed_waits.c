@@ -157,6 +157,25 @@ int main(void) {
     pthread_sigmask(SIG_BLOCK, NULL, &now_blocked);
     printf("SIGUSR1 handled %d times, blocked again after: %s\n", (int)usr1_handled, sigismember(&now_blocked, SIGUSR1) ? "yes" : "no");
 
+    /* A pending signal the mask lets through that is ignored is discarded; the wait goes on. */
+    sigset_t pipe_signal;
+    sigemptyset(&pipe_signal);
+    sigaddset(&pipe_signal, SIGPIPE);
+    pthread_sigmask(SIG_BLOCK, &pipe_signal, NULL);
+    signal(SIGPIPE, SIG_IGN);
+    int broken[2];
+    if (pipe(broken) != 0)
+        return 1;
+    close(broken[0]);
+    if (write(broken[1], "x", 1) != -1)
+        return 1;
+    t = now_ms();
+    struct timespec short_wait = {0, 50000000};
+    errno = 0;
+    rc = ppoll(NULL, 0, &short_wait, &during);
+    say("ppoll letting an ignored, pending SIGPIPE through, 50 ms", rc, errno, t);
+    close(broken[1]);
+
     /* Timed joins. */
     struct helper short_one = {JUST_END, 40, 0, 0, 0};
     thread = start(&short_one);
@@ -243,6 +262,22 @@ int main(void) {
     errno = 0;
     rc = read(pair[0], &byte, 1);
     say("read of it, nothing sent", rc, errno, t);
+    /* A socket's send timeout (SO_SNDTIMEO), on a socket nobody reads. */
+    int unread[2];
+    socketpair(AF_UNIX, SOCK_STREAM, 0, unread);
+    struct timeval send_timeout = {0, 40000};
+    setsockopt(unread[0], SOL_SOCKET, SO_SNDTIMEO, &send_timeout, sizeof send_timeout);
+    static char lots[1 << 20];
+    t = now_ms();
+    rc = send(unread[0], lots, sizeof lots, 0);
+    printf("send of 1 MiB with a 40 ms SO_SNDTIMEO, nobody reading: %s after %.3f ms\n", rc > 0 && rc < (long)sizeof lots ? "part of it" : "not part of it", now_ms() - t);
+    t = now_ms();
+    errno = 0;
+    rc = send(unread[0], lots, sizeof lots, 0);
+    say("another, the socket full", rc, errno, t);
+    close(unread[0]);
+    close(unread[1]);
+
     struct helper socket_writer = {WRITE_BYTE, 10, pair[1], 0, 0};
     thread = start(&socket_writer);
     t = now_ms();

@@ -144,21 +144,18 @@ impl WaitMask {
         Ok(WaitMask(Some(Masks { during, program })))
     }
 
-    /// A signal the wait's mask lets through is pending already: the wait is interrupted before
-    /// it begins.
-    pub(crate) fn lets_one_through(&self) -> bool {
-        self.0.is_some_and(|masks| pending() & !masks.during != 0)
-    }
-
     /// The wait ended with `rc` (and errno): the program's mask is back, and if a signal
     /// interrupted the wait (EINTR) its handler runs first, with the wait's mask, as the kernel's
-    /// own sigsuspend runs it (see `sigsuspend`).
+    /// own sigsuspend runs it (see `sigsuspend`). Only for a signal that is not discarded on
+    /// arrival: sigsuspend would discard an ignored one and sleep on.
     pub(crate) fn leave(self, rc: c_int) -> c_int {
         let Some(masks) = self.0 else { return rc };
         if let Some(slot) = crate::slot::my_slot() {
             slot.sig_blocked.store(masks.program, Ordering::Relaxed);
         }
-        if rc == -1 && sys::errno() == sys::EINTR && pending() & !masks.during != 0 {
+        let let_through = pending() & !masks.during;
+        let acted_on = (1..=64).filter(|signo| let_through & (1u64 << (signo - 1)) != 0).any(|signo| !crate::delivery::ignored(signo));
+        if rc == -1 && sys::errno() == sys::EINTR && acted_on {
             let during = masks.during as c_long;
             native::call2(nr::RT_SIGSUSPEND, &during as *const c_long as c_long, 8);
             sys::set_errno(sys::EINTR);
