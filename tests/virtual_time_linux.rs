@@ -144,7 +144,8 @@ fn a_process_whose_main_thread_exits_first_ends_with_its_last_thread_in_every_ru
 /// What `tests/vt/timed_waits.c` prints on virtual time: each wait ends at the instant another
 /// thread acted (plus the microsecond its call costs: a signal sent, a semaphore posted, a
 /// message sent), or at its own timeout, in simulated time (the timerfd's 30 ms count from its
-/// setting, two clock reads before the wait began). Natively the same within a
+/// setting, two clock reads before the wait began; the late writer was started, and the timer
+/// set, a microsecond's call before the read). Natively the same within a
 /// millisecond, but for `futex_waitv`, which is not followed and answers as a kernel without it.
 const TIMED_WAITS_SAY: &str = "\
 select for 100 ms, written at 30 ms: 1 after 30.000 ms, 70.000 ms left
@@ -153,6 +154,8 @@ ppoll letting SIGUSR1 through, sent at 20 ms: -1 EINTR after 20.001 ms
 epoll_pwait letting SIGUSR1 through, sent at 20 ms: -1 EINTR after 20.001 ms
 SIGUSR1 handled 3 times, blocked again after: yes
 ppoll letting an ignored, pending SIGPIPE through, 50 ms: 0 after 50.000 ms
+read of an empty pipe, SIGALRM at 15 ms without SA_RESTART: -1 EINTR after 15.000 ms
+read of a pipe written at 40 ms, SIGALRM at 15 ms with SA_RESTART: 1 after 39.999 ms
 pthread_timedjoin_np of a thread ending at 40 ms, 200 ms allowed: 0 after 40.000 ms
 pthread_timedjoin_np of a thread ending at 500 ms, 50 ms allowed: -1 ETIMEDOUT after 50.000 ms
 pthread_clockjoin_np of it then, 1 s allowed: 0 after 450.000 ms

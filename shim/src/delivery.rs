@@ -16,6 +16,17 @@ const SI_TIMER: c_int = -2;
 /// glibc needs them, and far from the small numbers a kernel gives.
 pub(crate) const TIMER_ID_BASE: i64 = 0x2000_0000;
 
+thread_local! {
+    /// The last signal [`take_due`] found to interrupt this thread's wait (0: none since asked).
+    static INTERRUPTED_BY: core::cell::Cell<c_int> = const { core::cell::Cell::new(0) };
+}
+
+/// The signal that last interrupted this thread's wait, if one did since the last asking: a
+/// wait that Linux restarts after a handler with SA_RESTART asks which handler ran.
+pub(crate) fn interrupted_by() -> Option<c_int> {
+    Some(INTERRUPTED_BY.with(|last| last.replace(0))).filter(|&signo| signo != 0)
+}
+
 /// Signals climbsim fired for this thread (`Slot::signals_due`), sent to itself now; whether
 /// one of them interrupts the wait it was let go from.
 pub(crate) fn take_due(slot: &Slot) -> bool {
@@ -42,7 +53,11 @@ pub(crate) fn take_due(slot: &Slot) -> bool {
         // it, for whichever thread unblocks it or waits for it later.
         let whole_process = blocked & bit != 0 && waiting & bit == 0 && timer.tid.load(Ordering::Relaxed) == 0;
         send(timer, index, signo, overrun, (pid, tid), whole_process);
-        interrupts |= waiting & bit != 0 || (blocked & bit == 0 && !ignored(signo));
+        let this_one = waiting & bit != 0 || (blocked & bit == 0 && !ignored(signo));
+        if this_one {
+            INTERRUPTED_BY.with(|last| last.set(signo));
+        }
+        interrupts |= this_one;
     }
     interrupts
 }

@@ -211,6 +211,41 @@ pub(crate) unsafe fn forward_sent(signal: c_int, info: *mut c_void, context: *mu
     }
 }
 
+/// A trap of a seccomp filter of the program's own (RET_TRAP): the program's handler, or, as
+/// the kernel forces such a SIGSYS on a program that ignores it, its default action (the
+/// process ends).
+///
+/// # Safety
+/// The kernel's arguments of a signal being handled.
+#[cfg(target_arch = "x86_64")]
+pub(crate) unsafe fn forward_forced(signal: c_int, info: *mut c_void, context: *mut c_void) {
+    let Some(wish) = wish_for(signal) else { return };
+    match wish.load().handler {
+        SIG_IGN | SIG_DFL => {
+            let default = KernelSigaction { handler: SIG_DFL, flags: 0, restorer: 0, mask: 0 };
+            native::call4(nr::RT_SIGACTION, signal as c_long, &default as *const KernelSigaction as c_long, 0, 8);
+            native::call3(nr::TGKILL, sys::getpid() as c_long, sys::gettid() as c_long, signal as c_long);
+        }
+        // SAFETY: the kernel's arguments, for the program's handler.
+        _ => unsafe { forward_to_program(signal, info, context) },
+    }
+}
+
+/// Whether the program's handler for `signal` restarts the calls it interrupts (SA_RESTART);
+/// a signal without a handler of the program's interrupts nothing it could restart.
+pub(crate) fn restarts(signal: c_int) -> bool {
+    const SA_RESTART: u64 = 0x1000_0000;
+    let mut action = KernelSigaction { handler: 0, flags: 0, restorer: 0, mask: 0 };
+    let current = match wish_for(signal) {
+        Some(wish) => wish.load(),
+        None => {
+            native::call4(nr::RT_SIGACTION, signal as c_long, 0, &mut action as *mut KernelSigaction as c_long, 8);
+            action
+        }
+    };
+    current.flags & SA_RESTART != 0
+}
+
 /// rt_sigprocmask inside the SIGSYS handler: the mask in force after the call is the one the
 /// kernel restores from the ucontext when the handler returns, so that is the one changed
 /// (never with the shim's signals in it).

@@ -53,23 +53,16 @@ pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize
     if port.is_none()
         && let Some(shared) = active()
     {
-        // A pipe opened by name (a FIFO, /proc/self/fd/N) takes no RWF_NOWAIT (EOPNOTSUPP):
-        // once there is room it takes at most PIPE_BUF bytes at a time, which a pipe with room
-        // takes without waiting (with one writer).
-        let mut no_nowait = false;
-        let written = write_with_room(shared, fd, count, |done| {
+        let written = write_with_room(shared, fd, count, |done, kind| {
             let rest = iovec { iov_base: buf.wrapping_add(done).cast_mut().cast(), iov_len: count - done };
-            if !no_nowait {
-                let rc = crate::native::call6(crate::sys::nr::PWRITEV2, fd as core::ffi::c_long, &rest as *const iovec as core::ffi::c_long, 1, -1, 0, RWF_NOWAIT) as isize;
-                if rc != -(crate::sys::EOPNOTSUPP as isize) {
-                    return rc;
-                }
-                no_nowait = true;
+            let rc = crate::native::call6(crate::sys::nr::PWRITEV2, fd as core::ffi::c_long, &rest as *const iovec as core::ffi::c_long, 1, -1, 0, RWF_NOWAIT) as isize;
+            // A pipe opened by name (a FIFO, /proc/self/fd/N) takes no RWF_NOWAIT: written
+            // through a non-blocking description of its own. (Anything else that refuses it is
+            // written as it is: write_with_room gives up.)
+            if rc == -(crate::sys::EOPNOTSUPP as isize) && kind.pipe {
+                return crate::sys::write_pipe_without_waiting(fd, buf.wrapping_add(done), count - done).unwrap_or(rc);
             }
-            if !crate::sys::writable_now(fd) {
-                return -(crate::sys::EAGAIN as isize);
-            }
-            crate::native::call3(crate::sys::nr::WRITE, fd as core::ffi::c_long, rest.iov_base as core::ffi::c_long, rest.iov_len.min(PIPE_BUF) as core::ffi::c_long) as isize
+            rc
         });
         if let Some(written) = written {
             count_written(fd, written, port);
@@ -84,8 +77,6 @@ pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize
 
 /// pwritev2's flag: fail with EAGAIN rather than wait (pipes and sockets honour it).
 const RWF_NOWAIT: core::ffi::c_long = 8;
-/// The most a pipe takes in one write without splitting it.
-const PIPE_BUF: usize = 4096;
 
 /// A blocking write of `total` bytes to `fd`, if it is a pipe or a socket, made without ever
 /// waiting in the kernel: `write_part(done)` writes what is left after `done` bytes without
@@ -96,19 +87,20 @@ const PIPE_BUF: usize = 4096;
 /// answers: everything written, or what was written before an error or a signal's handler (if
 /// nothing was, the error, or EINTR). None: not a blocking pipe or socket; the caller writes as
 /// it is.
-pub(crate) fn write_with_room(shared: &'static Shared, fd: c_int, total: usize, mut write_part: impl FnMut(usize) -> isize) -> Option<isize> {
+pub(crate) fn write_with_room(shared: &'static Shared, fd: c_int, total: usize, mut write_part: impl FnMut(usize, crate::sys::PipeOrSocket) -> isize) -> Option<isize> {
     // Waits on the kernel's word that there is room which then finds none, in a row, before the
     // write is left to the kernel (a descriptor whose poll and write disagree).
     const EMPTY_LOOKS_AT_MOST: u32 = 1000;
     // (The pipe climbsim copies the controller's output from is drained in real time, by
     // climbsim: a write to it that waits does so in the kernel, and simulated time holds.)
     let output = shared.header.output_pipe.load(Ordering::Relaxed);
-    if total == 0 || crate::sys::pipe_or_socket(fd).is_none_or(|inode| inode == output) || !crate::sys::blocking(fd) {
+    let kind = crate::sys::pipe_or_socket(fd).filter(|kind| kind.inode != output)?;
+    if total == 0 || !crate::sys::blocking(fd) {
         return None;
     }
     let (mut done, mut empty_looks) = (0usize, 0u32);
     loop {
-        let rc = write_part(done);
+        let rc = write_part(done, kind);
         if rc >= 0 {
             done += rc as usize;
             if done >= total || rc == 0 {
@@ -122,7 +114,9 @@ pub(crate) fn write_with_room(shared: &'static Shared, fd: c_int, total: usize, 
             if done > 0 {
                 return Some(done as isize);
             }
-            if errno == crate::sys::EAGAIN {
+            // (Nothing written: a descriptor that cannot be written without waiting, or whose
+            // poll and write disagree, is written as it is.)
+            if errno == crate::sys::EAGAIN || errno == crate::sys::EOPNOTSUPP {
                 return None;
             }
             crate::sys::set_errno(errno);

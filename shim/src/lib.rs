@@ -27,6 +27,9 @@ mod delivery {
     pub(crate) fn take_due(_: &crate::abi::Slot) -> bool {
         false
     }
+    pub(crate) fn interrupted_by() -> Option<core::ffi::c_int> {
+        None
+    }
 }
 mod epoll;
 mod futex;

@@ -134,7 +134,7 @@ const MSG_DONTWAIT: c_int = 0x40;
 fn sent_with_room(fd: c_int, len: usize, flags: c_int, mut send_part: impl FnMut(usize, c_int) -> isize) -> isize {
     if let Some(shared) = active()
         && flags & MSG_DONTWAIT == 0
-        && let Some(sent) = crate::io::write_with_room(shared, fd, len, |done| {
+        && let Some(sent) = crate::io::write_with_room(shared, fd, len, |done, _| {
             let sent = send_part(done, flags | MSG_DONTWAIT);
             if sent < 0 { -(sys::errno() as isize) } else { sent }
         })

@@ -282,12 +282,19 @@ unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut 
     const SYS_SECCOMP: c_int = 1;
     // SAFETY: the kernel's siginfo: si_signo, si_errno, si_code are its first three ints.
     let (data, code) = unsafe { (*info.cast::<c_int>().add(1), *info.cast::<c_int>().add(2)) };
-    if code != SYS_SECCOMP || data != SHIM_TRAP {
-        // Sent, or a trap of the program's own filter (its data in si_errno): its handler's.
-        // (Run here, the call would go to the kernel from the shim's page, which the
-        // program's filter traps too: the handler recursed until the stack overflowed.)
+    if code != SYS_SECCOMP {
+        // Sent (kill, raise): the program's, as if the shim were not there.
         // SAFETY: the kernel's arguments of this signal.
         unsafe { crate::handlers::forward_sent(handlers::SIGSYS, info, context) };
+        return;
+    }
+    if data != SHIM_TRAP {
+        // A trap of the program's own filter (its data in si_errno): its handler's, or the
+        // end the kernel forces. (Run here, the call would go to the kernel from the shim's
+        // page, which the program's filter traps too: the handler recursed until the stack
+        // overflowed.)
+        // SAFETY: the kernel's arguments of this signal.
+        unsafe { crate::handlers::forward_forced(handlers::SIGSYS, info, context) };
         return;
     }
     let saved_errno = sys::errno();
@@ -385,7 +392,8 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
                 _ => crate::spawn::exec_trapped(a[1] as usize, a[2] as usize, a[3] as usize, Some((a[0], a[4]))),
             };
         }
-        // (The filter answers it itself; a filter inherited from an older shim traps it.)
+        // (The filter answers it itself; a trap of it would come from a shim of another
+        // build, whose traps carry other data and are not taken here.)
         nr::CLONE3 => return -ENOSYS,
         nr::RT_SIGPROCMASK => {
             let result = handlers::sigprocmask(a, sigmask);

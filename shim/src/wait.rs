@@ -333,8 +333,9 @@ fn read_may_block(fd: c_int) -> bool {
 /// climbsim cannot see it. A sensor connection waits for climbsim's response the same way.
 /// A socket's receive timeout (SO_RCVTIMEO) is simulated time too: `Err(errno)` if the read is
 /// not to be made, and is to fail with that errno as Linux's does: EAGAIN when the timeout
-/// passed with nothing to read, EINTR when a signal's handler ran meanwhile (a socket with a
-/// timeout is never restarted; without one the read is made, as a restarted one).
+/// passed with nothing to read, EINTR when a signal's handler ran meanwhile, unless it was
+/// installed with SA_RESTART and the descriptor has no timeout (then the wait goes on, as
+/// Linux restarts the read).
 pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> Result<(), c_int> {
     let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
     let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
@@ -346,17 +347,25 @@ pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> Result<(), c
     let mut interest = Interest::default();
     interest.add(shared, fd, true, false);
     let timeout = sys::socket_timeout(fd, sys::SO_RCVTIMEO);
-    let ready = wait(shared, call::READ, interest, timeout, &mut |wall| {
-        entry.revents = 0;
-        // SAFETY: as above, with the wait's timeout.
-        unsafe { poll(&mut entry, 1, wall_ms(wall)) }
-    });
+    let result = loop {
+        let ready = wait(shared, call::READ, interest, timeout, &mut |wall| {
+            entry.revents = 0;
+            // SAFETY: as above, with the wait's timeout.
+            unsafe { poll(&mut entry, 1, wall_ms(wall)) }
+        });
+        match (ready, timeout) {
+            (0, Some(_)) => break Err(sys::EAGAIN),
+            (-1, Some(_)) => break Err(sys::EINTR),
+            (-1, None) => match crate::delivery::interrupted_by() {
+                Some(signo) if !crate::handlers::restarts(signo) => break Err(sys::EINTR),
+                // Restarted (or a signal the kernel raised, whose handler is not known here).
+                _ => {}
+            },
+            _ => break Ok(()),
+        }
+    };
     crate::sys::set_errno(saved);
-    match (ready, timeout) {
-        (0, Some(_)) => Err(sys::EAGAIN),
-        (-1, Some(_)) => Err(sys::EINTR),
-        _ => Ok(()),
-    }
+    result
 }
 
 /// A blocking write to `fd` (a pipe or a socket) found no room: wait on simulated time until

@@ -21,6 +21,7 @@
 #include <sys/sem.h>
 #include <sys/socket.h>
 #include <sys/syscall.h>
+#include <sys/time.h>
 #include <sys/timerfd.h>
 #include <time.h>
 #include <unistd.h>
@@ -92,6 +93,19 @@ static volatile sig_atomic_t usr1_handled;
 static void on_usr1(int sig) { (void)sig; usr1_handled++; }
 
 static double ms_of_timeval(struct timeval tv) { return tv.tv_sec * 1e3 + tv.tv_usec / 1e3; }
+
+/* `clock` read now, plus `ms`: an absolute deadline. */
+static struct timespec in_ms(clockid_t clock, long ms) {
+    struct timespec at;
+    clock_gettime(clock, &at);
+    at.tv_sec += ms / 1000;
+    at.tv_nsec += (ms % 1000) * 1000000;
+    if (at.tv_nsec >= 1000000000) {
+        at.tv_sec++;
+        at.tv_nsec -= 1000000000;
+    }
+    return at;
+}
 
 int main(void) {
     double t;
@@ -176,26 +190,47 @@ int main(void) {
     say("ppoll letting an ignored, pending SIGPIPE through, 50 ms", rc, errno, t);
     close(broken[1]);
 
+    /* A blocking read of a pipe that a timer's signal interrupts: EINTR if its handler was
+     * installed without SA_RESTART; with it, the read goes on until the data comes. */
+    int quiet[2];
+    if (pipe(quiet) != 0)
+        return 1;
+    struct sigaction on_alarm = {0};
+    on_alarm.sa_handler = on_usr1;
+    sigaction(SIGALRM, &on_alarm, NULL);
+    struct itimerval in_15_ms = {{0, 0}, {0, 15000}};
+    setitimer(ITIMER_REAL, &in_15_ms, NULL);
+    t = now_ms();
+    errno = 0;
+    rc = read(quiet[0], &byte, 1);
+    say("read of an empty pipe, SIGALRM at 15 ms without SA_RESTART", rc, errno, t);
+    on_alarm.sa_flags = SA_RESTART;
+    sigaction(SIGALRM, &on_alarm, NULL);
+    struct helper late_writer = {WRITE_BYTE, 40, quiet[1], 0, 0};
+    thread = start(&late_writer);
+    setitimer(ITIMER_REAL, &in_15_ms, NULL);
+    t = now_ms();
+    errno = 0;
+    rc = read(quiet[0], &byte, 1);
+    say("read of a pipe written at 40 ms, SIGALRM at 15 ms with SA_RESTART", rc, errno, t);
+    pthread_join(thread, NULL);
+    close(quiet[0]);
+    close(quiet[1]);
+
     /* Timed joins. */
     struct helper short_one = {JUST_END, 40, 0, 0, 0};
     thread = start(&short_one);
-    struct timespec at;
-    clock_gettime(CLOCK_REALTIME, &at);
-    at.tv_nsec += 200000000;
-    if (at.tv_nsec >= 1000000000) { at.tv_sec++; at.tv_nsec -= 1000000000; }
+    struct timespec at = in_ms(CLOCK_REALTIME, 200);
     t = now_ms();
     rc = pthread_timedjoin_np(thread, NULL, &at);
     say("pthread_timedjoin_np of a thread ending at 40 ms, 200 ms allowed", rc ? -1 : 0, (int)rc, t);
     struct helper long_one = {JUST_END, 500, 0, 0, 0};
     thread = start(&long_one);
-    clock_gettime(CLOCK_REALTIME, &at);
-    at.tv_nsec += 50000000;
-    if (at.tv_nsec >= 1000000000) { at.tv_sec++; at.tv_nsec -= 1000000000; }
+    at = in_ms(CLOCK_REALTIME, 50);
     t = now_ms();
     rc = pthread_timedjoin_np(thread, NULL, &at);
     say("pthread_timedjoin_np of a thread ending at 500 ms, 50 ms allowed", rc ? -1 : 0, (int)rc, t);
-    clock_gettime(CLOCK_MONOTONIC, &at);
-    at.tv_sec += 1;
+    at = in_ms(CLOCK_MONOTONIC, 1000);
     t = now_ms();
     rc = pthread_clockjoin_np(thread, NULL, CLOCK_MONOTONIC, &at);
     say("pthread_clockjoin_np of it then, 1 s allowed", rc ? -1 : 0, (int)rc, t);
@@ -230,18 +265,14 @@ int main(void) {
     mqd_t queue = mq_open(name, O_RDWR | O_CREAT | O_EXCL, 0600, &attributes);
     mq_unlink(name);
     char message[16];
-    clock_gettime(CLOCK_REALTIME, &at);
-    at.tv_nsec += 70000000;
-    if (at.tv_nsec >= 1000000000) { at.tv_sec++; at.tv_nsec -= 1000000000; }
+    at = in_ms(CLOCK_REALTIME, 70);
     t = now_ms();
     errno = 0;
     rc = mq_timedreceive(queue, message, sizeof message, NULL, &at);
     say("mq_timedreceive for 70 ms, nothing sent", rc, errno, t);
     struct helper sender = {SEND_MESSAGE, 35, 0, 0, queue};
     thread = start(&sender);
-    clock_gettime(CLOCK_REALTIME, &at);
-    at.tv_nsec += 70000000;
-    if (at.tv_nsec >= 1000000000) { at.tv_sec++; at.tv_nsec -= 1000000000; }
+    at = in_ms(CLOCK_REALTIME, 70);
     t = now_ms();
     errno = 0;
     rc = mq_timedreceive(queue, message, sizeof message, NULL, &at);
@@ -302,10 +333,7 @@ int main(void) {
     /* futex_waitv (Linux 5.16): not followed on virtual time, where it answers ENOSYS. */
     uint32_t word = 0;
     struct futex_waitv waiter = {0, (uintptr_t)&word, FUTEX_32 | FUTEX_PRIVATE_FLAG, 0};
-    struct timespec futex_at;
-    clock_gettime(CLOCK_MONOTONIC, &futex_at);
-    futex_at.tv_nsec += 10000000;
-    if (futex_at.tv_nsec >= 1000000000) { futex_at.tv_sec++; futex_at.tv_nsec -= 1000000000; }
+    struct timespec futex_at = in_ms(CLOCK_MONOTONIC, 10);
     errno = 0;
     rc = syscall(SYS_futex_waitv, &waiter, 1, 0, &futex_at, CLOCK_MONOTONIC);
     printf("futex_waitv for 10 ms: %ld %s\n", rc, rc < 0 ? strerrorname_np(errno) : "");
