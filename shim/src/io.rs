@@ -53,7 +53,7 @@ pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize
     if port.is_none()
         && let Some(shared) = active()
     {
-        let written = write_with_room(shared, fd, count, |done, kind| {
+        let written = crate::room::write_with_room(shared, fd, count, |done, kind| {
             let rest = iovec { iov_base: buf.wrapping_add(done).cast_mut().cast(), iov_len: count - done };
             let rc = crate::native::call6(crate::sys::nr::PWRITEV2, fd as core::ffi::c_long, &rest as *const iovec as core::ffi::c_long, 1, -1, 0, RWF_NOWAIT) as isize;
             // A pipe opened by name (a FIFO, /proc/self/fd/N) takes no RWF_NOWAIT: written
@@ -77,63 +77,6 @@ pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize
 
 /// pwritev2's flag: fail with EAGAIN rather than wait (pipes and sockets honour it).
 const RWF_NOWAIT: core::ffi::c_long = 8;
-
-/// A blocking write of `total` bytes to `fd`, if it is a pipe or a socket, made without ever
-/// waiting in the kernel: `write_part(done)` writes what is left after `done` bytes without
-/// waiting (the kernel's convention: bytes written, or a negative errno), and while the kernel
-/// has no room the thread waits on simulated time for some (`wait::await_writable`). Blocked in
-/// the kernel's write, the writer would look running to climbsim, and a reader that sleeps on
-/// simulated time before it reads would never get there (the run failed after 2 s). Linux's
-/// answers: everything written, or what was written before an error or a signal's handler (if
-/// nothing was, the error, or EINTR). None: not a blocking pipe or socket; the caller writes as
-/// it is.
-pub(crate) fn write_with_room(shared: &'static Shared, fd: c_int, total: usize, mut write_part: impl FnMut(usize, crate::sys::PipeOrSocket) -> isize) -> Option<isize> {
-    // Waits on the kernel's word that there is room which then finds none, in a row, before the
-    // write is left to the kernel (a descriptor whose poll and write disagree).
-    const EMPTY_LOOKS_AT_MOST: u32 = 1000;
-    // (The pipe climbsim copies the controller's output from is drained in real time, by
-    // climbsim: a write to it that waits does so in the kernel, and simulated time holds.)
-    let output = shared.header.output_pipe.load(Ordering::Relaxed);
-    let kind = crate::sys::pipe_or_socket(fd).filter(|kind| kind.inode != output)?;
-    if total == 0 || !crate::sys::blocking(fd) {
-        return None;
-    }
-    let (mut done, mut empty_looks) = (0usize, 0u32);
-    loop {
-        let rc = write_part(done, kind);
-        if rc >= 0 {
-            done += rc as usize;
-            if done >= total || rc == 0 {
-                return Some(done as isize);
-            }
-            empty_looks = 0;
-            continue;
-        }
-        let errno = (-rc) as c_int;
-        if errno != crate::sys::EAGAIN || empty_looks >= EMPTY_LOOKS_AT_MOST {
-            if done > 0 {
-                return Some(done as isize);
-            }
-            // (Nothing written: a descriptor that cannot be written without waiting, or whose
-            // poll and write disagree, is written as it is.)
-            if errno == crate::sys::EAGAIN || errno == crate::sys::EOPNOTSUPP {
-                return None;
-            }
-            crate::sys::set_errno(errno);
-            return Some(-1);
-        }
-        empty_looks += 1;
-        if let Err(errno) = crate::wait::await_writable(shared, fd) {
-            // A signal's handler ran, or the socket's send timeout passed: what was written,
-            // or EINTR (EAGAIN).
-            if done > 0 {
-                return Some(done as isize);
-            }
-            crate::sys::set_errno(errno);
-            return Some(-1);
-        }
-    }
-}
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn writev(fd: c_int, iov: *const iovec, count: c_int) -> isize {

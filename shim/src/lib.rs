@@ -47,6 +47,7 @@ mod now;
 mod park;
 mod port_ring;
 mod program;
+mod room;
 mod seccomp;
 #[cfg(target_arch = "x86_64")]
 mod signals;

@@ -473,7 +473,7 @@ fn own_io_call(number: i64, a: [i64; 6]) -> c_long {
             nr::WRITE => crate::io::write(fd, a[1] as *const u8, a[2] as usize) as c_long,
             nr::WRITEV => crate::io::writev(fd, a[1] as *const sys::iovec, a[2] as c_int) as c_long,
             nr::RECVFROM => crate::io::recvfrom(fd, a[1] as *mut c_void, a[2] as usize, a[3] as c_int, a[4] as *mut c_void, a[5] as *mut u32) as c_long,
-            nr::SENDTO => crate::net::sendto(fd, a[1] as *const c_void, a[2] as usize, a[3] as c_int, a[4] as *const c_void, a[5] as u32) as c_long,
+            nr::SENDTO => crate::room::sendto(fd, a[1] as *const c_void, a[2] as usize, a[3] as c_int, a[4] as *const c_void, a[5] as u32) as c_long,
             nr::CLOSE => c_long::from(crate::io::close(fd)),
             nr::IOCTL => c_long::from(crate::io::ioctl(fd, a[1] as u64, a[2] as *mut c_void)),
             nr::POLL => c_long::from(crate::wait::poll(a[0] as *mut sys::pollfd, a[1] as sys::nfds_t, a[2] as c_int)),
