@@ -292,9 +292,7 @@ fn timerfds_are_followed_as_many_as_the_program_opens() {
 fn a_child_killed_by_the_filter_it_inherited_fails_the_run_saying_why() {
     let dir = support::scratch_dir("vt-static-child");
     let parent = compiled_c(&dir, "static_child");
-    let child = dir.join("static_child_static");
-    let compiled = std::process::Command::new("cc").args(["-static", "-o"]).arg(&child).arg(support::repo().join("tests/vt/static_child.c")).output().expect("run cc");
-    assert!(compiled.status.success(), "{}", output_text(&compiled));
+    let child = support::vt::compiled_c_as(&dir, "tests/vt/static_child.c", "static_child_static", &["-static"]);
     let path = scenario(&dir, "static-child", 2.0, &[parent.to_str().expect("utf-8 path"), child.to_str().expect("utf-8 path")], true);
     let (output, wall) = run_virtual(&path, &dir.join("out"));
     assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));

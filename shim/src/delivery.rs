@@ -102,9 +102,7 @@ fn send(timer: &SigTimer, index: usize, signo: c_int, overrun: u32, (pid, tid): 
 
 /// Whether `signo` is discarded on arrival (SIG_IGN, or a default action of nothing).
 pub(crate) fn ignored(signo: c_int) -> bool {
-    let mut action = [0usize; 4];
-    native::call4(nr::RT_SIGACTION, signo as c_long, 0, action.as_mut_ptr() as c_long, 8);
-    match action[0] {
+    match crate::handlers::kernel_action(signo).0 {
         0 => IGNORED_BY_DEFAULT.contains(&signo),
         1 => true,
         _ => false,

@@ -167,10 +167,7 @@ pub(crate) unsafe fn forward_to_program(signal: c_int, info: *mut c_void, contex
     let Some(wish) = wish_for(signal) else { return };
     let wanted = wish.load();
     match wanted.handler {
-        SIG_DFL | SIG_IGN => {
-            let default = KernelSigaction { handler: SIG_DFL, flags: 0, restorer: 0, mask: 0 };
-            native::call4(nr::RT_SIGACTION, signal as c_long, &default as *const KernelSigaction as c_long, 0, 8);
-        }
+        SIG_DFL | SIG_IGN => put_back_default(signal),
         handler if wanted.flags & SA_SIGINFO != 0 => {
             // SAFETY: the program's own three-argument handler.
             let handler = unsafe { core::mem::transmute::<usize, unsafe extern "C" fn(c_int, *mut c_void, *mut c_void)>(handler) };
@@ -201,14 +198,23 @@ pub(crate) unsafe fn forward_sent(signal: c_int, info: *mut c_void, context: *mu
         SIG_IGN => {}
         // Its default action is to ignore it: nothing to do (and the shim's handler stays).
         SIG_DFL if signal == crate::abi::GIVE_WAY_SIGNAL => {}
-        SIG_DFL => {
-            // SAFETY: as the caller's; the default action is taken from here.
-            unsafe { forward_to_program(signal, info, context) };
-            native::call3(nr::TGKILL, sys::getpid() as c_long, sys::gettid() as c_long, signal as c_long);
-        }
+        SIG_DFL => take_default_action(signal),
         // SAFETY: the kernel's arguments, for the program's handler.
         _ => unsafe { forward_to_program(signal, info, context) },
     }
+}
+
+/// The kernel's default action for `signal` from here on, in place of the shim's handler.
+fn put_back_default(signal: c_int) {
+    let default = KernelSigaction { handler: SIG_DFL, flags: 0, restorer: 0, mask: 0 };
+    native::call4(nr::RT_SIGACTION, signal as c_long, &default as *const KernelSigaction as c_long, 0, 8);
+}
+
+/// The default action put back and the signal sent again to this thread: it is taken as the
+/// handler returns (it ends the process, as it would have).
+fn take_default_action(signal: c_int) {
+    put_back_default(signal);
+    native::call3(nr::TGKILL, sys::getpid() as c_long, sys::gettid() as c_long, signal as c_long);
 }
 
 /// A trap of a seccomp filter of the program's own (RET_TRAP): the program's handler, or, as
@@ -221,11 +227,7 @@ pub(crate) unsafe fn forward_sent(signal: c_int, info: *mut c_void, context: *mu
 pub(crate) unsafe fn forward_forced(signal: c_int, info: *mut c_void, context: *mut c_void) {
     let Some(wish) = wish_for(signal) else { return };
     match wish.load().handler {
-        SIG_IGN | SIG_DFL => {
-            let default = KernelSigaction { handler: SIG_DFL, flags: 0, restorer: 0, mask: 0 };
-            native::call4(nr::RT_SIGACTION, signal as c_long, &default as *const KernelSigaction as c_long, 0, 8);
-            native::call3(nr::TGKILL, sys::getpid() as c_long, sys::gettid() as c_long, signal as c_long);
-        }
+        SIG_IGN | SIG_DFL => take_default_action(signal),
         // SAFETY: the kernel's arguments, for the program's handler.
         _ => unsafe { forward_to_program(signal, info, context) },
     }
@@ -235,15 +237,16 @@ pub(crate) unsafe fn forward_forced(signal: c_int, info: *mut c_void, context: *
 /// a signal without a handler of the program's interrupts nothing it could restart.
 pub(crate) fn restarts(signal: c_int) -> bool {
     const SA_RESTART: u64 = 0x1000_0000;
-    let mut action = KernelSigaction { handler: 0, flags: 0, restorer: 0, mask: 0 };
-    let current = match wish_for(signal) {
-        Some(wish) => wish.load(),
-        None => {
-            native::call4(nr::RT_SIGACTION, signal as c_long, 0, &mut action as *mut KernelSigaction as c_long, 8);
-            action
-        }
-    };
-    current.flags & SA_RESTART != 0
+    let flags = wish_for(signal).map_or_else(|| kernel_action(signal).1, |wish| wish.load().flags);
+    flags & SA_RESTART != 0
+}
+
+/// The handler and flags the kernel holds for `signal` now (for one the shim keeps, the
+/// shim's own).
+pub(crate) fn kernel_action(signal: c_int) -> (usize, u64) {
+    let mut action = KernelSigaction { handler: SIG_DFL, flags: 0, restorer: 0, mask: 0 };
+    native::call4(nr::RT_SIGACTION, signal as c_long, 0, &mut action as *mut KernelSigaction as c_long, 8);
+    (action.handler, action.flags)
 }
 
 /// rt_sigprocmask inside the SIGSYS handler: the mask in force after the call is the one the

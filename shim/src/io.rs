@@ -45,15 +45,19 @@ fn count_written(fd: c_int, written: isize, port: Option<&'static Shared>) {
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn write(fd: c_int, buf: *const u8, count: usize) -> isize {
-    let port = port_of(fd);
+    // One fstat says both whether this is the port and whether it is a pipe or a socket.
+    let shared = active();
+    let stat = shared.and_then(|_| crate::sys::file_stat(fd));
+    let port = shared.filter(|shared| crate::wait::is_port_device(shared, stat.and_then(crate::sys::FileStat::char_device)));
     if let Some(written) = port.and_then(|shared| crate::port_ring::write(shared, fd, &[iovec { iov_base: buf.cast_mut().cast(), iov_len: count }])) {
         return written;
     }
     let next = real!(write: fn(c_int, *const u8, usize) -> isize);
     if port.is_none()
-        && let Some(shared) = active()
+        && let Some(shared) = shared
+        && let Some(kind) = stat.and_then(crate::sys::FileStat::pipe_or_socket)
     {
-        let written = crate::room::write_with_room(shared, fd, count, |done, kind| {
+        let written = crate::room::write_with_room(shared, fd, kind, count, |done, kind| {
             let rest = iovec { iov_base: buf.wrapping_add(done).cast_mut().cast(), iov_len: count - done };
             let rc = crate::native::call6(crate::sys::nr::PWRITEV2, fd as core::ffi::c_long, &rest as *const iovec as core::ffi::c_long, 1, -1, 0, RWF_NOWAIT) as isize;
             // A pipe opened by name (a FIFO, /proc/self/fd/N) takes no RWF_NOWAIT: written
@@ -198,7 +202,7 @@ pub unsafe extern "C" fn read(fd: c_int, buf: *mut c_void, len: usize) -> isize 
         if len > 0
             && let Err(errno) = await_readable(shared, fd)
         {
-            return receive_refused(errno);
+            return crate::wait::refused(errno) as isize;
         }
         // SAFETY: passing the caller's arguments through.
         let received = unsafe { next(fd, buf, len) };
@@ -324,17 +328,11 @@ fn before_receive(fd: c_int, flags: c_int) -> Result<(), c_int> {
     }
 }
 
-/// A receive that [`before_receive`] or `await_readable` ended with `errno`.
-fn receive_refused(errno: c_int) -> isize {
-    crate::sys::set_errno(errno);
-    -1
-}
-
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_int) -> isize {
     let next = real!(recv: fn(c_int, *mut c_void, usize, c_int) -> isize);
     if let Err(errno) = before_receive(fd, flags) {
-        return receive_refused(errno);
+        return crate::wait::refused(errno) as isize;
     }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, buf, len, flags) };
@@ -349,7 +347,7 @@ pub unsafe extern "C" fn recv(fd: c_int, buf: *mut c_void, len: usize, flags: c_
 pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags: c_int, addr: *mut c_void, addr_len: *mut u32) -> isize {
     let next = real!(recvfrom: fn(c_int, *mut c_void, usize, c_int, *mut c_void, *mut u32) -> isize);
     if let Err(errno) = before_receive(fd, flags) {
-        return receive_refused(errno);
+        return crate::wait::refused(errno) as isize;
     }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, buf, len, flags, addr, addr_len) };
@@ -363,7 +361,7 @@ pub unsafe extern "C" fn recvfrom(fd: c_int, buf: *mut c_void, len: usize, flags
 pub unsafe extern "C" fn recvmsg(fd: c_int, message: *mut c_void, flags: c_int) -> isize {
     let next = real!(recvmsg: fn(c_int, *mut c_void, c_int) -> isize);
     if let Err(errno) = before_receive(fd, flags) {
-        return receive_refused(errno);
+        return crate::wait::refused(errno) as isize;
     }
     // SAFETY: passing the caller's arguments through.
     let received = unsafe { next(fd, message, flags) };

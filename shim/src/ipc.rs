@@ -119,11 +119,11 @@ pub(crate) fn mq_timed(number: i64, a: [i64; 6]) -> Option<c_long> {
         0 => None,
         at => match sys::read_from_program(at as *const timespec) {
             None => return Some(-EFAULT),
-            Some(at) => Some(timespec_ns(&at).ok_or(sys::EINVAL).ok()?),
+            // (Not a time: the kernel's EINVAL.)
+            Some(at) => Some(timespec_ns(&at)?),
         },
     };
-    let flags = native::call2(nr::FCNTL, a[0], sys::F_GETFL as c_long);
-    if flags < 0 || flags & sys::O_NONBLOCK as c_long != 0 {
+    if !sys::blocking(a[0] as i32) {
         // Not a descriptor (the kernel says EBADF), or one that never waits.
         return None;
     }

@@ -67,36 +67,11 @@ pub(crate) fn exec_over(slot: &Slot) -> bool {
 
 /// Whether descriptor `fd` of task `tid` (None: this one) is an exec's marker.
 fn names_marker(tid: Option<i32>, fd: c_int) -> bool {
-    // "/proc/TID/fd/N" (or "/proc/self/fd/N"), NUL-terminated, without the heap (this may be a
-    // vfork child).
-    let mut path = [0u8; 40];
-    let mut len = 0;
-    let mut digits = [[0u8; 10]; 2];
-    let [task_digits, fd_digits] = &mut digits;
-    let task: &[u8] = match tid {
-        Some(tid) => decimal(tid as u32, task_digits),
-        None => b"self",
-    };
-    for text in [&b"/proc/"[..], task, b"/fd/", decimal(fd as u32, fd_digits)] {
-        path[len..len + text.len()].copy_from_slice(text);
-        len += text.len();
-    }
+    // (This may be a vfork child: no heap.)
+    let path = sys::fd_path(tid, fd);
     let mut link = [0u8; 64];
     let read = native::call4(sys::nr::READLINKAT, sys::AT_FDCWD, path.as_ptr() as i64, link.as_mut_ptr() as i64, link.len() as i64);
     read > 0 && crate::abi::is_exec_marker_link(&link[..read as usize])
-}
-
-/// `number` in decimal, in `digits`.
-fn decimal(mut number: u32, digits: &mut [u8; 10]) -> &[u8] {
-    let mut start = digits.len();
-    loop {
-        start -= 1;
-        digits[start] = b'0' + (number % 10) as u8;
-        number /= 10;
-        if number == 0 {
-            return &digits[start..];
-        }
-    }
 }
 
 const F_DUPFD: i64 = 0;

@@ -11,7 +11,7 @@ use crate::block::active;
 use crate::net::count_sent;
 use crate::sys::{self, real};
 
-/// A blocking write of `total` bytes to `fd`, if it is a pipe or a socket, made without ever
+/// A blocking write of `total` bytes to `fd`, a pipe or a socket (`kind`), made without ever
 /// waiting in the kernel: `write_part(done, kind)` writes what is left after `done` bytes
 /// without waiting (the kernel's convention: bytes written, or a negative errno; `kind`: a pipe
 /// or a socket, and its inode), and while the kernel
@@ -21,15 +21,14 @@ use crate::sys::{self, real};
 /// answers: everything written, or what was written before an error or a signal's handler (if
 /// nothing was, the error, or EINTR). None: not a blocking pipe or socket; the caller writes as
 /// it is.
-pub(crate) fn write_with_room(shared: &'static Shared, fd: c_int, total: usize, mut write_part: impl FnMut(usize, crate::sys::PipeOrSocket) -> isize) -> Option<isize> {
+pub(crate) fn write_with_room(shared: &'static Shared, fd: c_int, kind: sys::PipeOrSocket, total: usize, mut write_part: impl FnMut(usize, sys::PipeOrSocket) -> isize) -> Option<isize> {
     // Waits on the kernel's word that there is room which then finds none, in a row, before the
     // write is left to the kernel (a descriptor whose poll and write disagree).
     const EMPTY_LOOKS_AT_MOST: u32 = 1000;
     // (The pipe climbsim copies the controller's output from is drained in real time, by
     // climbsim: a write to it that waits does so in the kernel, and simulated time holds.)
     let output = shared.header.output_pipe.load(Ordering::Relaxed);
-    let kind = crate::sys::pipe_or_socket(fd).filter(|kind| kind.inode != output)?;
-    if total == 0 || !crate::sys::blocking(fd) {
+    if kind.inode == output || total == 0 || !sys::blocking(fd) {
         return None;
     }
     let (mut done, mut empty_looks) = (0usize, 0u32);
@@ -87,7 +86,8 @@ const MSG_DONTWAIT: c_int = 0x40;
 fn sent_with_room(fd: c_int, len: usize, flags: c_int, mut send_part: impl FnMut(usize, c_int) -> isize) -> isize {
     if let Some(shared) = active()
         && flags & MSG_DONTWAIT == 0
-        && let Some(sent) = write_with_room(shared, fd, len, |done, _| {
+        && let Some(kind) = sys::pipe_or_socket(fd)
+        && let Some(sent) = write_with_room(shared, fd, kind, len, |done, _| {
             let sent = send_part(done, flags | MSG_DONTWAIT);
             if sent < 0 { -(sys::errno() as isize) } else { sent }
         })

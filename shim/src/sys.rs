@@ -374,18 +374,13 @@ pub fn socket_timeout(fd: c_int, which: c_long) -> Option<u64> {
     (rc == 0).then(|| timeval_ns(&timeout)).flatten().filter(|&ns| ns > 0)
 }
 
-const S_IFMT: u32 = 0o170000;
-
-/// The kind of file `fd` is (st_mode's S_IFMT bits), and its stat buffer; None: not open.
-fn file_kind(fd: c_int) -> Option<(u32, [u8; 256])> {
-    let mut stat = [0u8; 256];
-    // fstat writes at most sizeof(struct stat) (144 or 128 bytes) into the buffer.
-    let rc = native::call2(nr::FSTAT, fd as c_long, stat.as_mut_ptr() as c_long);
-    if rc != 0 {
-        return None;
-    }
-    let mode = u32::from_ne_bytes([stat[nr::ST_MODE], stat[nr::ST_MODE + 1], stat[nr::ST_MODE + 2], stat[nr::ST_MODE + 3]]);
-    Some((mode & S_IFMT, stat))
+/// What one `fstat` of a descriptor says that the shim asks: its kind, device and inode.
+#[derive(Clone, Copy)]
+pub struct FileStat {
+    /// st_mode's S_IFMT bits.
+    kind: u32,
+    rdev: u64,
+    inode: u64,
 }
 
 /// What a blocking write may wait in for room.
@@ -396,16 +391,75 @@ pub struct PipeOrSocket {
     pub inode: u64,
 }
 
-/// If `fd` is a pipe (or FIFO) or a socket: which, and its inode.
-pub fn pipe_or_socket(fd: c_int) -> Option<PipeOrSocket> {
-    const S_IFIFO: u32 = 0o010000;
-    const S_IFSOCK: u32 = 0o140000;
+impl FileStat {
+    /// The character device number, if it is one.
+    pub fn char_device(self) -> Option<u64> {
+        const S_IFCHR: u32 = 0o020000;
+        (self.kind == S_IFCHR).then_some(self.rdev)
+    }
+
+    /// If it is a pipe (or FIFO) or a socket: which, and its inode.
+    pub fn pipe_or_socket(self) -> Option<PipeOrSocket> {
+        const S_IFIFO: u32 = 0o010000;
+        const S_IFSOCK: u32 = 0o140000;
+        (self.kind == S_IFIFO || self.kind == S_IFSOCK).then_some(PipeOrSocket { pipe: self.kind == S_IFIFO, inode: self.inode })
+    }
+}
+
+/// `fstat` of `fd`; None: not open.
+pub fn file_stat(fd: c_int) -> Option<FileStat> {
+    const S_IFMT: u32 = 0o170000;
     /// struct stat's st_ino (after st_dev), on both architectures.
     const ST_INO: usize = 8;
-    let (kind, stat) = file_kind(fd)?;
-    let mut inode = [0u8; 8];
-    inode.copy_from_slice(&stat[ST_INO..ST_INO + 8]);
-    (kind == S_IFIFO || kind == S_IFSOCK).then_some(PipeOrSocket { pipe: kind == S_IFIFO, inode: u64::from_ne_bytes(inode) })
+    let mut stat = [0u8; 256];
+    // fstat writes at most sizeof(struct stat) (144 or 128 bytes) into the buffer.
+    let rc = native::call2(nr::FSTAT, fd as c_long, stat.as_mut_ptr() as c_long);
+    if rc != 0 {
+        return None;
+    }
+    let word = |at: usize| {
+        let mut bytes = [0u8; 8];
+        bytes.copy_from_slice(&stat[at..at + 8]);
+        u64::from_ne_bytes(bytes)
+    };
+    let mode = u32::from_ne_bytes([stat[nr::ST_MODE], stat[nr::ST_MODE + 1], stat[nr::ST_MODE + 2], stat[nr::ST_MODE + 3]]);
+    Some(FileStat { kind: mode & S_IFMT, rdev: word(nr::ST_RDEV), inode: word(ST_INO) })
+}
+
+/// If `fd` is a pipe (or FIFO) or a socket: which, and its inode.
+pub fn pipe_or_socket(fd: c_int) -> Option<PipeOrSocket> {
+    file_stat(fd)?.pipe_or_socket()
+}
+
+/// "/proc/TID/fd/N" (`tid` None: "/proc/self/fd/N"), NUL-terminated, without the heap (the
+/// caller may be a vfork child, or in a signal handler).
+pub fn fd_path(tid: Option<i32>, fd: c_int) -> [u8; 40] {
+    let mut path = [0u8; 40];
+    let mut len = 0;
+    let mut digits = [[0u8; 10]; 2];
+    let [task_digits, fd_digits] = &mut digits;
+    let task: &[u8] = match tid {
+        Some(tid) => decimal(tid as u32, task_digits),
+        None => b"self",
+    };
+    for text in [&b"/proc/"[..], task, b"/fd/", decimal(fd as u32, fd_digits)] {
+        path[len..len + text.len()].copy_from_slice(text);
+        len += text.len();
+    }
+    path
+}
+
+/// `number` in decimal, in `digits`.
+fn decimal(mut number: u32, digits: &mut [u8; 10]) -> &[u8] {
+    let mut start = digits.len();
+    loop {
+        start -= 1;
+        digits[start] = b'0' + (number % 10) as u8;
+        number /= 10;
+        if number == 0 {
+            return &digits[start..];
+        }
+    }
 }
 
 /// `count` bytes at `buf` written to the pipe `fd` without waiting, through a file description
@@ -415,20 +469,7 @@ pub fn pipe_or_socket(fd: c_int) -> Option<PipeOrSocket> {
 pub fn write_pipe_without_waiting(fd: c_int, buf: *const u8, count: usize) -> Option<isize> {
     const O_WRONLY: c_long = 1;
     const O_CLOEXEC: c_long = 0o2000000;
-    let mut path = *b"/proc/self/fd/\0\0\0\0\0\0\0\0\0\0\0\0";
-    let mut digits = [0u8; 10];
-    let (mut n, mut len) = (fd as u32, 0);
-    loop {
-        digits[len] = b'0' + (n % 10) as u8;
-        len += 1;
-        n /= 10;
-        if n == 0 {
-            break;
-        }
-    }
-    for (i, digit) in digits[..len].iter().rev().enumerate() {
-        path[14 + i] = *digit;
-    }
+    let path = fd_path(None, fd);
     let own = native::call4(nr::OPENAT, AT_FDCWD, path.as_ptr() as c_long, O_WRONLY | O_NONBLOCK as c_long | O_CLOEXEC, 0);
     if own < 0 {
         return None;
@@ -438,22 +479,20 @@ pub fn write_pipe_without_waiting(fd: c_int, buf: *const u8, count: usize) -> Op
     Some(written)
 }
 
+/// The file status flags of `fd` (fcntl F_GETFL); None: not open.
+pub fn status_flags(fd: c_int) -> Option<c_int> {
+    let flags = native::call2(nr::FCNTL, fd as c_long, F_GETFL as c_long);
+    (flags >= 0).then_some(flags as c_int)
+}
+
 /// Whether `fd` is open and blocking (no O_NONBLOCK).
 pub fn blocking(fd: c_int) -> bool {
-    let flags = native::call2(nr::FCNTL, fd as c_long, F_GETFL as c_long);
-    flags >= 0 && flags & O_NONBLOCK as c_long == 0
+    status_flags(fd).is_some_and(|flags| flags & O_NONBLOCK == 0)
 }
 
 /// The character device number of `fd`, if it is one.
 pub fn char_device(fd: c_int) -> Option<u64> {
-    const S_IFCHR: u32 = 0o020000;
-    let (kind, stat) = file_kind(fd)?;
-    if kind != S_IFCHR {
-        return None;
-    }
-    let mut rdev = [0u8; 8];
-    rdev.copy_from_slice(&stat[nr::ST_RDEV..nr::ST_RDEV + 8]);
-    Some(u64::from_ne_bytes(rdev))
+    file_stat(fd)?.char_device()
 }
 
 thread_local! {

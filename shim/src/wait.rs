@@ -139,8 +139,13 @@ pub(crate) struct EpollCall {
 
 /// The descriptor is the servo port (the pty slave climbsim serves).
 pub(crate) fn is_port(shared: &Shared, fd: c_int) -> bool {
+    is_port_device(shared, sys::char_device(fd))
+}
+
+/// A descriptor that is the character device `rdev` (None: not one) is the servo port.
+pub(crate) fn is_port_device(shared: &Shared, rdev: Option<u64>) -> bool {
     let port = shared.header.port.rdev.load(Ordering::Relaxed);
-    port != 0 && sys::char_device(fd) == Some(port)
+    port != 0 && rdev == Some(port)
 }
 
 /// The real call with a wall-clock timeout (`None`: no timeout); its result and errno.
@@ -321,9 +326,7 @@ fn readable_now(fd: c_int) -> bool {
 /// pipe's write end, an `O_PATH` descriptor: EBADF). Nor in non-blocking mode, where the read
 /// says what there is.
 fn read_may_block(fd: c_int) -> bool {
-    // SAFETY: fcntl F_GETFL on the caller's descriptor.
-    let flags = unsafe { sys::fcntl(fd, sys::F_GETFL) };
-    flags != -1 && flags & sys::O_NONBLOCK == 0 && flags & sys::O_ACCMODE != sys::O_WRONLY && flags & sys::O_PATH == 0
+    sys::status_flags(fd).is_some_and(|flags| flags & sys::O_NONBLOCK == 0 && flags & sys::O_ACCMODE != sys::O_WRONLY && flags & sys::O_PATH == 0)
 }
 
 /// A blocking read (or receive) of a descriptor other than the port, about to be made: if the
@@ -337,23 +340,14 @@ fn read_may_block(fd: c_int) -> bool {
 /// installed with SA_RESTART and the descriptor has no timeout (then the wait goes on, as
 /// Linux restarts the read).
 pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> Result<(), c_int> {
-    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
-    let mut entry = pollfd { fd, events: crate::sys::POLLIN, revents: 0 };
     let saved = crate::sys::errno();
     if readable_now(fd) || !read_may_block(fd) {
         crate::sys::set_errno(saved);
         return Ok(());
     }
-    let mut interest = Interest::default();
-    interest.add(shared, fd, true, false);
     let timeout = sys::socket_timeout(fd, sys::SO_RCVTIMEO);
     let result = loop {
-        let ready = wait(shared, call::READ, interest, timeout, &mut |wall| {
-            entry.revents = 0;
-            // SAFETY: as above, with the wait's timeout.
-            unsafe { poll(&mut entry, 1, wall_ms(wall)) }
-        });
-        match (ready, timeout) {
+        match (wait_on_descriptor(shared, fd, sys::POLLIN, timeout), timeout) {
             (0, Some(_)) => break Err(sys::EAGAIN),
             (-1, Some(_)) => break Err(sys::EINTR),
             (-1, None) => match crate::delivery::interrupted_by() {
@@ -374,23 +368,30 @@ pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> Result<(), c
 /// timeout (SO_SNDTIMEO) is simulated time too. `Err(errno)`: the write is to end, with what it
 /// wrote or this errno: EAGAIN when the send timeout passed, EINTR when a signal's handler ran.
 pub(crate) fn await_writable(shared: &'static Shared, fd: c_int) -> Result<(), c_int> {
-    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
-    let mut entry = pollfd { fd, events: crate::sys::POLLOUT, revents: 0 };
-    let mut interest = Interest::default();
-    interest.add(shared, fd, false, true);
     let saved = crate::sys::errno();
     let timeout = sys::socket_timeout(fd, sys::SO_SNDTIMEO);
-    let ready = wait(shared, call::WRITE, interest, timeout, &mut |wall| {
-        entry.revents = 0;
-        // SAFETY: one pollfd of ours, with the wait's timeout.
-        unsafe { poll(&mut entry, 1, wall_ms(wall)) }
-    });
+    let ready = wait_on_descriptor(shared, fd, sys::POLLOUT, timeout);
     crate::sys::set_errno(saved);
     match ready {
         -1 => Err(sys::EINTR),
         0 if timeout.is_some() => Err(sys::EAGAIN),
         _ => Ok(()),
     }
+}
+
+/// One wait on simulated time for `fd` to be readable (POLLIN) or writable (POLLOUT, `events`),
+/// as a poll of it alone would wait: what the wait returned.
+fn wait_on_descriptor(shared: &'static Shared, fd: c_int, events: i16, timeout: Option<u64>) -> c_int {
+    let poll = real!(poll: fn(*mut pollfd, nfds_t, c_int) -> c_int);
+    let mut entry = pollfd { fd, events, revents: 0 };
+    let mut interest = Interest::default();
+    interest.add(shared, fd, events & sys::POLLIN != 0, events & sys::POLLOUT != 0);
+    let what = if events & sys::POLLIN != 0 { call::READ } else { call::WRITE };
+    wait(shared, what, interest, timeout, &mut |wall| {
+        entry.revents = 0;
+        // SAFETY: one pollfd of ours, with the wait's timeout.
+        unsafe { poll(&mut entry, 1, wall_ms(wall)) }
+    })
 }
 
 pub(crate) fn ms_timeout(timeout_ms: c_int) -> Option<u64> {

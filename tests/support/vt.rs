@@ -101,9 +101,15 @@ pub fn compiled_c(dir: &Path, name: &str) -> PathBuf {
 
 /// The C file at `source` (relative to the repository) compiled into `dir`, named as the file.
 pub fn compiled_c_source(dir: &Path, source: &str) -> PathBuf {
-    let name = Path::new(source).file_stem().expect("a file name");
+    let name = Path::new(source).file_stem().expect("a file name").to_str().expect("utf-8 name");
+    compiled_c_as(dir, source, name, &[])
+}
+
+/// The C file at `source` (relative to the repository) compiled into `dir` as `name`, with
+/// `flags` (`-static`) besides.
+pub fn compiled_c_as(dir: &Path, source: &str, name: &str, flags: &[&str]) -> PathBuf {
     let program = dir.join(name);
-    let compiled = Command::new("cc").arg(repo().join(source)).arg("-o").arg(&program).output().expect("run cc");
+    let compiled = Command::new("cc").args(flags).arg(repo().join(source)).arg("-o").arg(&program).output().expect("run cc");
     assert!(compiled.status.success(), "{}", output_text(&compiled));
     program
 }

@@ -153,9 +153,13 @@ impl WaitMask {
         if let Some(slot) = crate::slot::my_slot() {
             slot.sig_blocked.store(masks.program, Ordering::Relaxed);
         }
-        let let_through = pending() & !masks.during;
-        let acted_on = (1..=64).filter(|signo| let_through & (1u64 << (signo - 1)) != 0).any(|signo| !crate::delivery::ignored(signo));
-        if rc == -1 && sys::errno() == sys::EINTR && acted_on {
+        // (Looked at only for a wait a signal ended: the pending set and the actions are
+        // system calls.)
+        let acted_on = || {
+            let let_through = pending() & !masks.during;
+            (1..=64).filter(|signo| let_through & (1u64 << (signo - 1)) != 0).any(|signo| !crate::delivery::ignored(signo))
+        };
+        if rc == -1 && sys::errno() == sys::EINTR && acted_on() {
             let during = masks.during as c_long;
             native::call2(nr::RT_SIGSUSPEND, &during as *const c_long as c_long, 8);
             sys::set_errno(sys::EINTR);
