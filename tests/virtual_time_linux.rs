@@ -159,6 +159,7 @@ read of a pipe written at 40 ms, SIGALRM at 15 ms with SA_RESTART: 1 after 39.99
 pthread_timedjoin_np of a thread ending at 40 ms, 200 ms allowed: 0 after 40.000 ms
 pthread_timedjoin_np of a thread ending at 500 ms, 50 ms allowed: -1 ETIMEDOUT after 50.000 ms
 pthread_clockjoin_np of it then, 1 s allowed: 0 after 450.000 ms
+pthread_timedjoin_np with tv_nsec 1e9 of a thread ending at 30 ms: 0 after 30.000 ms
 semtimedop for 60 ms, nothing posted: -1 EAGAIN after 60.000 ms
 semtimedop for 60 ms, posted at 25 ms: 0 after 25.001 ms
 semop, posted at 25 ms: 0 after 25.001 ms
@@ -210,4 +211,22 @@ fn a_write_to_a_full_pipe_waits_on_simulated_time_for_room() {
 fn a_program_with_its_own_seccomp_filter_gets_its_own_traps() {
     let (_, log) = c_program_repeated("vt-own-seccomp", "own_seccomp", 2.0);
     assert_eq!(log, "getppid under the program's own filter: 4242, trapped with data 7 for call 110\nthen a 10 ms sleep: slept\n");
+}
+
+/// A service's way to end: `pause()` until SIGTERM, whose handler lets it write its last
+/// report and exit 0. The run's SIGTERM came while the thread was in the trapped pause: the
+/// kernel's pause, made after the program's mask was put back, had taken the signal already and
+/// waited for ever, and the controller was killed with SIGKILL, its report lost.
+#[test]
+fn a_controller_that_pauses_until_sigterm_ends_with_its_handler() {
+    let dir = support::scratch_dir("vt-pause-sigterm");
+    let program = compiled_c(&dir, "pause_sigterm");
+    let path = support::vt::scenario(&dir, "pause-sigterm", 1.0, &[program.to_str().expect("utf-8 path")], false);
+    for run in ["a", "b"] {
+        let (output, _) = support::vt::run_virtual(&path, &dir.join(run));
+        assert_eq!(output.status.code(), Some(0), "{}", support::output_text(&output));
+        let log = std::fs::read_to_string(dir.join(run).join("controller.log")).expect("controller.log");
+        assert_eq!(log, "waiting for SIGTERM\nSIGTERM handled, final report written\n");
+        assert_eq!(support::vt::summary(&dir.join(run))["controller_exit_code"], 0, "run {run}");
+    }
 }

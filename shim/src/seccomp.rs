@@ -426,7 +426,10 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         | nr::TKILL
             if !crate::sys::in_shim() =>
         {
-            return crate::signals::trapped(number, a, *sigmask).unwrap_or_else(|| native_as_program(number, a, sigmask));
+            return crate::signals::trapped(number, a, *sigmask).unwrap_or_else(|| match number {
+                nr::PAUSE => pause_as_program(sigmask),
+                _ => native_as_program(number, a, sigmask),
+            });
         }
         _ => {}
     }
@@ -497,6 +500,16 @@ fn own_io_call(number: i64, a: [i64; 6]) -> c_long {
 fn native_as_program(number: i64, a: [i64; 6], sigmask: &u64) -> c_long {
     use_program_mask(sigmask);
     native_call(number, a)
+}
+
+/// The kernel's `pause` (after the run, or for a thread without a slot), made as `sigsuspend`
+/// with the program's mask: the mask and the wait change at once, so that a signal already
+/// pending (the run's SIGTERM, sent while the thread was in the trap) ends the wait. Made as
+/// `pause` after putting the program's mask back, the signal was taken as the mask changed and
+/// the pause then waited for ever (a controller ending on SIGTERM in `pause()` was killed).
+fn pause_as_program(sigmask: &u64) -> c_long {
+    let mask = *sigmask as c_long;
+    native::call2(nr::RT_SIGSUSPEND, &mask as *const c_long as c_long, 8)
 }
 
 /// [`native_as_program`] for the call only: the handler's own mask again afterwards, for the

@@ -226,8 +226,7 @@ pub unsafe extern "C" fn pthread_clockjoin_np(thread: usize, result: *mut *mut c
 }
 
 /// glibc's answers, then the join until `at` on `clock` (NULL: none): EINVAL for a clock other
-/// than CLOCK_MONOTONIC and CLOCK_REALTIME or a deadline that is not a time, ETIMEDOUT once it
-/// has passed.
+/// than CLOCK_MONOTONIC and CLOCK_REALTIME, ETIMEDOUT once the deadline has passed.
 fn timed_join(shared: &'static Shared, thread: usize, result: *mut *mut c_void, clock: clockid_t, at: *const timespec) -> c_int {
     const EINVAL: c_int = 22;
     if clock != sys::CLOCK_MONOTONIC && clock != sys::CLOCK_REALTIME {
@@ -240,10 +239,9 @@ fn timed_join(shared: &'static Shared, thread: usize, result: *mut *mut c_void, 
             // A negative second is a deadline that has passed (glibc's ETIMEDOUT, if the
             // thread still runs).
             Some(at) if at.tv_sec < 0 => 0,
-            Some(at) => match sys::timespec_ns(&at) {
-                Some(at) => crate::time::sim_time_of(shared, clock, at).unwrap_or(0),
-                None => return EINVAL,
-            },
+            // A nanosecond field out of range is no deadline: glibc's wait answers EINVAL, which
+            // its join takes for a spurious wake-up and waits on until the thread ends.
+            Some(at) => sys::timespec_ns(&at).map_or(NEVER, |at| crate::time::sim_time_of(shared, clock, at).unwrap_or(0)),
             // (glibc would fault.)
             None => return EINVAL,
         }

@@ -234,6 +234,13 @@ int main(void) {
     t = now_ms();
     rc = pthread_clockjoin_np(thread, NULL, CLOCK_MONOTONIC, &at);
     say("pthread_clockjoin_np of it then, 1 s allowed", rc ? -1 : 0, (int)rc, t);
+    /* A deadline whose nanoseconds are out of range: glibc joins when the thread ends. */
+    struct helper thirty = {JUST_END, 30, 0, 0, 0};
+    thread = start(&thirty);
+    struct timespec not_a_time = {0, 1000000000};
+    t = now_ms();
+    rc = pthread_timedjoin_np(thread, NULL, &not_a_time);
+    say("pthread_timedjoin_np with tv_nsec 1e9 of a thread ending at 30 ms", rc ? -1 : 0, (int)rc, t);
 
     /* A System V semaphore's timed wait. */
     int semid = semget(IPC_PRIVATE, 1, IPC_CREAT | 0600);
