@@ -7,9 +7,9 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, Parked, Shared, Wait, call, state};
-use crate::block::{active, notify_scheduler};
-use crate::park::{charge, note_call};
-use crate::slot::my_slot;
+use crate::schedule::block::{active, notify_scheduler};
+use crate::schedule::park::{charge, note_call};
+use crate::schedule::slot::my_slot;
 use crate::sys::real;
 
 const WNOHANG: c_int = 1;
@@ -33,11 +33,11 @@ fn blocked_in_wait<T>(options: c_int, child: i64, wait: impl FnOnce() -> T) -> T
         return wait();
     }
     let slot = slot.expect("checked above");
-    crate::park::publish_state(slot, Parked::Blocked, NEVER, Wait::Child(child));
+    crate::schedule::park::publish_state(slot, Parked::Blocked, NEVER, Wait::Child(child));
     notify_scheduler(shared);
     let result = wait();
     slot.wait_over();
-    crate::turn::resume_after_kernel_wake(shared, slot);
+    crate::schedule::turn::resume_after_kernel_wake(shared, slot);
     result
 }
 
@@ -52,7 +52,7 @@ fn check_ended(pid: c_int, status: *const c_int) {
         && let Some(status) = crate::sys::read_from_program(status)
         && status & 0x7f == SIGSYS
     {
-        crate::block::refuse(crate::abi::refused::KILLED_BY_SIGSYS);
+        crate::schedule::block::refuse(crate::abi::refused::KILLED_BY_SIGSYS);
     }
 }
 

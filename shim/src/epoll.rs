@@ -7,7 +7,7 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU64, Ordering};
 
 use crate::abi::call;
-use crate::block::{active, shared};
+use crate::schedule::block::{active, shared};
 use crate::sys::{real, timespec};
 use crate::time::from_ns;
 use crate::wait::{EpollCall, Interest, ms_timeout, wait, wall_ms};
@@ -88,7 +88,7 @@ fn record(epfd: c_int, op: c_int, fd: c_int, event: *const c_void) {
                     entry.edge_at.store(0, Ordering::Relaxed);
                     entry.writable_edge.store(true, Ordering::Relaxed);
                 }
-                None => crate::block::refuse(crate::abi::refused::EPOLL),
+                None => crate::schedule::block::refuse(crate::abi::refused::EPOLL),
             }
         }
         EPOLL_CTL_DEL => {
@@ -217,7 +217,7 @@ fn mask_events(shared: &crate::abi::Shared, epfd: c_int, events: *mut c_void, ro
         let mut flags = unsafe { event.cast::<u32>().read_unaligned() };
         if event_data(event) == port_data {
             let hidden = if edges { EPOLLIN | EPOLLRDNORM | EPOLLOUT | EPOLLWRNORM } else { EPOLLIN | EPOLLRDNORM };
-            if edges || crate::held::hide(shared, flags & (EPOLLIN | EPOLLRDNORM) != 0) {
+            if edges || crate::schedule::held::hide(shared, flags & (EPOLLIN | EPOLLRDNORM) != 0) {
                 flags &= !hidden;
                 // SAFETY: as above.
                 unsafe { event.cast::<u32>().write_unaligned(flags) };
@@ -278,7 +278,7 @@ fn port_edge(shared: &crate::abi::Shared, entry: &Entry) -> u32 {
 /// The edges due now to an edge-triggered registration of the port (see `port_edge`), not
 /// taken, and how far into the port's stream bytes are visible.
 fn edges_due(shared: &crate::abi::Shared, entry: &Entry) -> (u32, u64) {
-    let stream = crate::held::stream_now(shared);
+    let stream = crate::schedule::held::stream_now(shared);
     let wanted = entry.events.load(Ordering::Relaxed);
     let readable = wanted & EPOLLIN != 0 && stream.visible > entry.edge_at.load(Ordering::Relaxed) && stream.unread() > 0;
     let writable = wanted & EPOLLOUT != 0 && entry.writable_edge.load(Ordering::Relaxed);
@@ -333,7 +333,7 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
         return unsafe { next(epfd, events, max, timeout_ms) };
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
-    let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
+    let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
         let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
         // SAFETY: the caller's arguments, with our timeout.
@@ -349,7 +349,7 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
         return unsafe { next(epfd, events, max, timeout_ms, sigmask) };
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
-    let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
+    let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     crate::wait::with_wait_mask(sigmask, || {
         wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
             let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
@@ -372,7 +372,7 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
         Err(errno) => return crate::wait::refused(errno),
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
-    let _seen = crate::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
+    let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     crate::wait::with_wait_mask(sigmask, || {
         wait(shared, call::POLL, interest, asked, &mut |wall| {
             let limit = kernel_timeout(shared, epfd, interest.port_fd, wall).map(from_ns);

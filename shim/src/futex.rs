@@ -20,10 +20,10 @@ use core::ffi::c_long;
 use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, Parked, Shared, Slot, Wait, call, release, state};
-use crate::block::active;
 use crate::native;
-use crate::park::{charge, note_call};
-use crate::slot::my_slot;
+use crate::schedule::block::active;
+use crate::schedule::park::{charge, note_call};
+use crate::schedule::slot::my_slot;
 use crate::sys::{self, nr, timespec};
 use crate::time::{sim_now, sim_time_of, to_ns};
 
@@ -141,7 +141,7 @@ fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, dea
     // still woken at its waker's very instant. The charge may yield (past the horizon) before
     // the word is checked, as a thread preempted on its way into the kernel would.
     charge(shared, header.clock.syscall_ns.load(Ordering::Relaxed));
-    let hand = crate::turn::hand_on(shared, slot);
+    let hand = crate::schedule::turn::hand_on(shared, slot);
     lock(shared);
     let holds = word_holds(args.uaddr, args.val, args.op & FUTEX_PRIVATE_FLAG != 0);
     if holds != 0 {
@@ -159,10 +159,10 @@ fn wait(shared: &'static Shared, slot: &'static Slot, args: &Args, key: Key, dea
     slot.futex_queued.store(1, Ordering::Release);
     // Published blocked under the lock: a waker that takes this thread off the queue finds it
     // blocked and makes it ready, whenever it comes.
-    crate::park::publish_parked(slot, Parked::Blocked, deadline, Wait::Futex { space: key.space });
+    crate::schedule::park::publish_parked(slot, Parked::Blocked, deadline, Wait::Futex { space: key.space });
     unlock(shared);
     hand.finish();
-    let why = crate::park::await_release(shared, slot, Parked::Blocked, deadline);
+    let why = crate::schedule::park::await_release(shared, slot, Parked::Blocked, deadline);
     lock(shared);
     let still_queued = slot.futex_queued.swap(0, Ordering::AcqRel) == 1;
     unlock(shared);
@@ -326,7 +326,7 @@ fn unlock(shared: &Shared) {
 /// The key of the futex at `addr`: process-private unless the call says it may be shared and
 /// the word lies in a shared file mapping (a POSIX semaphore in /dev/shm, say).
 fn key_of(addr: usize, private: bool) -> Key {
-    let own = Key { space: crate::block::pid() as u64, offset: addr as u64 };
+    let own = Key { space: crate::schedule::block::pid() as u64, offset: addr as u64 };
     if private {
         return own;
     }

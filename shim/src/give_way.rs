@@ -12,10 +12,10 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicU64, Ordering};
 
 use crate::abi::{self, GiveWay, Parked, Shared, Slot, Wait};
-use crate::block::active;
-use crate::now::sim_now;
-use crate::park::{park, take_computation};
-use crate::slot::claimed_slot;
+use crate::schedule::block::active;
+use crate::schedule::now::sim_now;
+use crate::schedule::park::{park, take_computation};
+use crate::schedule::slot::claimed_slot;
 use crate::{handlers, native, sys};
 
 /// Install the handler (once the block is mapped, in every followed process). What the
@@ -26,7 +26,7 @@ pub(crate) fn install() -> Result<(), &'static [u8]> {
     let text = crate::program::shim_text().ok_or(b"cannot find the shim's own code in its program headers".as_slice())?;
     SHIM_TEXT[0].store(text.0, Ordering::Relaxed);
     SHIM_TEXT[1].store(text.1, Ordering::Relaxed);
-    let _ = crate::now::real_monotonic_ns();
+    let _ = crate::schedule::now::real_monotonic_ns();
     handlers::keep_give_way(on_give_way as *const () as usize)
 }
 

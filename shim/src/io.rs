@@ -10,12 +10,13 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, Wait, call, release};
-use crate::block::active;
-use crate::held::{stream_now, took};
-use crate::park::{charge, note_call};
+use crate::schedule::block::active;
+use crate::schedule::held::{stream_now, took};
+use crate::schedule::park::park_blocked;
+use crate::schedule::park::{charge, note_call};
 use crate::sys::{iovec, real};
 use crate::time::sim_now;
-use crate::wait::{await_readable, is_port, park_blocked};
+use crate::wait::{await_readable, is_port};
 
 /// The block, if `fd` is the servo port while virtual time runs: one `fstat` a write, for both
 /// the ring and the count.
@@ -185,7 +186,7 @@ fn wait_for_port_bytes(shared: &'static crate::abi::Shared, fd: c_int, len: usiz
 
 /// A non-blocking read of the port found nothing: a spin, as a zero-timeout poll of it.
 fn spun_on_empty_port(shared: &'static crate::abi::Shared) {
-    crate::wait::spin_on_port(shared, sim_now(shared));
+    crate::schedule::park::spin_on_port(shared, sim_now(shared));
 }
 
 #[unsafe(no_mangle)]
@@ -304,8 +305,8 @@ fn flush_port(shared: &'static Shared, fd: c_int, queue: c_int) -> c_int {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn close(fd: c_int) -> c_int {
     // A vfork child shares its parent's memory: what it closes is still open in the parent.
-    let vfork_child = crate::block::pid() != crate::sys::getpid();
-    if let Some(shared) = crate::block::shared().filter(|_| !vfork_child) {
+    let vfork_child = crate::schedule::block::pid() != crate::sys::getpid();
+    if let Some(shared) = crate::schedule::block::shared().filter(|_| !vfork_child) {
         crate::net::forget(shared, fd);
         crate::epoll::forget(fd);
         crate::timerfd::forget(fd);

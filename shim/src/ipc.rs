@@ -17,9 +17,9 @@ use core::ffi::c_long;
 use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, Shared, Wait, call, release};
-use crate::block::active;
 use crate::native;
-use crate::park::{Look, Looked, charge, note_call};
+use crate::schedule::block::active;
+use crate::schedule::park::{Look, Looked, charge, note_call};
 use crate::sys::{self, nr, timespec, timespec_ns};
 use crate::time::{sim_now, sim_time_of};
 
@@ -170,11 +170,11 @@ fn wait_for_kernel(shared: &Shared, deadline: u64, peek: impl Fn() -> bool, atte
         charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
         return Err(release::DEADLINE);
     }
-    let Some(slot) = crate::slot::my_slot() else { return Err(release::ENDING) };
-    let publish = || crate::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
+    let Some(slot) = crate::schedule::slot::my_slot() else { return Err(release::ENDING) };
+    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
     publish();
     let result = loop {
-        match crate::park::wait_looking(shared, slot, &publish, |take| Look::taking_nothing(peek().then_some(()), take)) {
+        match crate::schedule::park::wait_looking(shared, slot, &publish, |take| Look::taking_nothing(peek().then_some(()), take)) {
             Looked::Released(why) => break Err(why),
             Looked::Ended => break Err(release::ENDING),
             Looked::Found(()) => match attempt() {

@@ -17,25 +17,11 @@
 #![allow(clippy::missing_safety_doc)]
 
 pub mod abi;
-mod block;
 mod children;
-#[cfg(target_arch = "x86_64")]
-mod delivery;
-/// Signals are followed with the system calls, on x86_64 only.
-#[cfg(not(target_arch = "x86_64"))]
-mod delivery {
-    pub(crate) fn take_due(_: &crate::abi::Slot) -> bool {
-        false
-    }
-    pub(crate) fn interrupted_by() -> Option<core::ffi::c_int> {
-        None
-    }
-}
 mod epoll;
 mod futex;
 mod give_way;
 mod handlers;
-mod held;
 mod io;
 #[cfg(target_arch = "x86_64")]
 mod ipc;
@@ -43,11 +29,10 @@ mod maps;
 mod marker;
 mod native;
 mod net;
-mod now;
-mod park;
 mod port_ring;
 mod program;
 mod room;
+mod schedule;
 mod seccomp;
 #[cfg(target_arch = "x86_64")]
 mod signals;
@@ -66,7 +51,6 @@ mod signals {
         }
     }
 }
-mod slot;
 mod spawn;
 mod sync;
 mod sys;
@@ -79,7 +63,6 @@ mod tsc;
 mod tsc {
     pub(crate) fn around_exec(_: bool) {}
 }
-mod turn;
 #[cfg(target_arch = "x86_64")]
 mod vdso;
 mod wait;
@@ -109,8 +92,8 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
         }
         return;
     }
-    block::note_pid();
-    if let Err(why) = block::map(path) {
+    schedule::block::note_pid();
+    if let Err(why) = schedule::block::map(path) {
         say_failure(why, b"; the controller runs on the wall clock, which climbsim will report");
         return;
     }
@@ -118,7 +101,7 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
     unsafe {
         let mut key = 0u32;
         if sys::pthread_key_create(&mut key, Some(thread_exited)) == 0 {
-            slot::set_exit_key(key);
+            schedule::slot::set_exit_key(key);
         }
         sys::__register_atfork(None, None, Some(forked_child), core::ptr::null_mut());
         sys::__cxa_atexit(process_exiting, core::ptr::null_mut(), core::ptr::null_mut());
@@ -141,7 +124,7 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
         say_failure(why, b"; the time-stamp counter is the host's");
     }
     // The main thread is followed from the start: before its first call it is already running.
-    slot::my_slot();
+    schedule::slot::my_slot();
 }
 
 /// The vDSO's clocks patched to the shim's, or the vDSO hidden (`program.rs`).
@@ -173,26 +156,26 @@ static INIT: extern "C" fn(c_int, *const *const c_char, *const *const c_char) = 
 
 unsafe extern "C" fn thread_exited(_: *mut c_void) {
     sync::thread_ending();
-    if let Some(slot) = slot::claimed_slot() {
-        slot::exit_slot(slot);
+    if let Some(slot) = schedule::slot::claimed_slot() {
+        schedule::slot::exit_slot(slot);
     }
 }
 
 /// The process is ending (exit or return from main): every thread of it stops with it.
 unsafe extern "C" fn process_exiting(_: *mut c_void) {
-    let Some(shared) = block::shared() else { return };
+    let Some(shared) = schedule::block::shared() else { return };
     let pid = sys::getpid();
     children::wake_waiting_parent(shared, pid, sys::getppid());
     // This thread's own slot last: until then it runs, so climbsim decides nothing on a
     // process half marked (it would move time to the deadline of a thread not yet marked).
-    let own = slot::my_slot();
+    let own = schedule::slot::my_slot();
     for slot in shared.live_slots() {
         if slot.pid.load(Ordering::Relaxed) == pid && slot.state() != state::FREE && !own.is_some_and(|own| core::ptr::eq(own, slot)) {
-            slot::exit_slot(slot);
+            schedule::slot::exit_slot(slot);
         }
     }
     if let Some(own) = own {
-        slot::exit_slot(own);
+        schedule::slot::exit_slot(own);
     }
 }
 
@@ -218,7 +201,7 @@ pub unsafe extern "C" fn _Exit(status: c_int) -> ! {
 fn leaving_without_atexit() {
     // A vfork child shares its parent's memory (this thread's slot is its parent's): its
     // parent goes on as the kernel resumes it; the child says it goes in a slot of its own.
-    if block::pid() == sys::getpid() {
+    if schedule::block::pid() == sys::getpid() {
         // SAFETY: the same callback atexit would have run.
         unsafe { process_exiting(core::ptr::null_mut()) };
     } else {
@@ -230,9 +213,9 @@ fn leaving_without_atexit() {
 /// turn, as a new thread does: its parent runs on until it parks, so that what the two do
 /// (print to one log, say) does not interleave as the host scheduled them.
 unsafe extern "C" fn forked_child() {
-    block::note_pid();
-    slot::forget_slot();
-    turn::forget_charges();
+    schedule::block::note_pid();
+    schedule::slot::forget_slot();
+    schedule::turn::forget_charges();
     // Its slot, claimed now, waits for its turn there.
-    slot::my_slot();
+    schedule::slot::my_slot();
 }

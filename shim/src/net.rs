@@ -6,8 +6,8 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{Conn, Shared, call};
-use crate::block::active;
-use crate::park::note_call;
+use crate::schedule::block::active;
+use crate::schedule::park::note_call;
 use crate::sys::{self, real};
 
 const AF_INET: u16 = 2;
@@ -17,7 +17,7 @@ pub(crate) fn conn_of(shared: &'static Shared, fd: c_int) -> Option<(usize, &'st
     if shared.header.sensor_port.load(Ordering::Relaxed) == 0 {
         return None;
     }
-    let pid = crate::block::pid();
+    let pid = crate::schedule::block::pid();
     shared.conns.iter().enumerate().find(|(_, c)| c.client_port.load(Ordering::Acquire) != 0 && c.fd.load(Ordering::Relaxed) == fd && c.pid.load(Ordering::Relaxed) == pid)
 }
 
@@ -58,13 +58,13 @@ fn follow_connection(shared: &'static Shared, fd: c_int, to: *const SockaddrIn) 
             conn.read.store(0, Ordering::Relaxed);
             conn.resp_written.store(0, Ordering::Relaxed);
             conn.resp_taken.store(0, Ordering::Relaxed);
-            conn.pid.store(crate::block::pid(), Ordering::Relaxed);
+            conn.pid.store(crate::schedule::block::pid(), Ordering::Relaxed);
             conn.fd.store(fd, Ordering::Relaxed);
             conn.client_port.store(port, Ordering::Release);
             return;
         }
     }
-    crate::block::refuse(crate::abi::refused::CONNS);
+    crate::schedule::block::refuse(crate::abi::refused::CONNS);
 }
 
 /// The descriptor is closed (or reused): its connection is no longer followed.

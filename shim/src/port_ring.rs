@@ -16,8 +16,8 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{PORT_TX_RING, Parked, Shared, Wait, call, mode};
 use crate::native;
-use crate::park::{charge, note_call, park};
-use crate::slot::my_slot;
+use crate::schedule::park::{charge, note_call, park};
+use crate::schedule::slot::my_slot;
 use crate::sys::{iovec, nr};
 use crate::time::sim_now;
 
@@ -129,7 +129,7 @@ impl Writer {
         }
         park(self.shared, Parked::Yielded, sim_now(self.shared), Wait::Time);
         self.yielded = true;
-        self.shared.header.mode.load(Ordering::SeqCst) == mode::VIRTUAL && crate::block::active().is_some()
+        self.shared.header.mode.load(Ordering::SeqCst) == mode::VIRTUAL && crate::schedule::block::active().is_some()
     }
 }
 

@@ -7,8 +7,8 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::Shared;
-use crate::block::active;
 use crate::net::count_sent;
+use crate::schedule::block::active;
 use crate::sys::{self, real};
 
 /// A blocking write of `total` bytes to `fd`, a pipe or a socket (`kind`), made without ever

@@ -313,8 +313,8 @@ unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut 
         return;
     }
     // A thread a trapped clone created claims its slot at its first trapped call.
-    if !crate::sys::in_shim() && crate::slot::claimed_slot().is_none() && crate::block::shared().is_some_and(|s| s.header.raw_clones.load(Ordering::Acquire) > 0) {
-        crate::slot::my_slot();
+    if !crate::sys::in_shim() && crate::schedule::slot::claimed_slot().is_none() && crate::schedule::block::shared().is_some_and(|s| s.header.raw_clones.load(Ordering::Acquire) > 0) {
+        crate::schedule::slot::my_slot();
     }
     let outer = crate::handlers::entered_trap(*sigmask);
     let result = dispatch(number, args, sigmask);
@@ -342,19 +342,19 @@ unsafe fn clone_thread(gregs: *mut i64, info: *mut c_void, a: [i64; 6]) {
         // A raw fork's child is a process of its own: it notes its id before it runs on (libc's
         // fork does again, in its handler).
         if rc == 0 && flags & CLONE_VM == 0 {
-            crate::block::note_pid();
+            crate::schedule::block::note_pid();
         }
         // SAFETY: the return value goes where the caller's `syscall` leaves it.
         unsafe { *gregs.add(context::RAX) = rc };
         return;
     }
     let clear_tid = if flags & CLONE_CHILD_CLEARTID != 0 { a[3] as usize } else { 0 };
-    if crate::slot::creating_a_thread() {
+    if crate::schedule::slot::creating_a_thread() {
         // The shim's pthread_create reserved the thread's slot: `clear_tid`, the word the
         // thread's end clears, is noted for its joins (see `sync::learn_clear_tid`).
         crate::sync::note_clone_clear_tid(clear_tid);
     } else {
-        crate::slot::reserve_raw_clone(if flags & CLONE_SETTLS != 0 { tls as u64 } else { 0 });
+        crate::schedule::slot::reserve_raw_clone(if flags & CLONE_SETTLS != 0 { tls as u64 } else { 0 });
     }
     let child_stack = (stack - 8) as *mut i64;
     let parent_words = info.cast::<i64>();
@@ -449,14 +449,14 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         nr::TIMES => crate::time::answer_times(a[0] as *mut c_void),
         nr::NANOSLEEP => crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec, a[1] as *mut sys::timespec).map(|e| -c_long::from(e)),
         nr::CLOCK_NANOSLEEP => crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec, a[3] as *mut sys::timespec).map(|e| -c_long::from(e)),
-        nr::SCHED_YIELD => crate::block::active().map(|shared| {
-            crate::park::yield_turn(shared);
+        nr::SCHED_YIELD => crate::schedule::block::active().map(|shared| {
+            crate::schedule::park::yield_turn(shared);
             0
         }),
         // Its rings are shared memory that the kernel reads and writes with no system call to
         // follow: refused (the run fails saying so) before any I/O goes through it.
-        nr::IO_URING_SETUP => crate::block::active().map(|_| {
-            crate::block::refuse(crate::abi::refused::IO_URING);
+        nr::IO_URING_SETUP => crate::schedule::block::active().map(|_| {
+            crate::schedule::block::refuse(crate::abi::refused::IO_URING);
             -ENOSYS
         }),
         _ => None,

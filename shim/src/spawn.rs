@@ -8,8 +8,8 @@ use core::ffi::{c_char, c_int, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{Shared, Slot, state};
-use crate::block::shared;
 use crate::native;
+use crate::schedule::block::shared;
 use crate::sys::{self, real};
 
 /// Reserve a free slot for task `tid` of a program to come (`tid` 0: a child of `parent`
@@ -32,7 +32,7 @@ fn reserve(tid: i32, parent: i32) -> Option<&'static Slot> {
             return None;
         }
     }
-    let (_, slot) = crate::slot::take_free_slot(shared, Slot::reserve_unused)?;
+    let (_, slot) = crate::schedule::slot::take_free_slot(shared, Slot::reserve_unused)?;
     slot.pid.store(if tid == 0 { parent } else { tid }, Ordering::Relaxed);
     // The program to come is a child of `parent` (fork, posix_spawn), or of this process's
     // parent (an exec: the same process).
@@ -47,7 +47,7 @@ fn unreserve(slot: Option<&'static Slot>) {
         && slot.unreserve()
         && let Some(shared) = shared()
     {
-        crate::block::notify_scheduler(shared);
+        crate::schedule::block::notify_scheduler(shared);
     }
 }
 
@@ -129,7 +129,7 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
 /// process's), which has none of its own (a vfork child runs on its parent's), to say that it
 /// leaves.
 fn slot_of_its_own(shared: &Shared, tid: i32, pid: i32, parent: i32) -> Option<&Slot> {
-    let (_, slot) = crate::slot::take_free_slot(shared, Slot::reserve_unused)?;
+    let (_, slot) = crate::schedule::slot::take_free_slot(shared, Slot::reserve_unused)?;
     slot.parent.store(parent, Ordering::Relaxed);
     slot.pid.store(pid, Ordering::Relaxed);
     slot.tid.store(tid, Ordering::Relaxed);
@@ -140,9 +140,9 @@ fn slot_of_its_own(shared: &Shared, tid: i32, pid: i32, parent: i32) -> Option<&
 /// until it is gone, or its exec over, before it asks the waiters on the real world to look.
 fn say_left(shared: &Shared, slot: &Slot, marker: c_int) {
     slot.exec_marker_fd.store(marker, Ordering::Relaxed);
-    slot.exited_ns.store(crate::now::sim_now(shared), Ordering::Relaxed);
+    slot.exited_ns.store(crate::schedule::now::sim_now(shared), Ordering::Relaxed);
     slot.exit();
-    crate::block::notify_scheduler(shared);
+    crate::schedule::block::notify_scheduler(shared);
 }
 
 /// A vfork child ends (`_exit`, after an exec that failed): its parent, which the kernel lets
@@ -151,7 +151,7 @@ fn say_left(shared: &Shared, slot: &Slot, marker: c_int) {
 /// as the child becomes a zombie. The child says it is going away in a slot of its own, and
 /// climbsim waits until it has gone; so does its parent's waitpid for it (see `children.rs`).
 pub(crate) fn vfork_child_exits() {
-    if let Some(shared) = crate::block::active()
+    if let Some(shared) = crate::schedule::block::active()
         && let Some(slot) = slot_of_its_own(shared, sys::gettid(), sys::getpid(), sys::getppid())
     {
         say_left(shared, slot, 0);
@@ -226,7 +226,7 @@ pub unsafe extern "C" fn fexecve(fd: c_int, argv: *const *const c_char, envp: *c
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn fork() -> c_int {
     let next = real!(fork: fn() -> c_int);
-    let reserved = reserve(0, crate::block::pid());
+    let reserved = reserve(0, crate::schedule::block::pid());
     // SAFETY: libc's fork; in the child the atfork handler claims the reserved slot.
     let child = unsafe { next() };
     match reserved {

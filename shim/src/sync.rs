@@ -13,9 +13,9 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 
 use crate::abi::{NEVER, Shared, Wait, call, release, state};
-use crate::block::{active, pid};
-use crate::park::{note_call, reset_computation};
-use crate::slot::my_slot;
+use crate::schedule::block::{active, pid};
+use crate::schedule::park::{note_call, reset_computation};
+use crate::schedule::slot::my_slot;
 use crate::sys::{self, clockid_t, real, timespec};
 use crate::time::sim_now;
 
@@ -65,7 +65,7 @@ fn wait_cleared(shared: &Shared, word: &AtomicU32, until: &timespec) -> bool {
     let deadline = crate::time::to_ns(until);
     let now = crate::time::real_monotonic_ns();
     let spin_until = now.saturating_add(shared.header.spin.park_spin_ns.load(Ordering::Relaxed));
-    let mut spin = crate::now::SpinLimit::until(spin_until.min(deadline), now);
+    let mut spin = crate::schedule::now::SpinLimit::until(spin_until.min(deadline), now);
     loop {
         let tid = word.load(Ordering::Acquire);
         if tid == 0 {
@@ -102,7 +102,7 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         // they are.)
         return slice(&real_deadline_after(0));
     }
-    let publish = || crate::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Peer(addr as u64));
+    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Peer(addr as u64));
     shared.header.peer_waiters.fetch_add(1, Ordering::AcqRel);
     publish();
     let (mut told, mut held) = (false, None);
@@ -114,7 +114,7 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
                 release::ENDING => break slice_until(shared, deadline, slice),
                 // A signal's handler runs (the thread sends it to itself); the wait goes on.
                 release::SIGNAL => {
-                    crate::delivery::take_due(slot);
+                    crate::schedule::delivery::take_due(slot);
                     publish();
                     continue;
                 }
@@ -150,12 +150,12 @@ fn peer_wait(shared: &Shared, addr: usize, deadline: u64, slice: &mut dyn FnMut(
         // A look whenever climbsim asks (threads ran: the one joined may have ended), and one
         // every slice of wall time.
         // (A look that finds the thread ended has joined it.)
-        let look = crate::park::look_at_kernel(shared, slot, SLICE_NS, &mut told, &mut held, |_| match slice(&real_deadline_after(0)) {
-            ETIMEDOUT => crate::park::Look::Nothing,
-            rc => crate::park::Look::Took(rc),
+        let look = crate::schedule::park::look_at_kernel(shared, slot, SLICE_NS, &mut told, &mut held, |_| match slice(&real_deadline_after(0)) {
+            ETIMEDOUT => crate::schedule::park::Look::Nothing,
+            rc => crate::schedule::park::Look::Took(rc),
         });
         if let Some(rc) = look {
-            crate::turn::resume_after_kernel_wake(shared, slot);
+            crate::schedule::turn::resume_after_kernel_wake(shared, slot);
             break rc;
         }
     };
@@ -280,7 +280,7 @@ struct Start {
 unsafe extern "C" fn trampoline(start: *mut c_void) -> *mut c_void {
     // SAFETY: the Box pthread_create leaked for this thread.
     let start = unsafe { Box::from_raw(start.cast::<Start>()) };
-    crate::slot::claim_reserved(start.slot);
+    crate::schedule::slot::claim_reserved(start.slot);
     // SAFETY: the program's own start routine and argument.
     unsafe { (start.routine)(start.arg) }
 }
@@ -294,13 +294,13 @@ pub(crate) fn thread_ending() {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn pthread_create(thread: *mut usize, attr: *const c_void, routine: unsafe extern "C" fn(*mut c_void) -> *mut c_void, arg: *mut c_void) -> c_int {
     let next = real!(pthread_create: fn(*mut usize, *const c_void, unsafe extern "C" fn(*mut c_void) -> *mut c_void, *mut c_void) -> c_int);
-    let Some(slot) = active().and_then(|_| crate::slot::reserve_thread_slot()) else {
+    let Some(slot) = active().and_then(|_| crate::schedule::slot::reserve_thread_slot()) else {
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(thread, attr, routine, arg) };
     };
     let start = Box::into_raw(Box::new(Start { slot, routine, arg }));
     // SAFETY: our trampoline, with the start it frees.
-    let rc = crate::slot::creating_thread(|| unsafe { next(thread, attr, trampoline, start.cast()) });
+    let rc = crate::schedule::slot::creating_thread(|| unsafe { next(thread, attr, trampoline, start.cast()) });
     if rc == 0 && CLEAR_TID_OFFSET.load(Ordering::Relaxed) == 0 {
         // SAFETY: the real pthread_create succeeded and wrote the new thread's id there.
         learn_clear_tid(unsafe { *thread });
@@ -308,7 +308,7 @@ pub unsafe extern "C" fn pthread_create(thread: *mut usize, attr: *const c_void,
     if rc != 0 {
         // SAFETY: not handed to any thread.
         drop(unsafe { Box::from_raw(start) });
-        crate::slot::unreserve_slot(slot);
+        crate::schedule::slot::unreserve_slot(slot);
     }
     rc
 }

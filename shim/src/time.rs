@@ -8,9 +8,9 @@ use core::ffi::{c_int, c_uint, c_void};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{Parked, Shared, Wait, call, release};
-use crate::block::{active, shared};
-pub(crate) use crate::now::{clock_at, from_ns, real_monotonic_ns, sim_now, sim_time_of, to_ns};
-use crate::park::{charge, note_call, park};
+use crate::schedule::block::{active, shared};
+pub(crate) use crate::schedule::now::{clock_at, from_ns, real_monotonic_ns, sim_now, sim_time_of, to_ns};
+use crate::schedule::park::{charge, note_call, park};
 use crate::sys::{self, clockid_t, real, time_t, timespec, timeval};
 
 /// A clock read: charged, then answered from the block (when the shim answers this clock).

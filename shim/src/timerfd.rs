@@ -7,8 +7,8 @@ use core::ffi::{c_int, c_void};
 use core::sync::atomic::{AtomicBool, AtomicI32, AtomicPtr, AtomicU64, Ordering};
 
 use crate::abi::{NEVER, Parked, Shared, Wait, release};
-use crate::block::active;
-use crate::park::{charge, note_call, park};
+use crate::schedule::block::active;
+use crate::schedule::park::{charge, note_call, park};
 use crate::sys::{real, timespec};
 use crate::time::{clock_at, from_ns, sim_now, sim_time_of, to_ns};
 
@@ -124,7 +124,7 @@ pub unsafe extern "C" fn timerfd_create(clock: c_int, flags: c_int) -> c_int {
                 timer.shown.store(false, Ordering::Relaxed);
                 timer.followed.store(true, Ordering::Release);
             }
-            None => crate::block::refuse(crate::abi::refused::TIMERFDS),
+            None => crate::schedule::block::refuse(crate::abi::refused::TIMERFDS),
         }
     }
     fd

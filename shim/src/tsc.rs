@@ -56,9 +56,9 @@ pub(crate) fn around_exec(before: bool) {
 
 /// The counter: the simulated monotonic clock in nanoseconds (the host's, when no run is on).
 fn counter() -> u64 {
-    match crate::block::active() {
-        Some(shared) => crate::now::clock_at(shared, crate::sys::CLOCK_MONOTONIC, crate::now::sim_now(shared)).unwrap_or(0),
-        None => crate::now::real_monotonic_ns(),
+    match crate::schedule::block::active() {
+        Some(shared) => crate::schedule::now::clock_at(shared, crate::sys::CLOCK_MONOTONIC, crate::schedule::now::sim_now(shared)).unwrap_or(0),
+        None => crate::schedule::now::real_monotonic_ns(),
     }
 }
 

@@ -12,19 +12,16 @@
 use core::ffi::c_int;
 use core::sync::atomic::Ordering;
 
-use crate::abi::{self, Parked, Shared, Wait, call, release};
-use crate::block::active;
-use crate::park::Looked;
-use crate::park::{charge, note_call, park};
-use crate::slot::my_slot;
+use crate::abi::{self, Shared, Wait, call, release};
+use crate::schedule::block::active;
+use crate::schedule::park::Looked;
+use crate::schedule::park::{charge, note_call, park_blocked, spin_on_port};
+use crate::schedule::slot::my_slot;
 use crate::sys::{self, fd_set, nfds_t, pollfd, program_timespec, program_timeval, real, timespec, timeval};
 use crate::time::{from_ns, sim_now};
 
 /// How long a timer set to fire at once may take to show on its descriptor (wall time).
 const TIMER_SHOWN_WITHIN_NS: u64 = 10_000_000;
-
-/// The longest jump of a spin on the port while a reply is due on it.
-const REPLY_JUMP_NS: u64 = 1_000_000;
 
 /// What a wait waits on.
 #[derive(Default, Clone, Copy)]
@@ -118,7 +115,7 @@ impl Timers {
                 *free = fd;
                 self.count += 1;
             }
-            None => crate::block::refuse(abi::refused::TIMERFDS),
+            None => crate::schedule::block::refuse(abi::refused::TIMERFDS),
         }
     }
 
@@ -153,11 +150,11 @@ type RealWait<'a> = &'a mut dyn FnMut(Option<u64>) -> c_int;
 
 /// One wait of the poll family on simulated time (`timeout_ns`: `None` waits forever).
 pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeout_ns: Option<u64>, real_wait: RealWait<'_>) -> c_int {
+    // A look at the kernel that does not wait. A timer that expired in simulated time fires for
+    // real first: the kernel shows it within microseconds (the guard only covers a slow one).
+    let look_now = |real_wait: RealWait<'_>| real_wait(Some(if interest.show_expired_timers(shared) { TIMER_SHOWN_WITHIN_NS } else { 0 }));
     note_call(shared, what);
-    // A timer that expired in simulated time fires for real now: the kernel shows it within
-    // microseconds (the guard only covers a slow one).
-    let look = |shown: bool| if shown { Some(TIMER_SHOWN_WITHIN_NS) } else { Some(0) };
-    let ready = real_wait(look(interest.show_expired_timers(shared)));
+    let ready = look_now(real_wait);
     if ready != 0 {
         charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
         return ready;
@@ -165,25 +162,9 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     let now = sim_now(shared);
     let asked = timeout_ns.map_or(crate::abi::NEVER, |t| now.saturating_add(t));
     let deadline = asked.min(interest.timer_deadline());
-    if !interest.timers.fds().is_empty() && deadline < asked {
-        // Woken by a timer's expiry (or sooner): its descriptor is then ready.
-        let parked_on = interest.data();
-        if interest.other {
-            let rc = wait_on_real_world(shared, deadline, interest, real_wait);
-            if rc != 0 {
-                return rc;
-            }
-        } else {
-            match park_blocked(shared, deadline, parked_on) {
-                release::DEADLINE => {}
-                release::SIGNAL => return interrupted(),
-                release::ENDING => return real_wait(rest_on_the_wall(shared, deadline)),
-                _ => return real_wait(Some(1_000_000_000)),
-            }
-        }
-        return real_wait(look(interest.show_expired_timers(shared)));
-    }
-    if deadline <= now {
+    // Ended by a timer's expiry (or sooner): its descriptor is then ready.
+    let timer_first = !interest.timers.fds().is_empty() && deadline < asked;
+    if deadline <= now && !timer_first {
         if interest.port {
             spin_on_port(shared, now);
             return real_wait(Some(0));
@@ -192,22 +173,25 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
         return 0;
     }
     if interest.other {
-        return wait_on_real_world(shared, deadline, interest, real_wait);
+        let ready = wait_on_real_world(shared, deadline, interest, real_wait);
+        return if ready == 0 && timer_first { look_now(real_wait) } else { ready };
     }
-    match park_blocked(shared, deadline, interest.data()) {
+    match (park_blocked(shared, deadline, interest.data()), timer_first) {
+        (release::DEADLINE, true) => look_now(real_wait),
+        (release::SIGNAL, _) => interrupted(),
+        (release::ENDING, _) => real_wait(rest_on_the_wall(deadline, sim_now(shared))),
         // Climbsim made the bytes visible before it released us; the guard only covers a kernel
-        // that is slow to show them.
-        release::DATA => real_wait(Some(1_000_000_000)),
-        release::ENDING => real_wait(rest_on_the_wall(shared, deadline)),
-        release::SIGNAL => interrupted(),
+        // that is slow to show them (or the timer's).
+        (release::DATA, _) | (_, true) => real_wait(Some(1_000_000_000)),
         _ => real_wait(Some(0)),
     }
 }
 
-/// What is left of a wait until `deadline` once the run has ended, as the kernel's timeout:
-/// none for a wait without one (`NEVER`), which must not come back empty-handed.
-fn rest_on_the_wall(shared: &Shared, deadline: u64) -> Option<u64> {
-    (deadline != crate::abi::NEVER).then(|| deadline.saturating_sub(sim_now(shared)))
+/// What is left of a wait until `deadline` once the run has ended, simulated time reading `now`,
+/// as the kernel's timeout: none for a wait without one (`NEVER`), which must not come back
+/// empty-handed.
+fn rest_on_the_wall(deadline: u64, now: u64) -> Option<u64> {
+    (deadline != crate::abi::NEVER).then(|| deadline.saturating_sub(now))
 }
 
 /// A wait of the poll family that a signal interrupted (its handler has run): EINTR, as the
@@ -227,32 +211,6 @@ pub(crate) fn with_wait_mask(sigmask: *const core::ffi::c_void, wait: impl FnOnc
     mask.leave(rc)
 }
 
-/// Block until `deadline` or data on what `wait` names (see `park`).
-pub(crate) fn park_blocked(shared: &'static Shared, deadline: u64, wait: Wait) -> u32 {
-    if wait.port() {
-        crate::held::bound_horizon(shared);
-    }
-    park(shared, Parked::Blocked, deadline, wait)
-}
-
-/// A look at the port that found nothing, at simulated time `now`: time goes on to the next
-/// byte due on it.
-pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
-    // Pyserial's select also watches its own abort pipe; the C++ SDK reads the port without
-    // blocking. On to the next byte due on the port, at most 1 ms at a time; with none due (an
-    // absent servo), by the cap. A timeout the program checks between its looks is so overshot
-    // by at most the cap, or 1 ms while a reply is on its way. Within the horizon the thread
-    // moves the clock itself; a reply due now, or anything beyond, is climbsim's.
-    // Replies climbsim wrote ahead show at their instants without it: within the horizon the
-    // thread moves on to the next itself.
-    let held_due = crate::held::stream_at(shared, now).next_due;
-    let next_due = shared.header.port.next_due_ns.load(Ordering::Acquire).min(held_due);
-    let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.clock.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
-    if target <= now || !crate::park::advance_within_horizon(shared, now, target) {
-        park(shared, Parked::Yielded, target.max(now), Wait::Spin);
-    }
-}
-
 /// A wait that includes descriptors climbsim does not model (a pipe, an eventfd, a socket of
 /// its own): blocked (in simulated time) until one is ready or climbsim releases the thread.
 /// The kernel is asked without waiting, at climbsim's request and every millisecond of wall
@@ -261,11 +219,11 @@ pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
 /// another followed thread (tokio's eventfd, asyncio's self-pipe, a child's output) wakes this
 /// one at the instant it was made, not whenever the host got round to it.
 fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
-    let Some(slot) = my_slot() else { return real_wait(rest_on_the_wall(shared, deadline)) };
-    let publish = || crate::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: interest.port, conns: interest.conns });
+    let Some(slot) = my_slot() else { return real_wait(rest_on_the_wall(deadline, sim_now(shared))) };
+    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: interest.port, conns: interest.conns });
     publish();
     loop {
-        let looked = crate::park::wait_looking(shared, slot, &publish, |take| {
+        let looked = crate::schedule::park::wait_looking(shared, slot, &publish, |take| {
             if let (Some(call), false) = (interest.epoll, take) {
                 // A peek (see `look_at_kernel`): an epoll instance is readable while events
                 // wait in it, and they stay there. Not while the port it watches has bytes in
@@ -275,22 +233,22 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
                 // by its own look or by climbsim's release as the two raced, and the schedule
                 // would depend on the host (docs/performance-virtual-time.md measured it).
                 let port_bytes_in_kernel = interest.port && {
-                    let stream = crate::held::stream_now(shared);
+                    let stream = crate::schedule::held::stream_now(shared);
                     stream.written > stream.taken
                 };
-                return if !port_bytes_in_kernel && readable_now(call.epfd) { crate::park::Look::Peeked } else { crate::park::Look::Nothing };
+                return if !port_bytes_in_kernel && readable_now(call.epfd) { crate::schedule::park::Look::Peeked } else { crate::schedule::park::Look::Nothing };
             }
             let ready = real_wait(Some(0));
             // The port masked as empty (bytes not visible yet) costs nothing here: the kernel
             // is never waited in.
-            crate::held::take_masked();
-            crate::park::Look::taking_nothing((ready != 0).then_some(ready), take)
+            crate::schedule::held::take_masked();
+            crate::schedule::park::Look::taking_nothing((ready != 0).then_some(ready), take)
         });
         let ready = match looked {
             Looked::Released(release::SIGNAL) => return interrupted(),
             // Let go as the run ended: the rest of the wait on the wall clock (a wait with no
             // timeout that returned nothing would break its caller: libuv asserts on it).
-            Looked::Released(release::ENDING) | Looked::Ended => return real_wait(rest_on_the_wall(shared, deadline)),
+            Looked::Released(release::ENDING) | Looked::Ended => return real_wait(rest_on_the_wall(deadline, sim_now(shared))),
             Looked::Released(why) => return real_wait(Some(if why == release::DATA { 1_000_000_000 } else { 0 })),
             Looked::Found(ready) => ready,
         };
@@ -303,8 +261,8 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             Some(call) if ready > 0 => (call.collect_more)(shared, call, ready, interest.port_fd),
             _ => real_wait(Some(0)),
         };
-        crate::held::take_masked();
-        if ready != 0 || crate::block::active().is_none() {
+        crate::schedule::held::take_masked();
+        if ready != 0 || crate::schedule::block::active().is_none() {
             return ready;
         }
         // Taken by a thread that ran first: wait on.
@@ -350,7 +308,7 @@ pub(crate) fn await_readable(shared: &'static Shared, fd: c_int) -> Result<(), c
         match (wait_on_descriptor(shared, fd, sys::POLLIN, timeout), timeout) {
             (0, Some(_)) => break Err(sys::EAGAIN),
             (-1, Some(_)) => break Err(sys::EINTR),
-            (-1, None) => match crate::delivery::interrupted_by() {
+            (-1, None) => match crate::schedule::delivery::interrupted_by() {
                 Some(signo) if !crate::handlers::restarts(signo) => break Err(sys::EINTR),
                 // Restarted (or a signal the kernel raised, whose handler is not known here).
                 _ => {}
@@ -448,7 +406,7 @@ pub unsafe extern "C" fn poll(fds: *mut pollfd, count: nfds_t, timeout_ms: c_int
         Err(errno) => return refused(errno),
     };
     // SAFETY: the caller's arguments, with our timeout.
-    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| crate::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, interest.port_fd))
+    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, interest.port_fd))
 }
 
 #[unsafe(no_mangle)]
@@ -472,7 +430,7 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
             let limit = wall.map(from_ns);
             let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
             // SAFETY: the caller's arguments, with our timeout.
-            crate::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, interest.port_fd)
+            crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, interest.port_fd)
         })
     })
 }
@@ -554,7 +512,7 @@ pub unsafe extern "C" fn select(count: c_int, read: *mut fd_set, write: *mut fd_
         let mut limit = wall.map(|ns| timeval { tv_sec: (ns / 1_000_000_000) as i64, tv_usec: (ns % 1_000_000_000).div_ceil(1000) as i64 });
         let limit_ptr = limit.as_mut().map_or(core::ptr::null_mut(), |t| t as *mut timeval);
         // SAFETY: the caller's sets, with our timeout.
-        crate::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr) }, interest.port_fd)
+        crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr) }, interest.port_fd)
     });
     if let Some(asked) = asked {
         // Linux reports the time left (in whole microseconds, rounded down), whatever ended the
@@ -584,7 +542,7 @@ pub unsafe extern "C" fn pselect(count: c_int, read: *mut fd_set, write: *mut fd
             let limit = wall.map(from_ns);
             let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
             // SAFETY: the caller's sets, with our timeout.
-            crate::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, interest.port_fd)
+            crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, interest.port_fd)
         })
     })
 }

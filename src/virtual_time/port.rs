@@ -6,7 +6,7 @@
 //! (`abi::Shared::port_tx_ring`), the rest comes through the pty; climbsim counts what it has read
 //! of both, and time waits until it has read all the shim counted.
 //!
-//! Replies written ahead of their time (the shim's side: `shim/src/held.rs`): under virtual time
+//! Replies written ahead of their time (the shim's side: `shim/src/schedule/held.rs`): under virtual time
 //! the pty session writes all the replies of a transaction at once, when it handles the request,
 //! and marks each run of bytes with the simulated instant it arrives on the modelled wire
 //! ([`PortLedger::hold_bytes`]). The shim hides every byte until its instant. One write and no

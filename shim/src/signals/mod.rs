@@ -32,7 +32,7 @@ const EINVAL: c_long = 22;
 /// The program changed its mask (a trapped sigprocmask): climbsim sees it in the slot.
 pub(crate) fn mask_changed(mask: u64) {
     crate::handlers::set_trap_mask(mask);
-    if let Some(slot) = crate::slot::claimed_slot() {
+    if let Some(slot) = crate::schedule::slot::claimed_slot() {
         slot.sig_blocked.store(mask, Ordering::Relaxed);
     }
 }
@@ -40,7 +40,7 @@ pub(crate) fn mask_changed(mask: u64) {
 /// A trapped call of this module's families, on simulated time; None: the kernel's (the run
 /// is over, a clock or timer climbsim does not follow), with the program's own mask.
 pub(crate) fn trapped(number: i64, a: [i64; 6], program_mask: u64) -> Option<c_long> {
-    let shared = crate::block::active()?;
+    let shared = crate::schedule::block::active()?;
     match number {
         nr::ALARM => Some(timers::alarm(shared, a[0] as u32)),
         nr::SETITIMER if a[0] == ITIMER_REAL => Some(timers::setitimer(shared, a[1] as *const [sys::timeval; 2], a[2] as *mut [sys::timeval; 2])),
@@ -64,8 +64,8 @@ pub(crate) fn trapped(number: i64, a: [i64; 6], program_mask: u64) -> Option<c_l
 }
 
 fn charged_call(shared: &Shared, what: u32) {
-    crate::park::note_call(shared, what);
-    crate::park::charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
+    crate::schedule::park::note_call(shared, what);
+    crate::schedule::park::charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
 }
 
 /// Take a free timer (or one whose process has gone), busy for its process to fill in.
@@ -80,11 +80,11 @@ fn take_timer(shared: &Shared) -> Option<(usize, &SigTimer)> {
             timer.deliver_tid.store(0, Ordering::Relaxed);
             timer.deadline_ns.store(NEVER, Ordering::Relaxed);
             timer.interval_ns.store(0, Ordering::Relaxed);
-            timer.pid.store(crate::block::pid(), Ordering::Relaxed);
+            timer.pid.store(crate::schedule::block::pid(), Ordering::Relaxed);
             return Some((index, timer));
         }
     }
-    crate::block::refuse(crate::abi::refused::SIG_TIMERS);
+    crate::schedule::block::refuse(crate::abi::refused::SIG_TIMERS);
     None
 }
 
@@ -114,7 +114,7 @@ fn send_followed(shared: &Shared, pid: i32, tid: i32, signo: c_int) -> Option<c_
     }
     charged_call(shared, call::TIMER);
     let (_, sent) = take_timer(shared)?;
-    let sender = (crate::block::pid() as u32 as u64) | (native::call0(nr::GETUID) as u32 as u64) << 32;
+    let sender = (crate::schedule::block::pid() as u32 as u64) | (native::call0(nr::GETUID) as u32 as u64) << 32;
     sent.kind.store(timer_kind::SENT, Ordering::Relaxed);
     sent.pid.store(pid, Ordering::Relaxed);
     sent.tid.store(tid, Ordering::Relaxed);
@@ -127,7 +127,7 @@ fn send_followed(shared: &Shared, pid: i32, tid: i32, signo: c_int) -> Option<c_
     // Parked where the shim waits: ready, with the signal for its reason (a thread in the
     // kernel's waitpid takes it when it parks next).
     if !taker.in_waitpid() && taker.make_ready(Some(release::SIGNAL)) {
-        crate::block::notify_scheduler(shared);
+        crate::schedule::block::notify_scheduler(shared);
     }
     Some(0)
 }

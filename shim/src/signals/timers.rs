@@ -5,7 +5,7 @@ use core::ffi::{c_int, c_long};
 use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, SIG_TIMERS, Shared, SigTimer, call, timer_kind, timer_state};
-use crate::now::{clock_at, from_ns, sim_now, sim_time_of};
+use crate::schedule::now::{clock_at, from_ns, sim_now, sim_time_of};
 use crate::sys::{self, timespec, timespec_ns, timeval, timeval_ns};
 
 use super::{EAGAIN, EINVAL, charged_call, take_timer};
@@ -15,7 +15,7 @@ const SIGEV_SIGNAL: c_int = 0;
 const SIGEV_NONE: c_int = 1;
 const SIGEV_THREAD_ID: c_int = 4;
 /// The timer ids handed out (see `delivery::TIMER_ID_BASE`).
-use crate::delivery::TIMER_ID_BASE as ID_BASE;
+use crate::schedule::delivery::TIMER_ID_BASE as ID_BASE;
 
 /// struct sigevent (x86_64): the value, the signal, how to notify, and SIGEV_THREAD_ID's thread.
 #[repr(C)]
@@ -28,7 +28,7 @@ pub(super) struct SigEvent {
 
 /// This process's ITIMER_REAL, if it has one (`create`: made if not).
 fn itimer(shared: &Shared, create: bool) -> Option<&SigTimer> {
-    let pid = crate::block::pid();
+    let pid = crate::schedule::block::pid();
     let found = shared
         .live_sig_timers()
         .iter()
@@ -167,7 +167,8 @@ pub(super) fn timer_create(shared: &Shared, clock: c_int, event: *const SigEvent
 pub(super) fn posix_timer(shared: &Shared, id: i64) -> Option<&SigTimer> {
     let index = usize::try_from(id.checked_sub(ID_BASE)?).ok().filter(|&i| i < SIG_TIMERS)?;
     let timer = &shared.sig_timers[index];
-    let ours = timer.pid.load(Ordering::Relaxed) == crate::block::pid() && timer.kind.load(Ordering::Relaxed) == timer_kind::POSIX && timer.state.load(Ordering::Acquire) != timer_state::FREE;
+    let ours =
+        timer.pid.load(Ordering::Relaxed) == crate::schedule::block::pid() && timer.kind.load(Ordering::Relaxed) == timer_kind::POSIX && timer.state.load(Ordering::Acquire) != timer_state::FREE;
     ours.then(|| {
         charged_call(shared, call::TIMER);
         timer
@@ -212,7 +213,7 @@ pub(super) fn timer_gettime(shared: &Shared, timer: &SigTimer, out: *mut [timesp
 /// (never from a vfork child, which shares the memory of its parent but not its timers: it
 /// passes its own pid, which no timer holds).
 pub(crate) fn delete_posix_timers_of(pid: i32) {
-    let Some(shared) = crate::block::shared() else { return };
+    let Some(shared) = crate::schedule::block::shared() else { return };
     for timer in shared.live_sig_timers() {
         if timer.pid.load(Ordering::Relaxed) == pid && timer.kind.load(Ordering::Relaxed) == timer_kind::POSIX {
             // An expiry fired for the earlier image is not sent to the new one.

@@ -5,8 +5,8 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, Shared, Wait, call, release};
 use crate::native;
-use crate::now::sim_now;
-use crate::park::Looked;
+use crate::schedule::now::sim_now;
+use crate::schedule::park::Looked;
 use crate::sys::{self, nr, timespec, timespec_ns};
 
 use super::{EAGAIN, EINTR, EINVAL};
@@ -19,11 +19,11 @@ use crate::handlers::program_mask;
 /// the trap handler blocks them. For those it waits as a thread on a pipe does: looking at what
 /// is pending (`ends`) whenever climbsim asks, and every millisecond of wall time.
 fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -> u32 {
-    let Some(slot) = crate::slot::my_slot() else { return release::ENDING };
-    let publish = || crate::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
+    let Some(slot) = crate::schedule::slot::my_slot() else { return release::ENDING };
+    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
     publish();
     loop {
-        match crate::park::wait_looking(shared, slot, &publish, |take| crate::park::Look::taking_nothing(ends(pending()).then_some(()), take)) {
+        match crate::schedule::park::wait_looking(shared, slot, &publish, |take| crate::schedule::park::Look::taking_nothing(ends(pending()).then_some(()), take)) {
             // Let go before its deadline for a wait it had ended itself: it waits on.
             Looked::Released(release::DEADLINE) if sim_now(shared) < deadline => publish(),
             Looked::Released(why) => return why,
@@ -35,7 +35,7 @@ fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -
 }
 
 pub(super) fn pause(shared: &Shared) -> Option<c_long> {
-    crate::park::note_call(shared, call::SIGNAL_WAIT);
+    crate::schedule::park::note_call(shared, call::SIGNAL_WAIT);
     let program_mask = program_mask();
     match wait_for_signal(shared, NEVER, |pending| pending & !program_mask != 0) {
         release::SIGNAL => Some(-EINTR),
@@ -54,10 +54,10 @@ pub(super) fn sigsuspend(shared: &Shared, mask: *const u64, size: i64, program_m
     if mask.is_null() || size != 8 {
         return Some(-EINVAL);
     }
-    crate::park::note_call(shared, call::SIGNAL_WAIT);
+    crate::schedule::park::note_call(shared, call::SIGNAL_WAIT);
     // SAFETY: the caller's sigset (8 bytes, as size says).
     let suspended = unsafe { *mask } & !crate::handlers::kept_signals();
-    let slot = crate::slot::my_slot();
+    let slot = crate::schedule::slot::my_slot();
     if let Some(slot) = slot {
         slot.sig_blocked.store(suspended, Ordering::Relaxed);
     }
@@ -79,7 +79,7 @@ pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout:
     if set.is_null() || size != 8 {
         return Some(-EINVAL);
     }
-    crate::park::note_call(shared, call::SIGNAL_WAIT);
+    crate::schedule::park::note_call(shared, call::SIGNAL_WAIT);
     // SAFETY: the caller's sigset.
     let set_bits = unsafe { *set };
     let zero = timespec { tv_sec: 0, tv_nsec: 0 };
@@ -94,12 +94,12 @@ pub(super) fn sigtimedwait(shared: &Shared, set: *const u64, info: i64, timeout:
         // SAFETY: the caller's timespec.
         let Some(ns) = timespec_ns(unsafe { &*timeout }) else { return Some(-EINVAL) };
         if ns == 0 {
-            crate::park::charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
+            crate::schedule::park::charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
             return Some(-EAGAIN);
         }
         sim_now(shared).saturating_add(ns)
     };
-    let slot = crate::slot::my_slot()?;
+    let slot = crate::schedule::slot::my_slot()?;
     slot.sig_waiting.store(set_bits, Ordering::Relaxed);
     let why = wait_for_signal(shared, deadline, |pending| pending & set_bits != 0);
     slot.sig_waiting.store(0, Ordering::Relaxed);
@@ -138,7 +138,7 @@ impl WaitMask {
         // (SIGSYS and the shim's other signals stay deliverable, as in every mask the program sets.)
         let during = sys::read_from_program(sigmask.cast::<u64>()).ok_or(sys::EFAULT)? & !crate::handlers::kept_signals();
         let program = program_mask();
-        if let Some(slot) = crate::slot::my_slot() {
+        if let Some(slot) = crate::schedule::slot::my_slot() {
             slot.sig_blocked.store(during, Ordering::Relaxed);
         }
         Ok(WaitMask(Some(Masks { during, program })))
@@ -150,14 +150,14 @@ impl WaitMask {
     /// arrival: sigsuspend would discard an ignored one and sleep on.
     pub(crate) fn leave(self, rc: c_int) -> c_int {
         let Some(masks) = self.0 else { return rc };
-        if let Some(slot) = crate::slot::my_slot() {
+        if let Some(slot) = crate::schedule::slot::my_slot() {
             slot.sig_blocked.store(masks.program, Ordering::Relaxed);
         }
         // (Looked at only for a wait a signal ended: the pending set and the actions are
         // system calls.)
         let acted_on = || {
             let let_through = pending() & !masks.during;
-            (1..=64).filter(|signo| let_through & (1u64 << (signo - 1)) != 0).any(|signo| !crate::delivery::ignored(signo))
+            (1..=64).filter(|signo| let_through & (1u64 << (signo - 1)) != 0).any(|signo| !crate::schedule::delivery::ignored(signo))
         };
         if rc == -1 && sys::errno() == sys::EINTR && acted_on() {
             let during = masks.during as c_long;

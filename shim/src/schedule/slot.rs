@@ -8,9 +8,10 @@ use core::ffi::c_void;
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use crate::abi::{self, Shared, Slot, state};
-use crate::block::{active, notify_scheduler, pid, refuse, shared};
-use crate::turn::{await_turn, forget_charges, hand_on, took_turn};
-use crate::{native, now, sys};
+use crate::schedule::block::{active, notify_scheduler, pid, refuse, shared};
+use crate::schedule::now;
+use crate::schedule::turn::{await_turn, forget_charges, hand_on, took_turn};
+use crate::{native, sys};
 
 /// The pthread key whose destructor marks a thread's slot exited.
 static EXIT_KEY: AtomicU32 = AtomicU32::new(u32::MAX);

@@ -7,8 +7,8 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::protocol::{ChildWait, Decider};
 use crate::abi::{self, Shared, Slot, mode, state};
-use crate::block::{ORPHANED, active, climbsim_gone, notify_scheduler};
-use crate::now::{SpinLimit, real_monotonic_ns, sim_now};
+use crate::schedule::block::{ORPHANED, active, climbsim_gone, notify_scheduler};
+use crate::schedule::now::{SpinLimit, real_monotonic_ns, sim_now};
 use crate::sys;
 
 thread_local! {

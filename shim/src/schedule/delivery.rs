@@ -33,8 +33,8 @@ pub(crate) fn take_due(slot: &Slot) -> bool {
     if slot.signals_due.swap(0, Ordering::AcqRel) == 0 {
         return false;
     }
-    let Some(shared) = crate::block::shared() else { return false };
-    let (pid, tid) = (crate::block::pid(), sys::gettid());
+    let Some(shared) = crate::schedule::block::shared() else { return false };
+    let (pid, tid) = (crate::schedule::block::pid(), sys::gettid());
     let mut interrupts = false;
     for (index, timer) in shared.live_sig_timers().iter().enumerate() {
         if timer.pid.load(Ordering::Relaxed) != pid || timer.deliver_tid.load(Ordering::Relaxed) != tid {

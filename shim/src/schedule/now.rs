@@ -35,7 +35,7 @@ pub(crate) fn sim_time_of(shared: &Shared, clock: clockid_t, reading: u64) -> Op
 pub(crate) fn sim_now(shared: &Shared) -> u64 {
     let header = &shared.header;
     let now = header.clock.now_ns.load(Ordering::Acquire);
-    let ended_at = match crate::block::orphaned_at() {
+    let ended_at = match crate::schedule::block::orphaned_at() {
         Some(at) => at,
         None if header.mode.load(Ordering::Acquire) == mode::VIRTUAL => return now,
         None => header.clock.ending_wall_ns.load(Ordering::Acquire),

@@ -7,12 +7,13 @@ use core::cell::Cell;
 use core::sync::atomic::{AtomicU64, Ordering};
 
 use crate::abi::{self, Parked, Shared, Slot, Wait, release, state};
-use crate::block::{active, climbsim_gone, notify_scheduler};
-use crate::delivery::take_due;
-use crate::now::{sim_now, thread_cpu_ns};
-use crate::slot::my_slot;
+use crate::schedule::block::{active, climbsim_gone, notify_scheduler};
+use crate::schedule::delivery::take_due;
+use crate::schedule::held;
+use crate::schedule::now::{sim_now, thread_cpu_ns};
+use crate::schedule::slot::my_slot;
+use crate::schedule::turn::{add_charge, forget_charges, hand_on, resume_after_kernel_wake, run_over, sleep_on_wake_word, spin_while_not_running, took_turn, turn_began};
 use crate::sys;
-use crate::turn::{add_charge, forget_charges, hand_on, resume_after_kernel_wake, run_over, sleep_on_wake_word, spin_while_not_running, took_turn, turn_began};
 
 /// Charges a thread may run up while climbsim has not read its bytes yet, before it yields.
 const HELD_CHARGE_LIMIT_NS: u64 = 50_000;
@@ -298,6 +299,35 @@ pub(crate) fn park(shared: &Shared, parked: Parked, deadline: u64, wait: Wait) -
     publish_parked(slot, parked, deadline, wait);
     hand.finish();
     await_release(shared, slot, parked, deadline)
+}
+
+/// The longest jump of a spin on the port while a reply is due on it.
+const REPLY_JUMP_NS: u64 = 1_000_000;
+
+/// Block until `deadline` or data on what `wait` names (see `park`).
+pub(crate) fn park_blocked(shared: &'static Shared, deadline: u64, wait: Wait) -> u32 {
+    if wait.port() {
+        held::bound_horizon(shared);
+    }
+    park(shared, Parked::Blocked, deadline, wait)
+}
+
+/// A look at the port that found nothing, at simulated time `now`: time goes on to the next
+/// byte due on it.
+pub(crate) fn spin_on_port(shared: &'static Shared, now: u64) {
+    // Pyserial's select also watches its own abort pipe; the C++ SDK reads the port without
+    // blocking. On to the next byte due on the port, at most 1 ms at a time; with none due (an
+    // absent servo), by the cap. A timeout the program checks between its looks is so overshot
+    // by at most the cap, or 1 ms while a reply is on its way. Within the horizon the thread
+    // moves the clock itself; a reply due now, or anything beyond, is climbsim's.
+    // Replies climbsim wrote ahead show at their instants without it: within the horizon the
+    // thread moves on to the next itself.
+    let held_due = held::stream_at(shared, now).next_due;
+    let next_due = shared.header.port.next_due_ns.load(Ordering::Acquire).min(held_due);
+    let target = if next_due == crate::abi::NEVER { now.saturating_add(shared.header.clock.spin_cap_ns.load(Ordering::Relaxed)) } else { next_due.min(now.saturating_add(REPLY_JUMP_NS)) };
+    if target <= now || !advance_within_horizon(shared, now, target) {
+        park(shared, Parked::Yielded, target.max(now), Wait::Spin);
+    }
 }
 
 /// Publish this thread (whose slot is `slot`) as parked until `deadline` on `wait`; nobody is

@@ -12,7 +12,7 @@ use core::ffi::c_int;
 use core::sync::atomic::{Ordering, fence};
 
 use crate::abi::{NEVER, Shared};
-use crate::time::sim_now;
+use crate::schedule::now::sim_now;
 
 /// The port's stream at one instant.
 #[derive(Clone, Copy)]
