@@ -303,3 +303,39 @@ fn a_child_killed_by_the_filter_it_inherited_fails_the_run_saying_why() {
     assert!(failures.contains("statically linked"), "{failures}");
     assert!(wall < Duration::from_secs(20), "{wall:?}");
 }
+
+/// An exec from a second thread while the main thread waits in a join: Linux ends the main
+/// thread and the new program takes the process. Its blocked main thread's slot was never
+/// exited, and climbsim waited for its look for ever: the run failed as "a livelock". Now the
+/// new program runs, at its instant.
+#[test]
+fn an_exec_from_a_second_thread_runs_the_new_program_at_its_instant() {
+    let dir = support::scratch_dir("vt-exec-from-thread");
+    let program = compiled_c(&dir, "exec_from_thread");
+    let path = scenario(&dir, "exec-from-thread", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
+    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
+    assert_eq!(log.trim(), "exec-done", "{log}");
+    // 50 ms before the exec, 100 ms of the new program's sleep, and the calls between.
+    let ended = summary(&dir.join("out"))["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
+    assert!((0.15..0.16).contains(&ended), "{ended}");
+    assert!(wall < Duration::from_secs(20), "{wall:?}");
+}
+
+/// A thread made by a raw clone without a thread pointer of its own shares its creator's
+/// thread-locals, where the shim keeps which slot is whose: its calls cannot be told from its
+/// creator's. The run failed after 2 s saying the process "did not load climbsim's shim" (a
+/// statically linked program); now it fails at once, naming the real cause.
+#[test]
+fn a_raw_clone_thread_that_shares_its_creators_thread_locals_fails_the_run_saying_so() {
+    let dir = support::scratch_dir("vt-raw-clone-tls");
+    let program = compiled_c(&dir, "raw_clone_shared_tls");
+    let path = scenario(&dir, "raw-clone-tls", 2.0, &[program.to_str().expect("utf-8 path")], true);
+    let (output, wall) = run_virtual(&path, &dir.join("out"));
+    assert_eq!(output.status.code(), Some(1), "{}", output_text(&output));
+    let failures = summary(&dir.join("out"))["failures"].to_string();
+    assert!(failures.contains("without a thread pointer of its own (no CLONE_SETTLS)"), "{failures}");
+    assert!(!failures.contains("did not load climbsim's shim"), "{failures}");
+    assert!(wall < Duration::from_secs(20), "{wall:?}");
+}

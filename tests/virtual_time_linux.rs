@@ -163,14 +163,16 @@ pthread_timedjoin_np with tv_nsec 1e9 of a thread ending at 30 ms: 0 after 30.00
 semtimedop for 60 ms, nothing posted: -1 EAGAIN after 60.000 ms
 semtimedop for 60 ms, posted at 25 ms: 0 after 25.001 ms
 semop, posted at 25 ms: 0 after 25.001 ms
+semtimedop for 60 ms, SIGALRM at 15 ms with SA_RESTART: -1 EINTR after 15.000 ms
 mq_timedreceive for 70 ms, nothing sent: -1 ETIMEDOUT after 70.000 ms
 mq_timedreceive for 70 ms, sent at 35 ms: 5 after 35.001 ms
+mq_timedreceive for 70 ms, SIGALRM at 15 ms with SA_RESTART, sent at 35 ms: 5 after 35.001 ms
 recv with an 80 ms SO_RCVTIMEO, nothing sent: -1 EAGAIN after 80.000 ms
 read of it, nothing sent: -1 EAGAIN after 80.000 ms
 send of 1 MiB with a 40 ms SO_SNDTIMEO, nobody reading: part of it after 40.000 ms
 another, the socket full: -1 EAGAIN after 40.000 ms
 recv of it, sent at 10 ms: 1 after 10.000 ms
-epoll_wait of an epoll watching a 30 ms timerfd: 1 after 29.998 ms
+epoll_wait of an epoll watching a 30 ms timerfd: 1 after 29.999 ms
 futex_waitv for 10 ms: -1 ENOSYS
 ";
 

@@ -147,9 +147,12 @@ pub(crate) fn mq_timed(number: i64, a: [i64; 6]) -> Option<c_long> {
     match wait_for_kernel(shared, deadline, peek, attempt) {
         Ok(rc) => Some(rc),
         Err(release::DEADLINE) => Some(-ETIMEDOUT),
-        // (With SA_RESTART the kernel would restart the call once the handler has run, which
-        // runs only as the trap returns: EINTR, as without it. docs/virtual-time.md says so.)
-        Err(release::SIGNAL) => Some(-EINTR),
+        // A handler with SA_RESTART: the call is made again once it has run (it runs only as
+        // the trap returns), as the kernel restarts it, with the same absolute timeout.
+        Err(release::SIGNAL) => Some(match crate::schedule::delivery::interrupted_by() {
+            Some(signal) if crate::handlers::restarts(signal) => sys::RESTART_CALL,
+            _ => -EINTR,
+        }),
         Err(_) => None,
     }
 }

@@ -124,7 +124,9 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
         say_failure(why, b"; the time-stamp counter is the host's");
     }
     // The main thread is followed from the start: before its first call it is already running.
-    schedule::slot::my_slot();
+    if let Some(own) = schedule::slot::my_slot() {
+        schedule::slot::exit_earlier_image(own);
+    }
 }
 
 /// The vDSO's clocks patched to the shim's, or the vDSO hidden (`program.rs`).

@@ -313,14 +313,41 @@ unsafe extern "C" fn on_sigsys(_signal: c_int, info: *mut c_void, context: *mut 
         return;
     }
     // A thread a trapped clone created claims its slot at its first trapped call.
-    if !crate::sys::in_shim() && crate::schedule::slot::claimed_slot().is_none() && crate::schedule::block::shared().is_some_and(|s| s.header.raw_clones.load(Ordering::Acquire) > 0) {
-        crate::schedule::slot::my_slot();
+    if crate::schedule::block::shared().is_some_and(|s| s.header.raw_clones.load(Ordering::Acquire) > 0) {
+        match crate::schedule::slot::claimed_slot() {
+            None if !crate::sys::in_shim() => {
+                crate::schedule::slot::my_slot();
+            }
+            Some(slot) if crate::schedule::slot::shares_thread_locals(slot) => {
+                // Made by a clone without a thread pointer of its own (no CLONE_SETTLS, and none
+                // set since): the shim's thread-locals, where it keeps which slot is whose, are
+                // its creator's. Its calls cannot be told from its creator's: the run fails
+                // saying so, and this one goes to the kernel as it is.
+                crate::schedule::slot::refuse_shared_thread_locals();
+                // SAFETY: the return value goes where the caller's `syscall` leaves it.
+                unsafe { *gregs.add(context::RAX) = native_call(number, args) };
+                sys::set_errno(saved_errno);
+                return;
+            }
+            _ => {}
+        }
     }
     let outer = crate::handlers::entered_trap(*sigmask);
     let result = dispatch(number, args, sigmask);
     crate::handlers::left_trap(outer);
-    // SAFETY: the return value goes where the caller's `syscall` leaves it.
-    unsafe { *gregs.add(context::RAX) = result };
+    if result == sys::RESTART_CALL {
+        // Back onto the `syscall` instruction (two bytes), its number in place again: the
+        // interrupting signal's handler runs as this one returns, and then the call is made
+        // again, as the kernel restarts it (its arguments are still in their registers).
+        // SAFETY: the saved registers within the ucontext.
+        unsafe {
+            *gregs.add(context::RIP) -= 2;
+            *gregs.add(context::RAX) = number;
+        }
+    } else {
+        // SAFETY: the return value goes where the caller's `syscall` leaves it.
+        unsafe { *gregs.add(context::RAX) = result };
+    }
     sys::set_errno(saved_errno);
 }
 

@@ -49,6 +49,10 @@ pub struct iovec {
     pub iov_len: usize,
 }
 
+/// What a trapped call's emulation returns for "make the call again once the handler of the
+/// signal that interrupted it has run", as the kernel restarts a call after an `SA_RESTART`
+/// handler (no call returns it: errors are -1 to -4095).
+pub const RESTART_CALL: c_long = c_long::MIN;
 pub const POLLIN: i16 = 0x1;
 pub const F_GETFL: c_int = 3;
 pub const O_NONBLOCK: c_int = 0o4000;

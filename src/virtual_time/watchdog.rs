@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::abi::{self, NEVER, Shared, Slot, call, state};
+use super::abi::{self, NEVER, RAW_CLONE_TID, Shared, Slot, call, state};
 use super::error::VtError;
 use crate::proc_stat::{STATE, cpu_ticks, stat_field};
 
@@ -336,6 +336,16 @@ fn describe(slot: &Slot, judged: Judged, quiet: Duration) -> String {
     let secs = quiet.as_secs_f64().round();
     let last = last_call(slot);
     match judged {
+        Judged::NoShim if slot.tid.load(Ordering::Relaxed) == RAW_CLONE_TID => {
+            let pid = slot.pid.load(Ordering::Relaxed);
+            let comm = comm(&format!("/proc/{pid}"));
+            format!(
+                "virtual time: a thread the controller process `{comm}` (pid {pid}) made with a raw clone has made no followed call of its own \
+                 within {secs} s of wall time, and time waits for its first: a thread that computes that long before its first system call, \
+                 or one that shares its creator's thread-local storage (a clone without CLONE_SETTLS), cannot run on virtual time \
+                 (create it with pthread_create, or run with --clock wall)"
+            )
+        }
         Judged::NoShim => {
             let (pid, comm) = (slot.pid.load(Ordering::Relaxed), comm(&task));
             format!(

@@ -263,6 +263,13 @@ int main(void) {
     rc = semop(semid, &take, 1);
     say("semop, posted at 25 ms", rc, errno, t);
     pthread_join(thread, NULL);
+    /* A signal's handler never restarts a System V semaphore's wait, whatever SA_RESTART says
+     * (the SIGALRM handler has it now). */
+    setitimer(ITIMER_REAL, &in_15_ms, NULL);
+    t = now_ms();
+    errno = 0;
+    rc = semtimedop(semid, &take, 1, &sem_wait);
+    say("semtimedop for 60 ms, SIGALRM at 15 ms with SA_RESTART", rc, errno, t);
     semctl(semid, 0, IPC_RMID);
 
     /* A POSIX message queue's timed receive (its deadline on CLOCK_REALTIME). */
@@ -284,6 +291,15 @@ int main(void) {
     errno = 0;
     rc = mq_timedreceive(queue, message, sizeof message, NULL, &at);
     say("mq_timedreceive for 70 ms, sent at 35 ms", rc, errno, t);
+    pthread_join(thread, NULL);
+    /* It restarts a message queue's (the deadline is absolute: the same one). */
+    thread = start(&sender);
+    setitimer(ITIMER_REAL, &in_15_ms, NULL);
+    at = in_ms(CLOCK_REALTIME, 70);
+    t = now_ms();
+    errno = 0;
+    rc = mq_timedreceive(queue, message, sizeof message, NULL, &at);
+    say("mq_timedreceive for 70 ms, SIGALRM at 15 ms with SA_RESTART, sent at 35 ms", rc, errno, t);
     pthread_join(thread, NULL);
     mq_close(queue);
 

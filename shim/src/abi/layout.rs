@@ -82,6 +82,7 @@ pub mod refused {
     pub const IO_URING: u32 = 16;
     pub const SIG_TIMERS: u32 = 32;
     pub const KILLED_BY_SIGSYS: u32 = 64;
+    pub const SHARED_TLS: u32 = 128;
 
     /// The run's failure, in words.
     pub fn describe(bits: u32) -> Option<String> {
@@ -101,6 +102,14 @@ pub mod refused {
                  inherits the run's seccomp filter but cannot load the shim that answers it, and its first followed call (a sleep, \
                  a clock read through the kernel, a futex) kills it; link that program dynamically, or run the controller with \
                  --clock wall (or a seccomp filter of the program's own killed it)"
+                    .to_owned(),
+            );
+        } else if bits & SHARED_TLS != 0 {
+            return Some(
+                "a thread of the controller made by a raw clone without a thread pointer of its own (no CLONE_SETTLS) made a \
+                 followed call: it shares its creator's thread-local storage, where climbsim's shim keeps which thread is which, so \
+                 its calls cannot be told from its creator's; create it with pthread_create (or give it a TLS of its own), or run \
+                 the controller with --clock wall"
                     .to_owned(),
             );
         } else if bits & IO_URING != 0 {

@@ -181,6 +181,33 @@ fn raw_clone_reservation(shared: &Shared, pid: i32) -> Option<(usize, &Slot)> {
     None
 }
 
+/// The calling thread is not `claimed`'s, though its thread-locals say so: it shares them with
+/// the thread whose slot that is (a thread of the same process made by a clone without a thread
+/// pointer of its own). Two system calls: asked only while a trapped clone's thread has not
+/// claimed its slot.
+pub(crate) fn shares_thread_locals(claimed: &Slot) -> bool {
+    claimed.tid.load(Ordering::Relaxed) != sys::gettid() && claimed.pid.load(Ordering::Relaxed) == sys::getpid()
+}
+
+/// A thread that shares its creator's thread-locals (see [`shares_thread_locals`]) cannot be
+/// followed: the run fails saying so, and the slot reserved for it goes, so that climbsim, which
+/// waits for every thread to park before it judges a refusal, need not wait for it. (The count of
+/// reservations stays up: this thread's calls must still be told from its creator's, which they
+/// are while it is.)
+pub(crate) fn refuse_shared_thread_locals() {
+    refuse(abi::refused::SHARED_TLS);
+    let Some(shared) = shared() else { return };
+    let pid = sys::getpid();
+    let without_tls = |slot: &Slot| {
+        slot.state() == state::RESERVED && slot.tid.load(Ordering::Acquire) == abi::RAW_CLONE_TID && slot.pid.load(Ordering::Relaxed) == pid && slot.clone_tls.load(Ordering::Relaxed) == 0
+    };
+    if let Some(slot) = shared.live_slots().iter().find(|slot| without_tls(slot))
+        && slot.unreserve()
+    {
+        notify_scheduler(shared);
+    }
+}
+
 /// Whether the shim's pthread_create is creating a thread in this one (its clone then needs no
 /// reservation: see `reserve_raw_clone`).
 pub(crate) fn creating_a_thread() -> bool {
@@ -269,6 +296,21 @@ fn watch_thread_exit() {
     if key != u32::MAX {
         // SAFETY: a key from pthread_key_create; the value only has to be non-null.
         unsafe { sys::pthread_setspecific(key, core::ptr::dangling::<c_void>()) };
+    }
+}
+
+/// A new program in this process (its shim's start, after an exec): the slots of the threads
+/// of its earlier image other than `own` are theirs no longer. An exec ends every other thread
+/// of the process (one from a thread other than the main one ends the main one too, and takes
+/// its id) without any of the shim's code running in them: they are exited now, or climbsim
+/// would wait for ever for a blocked main thread's look, or a running thread's park.
+pub(crate) fn exit_earlier_image(own: &Slot) {
+    let Some(shared) = shared() else { return };
+    let pid = sys::getpid();
+    for slot in shared.live_slots() {
+        if slot.pid.load(Ordering::Relaxed) == pid && slot.is_live() && !core::ptr::eq(slot, own) {
+            exit_slot(slot);
+        }
     }
 }
 
