@@ -11,7 +11,7 @@ use std::path::Path;
 const UNDER_THE_SCHEDULE: [&str; 5] = ["abi", "sys", "native", "handlers", "marker"];
 
 /// Every source file of the shim: its module path (`schedule::park`; `lib` for the crate's
-/// root) and its text without line comments.
+/// root) and its code without comments and string literals.
 fn shim_modules() -> BTreeMap<String, String> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("shim/src");
     let mut modules = BTreeMap::new();
@@ -32,55 +32,146 @@ fn shim_modules() -> BTreeMap<String, String> {
                 parts.pop();
             }
             let name = if parts == ["lib"] { "lib".to_string() } else { parts.join("::") };
-            let text = std::fs::read_to_string(&path).expect("a source file");
-            let code: Vec<&str> = text.lines().map(|line| line.split("//").next().unwrap_or("")).collect();
-            modules.insert(name, code.join("\n"));
+            modules.insert(name, code_only(&std::fs::read_to_string(&path).expect("a source file")));
         }
     }
     modules
 }
 
-/// The module a path `crate::a::b::c` names: the longest prefix that is one (`lib` for an
-/// item of the root).
-fn resolve(modules: &BTreeMap<String, String>, segments: &[&str]) -> String {
+/// `text` without its comments (line and block) and the insides of its string literals (raw
+/// ones too), which name no module.
+fn code_only(text: &str) -> String {
+    let chars: Vec<char> = text.chars().collect();
+    let mut code = String::with_capacity(text.len());
+    let mut at = 0;
+    while at < chars.len() {
+        let rest = &chars[at..];
+        if rest.starts_with(&['/', '/']) {
+            while at < chars.len() && chars[at] != '\n' {
+                at += 1;
+            }
+        } else if rest.starts_with(&['/', '*']) {
+            let mut depth = 0;
+            while at < chars.len() {
+                if chars[at..].starts_with(&['/', '*']) {
+                    depth += 1;
+                    at += 2;
+                } else if chars[at..].starts_with(&['*', '/']) {
+                    depth -= 1;
+                    at += 2;
+                    if depth == 0 {
+                        break;
+                    }
+                } else {
+                    at += 1;
+                }
+            }
+        } else if rest[0] == 'r' && rest.get(1).is_some_and(|&c| c == '"' || c == '#') && (at == 0 || !ident(chars[at - 1])) {
+            // r"...", r#"..."#: to the quote followed by as many hashes.
+            let hashes = rest[1..].iter().take_while(|&&c| c == '#').count();
+            at += 2 + hashes;
+            while at < chars.len() && !(chars[at] == '"' && chars[at + 1..].iter().take(hashes).filter(|&&c| c == '#').count() == hashes) {
+                at += 1;
+            }
+            at += 1 + hashes;
+            code.push_str("\"\"");
+        } else if rest[0] == '"' {
+            at += 1;
+            while at < chars.len() && chars[at] != '"' {
+                at += if chars[at] == '\\' { 2 } else { 1 };
+            }
+            at += 1;
+            code.push_str("\"\"");
+        } else {
+            code.push(rest[0]);
+            at += 1;
+        }
+    }
+    code
+}
+
+fn ident(c: char) -> bool {
+    c.is_ascii_alphanumeric() || c == '_'
+}
+
+/// The module a path (`a::b::c`, from the crate's root) names: the longest prefix that is one
+/// (`lib` for an item of the root).
+fn resolve(modules: &BTreeMap<String, String>, segments: &[String]) -> String {
     (1..=segments.len()).rev().map(|n| segments[..n].join("::")).find(|candidate| modules.contains_key(candidate)).unwrap_or_else(|| "lib".to_string())
 }
 
-/// The modules `text` names through `crate::` (groups `crate::{a, b::c}` too).
-fn imports(modules: &BTreeMap<String, String>, text: &str) -> BTreeSet<String> {
+/// The paths a use tree at the start of `text` names, each from `prefix` on (`a::b`,
+/// `a::{b, c::{d, e}}`, `a::*`): whole paths, groups expanded.
+fn use_tree(text: &str, prefix: &[String]) -> Vec<Vec<String>> {
+    let mut path = prefix.to_vec();
+    let mut rest = text.trim_start();
+    loop {
+        let name: String = rest.chars().take_while(|&c| ident(c)).collect();
+        if name.is_empty() {
+            break;
+        }
+        path.push(name.clone());
+        rest = rest[name.len()..].trim_start();
+        match rest.strip_prefix("::") {
+            Some(after) => rest = after.trim_start(),
+            None => return vec![path],
+        }
+    }
+    let Some(group) = rest.strip_prefix('{') else { return vec![path] };
+    // The group's items at its top level, each a tree of its own.
+    let (mut depth, mut item_start, mut paths) = (0, 0, Vec::new());
+    for (index, c) in group.char_indices() {
+        match c {
+            '{' => depth += 1,
+            '}' if depth == 0 => {
+                paths.extend(use_tree(&group[item_start..index], &path));
+                return paths;
+            }
+            '}' => depth -= 1,
+            ',' if depth == 0 => {
+                paths.extend(use_tree(&group[item_start..index], &path));
+                item_start = index + 1;
+            }
+            _ => {}
+        }
+    }
+    paths
+}
+
+/// The modules `module`'s code names: through `crate::` and `super::` (groups too), and a
+/// folder's own files by their names (`timers::x` in `signals/mod.rs`).
+fn imports(modules: &BTreeMap<String, String>, module: &str, text: &str) -> BTreeSet<String> {
+    let own: Vec<String> = if module == "lib" { Vec::new() } else { module.split("::").map(str::to_string).collect() };
+    let children: Vec<String> = modules.keys().filter_map(|m| m.strip_prefix(&format!("{module}::")).filter(|child| !child.contains("::")).map(str::to_string)).collect();
     let mut found = BTreeSet::new();
-    let ident = |c: char| c.is_ascii_alphanumeric() || c == '_';
-    for (at, _) in text.match_indices("crate::") {
-        let rest = &text[at + "crate::".len()..];
-        if let Some(group) = rest.strip_prefix('{') {
-            // The names at the group's top level, each a path of its own.
-            let (mut depth, mut item) = (0, String::new());
-            for c in group.chars() {
-                match c {
-                    '{' => depth += 1,
-                    '}' if depth == 0 => break,
-                    '}' => depth -= 1,
-                    ',' if depth == 0 => {
-                        found.insert(resolve(modules, &item.split("::").map(str::trim).filter(|s| !s.is_empty() && s.chars().all(ident)).collect::<Vec<_>>()));
-                        item.clear();
-                        continue;
-                    }
-                    _ => {}
-                }
-                if depth == 0 && c != '{' {
-                    item.push(c);
-                }
-            }
-            let segments: Vec<&str> = item.split("::").map(str::trim).filter(|s| !s.is_empty() && s.chars().all(ident)).collect();
-            if !segments.is_empty() {
-                found.insert(resolve(modules, &segments));
-            }
+    let chars: Vec<(usize, char)> = text.char_indices().collect();
+    for (position, &(at, _)) in chars.iter().enumerate() {
+        let before = position.checked_sub(1).map(|p| chars[p].1);
+        if before.is_some_and(|c| ident(c) || c == ':') {
             continue;
         }
-        let path: String = rest.chars().take_while(|&c| ident(c) || c == ':').collect();
-        let segments: Vec<&str> = path.split("::").filter(|s| !s.is_empty()).collect();
-        found.insert(resolve(modules, &segments));
+        let rest = &text[at..];
+        let (base, after) = if let Some(after) = rest.strip_prefix("crate::") {
+            (Vec::new(), after)
+        } else if rest.starts_with("super::") {
+            // Each `super::` one level up from this module.
+            let mut base = own.clone();
+            let mut after = rest;
+            while let Some(next) = after.strip_prefix("super::") {
+                base.pop();
+                after = next;
+            }
+            (base, after)
+        } else if children.iter().any(|child| rest.starts_with(&format!("{child}::"))) {
+            (own.clone(), rest)
+        } else {
+            continue;
+        };
+        for path in use_tree(after, &base) {
+            found.insert(resolve(modules, &path));
+        }
     }
+    found.remove(module);
     found
 }
 
@@ -109,15 +200,16 @@ fn find_loop(edges: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> 
     edges.keys().find_map(|node| visit(node, edges, &mut done, &mut Vec::new()))
 }
 
-/// Each file's imports of other files (the root, `lib`, imports everything and is left out).
+/// Each file's imports of other files (the root, `lib`, imports everything and is left out; a
+/// folder's `mod.rs` may use its own files).
 fn file_edges() -> BTreeMap<String, BTreeSet<String>> {
     let modules = shim_modules();
     modules
         .iter()
         .filter(|(name, _)| *name != "lib")
         .map(|(name, text)| {
-            let mut to = imports(&modules, text);
-            to.remove(name);
+            // A folder's `mod.rs` is its face: what it takes from its own files is no arrow.
+            let to = imports(&modules, name, text).into_iter().filter(|to| !to.starts_with(&format!("{name}::"))).collect();
             (name.clone(), to)
         })
         .collect()

@@ -173,6 +173,7 @@ send of 1 MiB with a 40 ms SO_SNDTIMEO, nobody reading: part of it after 40.000 
 another, the socket full: -1 EAGAIN after 40.000 ms
 recv of it, sent at 10 ms: 1 after 10.000 ms
 epoll_wait of an epoll watching a 30 ms timerfd: 1 after 29.999 ms
+a 1 ms timer's blocked signal taken after 50 ms: overrun 49
 futex_waitv for 10 ms: -1 ENOSYS
 ";
 

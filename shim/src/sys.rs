@@ -248,6 +248,13 @@ pub fn say(text: &[u8]) {
     native::call3(nr::WRITE, 2, text.as_ptr() as c_long, text.len() as c_long);
 }
 
+/// Signals pending for this thread or its process (made natively: a trapped call).
+pub fn pending_signals() -> u64 {
+    let mut set = 0u64;
+    native::call2(nr::RT_SIGPENDING, &mut set as *mut u64 as c_long, 8);
+    set
+}
+
 pub fn gettid() -> i32 {
     native::call0(nr::GETTID) as i32
 }

@@ -179,7 +179,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     match (park_blocked(shared, deadline, interest.data()), timer_first) {
         (release::DEADLINE, true) => look_now(real_wait),
         (release::SIGNAL, _) => interrupted(),
-        (release::ENDING, _) => real_wait(rest_on_the_wall(deadline, sim_now(shared))),
+        (release::ENDING, _) => real_wait(rest_on_the_wall(deadline, || sim_now(shared))),
         // Climbsim made the bytes visible before it released us; the guard only covers a kernel
         // that is slow to show them (or the timer's).
         (release::DATA, _) | (_, true) => real_wait(Some(1_000_000_000)),
@@ -187,11 +187,11 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     }
 }
 
-/// What is left of a wait until `deadline` once the run has ended, simulated time reading `now`,
-/// as the kernel's timeout: none for a wait without one (`NEVER`), which must not come back
-/// empty-handed.
-fn rest_on_the_wall(deadline: u64, now: u64) -> Option<u64> {
-    (deadline != crate::abi::NEVER).then(|| deadline.saturating_sub(now))
+/// What is left of a wait until `deadline` once the run has ended (simulated time read by
+/// `now`, only for a wait with one), as the kernel's timeout: none for a wait without one
+/// (`NEVER`), which must not come back empty-handed.
+fn rest_on_the_wall(deadline: u64, now: impl FnOnce() -> u64) -> Option<u64> {
+    (deadline != crate::abi::NEVER).then(|| deadline.saturating_sub(now()))
 }
 
 /// A wait of the poll family that a signal interrupted (its handler has run): EINTR, as the
@@ -219,7 +219,7 @@ pub(crate) fn with_wait_mask(sigmask: *const core::ffi::c_void, wait: impl FnOnc
 /// another followed thread (tokio's eventfd, asyncio's self-pipe, a child's output) wakes this
 /// one at the instant it was made, not whenever the host got round to it.
 fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
-    let Some(slot) = my_slot() else { return real_wait(rest_on_the_wall(deadline, sim_now(shared))) };
+    let Some(slot) = my_slot() else { return real_wait(rest_on_the_wall(deadline, || sim_now(shared))) };
     let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: interest.port, conns: interest.conns });
     publish();
     loop {
@@ -248,7 +248,7 @@ fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest
             Looked::Released(release::SIGNAL) => return interrupted(),
             // Let go as the run ended: the rest of the wait on the wall clock (a wait with no
             // timeout that returned nothing would break its caller: libuv asserts on it).
-            Looked::Released(release::ENDING) | Looked::Ended => return real_wait(rest_on_the_wall(deadline, sim_now(shared))),
+            Looked::Released(release::ENDING) | Looked::Ended => return real_wait(rest_on_the_wall(deadline, || sim_now(shared))),
             Looked::Released(why) => return real_wait(Some(if why == release::DATA { 1_000_000_000 } else { 0 })),
             Looked::Found(ready) => ready,
         };

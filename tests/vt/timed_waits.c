@@ -353,6 +353,26 @@ int main(void) {
     rc = epoll_wait(outer, &event, 1, 500);
     say("epoll_wait of an epoll watching a 30 ms timerfd", rc, errno, t);
 
+    /* A POSIX timer's signal blocked while the timer fires on: one signal stays pending, and
+     * the expirations after it count as the timer's overrun. */
+    sigset_t usr2;
+    sigemptyset(&usr2);
+    sigaddset(&usr2, SIGUSR2);
+    pthread_sigmask(SIG_BLOCK, &usr2, NULL);
+    timer_t every_ms;
+    struct sigevent on_expiry = {0};
+    on_expiry.sigev_notify = SIGEV_SIGNAL;
+    on_expiry.sigev_signo = SIGUSR2;
+    timer_create(CLOCK_MONOTONIC, &on_expiry, &every_ms);
+    struct itimerspec one_ms = {{0, 1000000}, {0, 1000000}};
+    timer_settime(every_ms, 0, &one_ms, NULL);
+    struct timespec fifty_ms = {0, 50000000};
+    nanosleep(&fifty_ms, NULL);
+    int taken;
+    sigwait(&usr2, &taken);
+    printf("a 1 ms timer's blocked signal taken after 50 ms: overrun %d\n", timer_getoverrun(every_ms));
+    timer_delete(every_ms);
+
     /* futex_waitv (Linux 5.16): not followed on virtual time, where it answers ENOSYS. */
     uint32_t word = 0;
     struct futex_waitv waiter = {0, (uintptr_t)&word, FUTEX_32 | FUTEX_PRIVATE_FLAG, 0};

@@ -12,6 +12,8 @@ use crate::sys::{self, nr};
 /// The signals whose default action is to do nothing.
 const IGNORED_BY_DEFAULT: [c_int; 4] = [17, 18, 23, 28];
 const SI_TIMER: c_int = -2;
+/// The most a POSIX timer's overrun counts (Linux's DELAYTIMER_MAX, INT_MAX).
+const DELAYTIMER_MAX: u32 = i32::MAX as u32;
 /// The timer ids handed out: timer i of the block is `TIMER_ID_BASE + i`. Non-negative, as
 /// glibc needs them, and far from the small numbers a kernel gives.
 pub(crate) const TIMER_ID_BASE: i64 = 0x2000_0000;
@@ -45,10 +47,17 @@ pub(crate) fn take_due(slot: &Slot) -> bool {
         if expirations == 0 || !(1..=64).contains(&signo) {
             continue;
         }
-        let overrun = expirations - 1;
-        timer.overrun.store(overrun, Ordering::Relaxed);
         let bit = 1u64 << (signo - 1);
         let (blocked, waiting) = (slot.sig_blocked.load(Ordering::Relaxed), slot.sig_waiting.load(Ordering::Relaxed));
+        // A POSIX timer whose last signal is still pending (blocked, and no thread has taken it
+        // yet): the kernel queues no second one, it counts the expirations as the timer's
+        // overrun (`timer_getoverrun`, up to DELAYTIMER_MAX).
+        if timer.kind.load(Ordering::Relaxed) == timer_kind::POSIX && blocked & bit != 0 && waiting & bit == 0 && sys::pending_signals() & bit != 0 {
+            let _ = timer.overrun.fetch_update(Ordering::AcqRel, Ordering::Relaxed, |overrun| Some(overrun.saturating_add(expirations).min(DELAYTIMER_MAX)));
+            continue;
+        }
+        let overrun = expirations - 1;
+        timer.overrun.store(overrun, Ordering::Relaxed);
         // Blocked here and waited for by no one: pending on the process, as the kernel keeps
         // it, for whichever thread unblocks it or waits for it later.
         let whole_process = blocked & bit != 0 && waiting & bit == 0 && timer.tid.load(Ordering::Relaxed) == 0;

@@ -23,7 +23,7 @@ fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -
     let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
     publish();
     loop {
-        match crate::schedule::park::wait_looking(shared, slot, &publish, |take| crate::schedule::park::Look::taking_nothing(ends(pending()).then_some(()), take)) {
+        match crate::schedule::park::wait_looking(shared, slot, &publish, |take| crate::schedule::park::Look::taking_nothing(ends(sys::pending_signals()).then_some(()), take)) {
             // Let go before its deadline for a wait it had ended itself: it waits on.
             Looked::Released(release::DEADLINE) if sim_now(shared) < deadline => publish(),
             Looked::Released(why) => return why,
@@ -43,13 +43,6 @@ pub(super) fn pause(shared: &Shared) -> Option<c_long> {
     }
 }
 
-/// Signals pending for this thread or its process.
-fn pending() -> u64 {
-    let mut set = 0u64;
-    native::call2(nr::RT_SIGPENDING, &mut set as *mut u64 as c_long, 8);
-    set
-}
-
 pub(super) fn sigsuspend(shared: &Shared, mask: *const u64, size: i64, program_mask: u64) -> Option<c_long> {
     if mask.is_null() || size != 8 {
         return Some(-EINVAL);
@@ -61,7 +54,7 @@ pub(super) fn sigsuspend(shared: &Shared, mask: *const u64, size: i64, program_m
     if let Some(slot) = slot {
         slot.sig_blocked.store(suspended, Ordering::Relaxed);
     }
-    let why = if pending() & !suspended != 0 { release::SIGNAL } else { wait_for_signal(shared, NEVER, |pending| pending & !suspended != 0) };
+    let why = if sys::pending_signals() & !suspended != 0 { release::SIGNAL } else { wait_for_signal(shared, NEVER, |pending| pending & !suspended != 0) };
     if let Some(slot) = slot {
         slot.sig_blocked.store(program_mask, Ordering::Relaxed);
     }
@@ -156,7 +149,7 @@ impl WaitMask {
         // (Looked at only for a wait a signal ended: the pending set and the actions are
         // system calls.)
         let acted_on = || {
-            let let_through = pending() & !masks.during;
+            let let_through = sys::pending_signals() & !masks.during;
             (1..=64).filter(|signo| let_through & (1u64 << (signo - 1)) != 0).any(|signo| !crate::schedule::delivery::ignored(signo))
         };
         if rc == -1 && sys::errno() == sys::EINTR && acted_on() {
