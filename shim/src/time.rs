@@ -213,8 +213,9 @@ pub unsafe extern "C" fn usleep(micros: c_uint) -> c_int {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn sleep(seconds: c_uint) -> c_uint {
     if let Some(shared) = active() {
-        // Interrupted: the seconds left, rounded up.
-        return sleep_until(shared, sim_now(shared).saturating_add(u64::from(seconds) * 1_000_000_000)).map_or(0, |left| left.div_ceil(1_000_000_000) as c_uint);
+        // Interrupted: the whole seconds left, as glibc's sleep answers (the kernel's
+        // remainder's seconds, the nanoseconds dropped: 9 for 9.98 s).
+        return sleep_until(shared, sim_now(shared).saturating_add(u64::from(seconds) * 1_000_000_000)).map_or(0, |left| (left / 1_000_000_000) as c_uint);
     }
     let next = real!(sleep: fn(c_uint) -> c_uint);
     // SAFETY: passing the caller's argument through.

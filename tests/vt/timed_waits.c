@@ -217,6 +217,12 @@ int main(void) {
     close(quiet[0]);
     close(quiet[1]);
 
+    /* sleep() that a signal interrupts: the whole seconds left, as glibc answers. */
+    setitimer(ITIMER_REAL, &in_15_ms, NULL);
+    t = now_ms();
+    unsigned int seconds_left = sleep(10);
+    say("sleep(10), SIGALRM at 15 ms: seconds left", (int)seconds_left, 0, t);
+
     /* Timed joins. */
     struct helper short_one = {JUST_END, 40, 0, 0, 0};
     thread = start(&short_one);
