@@ -308,19 +308,23 @@ fn a_child_killed_by_the_filter_it_inherited_fails_the_run_saying_why() {
 /// thread and the new program takes the process. Its blocked main thread's slot was never
 /// exited, and climbsim waited for its look for ever: the run failed as "a livelock". Now the
 /// new program runs, at its instant.
+/// The same in a forked child whose followed parent waits for it (the new program then starts
+/// in its turn).
 #[test]
 fn an_exec_from_a_second_thread_runs_the_new_program_at_its_instant() {
-    let dir = support::scratch_dir("vt-exec-from-thread");
-    let program = compiled_c(&dir, "exec_from_thread");
-    let path = scenario(&dir, "exec-from-thread", 2.0, &[program.to_str().expect("utf-8 path")], true);
-    let (output, wall) = run_virtual(&path, &dir.join("out"));
-    assert_eq!(output.status.code(), Some(0), "{}", output_text(&output));
-    let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
-    assert_eq!(log.trim(), "exec-done", "{log}");
-    // 50 ms before the exec, 100 ms of the new program's sleep, and the calls between.
-    let ended = summary(&dir.join("out"))["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
-    assert!((0.15..0.16).contains(&ended), "{ended}");
-    assert!(wall < Duration::from_secs(20), "{wall:?}");
+    for (program, said) in [("exec_from_thread", "exec-done"), ("exec_from_thread_of_child", "exec-done\nchild status 0")] {
+        let dir = support::scratch_dir(&format!("vt-{program}"));
+        let compiled = compiled_c(&dir, program);
+        let path = scenario(&dir, program, 2.0, &[compiled.to_str().expect("utf-8 path")], true);
+        let (output, wall) = run_virtual(&path, &dir.join("out"));
+        assert_eq!(output.status.code(), Some(0), "{program}: {}", output_text(&output));
+        let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
+        assert_eq!(log.trim(), said, "{program}: {log}");
+        // 50 ms before the exec, 100 ms of the new program's sleep, and the calls between.
+        let ended = summary(&dir.join("out"))["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
+        assert!((0.15..0.16).contains(&ended), "{program}: {ended}");
+        assert!(wall < Duration::from_secs(20), "{program}: {wall:?}");
+    }
 }
 
 /// A thread made by a raw clone without a thread pointer of its own shares its creator's

@@ -156,7 +156,7 @@ SIGUSR1 handled 3 times, blocked again after: yes
 ppoll letting an ignored, pending SIGPIPE through, 50 ms: 0 after 50.000 ms
 read of an empty pipe, SIGALRM at 15 ms without SA_RESTART: -1 EINTR after 15.000 ms
 read of a pipe written at 40 ms, SIGALRM at 15 ms with SA_RESTART: 1 after 39.999 ms
-sleep(10), SIGALRM at 15 ms: seconds left: 9 after 15.000 ms
+sleep(10), SIGALRM at 15 ms: 9 seconds left, errno EINTR, after 15.000 ms
 pthread_timedjoin_np of a thread ending at 40 ms, 200 ms allowed: 0 after 40.000 ms
 pthread_timedjoin_np of a thread ending at 500 ms, 50 ms allowed: -1 ETIMEDOUT after 50.000 ms
 pthread_clockjoin_np of it then, 1 s allowed: 0 after 450.000 ms

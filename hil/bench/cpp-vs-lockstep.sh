@@ -9,6 +9,8 @@
 set -euo pipefail
 runs="${1:-5}"
 climbsim="$(realpath "${CLIMBSIM:-target/release/climbsim}")"
+source "$(dirname "${BASH_SOURCE[0]}")/controller-scenario.sh"
+climbsim_not_stale "$climbsim"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 c++ -O2 -std=c++17 -o "$work/line_follower" hil/controllers/line_follower.cpp

@@ -9,6 +9,7 @@ work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 cc -O2 -o "$work/trap_cost" "$repo/hil/bench/trap_cost.c"
 source "$repo/hil/bench/controller-scenario.sh"
+climbsim_not_stale "$climbsim"
 controller_scenario "$work/trap-cost.toml" 60.0 "$work/trap_cost"
 (cd "$repo" && "$climbsim" run "$work/trap-cost.toml" --clock virtual --out "$work/out" > "$work/run.log" 2>&1) || { cat "$work/run.log"; exit 1; }
 cat "$work/out/controller.log"

@@ -9,6 +9,8 @@
 set -euo pipefail
 scenario="$1"; runs="${2:-20}"; loaded="${3:-}"
 climbsim="${CLIMBSIM:-target/debug/climbsim}"
+source "$(dirname "${BASH_SOURCE[0]}")/controller-scenario.sh"
+climbsim_not_stale "$climbsim"
 work="$(mktemp -d)"
 busy=()
 cleanup() { for pid in "${busy[@]}"; do kill "$pid" 2> /dev/null || true; done; rm -rf "$work"; }

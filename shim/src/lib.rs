@@ -124,9 +124,8 @@ extern "C" fn init(_argc: c_int, _argv: *const *const c_char, envp: *const *cons
         say_failure(why, b"; the time-stamp counter is the host's");
     }
     // The main thread is followed from the start: before its first call it is already running.
-    if let Some(own) = schedule::slot::my_slot() {
-        schedule::slot::exit_earlier_image(own);
-    }
+    schedule::slot::exit_earlier_image();
+    schedule::slot::my_slot();
 }
 
 /// The vDSO's clocks patched to the shim's, or the vDSO hidden (`program.rs`).
@@ -160,6 +159,7 @@ unsafe extern "C" fn thread_exited(_: *mut c_void) {
     sync::thread_ending();
     if let Some(slot) = schedule::slot::claimed_slot() {
         schedule::slot::exit_slot(slot);
+        schedule::slot::forget_ended_slot();
     }
 }
 

@@ -82,7 +82,20 @@ fn exec_with(envp: *const *const c_char, run: impl FnOnce() -> c_int) -> c_int {
     let tid = sys::gettid();
     if carries_shim(envp) {
         let reserved = reserve(tid, 0);
+        // An exec from a thread other than the main one: the kernel gives the thread the
+        // process's id as it execs, and the new program's main thread takes on its slot under
+        // that id (see `slot::exit_earlier_image`), in its turn, as a single-threaded process's
+        // exec does.
+        let pid = sys::getpid();
+        let taken_on = shared().filter(|_| tid != pid).and_then(|shared| shared.live_slots().iter().find(|s| s.tid.load(Ordering::Relaxed) == tid && s.state() == state::RUNNING));
+        if let Some(slot) = taken_on {
+            slot.tid.store(pid, Ordering::Release);
+        }
         let result = run();
+        // Still here: the exec failed.
+        if let Some(slot) = taken_on {
+            slot.tid.store(tid, Ordering::Release);
+        }
         unreserve(reserved);
         return result;
     }

@@ -214,8 +214,10 @@ pub unsafe extern "C" fn usleep(micros: c_uint) -> c_int {
 pub unsafe extern "C" fn sleep(seconds: c_uint) -> c_uint {
     if let Some(shared) = active() {
         // Interrupted: the whole seconds left, as glibc's sleep answers (the kernel's
-        // remainder's seconds, the nanoseconds dropped: 9 for 9.98 s).
-        return sleep_until(shared, sim_now(shared).saturating_add(u64::from(seconds) * 1_000_000_000)).map_or(0, |left| (left / 1_000_000_000) as c_uint);
+        // remainder's seconds, the nanoseconds dropped: 9 for 9.98 s), errno left EINTR.
+        let Some(left) = sleep_until(shared, sim_now(shared).saturating_add(u64::from(seconds) * 1_000_000_000)) else { return 0 };
+        sys::set_errno(sys::EINTR);
+        return (left / 1_000_000_000) as c_uint;
     }
     let next = real!(sleep: fn(c_uint) -> c_uint);
     // SAFETY: passing the caller's argument through.

@@ -220,8 +220,9 @@ int main(void) {
     /* sleep() that a signal interrupts: the whole seconds left, as glibc answers. */
     setitimer(ITIMER_REAL, &in_15_ms, NULL);
     t = now_ms();
+    errno = 0;
     unsigned int seconds_left = sleep(10);
-    say("sleep(10), SIGALRM at 15 ms: seconds left", (int)seconds_left, 0, t);
+    printf("sleep(10), SIGALRM at 15 ms: %u seconds left, errno %s, after %.3f ms\n", seconds_left, strerrorname_np(errno), now_ms() - t);
 
     /* Timed joins. */
     struct helper short_one = {JUST_END, 40, 0, 0, 0};

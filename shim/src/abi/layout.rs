@@ -520,7 +520,9 @@ pub struct SigTimer {
     pub signo: AtomicU32,
     /// S: the clock it was created on (an absolute setting is read on it).
     pub clock: AtomicI32,
-    pub _pad0: AtomicU32,
+    /// S: 1 once a POSIX timer's signal was sent, until it is seen taken (no longer pending):
+    /// expirations meanwhile are its overrun.
+    pub queued: AtomicU32,
     /// C: the thread climbsim picked for the expirations in `fired`.
     pub deliver_tid: AtomicI32,
     /// S (arming), C (firing): the next expiration, simulated ns.

@@ -49,15 +49,23 @@ pub(crate) fn take_due(slot: &Slot) -> bool {
         }
         let bit = 1u64 << (signo - 1);
         let (blocked, waiting) = (slot.sig_blocked.load(Ordering::Relaxed), slot.sig_waiting.load(Ordering::Relaxed));
-        // A POSIX timer whose last signal is still pending (blocked, and no thread has taken it
-        // yet): the kernel queues no second one, it counts the expirations as the timer's
-        // overrun (`timer_getoverrun`, up to DELAYTIMER_MAX).
-        if timer.kind.load(Ordering::Relaxed) == timer_kind::POSIX && blocked & bit != 0 && waiting & bit == 0 && sys::pending_signals() & bit != 0 {
-            let _ = timer.overrun.fetch_update(Ordering::AcqRel, Ordering::Relaxed, |overrun| Some(overrun.saturating_add(expirations).min(DELAYTIMER_MAX)));
-            continue;
+        // A POSIX timer whose last signal is still pending (nobody has taken it yet): the kernel
+        // queues no second one, it counts the expirations as the timer's overrun
+        // (`timer_getoverrun`, up to DELAYTIMER_MAX). (Pending is asked of the signal's number:
+        // the same signal pending from elsewhere counts as this timer's.)
+        let posix = timer.kind.load(Ordering::Relaxed) == timer_kind::POSIX;
+        if posix && timer.queued.load(Ordering::Relaxed) != 0 {
+            if sys::pending_signals() & bit != 0 {
+                let _ = timer.overrun.fetch_update(Ordering::AcqRel, Ordering::Relaxed, |overrun| Some(overrun.saturating_add(expirations).min(DELAYTIMER_MAX)));
+                continue;
+            }
+            timer.queued.store(0, Ordering::Relaxed);
         }
         let overrun = expirations - 1;
         timer.overrun.store(overrun, Ordering::Relaxed);
+        if posix {
+            timer.queued.store(1, Ordering::Relaxed);
+        }
         // Blocked here and waited for by no one: pending on the process, as the kernel keeps
         // it, for whichever thread unblocks it or waits for it later.
         let whole_process = blocked & bit != 0 && waiting & bit == 0 && timer.tid.load(Ordering::Relaxed) == 0;

@@ -17,6 +17,10 @@ use crate::{native, sys};
 static EXIT_KEY: AtomicU32 = AtomicU32::new(u32::MAX);
 
 const NO_SLOT: u32 = u32::MAX;
+/// A thread whose slot was exited at its end: what it still calls (glibc masks every signal
+/// after the key destructors) is not followed, and its old slot, which another thread may have
+/// taken since, is not touched.
+const ENDED: u32 = u32::MAX - 1;
 
 thread_local! {
     /// This thread's slot in the block (NO_SLOT until its first intercepted call).
@@ -46,7 +50,7 @@ fn slot_claimed(slot: &Slot) {
 /// This thread's slot if it has claimed one (never claims).
 pub(crate) fn claimed_slot() -> Option<&'static Slot> {
     let index = SLOT.with(Cell::get);
-    if index == NO_SLOT {
+    if index == NO_SLOT || index == ENDED {
         return None;
     }
     shared()?.slots.get(index as usize)
@@ -58,6 +62,9 @@ pub(crate) fn claimed_slot() -> Option<&'static Slot> {
 pub(crate) fn my_slot() -> Option<&'static Slot> {
     let shared = shared()?;
     let index = SLOT.with(Cell::get);
+    if index == ENDED {
+        return None;
+    }
     if index != NO_SLOT {
         return shared.slots.get(index as usize);
     }
@@ -186,7 +193,11 @@ fn raw_clone_reservation(shared: &Shared, pid: i32) -> Option<(usize, &Slot)> {
 /// pointer of its own). Two system calls: asked only while a trapped clone's thread has not
 /// claimed its slot.
 pub(crate) fn shares_thread_locals(claimed: &Slot) -> bool {
-    claimed.tid.load(Ordering::Relaxed) != sys::gettid() && claimed.pid.load(Ordering::Relaxed) == sys::getpid()
+    // Its thread pointer is its creator's too (a thread whose slot was since given to another
+    // has a thread pointer of its own).
+    // SAFETY: pthread_self has no preconditions.
+    let same_thread_pointer = claimed.thread.load(Ordering::Relaxed) == unsafe { sys::pthread_self() } as u64;
+    same_thread_pointer && claimed.tid.load(Ordering::Relaxed) != sys::gettid() && claimed.pid.load(Ordering::Relaxed) == sys::getpid()
 }
 
 /// A thread that shares its creator's thread-locals (see [`shares_thread_locals`]) cannot be
@@ -299,19 +310,30 @@ fn watch_thread_exit() {
     }
 }
 
-/// A new program in this process (its shim's start, after an exec): the slots of the threads
-/// of its earlier image other than `own` are theirs no longer. An exec ends every other thread
-/// of the process (one from a thread other than the main one ends the main one too, and takes
-/// its id) without any of the shim's code running in them: they are exited now, or climbsim
-/// would wait for ever for a blocked main thread's look, or a running thread's park.
-pub(crate) fn exit_earlier_image(own: &Slot) {
+/// A new program in this process (its shim's start, after an exec, before its main thread
+/// claims its slot): the slots of the threads of its earlier image are theirs no longer, but
+/// for the one the main thread takes on (running under the process's id: the exec'ing
+/// thread's, see `spawn::exec_with`). An exec ends every other thread of the process
+/// (one from a thread other than the main one ends the main one too, and takes its id) without
+/// any of the shim's code running in them: they are exited now, or climbsim would wait for ever
+/// for a blocked main thread's look, or a running thread's park.
+pub(crate) fn exit_earlier_image() {
     let Some(shared) = shared() else { return };
     let pid = sys::getpid();
     for slot in shared.live_slots() {
-        if slot.pid.load(Ordering::Relaxed) == pid && slot.is_live() && !core::ptr::eq(slot, own) {
+        // Kept: the one taken on, and reservations (climbsim's for the first process, whose
+        // thread id it may not have written yet).
+        let held = slot.state();
+        let kept = held == state::RESERVED || (held == state::RUNNING && slot.tid.load(Ordering::Relaxed) == pid);
+        if slot.pid.load(Ordering::Relaxed) == pid && slot.is_live() && !kept {
             exit_slot(slot);
         }
     }
+}
+
+/// This thread has ended, its slot exited (see [`ENDED`]).
+pub(crate) fn forget_ended_slot() {
+    SLOT.with(|s| s.set(ENDED));
 }
 
 pub(crate) fn exit_slot(slot: &Slot) {

@@ -77,6 +77,7 @@ fn take_timer(shared: &Shared) -> Option<(usize, &SigTimer)> {
             shared.header.sig_timers_high.fetch_max(index as u32 + 1, Ordering::AcqRel);
             timer.fired.store(0, Ordering::Relaxed);
             timer.overrun.store(0, Ordering::Relaxed);
+            timer.queued.store(0, Ordering::Relaxed);
             timer.deliver_tid.store(0, Ordering::Relaxed);
             timer.deadline_ns.store(NEVER, Ordering::Relaxed);
             timer.interval_ns.store(0, Ordering::Relaxed);
