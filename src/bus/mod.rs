@@ -116,10 +116,6 @@ impl Bus {
         &self.servos
     }
 
-    pub fn servos_mut(&mut self) -> &mut [Servo] {
-        &mut self.servos
-    }
-
     /// The plant, if it is a `P` (e.g. the rapier world).
     pub fn plant<P: 'static>(&self) -> Option<&P> {
         self.plant.as_any().downcast_ref()

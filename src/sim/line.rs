@@ -204,10 +204,6 @@ impl WeldLine {
         Ok(())
     }
 
-    pub fn control_points(&self) -> &[[f32; 2]] {
-        &self.control
-    }
-
     pub fn smoothness(&self) -> u32 {
         self.smoothness
     }

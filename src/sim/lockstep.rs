@@ -53,15 +53,6 @@ impl Lockstep {
         &mut self.bus
     }
 
-    /// Send instruction bytes; return the bus's transactions (with reply timing), undecoded.
-    pub fn transact_raw(&mut self, bytes: &[u8]) -> Vec<crate::bus::Transaction> {
-        let mut transactions = Vec::new();
-        for packet in Decoder::default().push(self.now, bytes).into_iter().flatten() {
-            transactions.push(self.bus.handle(packet, self.now, None));
-        }
-        transactions
-    }
-
     pub fn world(&self) -> &RobotWorld {
         // ok: `new` always builds the bus around a RobotWorld.
         self.bus.plant::<RobotWorld>().expect("lockstep bus drives a RobotWorld")

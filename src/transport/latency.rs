@@ -141,6 +141,7 @@ pub fn set_async_low_latency(fd: RawFd, on: bool) -> Option<bool> {
     // SAFETY: SerialStruct is plain data matching the kernel's layout; the ioctls read and write
     // one through a pointer valid for the call.
     let mut serial: SerialStruct = unsafe { std::mem::zeroed() };
+    // SAFETY: TIOCGSERIAL fills the SerialStruct above through a pointer valid for the call.
     if unsafe { libc::ioctl(fd, libc::TIOCGSERIAL, &mut serial) } != 0 {
         debug!(error = %io::Error::last_os_error(), "no serial info (TIOCGSERIAL): ASYNC_LOW_LATENCY not set");
         return None;
@@ -148,6 +149,7 @@ pub fn set_async_low_latency(fd: RawFd, on: bool) -> Option<bool> {
     let was = serial.flags & ASYNC_LOW_LATENCY != 0;
     if was != on {
         serial.flags = if on { serial.flags | ASYNC_LOW_LATENCY } else { serial.flags & !ASYNC_LOW_LATENCY };
+        // SAFETY: TIOCSSERIAL reads the SerialStruct above through a pointer valid for the call.
         if unsafe { libc::ioctl(fd, libc::TIOCSSERIAL, &serial) } != 0 {
             warn!(error = %io::Error::last_os_error(), "cannot set ASYNC_LOW_LATENCY (TIOCSSERIAL)");
             return None;

@@ -112,12 +112,14 @@ impl VirtualPort {
         // SAFETY: termios2 is plain data; TCGETS2/TCSETS2 read and write one through a pointer
         // valid for the call.
         let mut termios: libc::termios2 = unsafe { std::mem::zeroed() };
+        // SAFETY: TCGETS2 fills the termios2 above through a pointer valid for the call.
         if unsafe { libc::ioctl(slave, libc::TCGETS2, &mut termios) } != 0 {
             return Err(io::Error::last_os_error());
         }
         termios.c_cflag = (termios.c_cflag & !libc::CBAUD) | libc::BOTHER;
         termios.c_ispeed = bps;
         termios.c_ospeed = bps;
+        // SAFETY: TCSETS2 reads the termios2 above through a pointer valid for the call.
         if unsafe { libc::ioctl(slave, libc::TCSETS2, &termios) } != 0 {
             return Err(io::Error::last_os_error());
         }
@@ -403,6 +405,7 @@ impl LineSettings for PtyLine {
     fn baud(&self) -> Option<u32> {
         // SAFETY: termios2 is plain data; TCGETS2 fills it and the pointer is valid for the call.
         let mut termios: libc::termios2 = unsafe { std::mem::zeroed() };
+        // SAFETY: TCGETS2 fills the termios2 above through a pointer valid for the call.
         let rc = unsafe { libc::ioctl(self.slave, libc::TCGETS2, &mut termios) };
         (rc == 0).then_some(termios.c_ospeed)
     }

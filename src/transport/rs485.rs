@@ -36,6 +36,7 @@ pub fn enable(fd: RawFd, delays: Rs485Delays) -> io::Result<SerialRs485> {
         return Err(io::Error::last_os_error());
     }
     let wanted = SerialRs485 { flags: SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND, delay_rts_before_send: delays.before_send_ms, delay_rts_after_send: delays.after_send_ms, padding: [0; 5] };
+    // SAFETY: TIOCSRS485 reads `wanted`, laid out as the kernel's, through a pointer valid for the call.
     if unsafe { libc::ioctl(fd, libc::TIOCSRS485, &wanted) } != 0 {
         return Err(io::Error::last_os_error());
     }

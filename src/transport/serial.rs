@@ -152,6 +152,7 @@ impl SerialDevice {
         // SAFETY: termios2 is plain data; TCGETS2/TCSETSW2 read and write one through a pointer
         // valid for the call.
         let mut termios: libc::termios2 = unsafe { std::mem::zeroed() };
+        // SAFETY: TCGETS2 fills the termios2 above through a pointer valid for the call.
         if unsafe { libc::ioctl(fd, libc::TCGETS2, &mut termios) } != 0 {
             return Err(error(io::Error::last_os_error()));
         }
@@ -159,6 +160,7 @@ impl SerialDevice {
         termios.c_cflag |= libc::BOTHER;
         termios.c_ispeed = bps;
         termios.c_ospeed = bps;
+        // SAFETY: TCSETSW2 reads the termios2 above through a pointer valid for the call.
         if unsafe { libc::ioctl(fd, libc::TCSETSW2, &termios) } != 0 {
             return Err(error(io::Error::last_os_error()));
         }

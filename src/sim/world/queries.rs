@@ -80,10 +80,6 @@ impl RobotWorld {
         self.magnets_on = on;
     }
 
-    pub fn set_gravity(&mut self, gravity: Vector) {
-        self.physics.gravity = gravity;
-    }
-
     /// Fraction of its pull the magnet of `wheel` keeps (1 = healthy, 0 = failed).
     pub fn set_magnet_pull(&mut self, wheel: WheelPosition, fraction: f32) {
         self.magnet_pull[wheel.index()] = fraction;

@@ -114,11 +114,6 @@ impl CanIds {
         }
         Ok(ids)
     }
-
-    /// The same pair seen from the other end: what a controller sends on and listens to.
-    pub fn swapped(self) -> Self {
-        Self { request: self.response, response: self.request }
-    }
 }
 
 /// A classic CAN data frame: an ID and 0 to 8 data bytes.
