@@ -312,18 +312,20 @@ fn a_child_killed_by_the_filter_it_inherited_fails_the_run_saying_why() {
 /// in its turn).
 #[test]
 fn an_exec_from_a_second_thread_runs_the_new_program_at_its_instant() {
-    for (program, said) in [("exec_from_thread", "exec-done"), ("exec_from_thread_of_child", "exec-done\nchild status 0")] {
-        let dir = support::scratch_dir(&format!("vt-{program}"));
-        let compiled = compiled_c(&dir, program);
-        let path = scenario(&dir, program, 2.0, &[compiled.to_str().expect("utf-8 path")], true);
+    let dir = support::scratch_dir("vt-exec-from-thread");
+    let program = compiled_c(&dir, "exec_from_thread");
+    let program = program.to_str().expect("utf-8 path");
+    for (name, command, said) in [("main", vec![program], "exec-done"), ("in-a-child", vec![program, "in-a-child"], "exec-done\nchild status 0")] {
+        let path = scenario(&dir, name, 2.0, &command, true);
+        let dir = dir.join(name);
         let (output, wall) = run_virtual(&path, &dir.join("out"));
-        assert_eq!(output.status.code(), Some(0), "{program}: {}", output_text(&output));
+        assert_eq!(output.status.code(), Some(0), "{name}: {}", output_text(&output));
         let log = std::fs::read_to_string(dir.join("out/controller.log")).expect("controller.log");
-        assert_eq!(log.trim(), said, "{program}: {log}");
+        assert_eq!(log.trim(), said, "{name}: {log}");
         // 50 ms before the exec, 100 ms of the new program's sleep, and the calls between.
         let ended = summary(&dir.join("out"))["controller_exited_at_s"].as_f64().expect("controller_exited_at_s");
-        assert!((0.15..0.16).contains(&ended), "{program}: {ended}");
-        assert!(wall < Duration::from_secs(20), "{program}: {wall:?}");
+        assert!((0.15..0.16).contains(&ended), "{name}: {ended}");
+        assert!(wall < Duration::from_secs(20), "{name}: {wall:?}");
     }
 }
 

@@ -234,3 +234,33 @@ fn a_controller_that_pauses_until_sigterm_ends_with_its_handler() {
         assert_eq!(support::vt::summary(&dir.join(run))["controller_exit_code"], 0, "run {run}");
     }
 }
+
+/// A robust mutex whose owner ends holding it: the kernel hands it on as the owner exits
+/// (EOWNERDEAD for the next locker), but the waiters are in the shim's queues, which it cannot
+/// see: a locker already waiting waited for ever, and the run failed at its end. Now it gets
+/// EOWNERDEAD at the owner's end, as natively (within a millisecond), in every run.
+#[test]
+fn a_robust_mutex_whose_owner_ends_is_handed_on_at_that_instant() {
+    let (_, log) = c_program_repeated("vt-robust-mutex", "robust_mutex", 2.0);
+    assert_eq!(
+        log,
+        "lock after its owner thread ended: EOWNERDEAD\n\
+         lock waiting for an owner thread that ends at 30 ms: EOWNERDEAD after 30.000 ms\n\
+         lock of a shared one waiting for an owner process that dies at 30 ms: EOWNERDEAD after 30.000 ms\n"
+    );
+}
+
+/// A thread canceled while it waits where the shim waits for it (a sleep, the poll family) was
+/// in no asynchronous cancellation window of glibc's, which sent it nothing: it slept on to its
+/// deadline (10 s), and the run failed. A condition wait's cancellation, which glibc signals,
+/// was taken for an ordinary signal and waited on. Now each ends at the cancel's instant, its
+/// cleanup run; one whose cancellation is off sleeps on, and acts on it at its next
+/// cancellation point, as natively (within a few milliseconds).
+#[test]
+fn a_thread_canceled_in_a_wait_ends_at_that_instant() {
+    let (_, log) = c_program_repeated("vt-cancel", "cancel", 2.0);
+    let waits = ["sleep", "nanosleep", "pthread_cond_wait", "poll", "select", "epoll_wait"];
+    let mut expected: String = waits.iter().map(|wait| format!("canceled in {wait} at 20 ms: canceled, 1 cleanup, joined after 20.001 ms\n")).collect();
+    expected.push_str("canceled at 20 ms with cancellation off until 30 ms, then usleep: canceled after 30.000 ms\n");
+    assert_eq!(log, expected);
+}

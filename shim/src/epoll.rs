@@ -334,10 +334,12 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
     let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
-    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
-        let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
-        // SAFETY: the caller's arguments, with our timeout.
-        mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms) }, interest.port_fd)
+    crate::wait::as_cancellation_point(|| {
+        wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
+            let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
+            // SAFETY: the caller's arguments, with our timeout.
+            mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms) }, interest.port_fd)
+        })
     })
 }
 
@@ -350,11 +352,13 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
     let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
-    crate::wait::with_wait_mask(sigmask, || {
-        wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
-            let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
-            // SAFETY: the caller's arguments, with our timeout.
-            mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms, sigmask) }, interest.port_fd)
+    crate::wait::as_cancellation_point(|| {
+        crate::wait::with_wait_mask(sigmask, || {
+            wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
+                let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
+                // SAFETY: the caller's arguments, with our timeout.
+                mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms, sigmask) }, interest.port_fd)
+            })
         })
     })
 }
@@ -373,12 +377,14 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
     let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
-    crate::wait::with_wait_mask(sigmask, || {
-        wait(shared, call::POLL, interest, asked, &mut |wall| {
-            let limit = kernel_timeout(shared, epfd, interest.port_fd, wall).map(from_ns);
-            let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
-            // SAFETY: the caller's arguments, with our timeout.
-            mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, limit_ptr, sigmask) }, interest.port_fd)
+    crate::wait::as_cancellation_point(|| {
+        crate::wait::with_wait_mask(sigmask, || {
+            wait(shared, call::POLL, interest, asked, &mut |wall| {
+                let limit = kernel_timeout(shared, epfd, interest.port_fd, wall).map(from_ns);
+                let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
+                // SAFETY: the caller's arguments, with our timeout.
+                mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, limit_ptr, sigmask) }, interest.port_fd)
+            })
         })
     })
 }

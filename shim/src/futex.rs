@@ -305,6 +305,75 @@ fn wake_op(shared: &Shared, args: &Args, first: Key, second: Key) -> c_long {
     c_long::from(woken)
 }
 
+/// The robust mutex protocol's bits of a futex word (set_robust_list(2)).
+const FUTEX_WAITERS: u32 = 0x8000_0000;
+const FUTEX_OWNER_DIED: u32 = 0x4000_0000;
+const FUTEX_TID_MASK: u32 = 0x3fff_ffff;
+/// The most entries of a robust list the kernel walks.
+const ROBUST_LIST_LIMIT: usize = 2048;
+
+/// This followed thread ends (the shim's thread-end callback, or its process's end): the
+/// robust mutexes it still holds are handed on as the kernel hands them on at its exit (see
+/// set_robust_list(2)): each word that names this thread is marked FUTEX_OWNER_DIED, its owner
+/// cleared, and one waiter woken. Here, because the waiters are in the shim's queues, which the
+/// kernel cannot see: a thread waiting for a robust mutex whose owner died waited for ever. (The
+/// kernel, walking the list again as the thread exits, finds the words no longer this
+/// thread's.) Priority-inheritance mutexes (an entry's low bit) are left to the kernel, whose
+/// queues hold their waiters.
+pub(crate) fn robust_list_ends() {
+    let Some(shared) = active() else { return };
+    let (mut head, mut length) = (0usize, 0usize);
+    if native::call3(nr::GET_ROBUST_LIST, 0, &mut head as *mut usize as c_long, &mut length as *mut usize as c_long) != 0 || head == 0 {
+        return;
+    }
+    // struct robust_list_head: the list's first entry, the offset of an entry's futex word,
+    // and the entry being taken or released (list_op_pending).
+    let word = |at: usize| sys::read_from_program(at as *const usize);
+    let (Some(first), Some(offset), Some(pending)) = (word(head), word(head + 8), word(head + 16)) else { return };
+    let tid = sys::gettid() as u32;
+    let mut entry = first;
+    for _ in 0..ROBUST_LIST_LIMIT {
+        if entry == head || entry == 0 {
+            break;
+        }
+        let Some(next) = word(entry & !1) else { break };
+        if entry & 1 == 0 {
+            hand_on_robust(shared, (entry & !1).wrapping_add(offset), tid);
+        }
+        entry = next;
+    }
+    if pending != 0 && pending & 1 == 0 {
+        hand_on_robust(shared, pending.wrapping_add(offset), tid);
+    }
+}
+
+/// The robust mutex word at `addr`, if thread `tid` holds it: marked as its owner's death
+/// marks it, and one waiter woken.
+fn hand_on_robust(shared: &Shared, addr: usize, tid: u32) {
+    if !addr.is_multiple_of(4) || sys::read_from_program(addr as *const u32).is_none() {
+        return;
+    }
+    // SAFETY: an aligned word of the program's memory that could be read just now; futex
+    // words are written atomically by every party.
+    let word = unsafe { &*(addr as *const core::sync::atomic::AtomicU32) };
+    let mut value = word.load(Ordering::Acquire);
+    loop {
+        if value & FUTEX_TID_MASK != tid {
+            return;
+        }
+        match word.compare_exchange(value, (value & FUTEX_WAITERS) | FUTEX_OWNER_DIED, Ordering::AcqRel, Ordering::Acquire) {
+            Ok(_) => break,
+            Err(found) => value = found,
+        }
+    }
+    if value & FUTEX_WAITERS != 0 {
+        // A process-private mutex's waiters wait on its address; a shared one's on its file.
+        if wake(shared, key_of(addr, true), 1, FUTEX_BITSET_MATCH_ANY) == 0 {
+            wake(shared, key_of(addr, false), 1, FUTEX_BITSET_MATCH_ANY);
+        }
+    }
+}
+
 /// The queue lock (Drepper's three-state mutex on a shared word).
 fn lock(shared: &Shared) {
     let word = &shared.header.futex_lock;

@@ -157,6 +157,7 @@ static INIT: extern "C" fn(c_int, *const *const c_char, *const *const c_char) = 
 
 unsafe extern "C" fn thread_exited(_: *mut c_void) {
     sync::thread_ending();
+    futex::robust_list_ends();
     if let Some(slot) = schedule::slot::claimed_slot() {
         schedule::slot::exit_slot(slot);
         schedule::slot::forget_ended_slot();
@@ -167,6 +168,7 @@ unsafe extern "C" fn thread_exited(_: *mut c_void) {
 unsafe extern "C" fn process_exiting(_: *mut c_void) {
     let Some(shared) = schedule::block::shared() else { return };
     let pid = sys::getpid();
+    futex::robust_list_ends();
     children::wake_waiting_parent(shared, pid, sys::getppid());
     // This thread's own slot last: until then it runs, so climbsim decides nothing on a
     // process half marked (it would move time to the deadline of a thread not yet marked).

@@ -133,6 +133,7 @@ pub mod nr {
     pub const TIMER_GETOVERRUN: i64 = 225;
     pub const TIMER_DELETE: i64 = 226;
     pub const CLOCK_GETTIME: i64 = 228;
+    pub const GET_ROBUST_LIST: i64 = 274;
     pub const CLOCK_NANOSLEEP: i64 = 230;
     pub const EPOLL_WAIT: i64 = 232;
     pub const EPOLL_CTL: i64 = 233;
@@ -172,6 +173,7 @@ pub mod nr {
     pub const WRITE: i64 = 64;
     pub const FSTAT: i64 = 80;
     pub const FUTEX: i64 = 98;
+    pub const GET_ROBUST_LIST: i64 = 100;
     pub const NANOSLEEP: i64 = 101;
     pub const SCHED_YIELD: i64 = 124;
     pub const CLOCK_GETTIME: i64 = 113;
@@ -210,6 +212,7 @@ unsafe extern "C" {
     pub fn pthread_key_create(key: *mut u32, destructor: Option<unsafe extern "C" fn(*mut c_void)>) -> c_int;
     pub fn pthread_setspecific(key: u32, value: *const c_void) -> c_int;
     pub fn pthread_self() -> usize;
+    fn pthread_testcancel();
     pub fn __register_atfork(prepare: Option<unsafe extern "C" fn()>, parent: Option<unsafe extern "C" fn()>, child: Option<unsafe extern "C" fn()>, dso: *mut c_void) -> c_int;
 }
 
@@ -247,6 +250,19 @@ pub(crate) use real;
 pub fn say(text: &[u8]) {
     native::call3(nr::WRITE, 2, text.as_ptr() as c_long, text.len() as c_long);
 }
+
+/// A cancellation point (pthreads(7)), for the shim's own waits that replace glibc's: a
+/// deferred cancellation of this thread, asked before the call or while it waited (which ended
+/// the wait: see `signals::pthread_cancel`), is acted on here, as glibc acts on it in its own.
+/// Only where the shim stands in for a libc function (never in the SIGSYS handler: the
+/// cancellation unwinds the thread's stack from here).
+pub fn cancellation_point() {
+    // SAFETY: pthread_testcancel has no preconditions.
+    unsafe { pthread_testcancel() }
+}
+
+/// glibc's signal for a thread's cancellation.
+pub const SIGCANCEL: c_int = 32;
 
 /// Signals pending for this thread or its process (made natively: a trapped call).
 pub fn pending_signals() -> u64 {

@@ -200,6 +200,19 @@ fn interrupted() -> c_int {
     refused(sys::EINTR)
 }
 
+/// A wait of the poll family (`wait`) as the cancellation point it is (see
+/// `sys::cancellation_point`): a cancellation asked before it acts at once, one asked while it
+/// waited (which ended the wait) as it returns. (With the thread's cancellation off, that wait
+/// ends with EINTR, where natively it would have gone on.)
+pub(crate) fn as_cancellation_point(wait: impl FnOnce() -> c_int) -> c_int {
+    sys::cancellation_point();
+    let rc = wait();
+    if rc == -1 && sys::errno() == sys::EINTR {
+        sys::cancellation_point();
+    }
+    rc
+}
+
 /// A wait of the pselect family, `wait`, with the signal mask it asks for (`sigmask`; see
 /// `signals::WaitMask`); or Linux's answer to an unreadable mask (EFAULT).
 pub(crate) fn with_wait_mask(sigmask: *const core::ffi::c_void, wait: impl FnOnce() -> c_int) -> c_int {
@@ -406,7 +419,9 @@ pub unsafe extern "C" fn poll(fds: *mut pollfd, count: nfds_t, timeout_ms: c_int
         Err(errno) => return refused(errno),
     };
     // SAFETY: the caller's arguments, with our timeout.
-    wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, interest.port_fd))
+    as_cancellation_point(|| {
+        wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, interest.port_fd))
+    })
 }
 
 #[unsafe(no_mangle)]
@@ -425,12 +440,14 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
         Ok(interest) => interest,
         Err(errno) => return refused(errno),
     };
-    with_wait_mask(sigmask.cast(), || {
-        wait(shared, call::POLL, interest, asked, &mut |wall| {
-            let limit = wall.map(from_ns);
-            let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
-            // SAFETY: the caller's arguments, with our timeout.
-            crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, interest.port_fd)
+    as_cancellation_point(|| {
+        with_wait_mask(sigmask.cast(), || {
+            wait(shared, call::POLL, interest, asked, &mut |wall| {
+                let limit = wall.map(from_ns);
+                let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
+                // SAFETY: the caller's arguments, with our timeout.
+                crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, interest.port_fd)
+            })
         })
     })
 }
@@ -507,12 +524,14 @@ pub unsafe extern "C" fn select(count: c_int, read: *mut fd_set, write: *mut fd_
     };
     let interest = sets.interest(shared);
     let started = sim_now(shared);
-    let result = wait(shared, call::SELECT, interest, asked, &mut |wall| {
-        sets.restore();
-        let mut limit = wall.map(|ns| timeval { tv_sec: (ns / 1_000_000_000) as i64, tv_usec: (ns % 1_000_000_000).div_ceil(1000) as i64 });
-        let limit_ptr = limit.as_mut().map_or(core::ptr::null_mut(), |t| t as *mut timeval);
-        // SAFETY: the caller's sets, with our timeout.
-        crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr) }, interest.port_fd)
+    let result = as_cancellation_point(|| {
+        wait(shared, call::SELECT, interest, asked, &mut |wall| {
+            sets.restore();
+            let mut limit = wall.map(|ns| timeval { tv_sec: (ns / 1_000_000_000) as i64, tv_usec: (ns % 1_000_000_000).div_ceil(1000) as i64 });
+            let limit_ptr = limit.as_mut().map_or(core::ptr::null_mut(), |t| t as *mut timeval);
+            // SAFETY: the caller's sets, with our timeout.
+            crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr) }, interest.port_fd)
+        })
     });
     if let Some(asked) = asked {
         // Linux reports the time left (in whole microseconds, rounded down), whatever ended the
@@ -536,13 +555,15 @@ pub unsafe extern "C" fn pselect(count: c_int, read: *mut fd_set, write: *mut fd
         Err(errno) => return refused(errno),
     };
     let interest = sets.interest(shared);
-    with_wait_mask(sigmask.cast(), || {
-        wait(shared, call::SELECT, interest, asked, &mut |wall| {
-            sets.restore();
-            let limit = wall.map(from_ns);
-            let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
-            // SAFETY: the caller's sets, with our timeout.
-            crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, interest.port_fd)
+    as_cancellation_point(|| {
+        with_wait_mask(sigmask.cast(), || {
+            wait(shared, call::SELECT, interest, asked, &mut |wall| {
+                sets.restore();
+                let limit = wall.map(from_ns);
+                let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
+                // SAFETY: the caller's sets, with our timeout.
+                crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, interest.port_fd)
+            })
         })
     })
 }

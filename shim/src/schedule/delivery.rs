@@ -12,6 +12,8 @@ use crate::sys::{self, nr};
 /// The signals whose default action is to do nothing.
 const IGNORED_BY_DEFAULT: [c_int; 4] = [17, 18, 23, 28];
 const SI_TIMER: c_int = -2;
+const SI_USER: c_int = 0;
+const SI_TKILL: c_int = -6;
 /// The most a POSIX timer's overrun counts (Linux's DELAYTIMER_MAX, INT_MAX).
 const DELAYTIMER_MAX: u32 = i32::MAX as u32;
 /// The timer ids handed out: timer i of the block is `TIMER_ID_BASE + i`. Non-negative, as
@@ -99,6 +101,10 @@ fn send(timer: &SigTimer, index: usize, signo: c_int, overrun: u32, (pid, tid): 
     let mut info = [0i32; 32];
     info[0] = signo as i32;
     if kind == timer_kind::SENT {
+        // As the kernel marks it: a signal sent to a thread (tgkill, tkill) SI_TKILL, to a
+        // process (kill) SI_USER. (glibc's cancellation handler takes SIGCANCEL only with
+        // SI_TKILL: a canceled thread in a condition wait waited on.)
+        info[2] = if timer.tid.load(Ordering::Relaxed) != 0 { SI_TKILL } else { SI_USER };
         info[4] = value as u32 as i32;
         info[5] = (value >> 32) as u32 as i32;
         timer.state.store(timer_state::FREE, Ordering::Release);

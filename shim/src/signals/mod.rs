@@ -17,7 +17,8 @@ use core::sync::atomic::Ordering;
 
 use crate::abi::{NEVER, Shared, SigTimer, call, release, timer_kind, timer_state};
 use crate::native;
-use crate::sys::{self, nr};
+use crate::schedule::block::active;
+use crate::sys::{self, nr, real};
 
 mod timers;
 mod waits;
@@ -40,7 +41,7 @@ pub(crate) fn mask_changed(mask: u64) {
 /// A trapped call of this module's families, on simulated time; None: the kernel's (the run
 /// is over, a clock or timer climbsim does not follow), with the program's own mask.
 pub(crate) fn trapped(number: i64, a: [i64; 6], program_mask: u64) -> Option<c_long> {
-    let shared = crate::schedule::block::active()?;
+    let shared = active()?;
     match number {
         nr::ALARM => Some(timers::alarm(shared, a[0] as u32)),
         nr::SETITIMER if a[0] == ITIMER_REAL => Some(timers::setitimer(shared, a[1] as *const [sys::timeval; 2], a[2] as *mut [sys::timeval; 2])),
@@ -87,6 +88,30 @@ fn take_timer(shared: &Shared) -> Option<(usize, &SigTimer)> {
     }
     crate::schedule::block::refuse(crate::abi::refused::SIG_TIMERS);
     None
+}
+
+/// pthread_cancel: glibc marks the thread canceled, and sends it SIGCANCEL only while it is in
+/// an asynchronous cancellation window (a blocking call made through glibc, such as a
+/// condition wait's futex). A thread that waits where the shim waits instead of glibc (a
+/// sleep, a poll) is in none, and slept on to its deadline: it is sent SIGCANCEL as a followed
+/// thread's signal, which ends its wait at this instant, and the wait acts on the
+/// cancellation as it returns (`sys::cancellation_point`).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pthread_cancel(thread: usize) -> c_int {
+    let next = real!(pthread_cancel: fn(usize) -> c_int);
+    // SAFETY: passing the caller's argument through.
+    let rc = unsafe { next(thread) };
+    if rc == 0
+        && let Some(shared) = active()
+    {
+        let me = crate::schedule::block::pid();
+        // Still blocked: glibc sent nothing (a signal it sent has made it ready).
+        let waiting = shared.live_slots().iter().find(|s| s.thread.load(Ordering::Relaxed) == thread as u64 && s.pid.load(Ordering::Relaxed) == me && s.state() == crate::abi::state::BLOCKED);
+        if let Some(target) = waiting {
+            let _ = send_followed(shared, me, target.tid.load(Ordering::Relaxed), sys::SIGCANCEL);
+        }
+    }
+    rc
 }
 
 /// The signals whose sending goes to the kernel as it is: 0 (a check that the target lives),
