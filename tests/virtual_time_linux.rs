@@ -246,7 +246,8 @@ fn a_robust_mutex_whose_owner_ends_is_handed_on_at_that_instant() {
         log,
         "lock after its owner thread ended: EOWNERDEAD\n\
          lock waiting for an owner thread that ends at 30 ms: EOWNERDEAD after 30.000 ms\n\
-         lock of a shared one waiting for an owner process that dies at 30 ms: EOWNERDEAD after 30.000 ms\n"
+         lock of a shared one waiting for an owner process that dies at 30 ms: EOWNERDEAD after 30.000 ms\n\
+         lock of a shared one held by another thread of a process that exits at 30 ms: EOWNERDEAD after 30.000 ms\n"
     );
 }
 

@@ -333,8 +333,9 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
         return unsafe { next(epfd, events, max, timeout_ms) };
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
-    let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     crate::wait::as_cancellation_point(|| {
+        // (Inside: a cancellation acted on unwinds past no guard.)
+        let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
         wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
             let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
             // SAFETY: the caller's arguments, with our timeout.
@@ -351,8 +352,9 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
         return unsafe { next(epfd, events, max, timeout_ms, sigmask) };
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
-    let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     crate::wait::as_cancellation_point(|| {
+        // (Inside: a cancellation acted on unwinds past no guard.)
+        let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
         crate::wait::with_wait_mask(sigmask, || {
             wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
                 let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
@@ -376,8 +378,9 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
         Err(errno) => return crate::wait::refused(errno),
     };
     let interest = interest(EpollCall { epfd, events, max, collect_more });
-    let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
     crate::wait::as_cancellation_point(|| {
+        // (Inside: a cancellation acted on unwinds past no guard.)
+        let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
         crate::wait::with_wait_mask(sigmask, || {
             wait(shared, call::POLL, interest, asked, &mut |wall| {
                 let limit = kernel_timeout(shared, epfd, interest.port_fd, wall).map(from_ns);

@@ -321,16 +321,35 @@ const ROBUST_LIST_LIMIT: usize = 2048;
 /// thread's.) Priority-inheritance mutexes (an entry's low bit) are left to the kernel, whose
 /// queues hold their waiters.
 pub(crate) fn robust_list_ends() {
+    robust_list_of_thread_ends(sys::gettid());
+}
+
+/// The process ends (exit, `_exit`): every followed thread of it hands on the robust mutexes
+/// it holds, as [`robust_list_ends`] does for one (the kernel walks each thread's list as the
+/// process dies; a mutex another thread than the exiting one held was left to waiters in other
+/// processes for ever).
+pub(crate) fn robust_lists_of_process_end(pid: i32) {
+    let Some(shared) = active() else { return };
+    for slot in shared.live_slots().iter().filter(|s| s.pid.load(Ordering::Relaxed) == pid && s.is_live()) {
+        let tid = slot.tid.load(Ordering::Relaxed);
+        if tid > 0 {
+            robust_list_of_thread_ends(tid);
+        }
+    }
+}
+
+/// Thread `tid` of this process ends: see [`robust_list_ends`].
+fn robust_list_of_thread_ends(tid: i32) {
     let Some(shared) = active() else { return };
     let (mut head, mut length) = (0usize, 0usize);
-    if native::call3(nr::GET_ROBUST_LIST, 0, &mut head as *mut usize as c_long, &mut length as *mut usize as c_long) != 0 || head == 0 {
+    if native::call3(nr::GET_ROBUST_LIST, c_long::from(tid), &mut head as *mut usize as c_long, &mut length as *mut usize as c_long) != 0 || head == 0 {
         return;
     }
     // struct robust_list_head: the list's first entry, the offset of an entry's futex word,
     // and the entry being taken or released (list_op_pending).
     let word = |at: usize| sys::read_from_program(at as *const usize);
     let (Some(first), Some(offset), Some(pending)) = (word(head), word(head + 8), word(head + 16)) else { return };
-    let tid = sys::gettid() as u32;
+    let tid = tid as u32;
     let mut entry = first;
     for _ in 0..ROBUST_LIST_LIMIT {
         if entry == head || entry == 0 {

@@ -325,6 +325,19 @@ pub(crate) fn left_trap(before: u64) {
     TRAP_MASK.with(|m| m.set(before));
 }
 
+/// A cancellation point (pthreads(7)), for the shim's own waits that replace glibc's: a
+/// deferred cancellation of this thread, asked before the call or while it waited (which ended
+/// the wait: see `signals::pthread_cancel`), is acted on here, as glibc acts on it in its own:
+/// the thread's stack is unwound from here. Not inside the trap handler (a raw system call is
+/// no cancellation point, and an unwinding out of a signal handler would leave its mask, which
+/// blocks every signal, on the thread), where the shim's own calls of its interposers end.
+pub(crate) fn cancellation_point() {
+    if TRAP_MASK.with(Cell::get) == NO_MASK {
+        // SAFETY: pthread_testcancel has no preconditions.
+        unsafe { sys::pthread_testcancel() }
+    }
+}
+
 /// The program changed its mask (a trapped sigprocmask), inside the trap handler.
 pub(crate) fn set_trap_mask(mask: u64) {
     TRAP_MASK.with(|m| m.set(mask));

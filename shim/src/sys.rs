@@ -212,7 +212,7 @@ unsafe extern "C" {
     pub fn pthread_key_create(key: *mut u32, destructor: Option<unsafe extern "C" fn(*mut c_void)>) -> c_int;
     pub fn pthread_setspecific(key: u32, value: *const c_void) -> c_int;
     pub fn pthread_self() -> usize;
-    fn pthread_testcancel();
+    pub fn pthread_testcancel();
     pub fn __register_atfork(prepare: Option<unsafe extern "C" fn()>, parent: Option<unsafe extern "C" fn()>, child: Option<unsafe extern "C" fn()>, dso: *mut c_void) -> c_int;
 }
 
@@ -249,16 +249,6 @@ pub(crate) use real;
 /// A line on standard error, without going through anything the shim intercepts.
 pub fn say(text: &[u8]) {
     native::call3(nr::WRITE, 2, text.as_ptr() as c_long, text.len() as c_long);
-}
-
-/// A cancellation point (pthreads(7)), for the shim's own waits that replace glibc's: a
-/// deferred cancellation of this thread, asked before the call or while it waited (which ended
-/// the wait: see `signals::pthread_cancel`), is acted on here, as glibc acts on it in its own.
-/// Only where the shim stands in for a libc function (never in the SIGSYS handler: the
-/// cancellation unwinds the thread's stack from here).
-pub fn cancellation_point() {
-    // SAFETY: pthread_testcancel has no preconditions.
-    unsafe { pthread_testcancel() }
 }
 
 /// glibc's signal for a thread's cancellation.

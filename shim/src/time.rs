@@ -130,18 +130,18 @@ pub(crate) enum Cancellable {
 }
 
 /// [`sleep_until`] for a libc sleep the shim stands in for, a cancellation point (see
-/// `sys::cancellation_point`): a cancellation asked before acts at once; one asked while it
+/// `handlers::cancellation_point`): a cancellation asked before acts at once; one asked while it
 /// sleeps (`signals::pthread_cancel` sends SIGCANCEL, which ends the sleep) acts as it ends,
 /// or, with the thread's cancellation off, the sleep goes on, as natively (where glibc sends
 /// nothing then).
 fn sleep_until_cancellable(shared: &Shared, deadline: u64) -> Option<u64> {
-    sys::cancellation_point();
+    crate::handlers::cancellation_point();
     loop {
         let left = sleep_until(shared, deadline)?;
         if crate::schedule::delivery::interrupted_by() != Some(sys::SIGCANCEL) {
             return Some(left);
         }
-        sys::cancellation_point();
+        crate::handlers::cancellation_point();
     }
 }
 

@@ -201,14 +201,14 @@ fn interrupted() -> c_int {
 }
 
 /// A wait of the poll family (`wait`) as the cancellation point it is (see
-/// `sys::cancellation_point`): a cancellation asked before it acts at once, one asked while it
+/// `handlers::cancellation_point`): a cancellation asked before it acts at once, one asked while it
 /// waited (which ended the wait) as it returns. (With the thread's cancellation off, that wait
 /// ends with EINTR, where natively it would have gone on.)
 pub(crate) fn as_cancellation_point(wait: impl FnOnce() -> c_int) -> c_int {
-    sys::cancellation_point();
+    crate::handlers::cancellation_point();
     let rc = wait();
     if rc == -1 && sys::errno() == sys::EINTR {
-        sys::cancellation_point();
+        crate::handlers::cancellation_point();
     }
     rc
 }

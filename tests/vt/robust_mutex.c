@@ -5,6 +5,7 @@
 #include <errno.h>
 #include <pthread.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
 #include <sys/wait.h>
@@ -44,6 +45,12 @@ static void *take_and_end_at_30_ms(void *unused) {
     return NULL;
 }
 
+static void *take_shared_and_wait(void *shared) {
+    pthread_mutex_lock(shared);
+    pause();
+    return NULL;
+}
+
 int main(void) {
     robust(&mutex, 0);
     pthread_t thread;
@@ -65,6 +72,7 @@ int main(void) {
 
     pthread_mutex_t *shared = mmap(NULL, sizeof *shared, PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS, -1, 0);
     robust(shared, 1);
+    fflush(stdout);
     start = now_ms();
     pid_t child = fork();
     if (child == 0) {
@@ -75,6 +83,23 @@ int main(void) {
     usleep(10000);
     rc = pthread_mutex_lock(shared);
     printf("lock of a shared one waiting for an owner process that dies at 30 ms: %s after %.3f ms\n", answer(rc), now_ms() - start);
+    waitpid(child, NULL, 0);
+
+    /* The same, but the owner is a second thread of the child, which ends with its process. */
+    pthread_mutex_consistent(shared);
+    pthread_mutex_unlock(shared);
+    fflush(stdout);
+    start = now_ms();
+    child = fork();
+    if (child == 0) {
+        pthread_t holder;
+        pthread_create(&holder, NULL, take_shared_and_wait, shared);
+        usleep(30000);
+        exit(0);
+    }
+    usleep(10000);
+    rc = pthread_mutex_lock(shared);
+    printf("lock of a shared one held by another thread of a process that exits at 30 ms: %s after %.3f ms\n", answer(rc), now_ms() - start);
     waitpid(child, NULL, 0);
     return 0;
 }

@@ -95,7 +95,7 @@ fn take_timer(shared: &Shared) -> Option<(usize, &SigTimer)> {
 /// condition wait's futex). A thread that waits where the shim waits instead of glibc (a
 /// sleep, a poll) is in none, and slept on to its deadline: it is sent SIGCANCEL as a followed
 /// thread's signal, which ends its wait at this instant, and the wait acts on the
-/// cancellation as it returns (`sys::cancellation_point`).
+/// cancellation as it returns (`handlers::cancellation_point`).
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn pthread_cancel(thread: usize) -> c_int {
     let next = real!(pthread_cancel: fn(usize) -> c_int);
@@ -105,8 +105,14 @@ pub unsafe extern "C" fn pthread_cancel(thread: usize) -> c_int {
         && let Some(shared) = active()
     {
         let me = crate::schedule::block::pid();
-        // Still blocked: glibc sent nothing (a signal it sent has made it ready).
-        let waiting = shared.live_slots().iter().find(|s| s.thread.load(Ordering::Relaxed) == thread as u64 && s.pid.load(Ordering::Relaxed) == me && s.state() == crate::abi::state::BLOCKED);
+        // Still blocked (glibc sent nothing: a signal it sent has made it ready), in one of the
+        // shim's waits that are cancellation points (its last followed call: a sleep or a wait
+        // of the poll family), not in one that is none (a lock's futex, a semaphore's).
+        let in_cancellation_point = |s: &crate::abi::Slot| matches!(s.last_call.load(Ordering::Relaxed), call::SLEEP | call::POLL | call::SELECT);
+        let waiting = shared
+            .live_slots()
+            .iter()
+            .find(|s| s.thread.load(Ordering::Relaxed) == thread as u64 && s.pid.load(Ordering::Relaxed) == me && s.state() == crate::abi::state::BLOCKED && in_cancellation_point(s));
         if let Some(target) = waiting {
             let _ = send_followed(shared, me, target.tid.load(Ordering::Relaxed), sys::SIGCANCEL);
         }
