@@ -346,9 +346,9 @@ fn robust_list_of_thread_ends(tid: i32) {
         return;
     }
     // struct robust_list_head: the list's first entry, the offset of an entry's futex word,
-    // and the entry being taken or released (list_op_pending).
+    // and the entry being taken or released (list_op_pending), read at once.
     let word = |at: usize| sys::read_from_program(at as *const usize);
-    let (Some(first), Some(offset), Some(pending)) = (word(head), word(head + 8), word(head + 16)) else { return };
+    let Some([first, offset, pending]) = sys::read_from_program(head as *const [usize; 3]) else { return };
     let tid = tid as u32;
     let mut entry = first;
     for _ in 0..ROBUST_LIST_LIMIT {

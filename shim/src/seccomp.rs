@@ -474,12 +474,8 @@ fn dispatch(number: i64, a: [i64; 6], sigmask: &mut u64) -> c_long {
         nr::GETTIMEOFDAY => crate::time::answer_gettimeofday(a[0] as *mut sys::timeval, a[1] as *mut c_void).map(c_long::from),
         nr::TIME => crate::time::answer_time(a[0] as *mut sys::time_t),
         nr::TIMES => crate::time::answer_times(a[0] as *mut c_void),
-        nr::NANOSLEEP => {
-            crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec, a[1] as *mut sys::timespec, crate::time::Cancellable::No).map(|e| -c_long::from(e))
-        }
-        nr::CLOCK_NANOSLEEP => {
-            crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec, a[3] as *mut sys::timespec, crate::time::Cancellable::No).map(|e| -c_long::from(e))
-        }
+        nr::NANOSLEEP => crate::time::clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, a[0] as *const sys::timespec, a[1] as *mut sys::timespec).map(|e| -c_long::from(e)),
+        nr::CLOCK_NANOSLEEP => crate::time::clock_nanosleep_virtual(a[0] as c_int, a[1] as c_int, a[2] as *const sys::timespec, a[3] as *mut sys::timespec).map(|e| -c_long::from(e)),
         nr::SCHED_YIELD => crate::schedule::block::active().map(|shared| {
             crate::schedule::park::yield_turn(shared);
             0

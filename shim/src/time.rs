@@ -121,19 +121,13 @@ pub(crate) fn sleep_until(shared: &Shared, deadline: u64) -> Option<u64> {
     None
 }
 
-/// Whether a sleep is a cancellation point: libc's sleeps, which the shim stands in for, are;
-/// a raw system call is not (glibc's cancellation acts in its own wrappers).
-#[derive(Clone, Copy)]
-pub(crate) enum Cancellable {
-    Yes,
-    No,
-}
-
 /// [`sleep_until`] for a libc sleep the shim stands in for, a cancellation point (see
 /// `handlers::cancellation_point`): a cancellation asked before acts at once; one asked while it
 /// sleeps (`signals::pthread_cancel` sends SIGCANCEL, which ends the sleep) acts as it ends,
 /// or, with the thread's cancellation off, the sleep goes on, as natively (where glibc sends
-/// nothing then).
+/// nothing then). A raw system call's sleep, in the trap handler, is no cancellation point
+/// (`cancellation_point` does nothing there): it sleeps on, as natively, where glibc sends no
+/// SIGCANCEL to a thread outside its own wrappers.
 fn sleep_until_cancellable(shared: &Shared, deadline: u64) -> Option<u64> {
     crate::handlers::cancellation_point();
     loop {
@@ -165,7 +159,7 @@ pub(crate) fn real_sleep_ns(ns: u64) -> c_int {
 /// years off (the time of day), and a clean-up's `time.sleep` (CPython sleeps to a deadline)
 /// returned at once. What is left of it is slept on the wall clock instead; a relative sleep
 /// then goes to the kernel as it is.
-pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec, cancellable: Cancellable) -> Option<c_int> {
+pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec) -> Option<c_int> {
     let shared = shared()?;
     let running = active().is_some();
     let absolute = flags & sys::TIMER_ABSTIME != 0;
@@ -187,11 +181,7 @@ pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *
         // The caller's sleep was absolute: it has no remainder to report.
         return Some(real_sleep_ns(deadline.saturating_sub(sim_now(shared))));
     }
-    let slept = match cancellable {
-        Cancellable::Yes => sleep_until_cancellable(shared, deadline),
-        Cancellable::No => sleep_until(shared, deadline),
-    };
-    let Some(left) = slept else { return Some(0) };
+    let Some(left) = sleep_until_cancellable(shared, deadline) else { return Some(0) };
     if !absolute && !remain.is_null() {
         // SAFETY: the caller's timespec.
         unsafe { *remain = from_ns(left) };
@@ -201,7 +191,7 @@ pub(crate) fn clock_nanosleep_virtual(clock: clockid_t, flags: c_int, request: *
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn clock_nanosleep(clock: clockid_t, flags: c_int, request: *const timespec, remain: *mut timespec) -> c_int {
-    if let Some(error) = clock_nanosleep_virtual(clock, flags, request, remain, Cancellable::Yes) {
+    if let Some(error) = clock_nanosleep_virtual(clock, flags, request, remain) {
         return error;
     }
     let next = real!(clock_nanosleep: fn(clockid_t, c_int, *const timespec, *mut timespec) -> c_int);
@@ -211,7 +201,7 @@ pub unsafe extern "C" fn clock_nanosleep(clock: clockid_t, flags: c_int, request
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn nanosleep(request: *const timespec, remain: *mut timespec) -> c_int {
-    match clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, request, remain, Cancellable::Yes) {
+    match clock_nanosleep_virtual(sys::CLOCK_MONOTONIC, 0, request, remain) {
         Some(0) => return 0,
         Some(error) => {
             sys::set_errno(error);

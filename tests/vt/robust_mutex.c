@@ -51,6 +51,35 @@ static void *take_shared_and_wait(void *shared) {
     return NULL;
 }
 
+/* A child that takes the shared mutex and dies holding it at 30 ms, through _exit. */
+static void lock_and_die_at_30_ms(pthread_mutex_t *shared) {
+    pthread_mutex_lock(shared);
+    usleep(30000);
+    _exit(0);
+}
+
+/* A child whose second thread takes it, and which exits at 30 ms, through exit. */
+static void lock_in_a_thread_and_exit_at_30_ms(pthread_mutex_t *shared) {
+    pthread_t holder;
+    pthread_create(&holder, NULL, take_shared_and_wait, shared);
+    usleep(30000);
+    exit(0);
+}
+
+/* The parent locks the shared robust mutex 10 ms after forking `child`, and says what it got. */
+static void lock_while_a_child_dies(pthread_mutex_t *shared, void (*child)(pthread_mutex_t *), const char *owner) {
+    fflush(stdout);
+    double start = now_ms();
+    pid_t pid = fork();
+    if (pid == 0) {
+        child(shared);
+    }
+    usleep(10000);
+    int rc = pthread_mutex_lock(shared);
+    printf("lock of a shared one %s: %s after %.3f ms\n", owner, answer(rc), now_ms() - start);
+    waitpid(pid, NULL, 0);
+}
+
 int main(void) {
     robust(&mutex, 0);
     pthread_t thread;
@@ -72,34 +101,9 @@ int main(void) {
 
     pthread_mutex_t *shared = mmap(NULL, sizeof *shared, PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS, -1, 0);
     robust(shared, 1);
-    fflush(stdout);
-    start = now_ms();
-    pid_t child = fork();
-    if (child == 0) {
-        pthread_mutex_lock(shared);
-        usleep(30000);
-        _exit(0);
-    }
-    usleep(10000);
-    rc = pthread_mutex_lock(shared);
-    printf("lock of a shared one waiting for an owner process that dies at 30 ms: %s after %.3f ms\n", answer(rc), now_ms() - start);
-    waitpid(child, NULL, 0);
-
-    /* The same, but the owner is a second thread of the child, which ends with its process. */
+    lock_while_a_child_dies(shared, lock_and_die_at_30_ms, "waiting for an owner process that dies at 30 ms");
     pthread_mutex_consistent(shared);
     pthread_mutex_unlock(shared);
-    fflush(stdout);
-    start = now_ms();
-    child = fork();
-    if (child == 0) {
-        pthread_t holder;
-        pthread_create(&holder, NULL, take_shared_and_wait, shared);
-        usleep(30000);
-        exit(0);
-    }
-    usleep(10000);
-    rc = pthread_mutex_lock(shared);
-    printf("lock of a shared one held by another thread of a process that exits at 30 ms: %s after %.3f ms\n", answer(rc), now_ms() - start);
-    waitpid(child, NULL, 0);
+    lock_while_a_child_dies(shared, lock_in_a_thread_and_exit_at_30_ms, "held by another thread of a process that exits at 30 ms");
     return 0;
 }
