@@ -336,7 +336,7 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
     crate::wait::as_cancellation_point(|| {
         // (Inside: a cancellation acted on unwinds past no guard.)
         let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
-        wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
+        wait(shared, call::POLL, &interest, ms_timeout(timeout_ms), &mut |wall| {
             let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
             // SAFETY: the caller's arguments, with our timeout.
             mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms) }, interest.port_fd)
@@ -356,7 +356,7 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
         // (Inside: a cancellation acted on unwinds past no guard.)
         let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
         crate::wait::with_wait_mask(sigmask, || {
-            wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| {
+            wait(shared, call::POLL, &interest, ms_timeout(timeout_ms), &mut |wall| {
                 let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
                 // SAFETY: the caller's arguments, with our timeout.
                 mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms, sigmask) }, interest.port_fd)
@@ -382,7 +382,7 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
         // (Inside: a cancellation acted on unwinds past no guard.)
         let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
         crate::wait::with_wait_mask(sigmask, || {
-            wait(shared, call::POLL, interest, asked, &mut |wall| {
+            wait(shared, call::POLL, &interest, asked, &mut |wall| {
                 let limit = kernel_timeout(shared, epfd, interest.port_fd, wall).map(from_ns);
                 let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
                 // SAFETY: the caller's arguments, with our timeout.

@@ -174,7 +174,7 @@ fn wait_for_port_bytes(shared: &'static crate::abi::Shared, fd: c_int, len: usiz
             let available = readable(shared, fd);
             return if available > 0 { PortRead::Now(len.min(available)) } else { PortRead::Return(0) };
         }
-        match park_blocked(shared, deadline, Wait::Data { port: true, conns: 0 }) {
+        match park_blocked(shared, deadline, Wait::Data { port: true, conns: false }) {
             // A signal's handler has run (the thread sent it to itself): the read goes on, as
             // with SA_RESTART.
             release::DATA | release::SIGNAL => {}

@@ -174,7 +174,7 @@ fn wait_for_kernel(shared: &Shared, deadline: u64, peek: impl Fn() -> bool, atte
         return Err(release::DEADLINE);
     }
     let Some(slot) = crate::schedule::slot::my_slot() else { return Err(release::ENDING) };
-    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
+    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: false });
     publish();
     let result = loop {
         match crate::schedule::park::wait_looking(shared, slot, &publish, |take| Look::taking_nothing(peek().then_some(()), take)) {

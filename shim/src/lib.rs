@@ -21,6 +21,7 @@ mod children;
 mod epoll;
 mod futex;
 mod give_way;
+mod growing;
 mod handlers;
 mod io;
 #[cfg(target_arch = "x86_64")]

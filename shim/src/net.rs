@@ -18,7 +18,7 @@ pub(crate) fn conn_of(shared: &'static Shared, fd: c_int) -> Option<(usize, &'st
         return None;
     }
     let pid = crate::schedule::block::pid();
-    shared.conns.iter().enumerate().find(|(_, c)| c.client_port.load(Ordering::Acquire) != 0 && c.fd.load(Ordering::Relaxed) == fd && c.pid.load(Ordering::Relaxed) == pid)
+    shared.live_conns().iter().enumerate().find(|(_, c)| c.client_port.load(Ordering::Acquire) != 0 && c.fd.load(Ordering::Relaxed) == fd && c.pid.load(Ordering::Relaxed) == pid)
 }
 
 #[repr(C)]
@@ -52,8 +52,14 @@ fn follow_connection(shared: &'static Shared, fd: c_int, to: *const SockaddrIn) 
     }
     let port = u32::from(u16::from_be(local.port_be));
     forget(shared, fd);
-    for conn in &shared.conns {
+    for (index, conn) in shared.conns.iter().enumerate() {
+        if conn.client_port.load(Ordering::Relaxed) != 0 {
+            continue;
+        }
+        // Scans stop at the high-water mark: it is raised before the entry is taken.
+        shared.header.conns_high.fetch_max(index as u32 + 1, Ordering::AcqRel);
         if conn.client_port.compare_exchange(0, u32::MAX, Ordering::AcqRel, Ordering::Relaxed).is_ok() {
+            conn.no_waiters();
             conn.sent.store(0, Ordering::Relaxed);
             conn.read.store(0, Ordering::Relaxed);
             conn.resp_written.store(0, Ordering::Relaxed);

@@ -13,6 +13,7 @@ use core::ffi::c_int;
 use core::sync::atomic::Ordering;
 
 use crate::abi::{self, Shared, Wait, call, release};
+use crate::growing::GrowingList;
 use crate::schedule::block::active;
 use crate::schedule::park::Looked;
 use crate::schedule::park::{charge, note_call, park_blocked, spin_on_port};
@@ -24,15 +25,16 @@ use crate::time::{from_ns, sim_now};
 const TIMER_SHOWN_WITHIN_NS: u64 = 10_000_000;
 
 /// What a wait waits on.
-#[derive(Default, Clone, Copy)]
+#[derive(Default)]
 pub(crate) struct Interest {
     port: bool,
     /// The port's descriptor, when waited on (its readiness is masked while its bytes are held).
     pub(crate) port_fd: Option<c_int>,
-    /// Sensor connections (bit i: `Shared::conns[i]`).
-    conns: u64,
-    /// Timers on simulated time: their descriptors.
-    timers: Timers,
+    /// Sensor connections: their indices in `Shared::conns` (as many as the wait names).
+    conns: GrowingList<u32>,
+    /// Timers on simulated time: their descriptors (as many as the wait names; one named twice
+    /// is looked at twice, which changes nothing).
+    timers: GrowingList<c_int>,
     other: bool,
     /// The epoll wait this is (its results are taken by a look: see `wait_on_real_world`).
     pub(crate) epoll: Option<EpollCall>,
@@ -41,8 +43,8 @@ pub(crate) struct Interest {
 impl Interest {
     pub(crate) fn add(&mut self, shared: &'static Shared, fd: c_int, read: bool, write_or_error: bool) {
         if crate::timerfd::timer_of(fd).is_some() {
-            if read {
-                self.timers.add(fd);
+            if read && !self.timers.push(fd) {
+                crate::schedule::block::refuse(abi::refused::TIMERFDS);
             }
             if !write_or_error {
                 return;
@@ -60,7 +62,10 @@ impl Interest {
             self.port = true;
             self.port_fd = Some(fd);
         } else if let Some((index, _)) = crate::net::conn_of(shared, fd) {
-            self.conns |= 1 << index;
+            if !self.conns.push(index as u32) {
+                // (No memory for the list: the wait looks at the kernel for it instead.)
+                self.other = true;
+            }
         } else {
             self.other = true;
         }
@@ -73,13 +78,13 @@ impl Interest {
 
     /// The earliest expiry among the timers waited on (simulated ns; NEVER: none).
     fn timer_deadline(&self) -> u64 {
-        self.timers.fds().iter().map(|&fd| crate::timerfd::expiry(fd)).min().unwrap_or(crate::abi::NEVER)
+        self.timers.as_slice().iter().map(|&fd| crate::timerfd::expiry(fd)).min().unwrap_or(crate::abi::NEVER)
     }
 
     /// Make the timers that have expired readable for real; whether any had to be.
     fn show_expired_timers(&self, shared: &Shared) -> bool {
         let mut shown = false;
-        for &fd in self.timers.fds() {
+        for &fd in self.timers.as_slice() {
             shown |= crate::timerfd::show_if_expired(shared, fd);
         }
         shown
@@ -87,40 +92,45 @@ impl Interest {
 
     /// A wait for what climbsim models among these descriptors.
     fn data(&self) -> Wait {
-        Wait::Data { port: self.port, conns: self.conns }
+        Wait::Data { port: self.port, conns: !self.conns.is_empty() }
+    }
+
+    /// The wait with the real world's descriptors among them (see `wait_on_real_world`).
+    fn kernel(&self) -> Wait {
+        Wait::Kernel { port: self.port, conns: !self.conns.is_empty() }
     }
 }
 
-/// The timerfds one wait waits on, at most [`abi::TIMERFDS_IN_ONE_WAIT`] (more fail the run,
-/// naming the limit).
-#[derive(Clone, Copy)]
-struct Timers {
-    fds: [c_int; abi::TIMERFDS_IN_ONE_WAIT],
-    count: usize,
+/// While a thread waits on sensor connections, each of them names it among its waiters, so
+/// that climbsim lets it go when a response comes on one (and only then).
+struct WaitingOnConns<'a> {
+    shared: &'static Shared,
+    slot: Option<usize>,
+    conns: &'a [u32],
 }
 
-impl Default for Timers {
-    fn default() -> Self {
-        Timers { fds: [-1; abi::TIMERFDS_IN_ONE_WAIT], count: 0 }
+impl<'a> WaitingOnConns<'a> {
+    fn start(shared: &'static Shared, conns: &'a [u32]) -> Self {
+        let slot = if conns.is_empty() { None } else { my_slot().and_then(|slot| shared.slot_index(slot)) };
+        let waiting = WaitingOnConns { shared, slot, conns };
+        waiting.each(abi::Conn::start_waiting);
+        waiting
     }
-}
 
-impl Timers {
-    fn add(&mut self, fd: c_int) {
-        if self.fds().contains(&fd) {
-            return;
-        }
-        match self.fds.get_mut(self.count) {
-            Some(free) => {
-                *free = fd;
-                self.count += 1;
+    fn each(&self, act: fn(&abi::Conn, usize)) {
+        if let Some(slot) = self.slot {
+            for &index in self.conns {
+                if let Some(conn) = self.shared.conns.get(index as usize) {
+                    act(conn, slot);
+                }
             }
-            None => crate::schedule::block::refuse(abi::refused::TIMERFDS),
         }
     }
+}
 
-    fn fds(&self) -> &[c_int] {
-        &self.fds[..self.count]
+impl Drop for WaitingOnConns<'_> {
+    fn drop(&mut self) {
+        self.each(abi::Conn::stop_waiting);
     }
 }
 
@@ -149,7 +159,7 @@ pub(crate) fn is_port_device(shared: &Shared, rdev: Option<u64>) -> bool {
 type RealWait<'a> = &'a mut dyn FnMut(Option<u64>) -> c_int;
 
 /// One wait of the poll family on simulated time (`timeout_ns`: `None` waits forever).
-pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeout_ns: Option<u64>, real_wait: RealWait<'_>) -> c_int {
+pub(crate) fn wait(shared: &'static Shared, what: u32, interest: &Interest, timeout_ns: Option<u64>, real_wait: RealWait<'_>) -> c_int {
     // A look at the kernel that does not wait. A timer that expired in simulated time fires for
     // real first: the kernel shows it within microseconds (the guard only covers a slow one).
     let look_now = |real_wait: RealWait<'_>| real_wait(Some(if interest.show_expired_timers(shared) { TIMER_SHOWN_WITHIN_NS } else { 0 }));
@@ -163,7 +173,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
     let asked = timeout_ns.map_or(crate::abi::NEVER, |t| now.saturating_add(t));
     let deadline = asked.min(interest.timer_deadline());
     // Ended by a timer's expiry (or sooner): its descriptor is then ready.
-    let timer_first = !interest.timers.fds().is_empty() && deadline < asked;
+    let timer_first = !interest.timers.is_empty() && deadline < asked;
     if deadline <= now && !timer_first {
         if interest.port {
             spin_on_port(shared, now);
@@ -172,6 +182,7 @@ pub(crate) fn wait(shared: &'static Shared, what: u32, interest: Interest, timeo
         charge(shared, shared.header.clock.syscall_ns.load(Ordering::Relaxed));
         return 0;
     }
+    let _waiting = WaitingOnConns::start(shared, interest.conns.as_slice());
     if interest.other {
         let ready = wait_on_real_world(shared, deadline, interest, real_wait);
         return if ready == 0 && timer_first { look_now(real_wait) } else { ready };
@@ -231,9 +242,9 @@ pub(crate) fn with_wait_mask(sigmask: *const core::ffi::c_void, wait: impl FnOnc
 /// until every such thread has looked again before it gives a turn or moves time. So a write by
 /// another followed thread (tokio's eventfd, asyncio's self-pipe, a child's output) wakes this
 /// one at the instant it was made, not whenever the host got round to it.
-fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: Interest, real_wait: RealWait<'_>) -> c_int {
+fn wait_on_real_world(shared: &'static Shared, deadline: u64, interest: &Interest, real_wait: RealWait<'_>) -> c_int {
     let Some(slot) = my_slot() else { return real_wait(rest_on_the_wall(deadline, || sim_now(shared))) };
-    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: interest.port, conns: interest.conns });
+    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, interest.kernel());
     publish();
     loop {
         let looked = crate::schedule::park::wait_looking(shared, slot, &publish, |take| {
@@ -358,7 +369,7 @@ fn wait_on_descriptor(shared: &'static Shared, fd: c_int, events: i16, timeout: 
     let mut interest = Interest::default();
     interest.add(shared, fd, events & sys::POLLIN != 0, events & sys::POLLOUT != 0);
     let what = if events & sys::POLLIN != 0 { call::READ } else { call::WRITE };
-    wait(shared, what, interest, timeout, &mut |wall| {
+    wait(shared, what, &interest, timeout, &mut |wall| {
         entry.revents = 0;
         // SAFETY: one pollfd of ours, with the wait's timeout.
         unsafe { poll(&mut entry, 1, wall_ms(wall)) }
@@ -419,8 +430,9 @@ pub unsafe extern "C" fn poll(fds: *mut pollfd, count: nfds_t, timeout_ms: c_int
         Err(errno) => return refused(errno),
     };
     // SAFETY: the caller's arguments, with our timeout.
+    let port_fd = interest.port_fd;
     as_cancellation_point(|| {
-        wait(shared, call::POLL, interest, ms_timeout(timeout_ms), &mut |wall| crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, interest.port_fd))
+        wait(shared, call::POLL, &interest, ms_timeout(timeout_ms), &mut |wall| crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, port_fd))
     })
 }
 
@@ -440,13 +452,14 @@ pub unsafe extern "C" fn ppoll(fds: *mut pollfd, count: nfds_t, timeout: *const 
         Ok(interest) => interest,
         Err(errno) => return refused(errno),
     };
+    let port_fd = interest.port_fd;
     as_cancellation_point(|| {
         with_wait_mask(sigmask.cast(), || {
-            wait(shared, call::POLL, interest, asked, &mut |wall| {
+            wait(shared, call::POLL, &interest, asked, &mut |wall| {
                 let limit = wall.map(from_ns);
                 let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
                 // SAFETY: the caller's arguments, with our timeout.
-                crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, interest.port_fd)
+                crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, limit_ptr, sigmask) }, port_fd)
             })
         })
     })
@@ -523,14 +536,15 @@ pub unsafe extern "C" fn select(count: c_int, read: *mut fd_set, write: *mut fd_
         Err(errno) => return refused(errno),
     };
     let interest = sets.interest(shared);
+    let port_fd = interest.port_fd;
     let started = sim_now(shared);
     let result = as_cancellation_point(|| {
-        wait(shared, call::SELECT, interest, asked, &mut |wall| {
+        wait(shared, call::SELECT, &interest, asked, &mut |wall| {
             sets.restore();
             let mut limit = wall.map(|ns| timeval { tv_sec: (ns / 1_000_000_000) as i64, tv_usec: (ns % 1_000_000_000).div_ceil(1000) as i64 });
             let limit_ptr = limit.as_mut().map_or(core::ptr::null_mut(), |t| t as *mut timeval);
             // SAFETY: the caller's sets, with our timeout.
-            crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr) }, interest.port_fd)
+            crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr) }, port_fd)
         })
     });
     if let Some(asked) = asked {
@@ -555,14 +569,15 @@ pub unsafe extern "C" fn pselect(count: c_int, read: *mut fd_set, write: *mut fd
         Err(errno) => return refused(errno),
     };
     let interest = sets.interest(shared);
+    let port_fd = interest.port_fd;
     as_cancellation_point(|| {
         with_wait_mask(sigmask.cast(), || {
-            wait(shared, call::SELECT, interest, asked, &mut |wall| {
+            wait(shared, call::SELECT, &interest, asked, &mut |wall| {
                 sets.restore();
                 let limit = wall.map(from_ns);
                 let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
                 // SAFETY: the caller's sets, with our timeout.
-                crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, interest.port_fd)
+                crate::schedule::held::mask_select(shared, read, unsafe { next(count, read, write, error, limit_ptr, sigmask) }, port_fd)
             })
         })
     })

@@ -33,7 +33,7 @@ impl SensorLedger {
 
     /// The followed connection whose controller end is `client_port`, if any.
     fn conn(&self, client_port: u16) -> Option<&abi::Conn> {
-        self.shared().conns.iter().find(|c| c.client_port.load(Ordering::Acquire) == u32::from(client_port))
+        self.shared().live_conns().iter().find(|c| c.client_port.load(Ordering::Acquire) == u32::from(client_port))
     }
 
     /// The sensor server has read (and, a request being whole, answered) `bytes` more from
@@ -52,13 +52,13 @@ impl SensorLedger {
         }
     }
 
-    /// A response waits on one of the connections in `mask`.
-    pub(super) fn response_waiting(&self, mask: u64) -> bool {
-        self.shared().conns.iter().enumerate().any(|(i, c)| mask & (1 << i) != 0 && c.resp_written.load(Ordering::Acquire) > c.resp_taken.load(Ordering::Acquire))
+    /// A response waits on one of the connections the thread in slot `slot` waits on.
+    pub(super) fn response_waiting(&self, slot: usize) -> bool {
+        self.shared().response_waiting_for(slot)
     }
 
     /// Whether request bytes a controller sent wait for climbsim (by the shim's count).
     pub(super) fn unread_by_climbsim(&self) -> bool {
-        self.shared().conns.iter().any(|c| c.client_port.load(Ordering::Acquire) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire))
+        self.shared().requests_unread()
     }
 }

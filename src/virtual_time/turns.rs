@@ -92,14 +92,14 @@ impl VirtualTime {
         // Skipped, time would move on while it waits for its turn (an epoll woken by its own
         // look at a reply's instant would then see that reply and the next together).
         let mut ready_already = false;
-        for slot in self.shared().live_slots() {
+        for (index, slot) in self.shared().live_slots().iter().enumerate() {
             let parked = slot.state();
             ready_already |= parked == state::READY;
             if parked != state::BLOCKED && parked != state::YIELDED {
                 continue;
             }
             let wait = slot.wait();
-            let response = wait.conns() != 0 && self.sensors.response_waiting(wait.conns());
+            let response = wait.conns() && self.sensors.response_waiting(index);
             let on_port = wait.port();
             // An edge-triggered epoll registration waits for bytes past those it has reported.
             let port_ready = on_port && {

@@ -1,7 +1,8 @@
 /* As many timerfds as a program opens: 300 of them (climbsim followed 64 per process before),
  * timer i expiring at i ms. The program reads them one after another, then polls 20 of them at
- * once, and then, in an epoll set of 50, waits for the next to expire. Every expiry is
- * simulated time. */
+ * once, and then, in an epoll set of 50, waits for the next to expire; then polls all 300 at
+ * once (64 in one wait were followed before) and, in an epoll set of 250, waits again. Every
+ * expiry is simulated time. */
 #include <poll.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -62,5 +63,30 @@ int main(void) {
     start = now_ms();
     ready = epoll_wait(epoll, &got, 1, 1000);
     printf("epoll of 50: %d ready after %.3f ms (timer %u)\n", ready, now_ms() - start, got.data.u32);
+
+    /* All 300 in one poll: the one due first (timer 137, at 70 ms) is the one ready. */
+    struct pollfd all[TIMERS];
+    for (int i = 0; i < TIMERS; i++) {
+        arm(fds[i], i == 137 ? 70 : 100 + i);
+        all[i].fd = fds[i];
+        all[i].events = POLLIN;
+    }
+    start = now_ms();
+    ready = poll(all, TIMERS, 1000);
+    printf("poll of %d: %d ready after %.3f ms (timer 137 %s)\n", TIMERS, ready, now_ms() - start, all[137].revents & POLLIN ? "readable" : "not readable");
+    if (read(fds[137], &expirations, sizeof expirations) != 8)
+        return 1;
+
+    /* 250 in an epoll set (the 50 above, 200 more): the next due is timer 230's. */
+    for (int i = 0; i < 250; i++) {
+        struct epoll_event event = {.events = EPOLLIN, .data.u32 = (uint32_t)i};
+        if (i < 100 || i >= 150)
+            epoll_ctl(epoll, EPOLL_CTL_ADD, fds[i], &event);
+    }
+    for (int i = 0; i < 250; i++)
+        arm(fds[i], i == 230 ? 40 : 600 + i);
+    start = now_ms();
+    ready = epoll_wait(epoll, &got, 1, 1000);
+    printf("epoll of 250: %d ready after %.3f ms (timer %u)\n", ready, now_ms() - start, got.data.u32);
     return 0;
 }

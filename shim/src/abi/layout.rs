@@ -9,7 +9,7 @@ use core::sync::atomic::{AtomicI32, AtomicI64, AtomicU8, AtomicU32, AtomicU64};
 /// "CLMBVT" and the layout's version.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"CLMBVT\0\x01");
 /// Bumped with every change of this file.
-pub const ABI: u32 = 21;
+pub const ABI: u32 = 22;
 /// Controller threads that can be followed at once (all processes together). Far more than a
 /// controller runs (a JVM starts about 20, Node.js about 12): the block is a sparse file, and
 /// every scan stops at the highest slot used so far (`Header::slots_high`). Past it the run
@@ -17,13 +17,14 @@ pub const ABI: u32 = 21;
 pub const SLOTS: usize = 4096;
 /// epoll registrations followed per process (all its epoll instances together).
 pub const EPOLL_ENTRIES: usize = 1024;
-/// timerfds followed in one wait (poll, select, an epoll instance's registrations); a process
-/// may have as many as it has descriptors (below 1 048 576, Linux's default `fs.nr_open`).
-pub const TIMERFDS_IN_ONE_WAIT: usize = 64;
-/// The descriptor numbers below which a timerfd is followed.
+/// The descriptor numbers below which a timerfd is followed: a process may have as many as it
+/// may have descriptors (below 1 048 576, Linux's default `fs.nr_open`), and one wait may wait
+/// on all of them.
 pub const TIMERFD_DESCRIPTORS: usize = 1 << 20;
-/// Sensor-server connections followed at once.
-pub const CONNS: usize = 64;
+/// Sensor-server connections followed at once: one for each local port an address has, so
+/// every connection the kernel can make to the server. The block is a sparse file, and every
+/// scan stops at the highest entry used so far (`Header::conns_high`).
+pub const CONNS: usize = 1 << 16;
 /// Signal timers (`alarm`, `setitimer`, `timer_create`) followed at once, all processes
 /// together.
 pub const SIG_TIMERS: usize = 256;
@@ -91,7 +92,11 @@ pub mod refused {
         } else if bits & EPOLL != 0 {
             ("epoll registrations in one process", super::EPOLL_ENTRIES)
         } else if bits & TIMERFDS != 0 {
-            ("timerfds in one wait (poll, select, epoll), numbered below 1048576", super::TIMERFDS_IN_ONE_WAIT)
+            return Some(format!(
+                "virtual time follows timerfds numbered below {} (Linux's default fs.nr_open), and the controller made one past \
+                 it (or the shim found no memory for the timerfds of one wait): it could not be followed (run it with --clock wall)",
+                super::TIMERFD_DESCRIPTORS
+            ));
         } else if bits & CONNS != 0 {
             ("connections to the sensor server at once", super::CONNS)
         } else if bits & SIG_TIMERS != 0 {
@@ -133,7 +138,7 @@ pub mod refused {
 pub(super) mod waits {
     /// Readable bytes on the servo port.
     pub const PORT: u32 = 1;
-    /// A response on a sensor-server connection (`Slot::conn_mask` says which).
+    /// A response on a sensor-server connection (those whose `Conn::waiters` name the slot).
     pub const CONN: u32 = 2;
     /// Descriptors climbsim does not model: polled for real, on the wall clock.
     pub const OTHER: u32 = 4;
@@ -246,6 +251,9 @@ pub struct Header {
     /// S: slots reserved for threads created by a trapped clone and not claimed yet (see
     /// [`RAW_CLONE_TID`]).
     pub raw_clones: AtomicU32,
+    /// S: one past the highest sensor connection ever followed (scans stop there); raised
+    /// before the entry is taken.
+    pub conns_high: AtomicU32,
 }
 
 /// `Header::clock`: simulated time, and what the controller's calls cost in it.
@@ -397,8 +405,6 @@ pub struct Slot {
     pub(super) waits: AtomicU32,
     /// C: see [`release`].
     pub release: AtomicU32,
-    /// S: the sensor connections a blocked thread waits on (bit i: `Shared::conns[i]`).
-    pub(super) conn_mask: AtomicU64,
     /// S: the child a thread in waitpid waits for (≤ 0: any child of its process).
     pub(super) awaited_child: AtomicI64,
     /// S: what a wait for another thread waits on: a condition's or semaphore's address, or
@@ -555,6 +561,9 @@ pub struct Conn {
     pub resp_written: AtomicU64,
     /// S: response bytes the controller has received, plus 1 at the end of the stream.
     pub resp_taken: AtomicU64,
+    /// S: the threads blocked in a wait that includes this connection (bit `i % 64` of word
+    /// `i / 64`: `Shared::slots[i]`). Written and read by `protocol.rs` only.
+    pub(super) waiters: [AtomicU64; SLOTS / 64],
 }
 
 #[repr(C)]
@@ -617,6 +626,19 @@ impl Shared {
             .or_else(|| threads().find(lets_through))
             .or_else(|| threads().find(main))
             .or_else(|| threads().next())
+    }
+
+    /// The sensor connections that have ever been followed (those past them are free).
+    pub fn live_conns(&self) -> &[Conn] {
+        let high = self.header.conns_high.load(core::sync::atomic::Ordering::Acquire) as usize;
+        &self.conns[..high.min(CONNS)]
+    }
+
+    /// Whether request bytes the controller sent on a sensor connection wait for climbsim (by
+    /// the shim's count): simulated time cannot move past them.
+    pub fn requests_unread(&self) -> bool {
+        use core::sync::atomic::Ordering::{Acquire, Relaxed};
+        self.live_conns().iter().any(|c| c.client_port.load(Relaxed) != 0 && c.sent.load(Acquire) != c.read.load(Acquire))
     }
 
     /// The signal timers that have ever been taken (those past them are free).

@@ -35,7 +35,7 @@
 
 use core::sync::atomic::Ordering::{AcqRel, Acquire, Relaxed, Release, SeqCst};
 
-use super::layout::{NEVER, Shared, Slot, timer_state, waits};
+use super::layout::{Conn, NEVER, Shared, Slot, timer_state, waits};
 
 /// `Slot::state`.
 pub mod state {
@@ -99,15 +99,15 @@ pub enum Wait {
     /// A turn given up after [`super::TURN_QUANTUM_NS`]: when it is ready again, the threads
     /// ready for any other reason run first.
     Turn,
-    /// Bytes on the servo port (past `Slot::port_seen`), and/or a response on these sensor
-    /// connections (bit i: `Shared::conns[i]`).
-    Data { port: bool, conns: u64 },
+    /// Bytes on the servo port (past `Slot::port_seen`), and/or a response on a sensor
+    /// connection that names the slot among its waiters ([`Conn::start_waiting`]).
+    Data { port: bool, conns: bool },
     /// A zero-timeout poll of the empty port: it resumes at the next byte due on it (or after
     /// the spin cap if none is).
     Spin,
     /// What the kernel wakes (descriptors climbsim does not model, a signal): only a look tells
     /// whether it is still blocked; and the port and connections among them, as in `Data`.
-    Kernel { port: bool, conns: u64 },
+    Kernel { port: bool, conns: bool },
     /// A child's end, in the kernel's waitpid: the pid (≤ 0: any child of its process).
     Child(i64),
     /// Another thread: a condition's or semaphore's address, or the joined thread's `pthread_t`.
@@ -123,11 +123,11 @@ impl Wait {
         matches!(self, Wait::Data { port: true, .. } | Wait::Kernel { port: true, .. } | Wait::Spin)
     }
 
-    /// The sensor connections it waits on (0: none).
-    pub fn conns(self) -> u64 {
+    /// Whether it waits on sensor connections (those that name the slot among their waiters).
+    pub fn conns(self) -> bool {
         match self {
             Wait::Data { conns, .. } | Wait::Kernel { conns, .. } => conns,
-            _ => 0,
+            _ => false,
         }
     }
 }
@@ -233,7 +233,7 @@ impl Slot {
     pub fn wait(&self) -> Wait {
         let bits = self.waits.load(Relaxed);
         let data = |kernel: bool| {
-            let (port, conns) = (bits & waits::PORT != 0, if bits & waits::CONN != 0 { self.conn_mask.load(Relaxed) } else { 0 });
+            let (port, conns) = (bits & waits::PORT != 0, bits & waits::CONN != 0);
             if kernel { Wait::Kernel { port, conns } } else { Wait::Data { port, conns } }
         };
         if bits & waits::OTHER != 0 {
@@ -267,7 +267,7 @@ impl Slot {
 
     /// Write `wait` (see [`Slot::park`]).
     fn set_wait(&self, wait: Wait) {
-        let data = |port: bool, conns: u64| (if port { waits::PORT } else { 0 }) | (if conns != 0 { waits::CONN } else { 0 });
+        let data = |port: bool, conns: bool| (if port { waits::PORT } else { 0 }) | (if conns { waits::CONN } else { 0 });
         let bits = match wait {
             Wait::Time => 0,
             Wait::Turn => waits::TURN,
@@ -287,7 +287,6 @@ impl Slot {
                 waits::FUTEX
             }
         };
-        self.conn_mask.store(wait.conns(), Relaxed);
         self.waits.store(bits, Relaxed);
     }
 
@@ -496,7 +495,7 @@ impl Shared {
                 until = until.min(self.header.port.next_due_ns.load(Relaxed));
                 waits_for_time = true;
             }
-            waits_for_time |= wait.conns() != 0;
+            waits_for_time |= wait.conns();
         }
         for timer in self.live_sig_timers().iter().filter(|t| t.state.load(Acquire) == timer_state::ARMED) {
             until = until.min(timer.deadline_ns.load(Relaxed));
@@ -520,6 +519,52 @@ impl Shared {
     /// that is not followed or is going away): only a look tells whether it is still blocked.
     pub fn must_look(&self, slot: &Slot) -> bool {
         slot.state() == BLOCKED && matches!(slot.wait(), Wait::Kernel { .. } | Wait::Peer(_)) && !self.joins_live_thread(slot)
+    }
+
+    /// The index of `slot` in the table (None: not one of this block's slots).
+    pub fn slot_index(&self, slot: &Slot) -> Option<usize> {
+        let offset = (slot as *const Slot as usize).checked_sub(self.slots.as_ptr() as usize)?;
+        let index = offset / core::mem::size_of::<Slot>();
+        (offset % core::mem::size_of::<Slot>() == 0 && index < self.slots.len()).then_some(index)
+    }
+
+    /// A response waits (written by climbsim, not yet taken by the controller) on a sensor
+    /// connection that the thread in slot `slot` waits on ([`Conn::start_waiting`]).
+    pub fn response_waiting_for(&self, slot: usize) -> bool {
+        self.live_conns().iter().any(|conn| conn.client_port.load(Acquire) != 0 && conn.waited_by(slot) && conn.resp_written.load(Acquire) > conn.resp_taken.load(Acquire))
+    }
+}
+
+/// Which threads wait on a sensor connection: each names itself before it parks with
+/// `Wait::Data { conns: true }` (or `Kernel`), and takes its name back once the wait is over;
+/// a table as long as the slots', so that any number of threads may wait on any number of
+/// connections, each let go by a response on its own.
+impl Conn {
+    /// The thread in slot `slot` waits on this connection (before it parks).
+    pub fn start_waiting(&self, slot: usize) {
+        if let Some(word) = self.waiters.get(slot / 64) {
+            word.fetch_or(1 << (slot % 64), Release);
+        }
+    }
+
+    /// Its wait is over.
+    pub fn stop_waiting(&self, slot: usize) {
+        if let Some(word) = self.waiters.get(slot / 64) {
+            word.fetch_and(!(1 << (slot % 64)), Release);
+        }
+    }
+
+    /// Whether the thread in slot `slot` waits on this connection.
+    pub fn waited_by(&self, slot: usize) -> bool {
+        self.waiters.get(slot / 64).is_some_and(|word| word.load(Acquire) & (1 << (slot % 64)) != 0)
+    }
+
+    /// The entry is taken for a new connection: nobody waits on it yet (a thread that ended in
+    /// a wait on the one before left its name).
+    pub fn no_waiters(&self) {
+        for word in &self.waiters {
+            word.store(0, Relaxed);
+        }
     }
 }
 
@@ -636,12 +681,13 @@ mod tests {
         let all = [
             Wait::Time,
             Wait::Turn,
-            Wait::Data { port: true, conns: 0 },
-            Wait::Data { port: false, conns: 0b101 },
-            Wait::Data { port: true, conns: 1 << 63 },
+            Wait::Data { port: true, conns: false },
+            Wait::Data { port: false, conns: true },
+            Wait::Data { port: true, conns: true },
             Wait::Spin,
-            Wait::Kernel { port: false, conns: 0 },
-            Wait::Kernel { port: true, conns: 0b10 },
+            Wait::Kernel { port: false, conns: false },
+            Wait::Kernel { port: true, conns: true },
+            Wait::Kernel { port: false, conns: true },
             Wait::Child(-1),
             Wait::Child(4242),
             Wait::Peer(0xdead_beef),
@@ -657,10 +703,10 @@ mod tests {
             }
         }
         // What the port and the connections are, whichever wait holds them.
-        assert!(Wait::Spin.port() && Wait::Kernel { port: true, conns: 0 }.port() && !Wait::Child(1).port());
-        assert_eq!(Wait::Kernel { port: false, conns: 6 }.conns(), 6);
+        assert!(Wait::Spin.port() && Wait::Kernel { port: true, conns: false }.port() && !Wait::Child(1).port());
+        assert!(Wait::Kernel { port: false, conns: true }.conns() && !Wait::Data { port: true, conns: false }.conns() && !Wait::Spin.conns());
         // Data on nothing is a wait on time (a poll of timerfds alone).
-        slot.set_wait(Wait::Data { port: false, conns: 0 });
+        slot.set_wait(Wait::Data { port: false, conns: false });
         assert_eq!(slot.wait(), Wait::Time);
         slot.set_wait(Wait::Child(3));
         slot.wait_over();
@@ -749,6 +795,49 @@ mod tests {
         shared
     }
 
+    /// Any number of threads wait on any number of connections, and each is let go by a
+    /// response on its own only: threads 64 slots apart, connections 64 entries apart (a mask
+    /// of 64 bits, as the table once had, mixed each pair up), a connection two threads wait on.
+    #[test]
+    fn a_response_lets_go_the_threads_waiting_on_its_connection_and_no_other() {
+        let shared = block_with(&[RUNNING; 200]);
+        shared.header.conns_high.store(130, Release);
+        for conn in &shared.live_conns()[..130] {
+            conn.client_port.store(40_000, Release);
+        }
+        let (conn, other_conn) = (&shared.conns[70], &shared.conns[6]);
+        conn.start_waiting(3);
+        conn.start_waiting(67);
+        other_conn.start_waiting(131);
+        assert!((0..200).all(|slot| !shared.response_waiting_for(slot)), "nothing written yet");
+        other_conn.resp_written.store(100, Release);
+        assert_eq!((0..200).filter(|&slot| shared.response_waiting_for(slot)).collect::<Vec<_>>(), [131]);
+        other_conn.resp_taken.store(100, Release);
+        conn.resp_written.store(1, Release);
+        assert_eq!((0..200).filter(|&slot| shared.response_waiting_for(slot)).collect::<Vec<_>>(), [3, 67]);
+        // A wait that is over names the thread no longer; a connection that ended (its entry
+        // free) lets nobody go; an entry taken again starts with no waiters.
+        conn.stop_waiting(3);
+        assert_eq!((0..200).filter(|&slot| shared.response_waiting_for(slot)).collect::<Vec<_>>(), [67]);
+        conn.client_port.store(0, Release);
+        assert!(!shared.response_waiting_for(67));
+        conn.no_waiters();
+        conn.client_port.store(40_001, Release);
+        assert!(!conn.waited_by(67) && !shared.response_waiting_for(67));
+        // Past the high-water mark nothing is looked at (nor trusted past the table).
+        shared.conns[140].client_port.store(1, Release);
+        shared.conns[140].start_waiting(5);
+        shared.conns[140].resp_written.store(1, Release);
+        assert!(!shared.response_waiting_for(5));
+        shared.header.conns_high.store(u32::MAX, Release);
+        assert!(shared.response_waiting_for(5));
+        // Slots past the table are nobody's.
+        conn.start_waiting(super::super::layout::SLOTS);
+        assert!(!conn.waited_by(super::super::layout::SLOTS));
+        assert_eq!(shared.slot_index(&shared.slots[199]), Some(199));
+        assert_eq!(shared.slot_index(&block_with(&[]).slots[0]), None);
+    }
+
     #[test]
     fn the_next_turn_is_the_lowest_ready_slot_and_a_thread_that_used_its_quantum_goes_last() {
         let shared = block_with(&[BLOCKED, READY, RUNNING, READY]);
@@ -788,7 +877,7 @@ mod tests {
         shared.slots[2].deadline_ns.store(NOW + 300_000_000, Release);
         assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW + COMPUTE_QUANTUM_NS), "at most a quantum on");
         shared.slots[2].deadline_ns.store(NEVER, Release);
-        shared.slots[2].set_wait(Wait::Data { port: true, conns: 0 });
+        shared.slots[2].set_wait(Wait::Data { port: true, conns: false });
         shared.header.port.next_due_ns.store(NOW + 1_000, Release);
         assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW + 1_000), "a reply due on the port");
         never(&shared.slots[2]);
@@ -802,7 +891,7 @@ mod tests {
         assert_eq!(shared.give_way(me, NOW), GiveWay::KeepOn, "a thread being created, perhaps by it");
         shared.slots[2].state.store(BLOCKED, Release);
         shared.slots[0].state.store(BLOCKED, Release);
-        shared.slots[0].set_wait(Wait::Kernel { port: false, conns: 0 });
+        shared.slots[0].set_wait(Wait::Kernel { port: false, conns: false });
         assert_eq!(shared.give_way(me, NOW), GiveWay::Until(NOW), "a wait on the kernel is looked at first");
         never(&shared.slots[0]);
         shared.sig_timers[0].state.store(timer_state::FREE, Release);
@@ -819,9 +908,9 @@ mod tests {
     fn a_blocked_wait_on_the_kernel_must_be_looked_at_unless_it_joins_a_live_followed_thread() {
         let shared = block_with(&[BLOCKED, RUNNING]);
         let (waiter, joined) = (&shared.slots[0], &shared.slots[1]);
-        waiter.set_wait(Wait::Kernel { port: false, conns: 0 });
+        waiter.set_wait(Wait::Kernel { port: false, conns: false });
         assert!(shared.must_look(waiter));
-        waiter.set_wait(Wait::Data { port: true, conns: 0 });
+        waiter.set_wait(Wait::Data { port: true, conns: false });
         assert!(!shared.must_look(waiter));
         waiter.set_wait(Wait::Peer(0xabc));
         joined.thread.store(0xabc, Relaxed);
@@ -850,14 +939,14 @@ mod tests {
         // A thread that runs, or one being created, decides later, whatever else waits.
         for runner in [RUNNING, RESERVED] {
             let shared = block_with(&[READY, BLOCKED, runner]);
-            shared.slots[1].set_wait(Wait::Kernel { port: false, conns: 0 });
+            shared.slots[1].set_wait(Wait::Kernel { port: false, conns: false });
             shared.header.refused.store(1, Relaxed);
             assert!(matches!(shared.who_decides(never), Decider::AnotherRuns), "{}", state::name(runner));
             assert!(shared.another_runs(never), "{}", state::name(runner));
         }
         // A wait on the kernel: climbsim asks for a look before any turn.
         let shared = block_with(&[READY, BLOCKED]);
-        shared.slots[1].set_wait(Wait::Kernel { port: true, conns: 0 });
+        shared.slots[1].set_wait(Wait::Kernel { port: true, conns: false });
         assert!(matches!(shared.who_decides(never), Decider::Climbsim(Why::MustLook)));
         // A refusal comes before the look: the run fails.
         shared.header.refused.store(1, Relaxed);

@@ -73,8 +73,7 @@ pub(crate) fn note_call(shared: &Shared, call: u32) {
 /// move until it has, or their arrival would be stamped late.
 pub(crate) fn held(shared: &Shared) -> bool {
     let header = &shared.header;
-    header.port.tx_total.load(Ordering::Acquire) != header.port.tx_read.load(Ordering::Acquire)
-        || shared.conns.iter().any(|c| c.client_port.load(Ordering::Relaxed) != 0 && c.sent.load(Ordering::Acquire) != c.read.load(Ordering::Acquire))
+    header.port.tx_total.load(Ordering::Acquire) != header.port.tx_read.load(Ordering::Acquire) || shared.requests_unread()
 }
 
 /// Charge `ns` of simulated time to this thread; once the charges reach a batch they move the

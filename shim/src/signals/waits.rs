@@ -20,7 +20,7 @@ use crate::handlers::program_mask;
 /// is pending (`ends`) whenever climbsim asks, and every millisecond of wall time.
 fn wait_for_signal(shared: &Shared, deadline: u64, ends: impl Fn(u64) -> bool) -> u32 {
     let Some(slot) = crate::schedule::slot::my_slot() else { return release::ENDING };
-    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: 0 });
+    let publish = || crate::schedule::park::publish_waiting_on_kernel(shared, slot, deadline, Wait::Kernel { port: false, conns: false });
     publish();
     loop {
         match crate::schedule::park::wait_looking(shared, slot, &publish, |take| crate::schedule::park::Look::taking_nothing(ends(sys::pending_signals()).then_some(()), take)) {
