@@ -58,22 +58,16 @@ fn clear_tid_word(thread: usize) -> Option<&'static AtomicU32> {
 }
 
 /// Wait (wall time, until the monotonic `until`) for `word`, a thread's id, to be cleared by its
-/// end: a spin first, as long as climbsim lets parked threads spin (the thread ending usually
-/// has a CPU of its own and is gone within microseconds), then the kernel's futex, which the
-/// kernel wakes when it clears the word. Whether it was cleared.
-fn wait_cleared(shared: &Shared, word: &AtomicU32, until: &timespec) -> bool {
+/// end, on the kernel's futex, which the kernel wakes when it clears the word. Whether it was
+/// cleared. (Not a spin first: the thread ending needs a CPU to end on, and climbsim spins on
+/// one while a thread runs; on two CPUs a spin here made a thread's create and join cost a
+/// fifth more wall time.)
+fn wait_cleared(word: &AtomicU32, until: &timespec) -> bool {
     let deadline = crate::time::to_ns(until);
-    let now = crate::time::real_monotonic_ns();
-    let spin_until = now.saturating_add(shared.header.spin.park_spin_ns.load(Ordering::Relaxed));
-    let mut spin = crate::schedule::now::SpinLimit::until(spin_until.min(deadline), now);
     loop {
         let tid = word.load(Ordering::Acquire);
         if tid == 0 {
             return true;
-        }
-        if !spin.passed() {
-            core::hint::spin_loop();
-            continue;
         }
         let now = crate::time::real_monotonic_ns();
         if now >= deadline {
@@ -257,7 +251,7 @@ fn join(shared: &'static Shared, thread: usize, result: *mut *mut c_void, deadli
     let mut slice = |until: &timespec| {
         // Once the id word is clear, glibc's join returns at once, with no futex call.
         if let Some(word) = cleared
-            && !wait_cleared(shared, word, until)
+            && !wait_cleared(word, until)
         {
             return ETIMEDOUT;
         }
@@ -301,9 +295,17 @@ pub unsafe extern "C" fn pthread_create(thread: *mut usize, attr: *const c_void,
     let start = Box::into_raw(Box::new(Start { slot, routine, arg }));
     // SAFETY: our trampoline, with the start it frees.
     let rc = crate::schedule::slot::creating_thread(|| unsafe { next(thread, attr, trampoline, start.cast()) });
-    if rc == 0 && CLEAR_TID_OFFSET.load(Ordering::Relaxed) == 0 {
+    if rc == 0 {
         // SAFETY: the real pthread_create succeeded and wrote the new thread's id there.
-        learn_clear_tid(unsafe { *thread });
+        let created = unsafe { *thread };
+        // A join of it from now waits for its end, as for a thread that runs, even before it
+        // has claimed its slot: not a look at the kernel in every slice.
+        if let Some(shared) = active() {
+            shared.name_created_thread(slot, pid(), created as u64);
+        }
+        if CLEAR_TID_OFFSET.load(Ordering::Relaxed) == 0 {
+            learn_clear_tid(created);
+        }
     }
     if rc != 0 {
         // SAFETY: not handed to any thread.

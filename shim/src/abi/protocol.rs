@@ -169,6 +169,8 @@ impl Slot {
         let taken = self.handing.load(SeqCst) == 0 && self.transition(UNUSED, to).is_ok();
         if taken {
             self.exec_marker_fd.store(0, Relaxed);
+            // No thread until one is named (see `joins_live_thread`): not the last one's.
+            self.thread.store(0, Release);
         }
         taken
     }
@@ -510,9 +512,23 @@ impl Shared {
         let Wait::Peer(thread) = waiter.wait() else { return false };
         let pid = waiter.pid.load(Relaxed);
         self.live_slots().iter().any(|s| {
-            // A reserved slot's thread has not claimed it yet: what it holds is its last one's.
-            matches!(s.state(), RUNNING | BLOCKED | YIELDED | READY) && s.thread.load(Relaxed) == thread && s.pid.load(Relaxed) == pid && !core::ptr::eq(s, waiter)
+            // A reserved slot's thread has not claimed it yet: it names the thread once its
+            // creator knows it (the joiner's `pthread_create` has returned), none before.
+            matches!(s.state(), RESERVED | RUNNING | BLOCKED | YIELDED | READY) && s.thread.load(Acquire) == thread && thread != 0 && s.pid.load(Relaxed) == pid && !core::ptr::eq(s, waiter)
         })
+    }
+
+    /// The thread `thread` (a `pthread_t`) of process `pid` was created for slot `slot`, which
+    /// it may not have claimed yet: a join of it waits for its end from now (see
+    /// [`Shared::joins_live_thread`]). Only a slot that names no thread yet, still this
+    /// process's: whatever the slot's thread wrote since is the same value or newer.
+    pub fn name_created_thread(&self, slot: usize, pid: i32, thread: u64) {
+        if let Some(slot) = self.slots.get(slot)
+            && slot.pid.load(Relaxed) == pid
+            && slot.is_live()
+        {
+            let _ = slot.thread.compare_exchange(0, thread, AcqRel, Relaxed);
+        }
     }
 
     /// `slot` waits on what the kernel wakes (a descriptor climbsim does not model, a thread
@@ -915,11 +931,24 @@ mod tests {
         waiter.set_wait(Wait::Peer(0xabc));
         joined.thread.store(0xabc, Relaxed);
         assert!(shared.joins_live_thread(waiter) && !shared.must_look(waiter));
-        for (state, live) in [(RESERVED, false), (EXITED, false), (READY, true), (BLOCKED, true)] {
+        for (state, live) in [(RESERVED, true), (EXITED, false), (READY, true), (BLOCKED, true)] {
             joined.state.store(state, Release);
             assert_eq!(shared.joins_live_thread(waiter), live, "joined {}", state::name(state));
             assert_eq!(shared.must_look(waiter), !live, "joined {}", state::name(state));
         }
+        // A slot taken again names no thread (a reservation holds nothing of its last thread's)
+        // until its creator names the one it made; then only that one, of that process.
+        joined.state.store(EXITED, Release);
+        assert!(joined.reserve_unused());
+        assert!(!shared.joins_live_thread(waiter), "a reservation with its last thread's name");
+        shared.name_created_thread(1, 4242, 0xabc);
+        assert!(!shared.joins_live_thread(waiter), "named by another process");
+        shared.name_created_thread(1, 0, 0xabc);
+        assert!(shared.joins_live_thread(waiter), "named by its creator");
+        shared.name_created_thread(1, 0, 0xdef);
+        assert_eq!(joined.thread.load(Relaxed), 0xabc, "a name is given once");
+        waiter.set_wait(Wait::Peer(0));
+        assert!(!shared.joins_live_thread(waiter), "a join of no thread");
         waiter.state.store(READY, Release);
         assert!(!shared.must_look(waiter), "a waiter already let go is not looked at");
     }
