@@ -283,6 +283,7 @@ fn timerfds_are_followed_as_many_as_the_program_opens() {
         "read 300 timers, 300 expirations, the last at 300.299 ms\n\
          poll of 20: 1 ready after 59.999 ms (the last one's, readable)\n\
          epoll of 50: 1 ready after 450.999 ms (timer 49)\n\
+         poll of 300: 1 ready after 68.705 ms (timer 5 readable)\n\
          poll of 300: 1 ready after 69.837 ms (timer 137 readable)\n\
          epoll of 250: 1 ready after 39.980 ms (timer 230)\n"
     );

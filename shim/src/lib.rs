@@ -170,6 +170,7 @@ unsafe extern "C" fn process_exiting(_: *mut c_void) {
     let Some(shared) = schedule::block::shared() else { return };
     let pid = sys::getpid();
     futex::robust_lists_of_process_end(pid);
+    net::forget_process(shared, pid);
     children::wake_waiting_parent(shared, pid, sys::getppid());
     // This thread's own slot last: until then it runs, so climbsim decides nothing on a
     // process half marked (it would move time to the deadline of a thread not yet marked).

@@ -18,7 +18,7 @@ pub(crate) fn conn_of(shared: &'static Shared, fd: c_int) -> Option<(usize, &'st
         return None;
     }
     let pid = crate::schedule::block::pid();
-    shared.live_conns().iter().enumerate().find(|(_, c)| c.client_port.load(Ordering::Acquire) != 0 && c.fd.load(Ordering::Relaxed) == fd && c.pid.load(Ordering::Relaxed) == pid)
+    shared.live_conns().iter().enumerate().find(|(_, c)| c.is_followed() && c.fd.load(Ordering::Relaxed) == fd && c.pid.load(Ordering::Relaxed) == pid)
 }
 
 #[repr(C)]
@@ -76,6 +76,14 @@ fn follow_connection(shared: &'static Shared, fd: c_int, to: *const SockaddrIn) 
 /// The descriptor is closed (or reused): its connection is no longer followed.
 pub(crate) fn forget(shared: &'static Shared, fd: c_int) {
     if let Some((_, conn)) = conn_of(shared, fd) {
+        conn.client_port.store(0, Ordering::Release);
+    }
+}
+
+/// Process `pid` is ending: its connections are no longer followed (it may not have closed
+/// them; left taken, they would be scanned for the rest of the run).
+pub(crate) fn forget_process(shared: &'static Shared, pid: i32) {
+    for conn in shared.live_conns().iter().filter(|c| c.is_followed() && c.pid.load(Ordering::Relaxed) == pid) {
         conn.client_port.store(0, Ordering::Release);
     }
 }

@@ -54,6 +54,8 @@ pub const GIVE_WAY_SIGNAL: i32 = 28;
 /// creation, a runtime's raw clone): the thread claims it at its first followed call, finding
 /// it by its TLS pointer (`Slot::clone_tls`; 0: any such thread of the process).
 pub const RAW_CLONE_TID: i32 = -2;
+/// `Slot::tid` of a slot reserved for a thread the shim's `pthread_create` is about to create.
+pub const RESERVED_THREAD_TID: i32 = -1;
 /// "No deadline" / "nothing due".
 pub const NEVER: u64 = u64::MAX;
 /// Reply bytes written to the port ahead of their time, in at most this many runs (each
@@ -637,8 +639,8 @@ impl Shared {
     /// Whether request bytes the controller sent on a sensor connection wait for climbsim (by
     /// the shim's count): simulated time cannot move past them.
     pub fn requests_unread(&self) -> bool {
-        use core::sync::atomic::Ordering::{Acquire, Relaxed};
-        self.live_conns().iter().any(|c| c.client_port.load(Relaxed) != 0 && c.sent.load(Acquire) != c.read.load(Acquire))
+        use core::sync::atomic::Ordering::Acquire;
+        self.live_conns().iter().any(|c| c.is_followed() && c.sent.load(Acquire) != c.read.load(Acquire))
     }
 
     /// The signal timers that have ever been taken (those past them are free).

@@ -514,7 +514,11 @@ impl Shared {
         self.live_slots().iter().any(|s| {
             // A reserved slot's thread has not claimed it yet: it names the thread once its
             // creator knows it (the joiner's `pthread_create` has returned), none before.
-            matches!(s.state(), RESERVED | RUNNING | BLOCKED | YIELDED | READY) && s.thread.load(Acquire) == thread && thread != 0 && s.pid.load(Relaxed) == pid && !core::ptr::eq(s, waiter)
+            // (Only a reservation for a thread, whose creator has written its marks: between its
+            // taking and those, a slot holds its last thread's.)
+            let state = s.state();
+            let live = matches!(state, RUNNING | BLOCKED | YIELDED | READY) || (state == RESERVED && s.tid.load(Acquire) == super::layout::RESERVED_THREAD_TID);
+            live && s.thread.load(Acquire) == thread && thread != 0 && s.pid.load(Relaxed) == pid && !core::ptr::eq(s, waiter)
         })
     }
 
@@ -546,8 +550,20 @@ impl Shared {
 
     /// A response waits (written by climbsim, not yet taken by the controller) on a sensor
     /// connection that the thread in slot `slot` waits on ([`Conn::start_waiting`]).
+    /// Only a connection of the slot's own process: a bit a thread left as it died in its wait
+    /// (its process killed) lets go no thread of another.
     pub fn response_waiting_for(&self, slot: usize) -> bool {
-        self.live_conns().iter().any(|conn| conn.client_port.load(Acquire) != 0 && conn.waited_by(slot) && conn.resp_written.load(Acquire) > conn.resp_taken.load(Acquire))
+        let Some(pid) = self.slots.get(slot).map(|s| s.pid.load(Relaxed)) else { return false };
+        self.live_conns().iter().any(|conn| conn.is_followed() && conn.pid.load(Relaxed) == pid && conn.waited_by(slot) && conn.resp_written.load(Acquire) > conn.resp_taken.load(Acquire))
+    }
+
+    /// Slot `slot` is taken by a new thread: no connection names it among its waiters (one
+    /// left by a thread that died in its wait, or left it by a `siglongjmp` from a handler,
+    /// would let the new thread go for another's response).
+    pub fn forget_conn_waits(&self, slot: usize) {
+        for conn in self.live_conns() {
+            conn.stop_waiting(slot);
+        }
     }
 }
 
@@ -573,6 +589,11 @@ impl Conn {
     /// Whether the thread in slot `slot` waits on this connection.
     pub fn waited_by(&self, slot: usize) -> bool {
         self.waiters.get(slot / 64).is_some_and(|word| word.load(Acquire) & (1 << (slot % 64)) != 0)
+    }
+
+    /// The entry follows a connection: taken, and filled in (`u32::MAX` while it is being).
+    pub fn is_followed(&self) -> bool {
+        !matches!(self.client_port.load(Acquire), 0 | u32::MAX)
     }
 
     /// The entry is taken for a new connection: nobody waits on it yet (a thread that ended in
@@ -847,6 +868,20 @@ mod tests {
         assert!(!shared.response_waiting_for(5));
         shared.header.conns_high.store(u32::MAX, Release);
         assert!(shared.response_waiting_for(5));
+        // A connection of another process lets nobody go (a bit its thread left as it died);
+        // nor does an entry being filled in; and a slot taken again names no connection.
+        let other = &shared.conns[100];
+        other.start_waiting(9);
+        other.resp_written.store(1, Release);
+        assert!(shared.response_waiting_for(9));
+        other.pid.store(4242, Release);
+        assert!(!shared.response_waiting_for(9), "another process's connection");
+        other.pid.store(0, Release);
+        other.client_port.store(u32::MAX, Release);
+        assert!(!shared.response_waiting_for(9), "an entry being filled in");
+        other.client_port.store(40_002, Release);
+        shared.forget_conn_waits(9);
+        assert!(!shared.response_waiting_for(9) && !other.waited_by(9), "the slot taken again");
         // Slots past the table are nobody's.
         conn.start_waiting(super::super::layout::SLOTS);
         assert!(!conn.waited_by(super::super::layout::SLOTS));
@@ -931,6 +966,7 @@ mod tests {
         waiter.set_wait(Wait::Peer(0xabc));
         joined.thread.store(0xabc, Relaxed);
         assert!(shared.joins_live_thread(waiter) && !shared.must_look(waiter));
+        joined.tid.store(super::super::layout::RESERVED_THREAD_TID, Release);
         for (state, live) in [(RESERVED, true), (EXITED, false), (READY, true), (BLOCKED, true)] {
             joined.state.store(state, Release);
             assert_eq!(shared.joins_live_thread(waiter), live, "joined {}", state::name(state));
@@ -939,8 +975,13 @@ mod tests {
         // A slot taken again names no thread (a reservation holds nothing of its last thread's)
         // until its creator names the one it made; then only that one, of that process.
         joined.state.store(EXITED, Release);
+        joined.tid.store(777, Release);
         assert!(joined.reserve_unused());
         assert!(!shared.joins_live_thread(waiter), "a reservation with its last thread's name");
+        joined.thread.store(0xabc, Relaxed);
+        assert!(!shared.joins_live_thread(waiter), "a reservation its creator has not marked as a thread's");
+        joined.thread.store(0, Relaxed);
+        joined.tid.store(super::super::layout::RESERVED_THREAD_TID, Release);
         shared.name_created_thread(1, 4242, 0xabc);
         assert!(!shared.joins_live_thread(waiter), "named by another process");
         shared.name_created_thread(1, 0, 0xabc);

@@ -244,6 +244,7 @@ pub(crate) fn take_free_slot(shared: &Shared, take: fn(&Slot) -> bool) -> Option
         // Scans stop at the high-water mark: it is raised before the slot is taken.
         shared.header.slots_high.fetch_max(index as u32 + 1, Ordering::AcqRel);
         if take(slot) {
+            shared.forget_conn_waits(index);
             return Some((index, slot));
         }
     }
@@ -257,7 +258,7 @@ pub(crate) fn reserve_thread_slot() -> Option<usize> {
     let (index, slot) = take_free_slot(shared, Slot::reserve_unused)?;
     slot.pid.store(pid(), Ordering::Relaxed);
     // Not 0, which marks a process's reservation (see `my_slot`).
-    slot.tid.store(-1, Ordering::Relaxed);
+    slot.tid.store(abi::RESERVED_THREAD_TID, Ordering::Release);
     Some(index)
 }
 
