@@ -234,6 +234,17 @@ class Bus:
     process: "subprocess.Popen[str]"
     #: Lines climbsim has printed so far (stdout).
     lines: List[str] = field(default_factory=list)
+    #: What climbsim has written to its stderr so far (a function: it reads it afresh).
+    stderr: Callable[[], str] = field(default=lambda: "", repr=False)
+
+    def log(self) -> str:
+        """What climbsim has said so far: its lines (stdout), then its stderr; for a failing
+        test's report."""
+        parts = ["\n".join(self.lines)]
+        errors = self.stderr()
+        if errors:
+            parts.append("--- stderr ---\n" + errors.rstrip("\n"))
+        return "\n".join(parts)
 
 
 def _read_lines(stream: Any, into: "queue.Queue[Optional[str]]", lines: List[str]) -> None:
@@ -274,8 +285,12 @@ def serve(
         raise ClimbsimError(f"cannot start {command[0]}: {error}", command=command) from error
 
     def stderr_text() -> str:
-        errors.seek(0)
-        return errors.read()
+        # pread, not seek and read: climbsim writes through the same open file (its offset
+        # shared), and may be writing now.
+        if errors.closed:
+            return ""
+        size = os.fstat(errors.fileno()).st_size
+        return os.pread(errors.fileno(), size, 0).decode("utf-8", errors="replace")
 
     lines: List[str] = []
     ready: "queue.Queue[Optional[str]]" = queue.Queue()
@@ -283,7 +298,7 @@ def serve(
     reader.start()
     try:
         port = _wait_until_served(process, ready, want_sensors=scenario is not None, timeout_s=ready_timeout_s, command=command, stderr_text=stderr_text)
-        bus = Bus(port=port[0], sensors=port[1], process=process, lines=lines)
+        bus = Bus(port=port[0], sensors=port[1], process=process, lines=lines, stderr=stderr_text)
         failed_inside = False
         try:
             yield bus

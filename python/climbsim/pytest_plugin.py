@@ -3,7 +3,8 @@
 Fixtures:
   climbsim_bus     the servos served for one test, on the bench or in a scenario's world
                    (`@pytest.mark.climbsim_scenario("line.toml", sets={...})`); yields a Bus
-                   (`.port`, `.sensors`), torn down after the test.
+                   (`.port`, `.sensors`), torn down after the test. A test body that fails
+                   while it serves has climbsim's lines and stderr in its report.
   climbsim_check   a function: `climbsim_check("line.toml", controller=[...])` runs the scenario
                    against its [expect] on virtual time and returns a RunResult, so that
                    `assert result.passed, result.failures` shows climbsim's own lines.
@@ -93,7 +94,23 @@ def climbsim_bus(request: pytest.FixtureRequest, climbsim_binary: str, climbsim_
         args = marker.kwargs.get("args", ())
     path = _scenario_path(climbsim_scenarios, scenario) if scenario is not None else None
     with serve(path, sets=sets, args=args, binary=climbsim_binary) as bus:
+        request.node.stash[_BUS] = bus
         yield bus
+
+
+# The bus a test's `climbsim_bus` serves, for its report.
+_BUS = pytest.StashKey[Bus]()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    """A test that fails while `climbsim_bus` serves gets climbsim's own words in its report:
+    the bus's lines and climbsim's stderr so far (as pytest shows a test's captured output)."""
+    outcome = yield
+    report = outcome.get_result()
+    bus = item.stash.get(_BUS, None)
+    if bus is not None and report.when == "call" and report.failed:
+        report.sections.append(("climbsim serve (its lines and stderr)", bus.log()))
 
 
 @pytest.fixture

@@ -109,7 +109,9 @@ def test_bad_input_to_run_raises(follower, tmp_path):
     assert "missing.toml" in str(error.value)
 
 
-def test_the_plugins_failures_show_climbsims_lines(pytester, follower):
+def test_the_plugins_failures_show_climbsims_lines(pytester, follower, monkeypatch):
+    # climbsim's own log on its stderr (a line as its port is ready), for the report below.
+    monkeypatch.setenv("RUST_LOG", "climbsim=info")
     shutil.copytree(follower / "scenarios", pytester.path / "scenarios")
     shutil.copytree(follower / "controller", pytester.path / "controller")
     pytester.makeini("[pytest]\nclimbsim_scenarios = scenarios\n")
@@ -124,9 +126,17 @@ def test_the_plugins_failures_show_climbsims_lines(pytester, follower):
         @pytest.mark.climbsim_scenario("line-follow.toml")
         def test_bus(climbsim_bus):
             assert climbsim_bus.sensors.startswith("http://127.0.0.1:")
+
+        @pytest.mark.climbsim_scenario("line-follow.toml")
+        def test_bus_body_fails(climbsim_bus):
+            assert climbsim_bus.port == "not this port"
         """
     )
     outcome = pytester.runpytest_subprocess()
-    outcome.assert_outcomes(passed=1, failed=1)
+    outcome.assert_outcomes(passed=1, failed=2)
     outcome.stdout.fnmatch_lines(["*AssertionError: distance.steady_state_error_m = * is outside*", "*time_on_line_fraction = 0 is outside >= 0.5*"])
     assert "climbsim: " in "\n".join(outcome.outlines), "the report header names the binary"
+    # A test body that fails while the bus is up: climbsim's own lines and stderr in its report,
+    # under the failure, and only there.
+    outcome.stdout.fnmatch_lines(["*_ test_bus_body_fails _*", "*climbsim serve (its lines and stderr)*", "port: *", "sensors: http://127.0.0.1:*", "--- stderr ---", "*INFO climbsim::transport::pty: virtual serial port ready*"])
+    assert "\n".join(outcome.outlines).count("climbsim serve (its lines and stderr)") == 1, "the passing and the short test have none"
