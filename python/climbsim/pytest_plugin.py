@@ -94,12 +94,14 @@ def climbsim_bus(request: pytest.FixtureRequest, climbsim_binary: str, climbsim_
         args = marker.kwargs.get("args", ())
     path = _scenario_path(climbsim_scenarios, scenario) if scenario is not None else None
     with serve(path, sets=sets, args=args, binary=climbsim_binary) as bus:
-        request.node.stash[_BUS] = bus
+        # For the test's report (an attribute, not pytest's stash: that needs pytest 7, and the
+        # plugin loads in every pytest session of an environment climbsim is installed in).
+        setattr(request.node, _BUS, bus)
         yield bus
 
 
-# The bus a test's `climbsim_bus` serves, for its report.
-_BUS = pytest.StashKey[Bus]()
+# The attribute of a test item that holds the bus its `climbsim_bus` serves.
+_BUS = "_climbsim_bus"
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -108,7 +110,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     the bus's lines and climbsim's stderr so far (as pytest shows a test's captured output)."""
     outcome = yield
     report = outcome.get_result()
-    bus = item.stash.get(_BUS, None)
+    bus = getattr(item, _BUS, None)
     if bus is not None and report.when == "call" and report.failed:
         report.sections.append(("climbsim serve (its lines and stderr)", bus.log()))
 
