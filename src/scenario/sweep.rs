@@ -104,19 +104,34 @@ impl Shard {
     }
 
     /// [`Self::parse`] with the environment given: `auto/N` takes K from a job array's 0-based
-    /// task index, Slurm's `SLURM_ARRAY_TASK_ID` (less `SLURM_ARRAY_TASK_MIN`, so `--array=1-8`
-    /// works too) or a Kubernetes Indexed Job's `JOB_COMPLETION_INDEX`. N is always explicit:
-    /// a shard count read from the scheduler would silently change with the array's size.
+    /// task index, Slurm's `SLURM_ARRAY_TASK_ID` or a Kubernetes Indexed Job's
+    /// `JOB_COMPLETION_INDEX`, as it is: a task's id is its shard's, whatever part of the array
+    /// runs (failed tasks resubmitted with `--array=5-7` run shards 6 to 8, as they should; the
+    /// id less `SLURM_ARRAY_TASK_MIN` would run shards 1 to 3 into those tasks' folders).
+    /// An array numbered from 1 (`--array=1-8`) is refused at its last task, naming the cure. N
+    /// is always explicit: a shard count read from the scheduler would silently change with the
+    /// array's size.
     pub fn parse_with_env(text: &str, env: impl Fn(&str) -> Option<String>) -> Result<Self, SweepError> {
         let bad = || SweepError::Shard(text.to_owned());
         let (k, n) = text.split_once('/').ok_or_else(bad)?;
         let count = n.trim().parse::<usize>().map_err(|_| bad())?;
+        if count == 0 {
+            return Err(bad());
+        }
         let index = if k.trim() == "auto" {
             let fail = |message: String| SweepError::ShardIndex { text: text.to_owned(), message };
             let number = |name: &str| env(name).map(|v| v.trim().parse::<usize>().map_err(|_| fail(format!("{name}={v} is not a task index"))));
             let zero_based = match (number("SLURM_ARRAY_TASK_ID"), number("JOB_COMPLETION_INDEX")) {
                 (Some(slurm), None) => {
-                    slurm?.checked_sub(number("SLURM_ARRAY_TASK_MIN").transpose()?.unwrap_or(0)).ok_or_else(|| fail("SLURM_ARRAY_TASK_ID is below SLURM_ARRAY_TASK_MIN".to_owned()))?
+                    let id = slurm?;
+                    if id >= count {
+                        return Err(fail(format!(
+                            "SLURM_ARRAY_TASK_ID={id} is not below the shard count {count}: the task ids are the shards' 0-based indices, so number the array 0-{} (--array=0-{}; a part of it, --array=5-7, reruns those shards)",
+                            count - 1,
+                            count - 1
+                        )));
+                    }
+                    id
                 }
                 (None, Some(kubernetes)) => kubernetes?,
                 (Some(_), Some(_)) => return Err(fail("both SLURM_ARRAY_TASK_ID and JOB_COMPLETION_INDEX are set: give K/N explicitly".to_owned())),
@@ -178,14 +193,21 @@ mod tests {
         seen.sort_unstable();
         assert_eq!(seen, (0..6).collect::<Vec<_>>());
         assert_eq!(Shard::parse("2/4"), Ok(Shard { index: 2, count: 4 }));
-        assert!(Shard::parse("0/4").is_err() && Shard::parse("5/4").is_err() && Shard::parse("x").is_err());
+        assert!(Shard::parse("0/4").is_err() && Shard::parse("5/4").is_err() && Shard::parse("x").is_err() && Shard::parse("1/0").is_err());
+        assert!(Shard::parse_with_env("auto/0", |_| Some("0".to_owned())).is_err(), "no shards, whatever the task");
     }
 
     #[test]
     fn auto_shards_come_from_the_job_array_index() {
         let env = |vars: &'static [(&'static str, &'static str)]| move |name: &str| vars.iter().find(|(k, _)| *k == name).map(|(_, v)| (*v).to_owned());
         assert_eq!(Shard::parse_with_env("auto/4", env(&[("SLURM_ARRAY_TASK_ID", "0")])), Ok(Shard { index: 1, count: 4 }));
-        assert_eq!(Shard::parse_with_env("auto/4", env(&[("SLURM_ARRAY_TASK_ID", "4"), ("SLURM_ARRAY_TASK_MIN", "1")])), Ok(Shard { index: 4, count: 4 }));
+        // A part of the array resubmitted (--array=2-3) runs its own shards, not the first ones.
+        assert_eq!(Shard::parse_with_env("auto/4", env(&[("SLURM_ARRAY_TASK_ID", "2"), ("SLURM_ARRAY_TASK_MIN", "2")])), Ok(Shard { index: 3, count: 4 }));
+        // An array numbered from 1 is refused at its last task, saying how to number it.
+        match Shard::parse_with_env("auto/4", env(&[("SLURM_ARRAY_TASK_ID", "4"), ("SLURM_ARRAY_TASK_MIN", "1")])) {
+            Err(SweepError::ShardIndex { message, .. }) => assert!(message.contains("--array=0-3"), "{message}"),
+            other => panic!("{other:?}"),
+        }
         assert_eq!(Shard::parse_with_env("auto/4", env(&[("JOB_COMPLETION_INDEX", "3")])), Ok(Shard { index: 4, count: 4 }));
         for vars in [&[("JOB_COMPLETION_INDEX", "4")][..], &[][..], &[("SLURM_ARRAY_TASK_ID", "1"), ("JOB_COMPLETION_INDEX", "1")][..], &[("SLURM_ARRAY_TASK_ID", "x")][..]] {
             assert!(matches!(Shard::parse_with_env("auto/4", env(vars)), Err(SweepError::ShardIndex { .. })), "{vars:?}");
