@@ -325,6 +325,21 @@ pub unsafe extern "C" fn epoll_ctl(epfd: c_int, op: c_int, fd: c_int, event: *mu
     rc
 }
 
+/// One epoll wait on simulated time, the cancellation point it is, with the signal mask
+/// `sigmask` asks for (null: the program's): `real(wall)` is the kernel's wait with a wall-clock
+/// timeout (None: none), after the shim's own for an edge of the port it has to report.
+fn wait_on_epoll(shared: &'static crate::abi::Shared, epfd: c_int, events: *mut c_void, max: c_int, timeout: Option<u64>, sigmask: *const c_void, real: &mut dyn FnMut(Option<u64>) -> c_int) -> c_int {
+    let interest = interest(EpollCall { epfd, events, max, collect_more });
+    let port_fd = interest.port_fd;
+    crate::wait::as_cancellation_point(|| {
+        // (Inside: a cancellation acted on unwinds past no guard.)
+        let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, port_fd));
+        crate::wait::with_wait_mask(sigmask, || {
+            wait(shared, call::POLL, &interest, timeout, &mut |wall| mask_events(shared, epfd, events, max, real(kernel_timeout(shared, epfd, port_fd, wall)), port_fd))
+        })
+    })
+}
+
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int, timeout_ms: c_int) -> c_int {
     let next = real!(epoll_wait: fn(c_int, *mut c_void, c_int, c_int) -> c_int);
@@ -332,16 +347,8 @@ pub unsafe extern "C" fn epoll_wait(epfd: c_int, events: *mut c_void, max: c_int
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout_ms) };
     };
-    let interest = interest(EpollCall { epfd, events, max, collect_more });
-    crate::wait::as_cancellation_point(|| {
-        // (Inside: a cancellation acted on unwinds past no guard.)
-        let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
-        wait(shared, call::POLL, &interest, ms_timeout(timeout_ms), &mut |wall| {
-            let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
-            // SAFETY: the caller's arguments, with our timeout.
-            mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms) }, interest.port_fd)
-        })
-    })
+    // SAFETY: the caller's arguments, with our timeout.
+    wait_on_epoll(shared, epfd, events, max, ms_timeout(timeout_ms), core::ptr::null(), &mut |wall| unsafe { next(epfd, events, max, wall_ms(wall)) })
 }
 
 #[unsafe(no_mangle)]
@@ -351,18 +358,8 @@ pub unsafe extern "C" fn epoll_pwait(epfd: c_int, events: *mut c_void, max: c_in
         // SAFETY: passing the caller's arguments through.
         return unsafe { next(epfd, events, max, timeout_ms, sigmask) };
     };
-    let interest = interest(EpollCall { epfd, events, max, collect_more });
-    crate::wait::as_cancellation_point(|| {
-        // (Inside: a cancellation acted on unwinds past no guard.)
-        let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
-        crate::wait::with_wait_mask(sigmask, || {
-            wait(shared, call::POLL, &interest, ms_timeout(timeout_ms), &mut |wall| {
-                let wall_ms = wall_ms(kernel_timeout(shared, epfd, interest.port_fd, wall));
-                // SAFETY: the caller's arguments, with our timeout.
-                mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, wall_ms, sigmask) }, interest.port_fd)
-            })
-        })
-    })
+    // SAFETY: the caller's arguments, with our timeout.
+    wait_on_epoll(shared, epfd, events, max, ms_timeout(timeout_ms), sigmask, &mut |wall| unsafe { next(epfd, events, max, wall_ms(wall), sigmask) })
 }
 
 #[unsafe(no_mangle)]
@@ -377,17 +374,10 @@ pub unsafe extern "C" fn epoll_pwait2(epfd: c_int, events: *mut c_void, max: c_i
         Ok(asked) => asked,
         Err(errno) => return crate::wait::refused(errno),
     };
-    let interest = interest(EpollCall { epfd, events, max, collect_more });
-    crate::wait::as_cancellation_point(|| {
-        // (Inside: a cancellation acted on unwinds past no guard.)
-        let _seen = crate::schedule::park::PortSeen::watch(port_edges(epfd, interest.port_fd));
-        crate::wait::with_wait_mask(sigmask, || {
-            wait(shared, call::POLL, &interest, asked, &mut |wall| {
-                let limit = kernel_timeout(shared, epfd, interest.port_fd, wall).map(from_ns);
-                let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
-                // SAFETY: the caller's arguments, with our timeout.
-                mask_events(shared, epfd, events, max, unsafe { next(epfd, events, max, limit_ptr, sigmask) }, interest.port_fd)
-            })
-        })
+    wait_on_epoll(shared, epfd, events, max, asked, sigmask, &mut |wall| {
+        let limit = wall.map(from_ns);
+        let limit_ptr = limit.as_ref().map_or(core::ptr::null(), |t| t as *const timespec);
+        // SAFETY: the caller's arguments, with our timeout.
+        unsafe { next(epfd, events, max, limit_ptr, sigmask) }
     })
 }

@@ -429,9 +429,9 @@ pub unsafe extern "C" fn poll(fds: *mut pollfd, count: nfds_t, timeout_ms: c_int
         Ok(interest) => interest,
         Err(errno) => return refused(errno),
     };
-    // SAFETY: the caller's arguments, with our timeout.
     let port_fd = interest.port_fd;
     as_cancellation_point(|| {
+        // SAFETY: the caller's arguments, with our timeout.
         wait(shared, call::POLL, &interest, ms_timeout(timeout_ms), &mut |wall| crate::schedule::held::mask_poll(shared, fds, count, unsafe { next(fds, count, wall_ms(wall)) }, port_fd))
     })
 }
