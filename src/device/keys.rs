@@ -2,24 +2,36 @@
 //! them once ([`super::FirmwareProfile::keys`]).
 
 macro_rules! item_keys {
-    ($($key:ident),* $(,)?) => {
-        /// Indices (into the profile's item list) of every item the servo logic touches.
+    (required: $($key:ident),* $(,)?; optional: $($optional:ident),* $(,)?) => {
+        /// Indices (into the profile's item list) of every item the servo logic touches. An
+        /// optional item is one some models lack (the XL430 has no Current Limit or Goal Current
+        /// and reads Present Load where others read Present Current): the firmware skips what
+        /// the model does not have, as the model's own firmware has no such item.
         #[derive(Debug, Clone, Copy)]
-        pub struct Keys { $(pub $key: usize,)* }
+        pub struct Keys {
+            $(pub $key: usize,)*
+            $(pub $optional: Option<usize>,)*
+        }
 
         impl Keys {
             /// Keys every profile must define.
             pub const NAMES: &'static [&'static str] = &[$(stringify!($key)),*];
 
-            /// Every key's index, as `index` finds it.
-            pub(super) fn resolve(index: impl Fn(&str) -> usize) -> Self {
-                Self { $($key: index(stringify!($key)),)* }
+            /// Every key's index as `find` finds it; `None` from `find` for a required key is a
+            /// programming error, since a profile is checked against `NAMES` when it loads.
+            pub(super) fn resolve(find: impl Fn(&str) -> Option<usize>) -> Self {
+                Self {
+                    // ok: required keys were checked when the profile loaded.
+                    $($key: find(stringify!($key)).expect("a required item, checked at load"),)*
+                    $($optional: find(stringify!($optional)),)*
+                }
             }
         }
     };
 }
 
 item_keys!(
+    required:
     model_number,
     model_information,
     firmware_version,
@@ -36,9 +48,7 @@ item_keys!(
     max_voltage_limit,
     min_voltage_limit,
     pwm_limit,
-    current_limit,
     velocity_limit,
-    startup_configuration,
     shutdown,
     torque_enable,
     status_return_level,
@@ -53,7 +63,6 @@ item_keys!(
     feedforward_1st_gain,
     bus_watchdog,
     goal_pwm,
-    goal_current,
     goal_velocity,
     profile_acceleration,
     profile_velocity,
@@ -62,12 +71,17 @@ item_keys!(
     moving,
     moving_status,
     present_pwm,
-    present_current,
     present_velocity,
     present_position,
     velocity_trajectory,
     position_trajectory,
     present_input_voltage,
-    present_temperature,
+    present_temperature;
+    optional:
+    current_limit,
+    goal_current,
+    present_current,
+    present_load,
+    startup_configuration,
     backup_ready,
 );

@@ -20,7 +20,7 @@ impl Motor {
     pub fn new(spec: &MotorSpec) -> Self {
         let no_load_rad_s = spec.no_load_speed_rpm * TAU / 60.0;
         Self {
-            back_emf_damping: spec.stall_torque_nm / no_load_rad_s,
+            back_emf_damping: spec.back_emf_damping_nm_per_rad_s.unwrap_or(spec.stall_torque_nm / no_load_rad_s),
             rotor_inertia_reflected: spec.rotor_inertia_kgm2 * spec.gear_ratio * spec.gear_ratio,
             winding_resistance_ohm: spec.rated_voltage_v / spec.stall_current_a,
             spec: spec.clone(),

@@ -117,6 +117,11 @@ pub struct MotorSpec {
     pub ambient_temperature_c: f64,
     pub overload_current_fraction: f64,
     pub overload_time_s: f64,
+    /// The torque-speed slope at the horn (N·m per rad/s). Absent: the datasheet line through
+    /// the stall torque and the no-load speed, friction left out. A profile with identified
+    /// friction gives the slope that keeps the datasheet's no-load speed with that friction.
+    #[serde(default)]
+    pub back_emf_damping_nm_per_rad_s: Option<f64>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -137,14 +142,18 @@ pub struct IndirectBlock {
     pub count: u16,
 }
 
+/// The Operating Mode values a model has. A model without current sensing (XL430, XC430) has no
+/// current or current-based position mode.
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OperatingModes {
-    pub current: u8,
+    #[serde(default)]
+    pub current: Option<u8>,
     pub velocity: u8,
     pub position: u8,
     pub extended_position: u8,
-    pub current_based_position: u8,
+    #[serde(default)]
+    pub current_based_position: Option<u8>,
     pub pwm: u8,
 }
 
@@ -296,6 +305,7 @@ impl FirmwareProfile {
         if self.baud_rates.is_empty() {
             return Err("no [[baud_rate]] entries".into());
         }
+        self.check_motor()?;
         for block in &self.indirect_blocks {
             for n in 0..block.count {
                 let addr = self.item_index_at(block.address_start + 2 * n);
@@ -304,6 +314,40 @@ impl FirmwareProfile {
                     return Err(format!("indirect block at {} has no item for entry {n}", block.address_start));
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// The motor's figures divide and scale the servo model: each must be a finite number, and
+    /// those it divides by above zero.
+    fn check_motor(&self) -> Result<(), String> {
+        let m = &self.motor;
+        let positive = [
+            ("rated_voltage_v", m.rated_voltage_v),
+            ("stall_torque_nm", m.stall_torque_nm),
+            ("stall_current_a", m.stall_current_a),
+            ("no_load_speed_rpm", m.no_load_speed_rpm),
+            ("gear_ratio", m.gear_ratio),
+            ("thermal_time_constant_s", m.thermal_time_constant_s),
+            ("back_emf_damping_nm_per_rad_s", m.back_emf_damping_nm_per_rad_s.unwrap_or(1.0)),
+        ];
+        if let Some((key, value)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+            return Err(format!("[motor] {key} = {value}: it must be a number above zero"));
+        }
+        let non_negative = [
+            ("standby_current_a", m.standby_current_a),
+            ("rotor_inertia_kgm2", m.rotor_inertia_kgm2),
+            ("coulomb_friction_nm", m.coulomb_friction_nm),
+            ("viscous_friction_nm_per_rad_s", m.viscous_friction_nm_per_rad_s),
+            ("thermal_resistance_c_per_w", m.thermal_resistance_c_per_w),
+            ("overload_current_fraction", m.overload_current_fraction),
+            ("overload_time_s", m.overload_time_s),
+        ];
+        if let Some((key, value)) = non_negative.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            return Err(format!("[motor] {key} = {value}: it must be a number of zero or more"));
+        }
+        if m.pulses_per_rev == 0 || !m.ambient_temperature_c.is_finite() {
+            return Err("[motor] pulses_per_rev must be above zero and ambient_temperature_c a number".into());
         }
         Ok(())
     }
@@ -329,7 +373,7 @@ impl FirmwareProfile {
 
     /// The items the device code uses, resolved once (their keys were checked at load time).
     pub(crate) fn keys(&self) -> Keys {
-        Keys::resolve(|key| self.index(key))
+        Keys::resolve(|key| self.find(key))
     }
 
     pub fn find(&self, key: &str) -> Option<usize> {
@@ -371,6 +415,16 @@ pub(crate) mod tests {
         let err = FirmwareProfile::parse(Path::new("bad.toml"), "[model]\nname = 3\n").unwrap_err();
         let text = err.to_string();
         assert!(text.contains("bad.toml:2:"), "{text}");
+    }
+
+    #[test]
+    fn a_motor_figure_the_model_divides_by_must_be_above_zero() {
+        let text = std::fs::read_to_string(xm540().path).unwrap().replace("stall_current_a = 4.4", "stall_current_a = 0.0");
+        let err = FirmwareProfile::parse(Path::new("x.toml"), &text).unwrap_err();
+        assert!(err.to_string().contains("[motor] stall_current_a = 0: it must be a number above zero"), "{err}");
+        let text = std::fs::read_to_string(xm540().path).unwrap().replace("coulomb_friction_nm = 0.03", "coulomb_friction_nm = nan");
+        let err = FirmwareProfile::parse(Path::new("x.toml"), &text).unwrap_err();
+        assert!(err.to_string().contains("coulomb_friction_nm = NaN"), "{err}");
     }
 
     #[test]

@@ -19,7 +19,7 @@ impl Servo {
 
     pub(super) fn is_position_mode(&self, mode: i64) -> bool {
         let modes = &self.profile().operating_modes;
-        [modes.position, modes.extended_position, modes.current_based_position].contains(&(mode as u8))
+        [Some(modes.position), Some(modes.extended_position), modes.current_based_position].contains(&Some(mode as u8))
     }
 
     pub(super) fn reset_trajectory(&mut self) {
@@ -116,7 +116,11 @@ impl Servo {
         let current_a = self.motor.current_for_torque(torque);
         self.update_thermal(current_a, dt);
         self.publish_state(now);
-        self.table.set(self.keys.present_current, (self.direction() * current_a * 1000.0 / self.units.ma_per_current).round() as i64);
+        self.set_if_present(self.keys.present_current, (self.direction() * current_a * 1000.0 / self.units.ma_per_current).round() as i64);
+        // Present Load (XL430, XC430): 0.1 % of the maximum, signed by direction. Chosen: the
+        // winding current over the stall current (the e-manual gives the unit, not the estimate).
+        let load_permille = (self.direction() * current_a / self.motor.spec().stall_current_a * 1000.0).clamp(-1000.0, 1000.0);
+        self.set_if_present(self.keys.present_load, load_permille.round() as i64);
         self.table.set(self.keys.present_pwm, (self.last_duty * 100.0 / self.units.percent_per_pwm).round() as i64);
         self.check_protections(current_a, dt);
         self.check_watchdog(now);
@@ -163,15 +167,15 @@ impl Servo {
         if mode == modes.pwm {
             self.loops.profile_ongoing = false;
             self.get(keys.goal_pwm) as f64 * percent
-        } else if mode == modes.current {
+        } else if Some(mode) == modes.current {
             self.loops.profile_ongoing = false;
-            current_duty(self, self.get(keys.goal_current) as f64)
+            current_duty(self, self.get_or(keys.goal_current, 0) as f64)
         } else if mode == modes.velocity {
             self.velocity_loop(dt) * percent
         } else if self.is_position_mode(i64::from(mode)) {
             let output = self.position_loop(dt);
-            if mode == modes.current_based_position {
-                let limit = self.get(keys.goal_current).abs() as f64;
+            if Some(mode) == modes.current_based_position {
+                let limit = self.get_or(keys.goal_current, 0).abs() as f64;
                 current_duty(self, output.clamp(-limit, limit))
             } else {
                 output * percent
@@ -370,8 +374,8 @@ impl Servo {
             self.table.set(keys.goal_velocity, 0);
         } else if mode == i64::from(modes.pwm) {
             self.table.set(keys.goal_pwm, 0);
-        } else if mode == i64::from(modes.current) {
-            self.table.set(keys.goal_current, 0);
+        } else if modes.current.is_some_and(|current| mode == i64::from(current)) {
+            self.set_if_present(keys.goal_current, 0);
         }
         self.reset_trajectory();
         // Profile Acceleration applied as 0: the velocity profile starts at its goal, not at the

@@ -117,7 +117,7 @@ impl Servo {
         }
         if option == BACKUP_STORE {
             self.backup = Some(self.table.bytes().to_vec());
-            self.table.set(self.keys.backup_ready, 1);
+            self.set_if_present(self.keys.backup_ready, 1);
             return Outcome::done();
         }
         if self.backup.is_none() {
@@ -133,13 +133,13 @@ impl Servo {
         if restore_backup && let Some(backup) = &self.backup {
             self.table.copy_items_from(backup, |item| item.backup);
         }
-        let startup = self.get(keys.startup_configuration);
+        let startup = self.get_or(keys.startup_configuration, 0);
         if startup & STARTUP_RESTORE_RAM != 0
             && let Some(backup) = &self.backup
         {
             self.table.copy_items_from(backup, |item| item.backup && item.area == Area::Ram);
         }
-        self.table.set(keys.backup_ready, i64::from(self.backup.is_some()));
+        self.set_if_present(keys.backup_ready, i64::from(self.backup.is_some()));
         self.set_identity();
         self.registered_write = None;
         self.watchdog_tripped = false;
@@ -152,7 +152,7 @@ impl Servo {
         self.publish_state(now);
         self.table.set(keys.goal_position, self.get(keys.present_position));
         self.table.set(keys.goal_pwm, self.get(keys.pwm_limit));
-        self.table.set(keys.goal_current, self.get(keys.current_limit));
+        self.set_if_present(keys.goal_current, self.get_or(keys.current_limit, 0));
         if startup & STARTUP_TORQUE_ON != 0 {
             self.enable_torque(now);
         }
@@ -162,8 +162,9 @@ impl Servo {
         WriteContext { torque_on: self.torque_on(), operating_mode: self.operating_mode(), via_secondary_id: addressing.via_secondary_id }
     }
 
-    pub(super) fn goal_keys(&self) -> [usize; 4] {
-        [self.keys.goal_pwm, self.keys.goal_current, self.keys.goal_velocity, self.keys.goal_position]
+    /// The goal items the model has.
+    pub(super) fn goal_keys(&self) -> impl Iterator<Item = usize> + use<> {
+        [Some(self.keys.goal_pwm), self.keys.goal_current, Some(self.keys.goal_velocity), Some(self.keys.goal_position)].into_iter().flatten()
     }
 
     /// Every check of a write, including the firmware rules beyond the table's own.
@@ -171,7 +172,7 @@ impl Servo {
         let staged = self.table.stage_write(address, data, self.context(addressing))?;
         if self.watchdog_tripped {
             // After expiry, goal writes are refused until the watchdog is cleared with 0.
-            if self.goal_keys().iter().any(|&k| staged.touches(k)) {
+            if self.goal_keys().any(|k| staged.touches(k)) {
                 return Err(DeviceError::DataRange);
             }
             if staged.value_of(self.keys.bus_watchdog).is_some_and(|v| v != 0) {
@@ -202,7 +203,7 @@ impl Servo {
         if staged.touches(keys.bus_watchdog) {
             self.last_packet_at = now;
         }
-        let goal_written = self.goal_keys().iter().any(|&k| staged.touches(k));
+        let goal_written = self.goal_keys().any(|k| staged.touches(k));
         match torque_request {
             Some(0) => self.table.set(keys.torque_enable, 0),
             Some(_) if !was_on => self.enable_torque(now),
@@ -233,7 +234,7 @@ impl Servo {
         self.table.set(keys.profile_acceleration, 0);
         self.table.set(keys.profile_velocity, 0);
         self.table.set(keys.goal_pwm, self.get(keys.pwm_limit));
-        self.table.set(keys.goal_current, self.get(keys.current_limit));
+        self.set_if_present(keys.goal_current, self.get_or(keys.current_limit, 0));
         self.loops = LoopState::default();
         if mode == i64::from(profile.operating_modes.position) {
             self.rebase_single_turn();

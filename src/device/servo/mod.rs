@@ -137,8 +137,11 @@ impl Units {
         Self {
             rpm_per_velocity: scale(keys.present_velocity),
             rpm_per_min_per_accel: scale(keys.profile_acceleration),
-            percent_per_pwm: scale(keys.present_pwm),
-            ma_per_current: scale(keys.present_current),
+            // PWM Limit's unit: every page gives it (an older page leaves Present PWM's blank).
+            percent_per_pwm: scale(keys.pwm_limit),
+            // A model without current sensing never converts current units (it has no current
+            // modes); 1 mA keeps the conversion finite.
+            ma_per_current: keys.present_current.or(keys.current_limit).map_or(1.0, scale),
             volts_per_voltage: scale(keys.present_input_voltage),
             us_per_return_delay: scale(keys.return_delay_time),
             ms_per_watchdog: scale(keys.bus_watchdog),
@@ -279,6 +282,18 @@ impl Servo {
 
     fn get(&self, index: usize) -> i64 {
         self.table.get(index)
+    }
+
+    /// An optional item's value, or `absent` on a model without it.
+    fn get_or(&self, index: Option<usize>, absent: i64) -> i64 {
+        index.map_or(absent, |index| self.table.get(index))
+    }
+
+    /// Set an optional item; nothing on a model without it.
+    fn set_if_present(&mut self, index: Option<usize>, value: i64) {
+        if let Some(index) = index {
+            self.table.set(index, value);
+        }
     }
 
     pub fn id(&self) -> u8 {
