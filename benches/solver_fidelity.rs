@@ -34,7 +34,7 @@ fn measure(solver: SolverSettings) -> Row {
     let (extra, needed) = climbing_current(solver);
     let (magnet_error, ..) = magnet_versus_contact_over_a_bump(solver);
     let wall = floor_to_wall(solver);
-    let pull = robot().magnet.pull_at_contact_n;
+    let pull = climber().magnet.pull_at_contact_n;
     let stall_slip = climb_with_payload(30.0, 200.0, solver).slip_m;
     let weakest = wall.world().adhesion().iter().map(|s| s.force_n).fold(f32::INFINITY, f32::min);
     let sets = [

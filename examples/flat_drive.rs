@@ -29,7 +29,7 @@ fn main() {
         send(&mut bus, now, id, opcode::WRITE, &[64, 0, 1]); // torque on
         send(&mut bus, now, id, opcode::WRITE, &[104, 0, 50, 0, 0, 0]); // goal velocity 50
     }
-    let v_goal = 50.0 * 0.229 / 60.0 * std::f64::consts::TAU * f64::from(robot.wheel.outer_radius_m);
+    let v_goal = 50.0 * 0.229 / 60.0 * std::f64::consts::TAU * f64::from(robot.climber().expect("the climbing robot").wheel.outer_radius_m);
     let started = std::time::Instant::now();
     for second in 1..=6 {
         now += Duration::from_secs(1);

@@ -272,16 +272,14 @@ def main():
             # The position limits bound Goal Position in Position Control Mode only; the extended
             # modes take +-256 turns (the page's Goal Position section).
             low, high = -EXTENDED_POSITION_RANGE, EXTENDED_POSITION_RANGE
-        for field, chosen_value in deviations.get(key, {}).items():
-            if field == "why":
-                continue
-            if field == "min":
-                low = chosen_value
-            elif field == "max":
-                high = chosen_value
+        departures = deviations.get(key, {})
+        if "min" in departures or "max" in departures:
+            # A departure bounds the item even where the page gives no range.
+            low = departures.get("min", low if low is not None else 0)
+            high = departures.get("max", high)
         if key in deviations:
             notes.append(f"departs from the page: {deviations[key]['why']}")
-        item["default"] = value
+        item["default"] = departures.get("default", value)
         if low is not None:
             item["min"], item["max"] = low, high
         if low_ref:
@@ -292,9 +290,16 @@ def main():
             item["values"] = sorted(modes.values())
         if (low is not None and low < 0) or (low_ref or "").startswith("-") or key in SIGNED_PRESENT:
             item["signed"] = True
+        if key in facts.get("conversions", {}):
+            # A gain: its section's divisor (the row gives no unit).
+            unit, scale = None, 1.0 / facts["conversions"][key]
+        if "scale" in departures:
+            unit, scale = departures.get("unit"), departures["scale"]
         if unit:
-            item["unit"], item["scale"] = unit, scale
-        if area == "eeprom" or key in BACKUP_RAM or key.startswith("indirect_"):
+            item["unit"] = unit
+        if scale is not None:
+            item["scale"] = scale
+        if area == "eeprom" or key in BACKUP_RAM or key.startswith("indirect_address_"):
             item["backup"] = True
         if notes:
             item["note"] = "; ".join(notes) + "."

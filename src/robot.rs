@@ -1,4 +1,7 @@
-//! The robot description (`hil/robot.toml`): which servos sit on the bus, with which firmware.
+//! The robot description (`hil/robot.toml`): which servos sit on the bus, with which firmware,
+//! and the climbing robot's mechanics the world is built from. A description with a bus alone
+//! (`hil/robots/koch-follower.toml`) is a robot served on the bench: each servo may name its own
+//! profile and power-on baud, so one bus can mix models as real ones do.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -24,6 +27,12 @@ pub enum RobotError {
     Profile(#[from] ProfileError),
     #[error("robot description {path}: {source}")]
     Bus { path: PathBuf, source: BusError },
+    #[error("robot description {path} describes no climbing robot: it has no {missing}, so it can be served on the bench only (`climbsim serve --robot {path}` without a scenario)")]
+    NotAClimber { path: PathBuf, missing: String },
+    #[error("robot description {path} has {present} but no {missing}: the climbing robot's mechanics are [body], [wheel], [magnet], [camera] and [lidar] together")]
+    PartialClimber { path: PathBuf, present: String, missing: String },
+    #[error("robot description {path}: servo {id} ({name}) has {what}; every servo of the climbing robot has a role and a wheel")]
+    ServoWithoutPlace { path: PathBuf, id: u8, name: String, what: String },
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -31,8 +40,17 @@ pub enum RobotError {
 pub struct ServoSpec {
     pub id: u8,
     pub name: String,
-    pub role: ServoRole,
-    pub wheel: WheelPosition,
+    /// The climbing robot's: the servo's job and its wheel (absent on a bench robot).
+    #[serde(default)]
+    pub role: Option<ServoRole>,
+    #[serde(default)]
+    pub wheel: Option<WheelPosition>,
+    /// This servo's firmware profile, relative to the description (the bus's when absent).
+    #[serde(default)]
+    pub profile: Option<PathBuf>,
+    /// This servo's Baud Rate at power-on (the bus's when absent).
+    #[serde(default)]
+    pub baud_bps: Option<u32>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -91,9 +109,14 @@ pub struct MagnetSpec {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BusSpec {
+    /// The profile of every servo that names none.
     pub profile: PathBuf,
+    /// The Baud Rate at power-on of every servo that names none.
     pub baud_bps: u32,
-    pub supply_voltage_v: f64,
+    /// The supply at every servo (V). Absent: each servo at the voltage its profile rates
+    /// (`[motor] rated_voltage_v`, its e-manual page's recommended one).
+    #[serde(default)]
+    pub supply_voltage_v: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -115,16 +138,33 @@ pub struct LidarMount {
 pub struct RobotDescription {
     pub bus: BusSpec,
     pub servo: Vec<ServoSpec>,
-    pub body: BodySpec,
-    pub wheel: WheelSpec,
-    pub magnet: MagnetSpec,
-    pub camera: CameraMount,
-    pub lidar: LidarMount,
+    /// The climbing robot's mechanics: all five, or none for a robot served on the bench only
+    /// ([`RobotDescription::climber`]).
+    #[serde(default)]
+    pub body: Option<BodySpec>,
+    #[serde(default)]
+    pub wheel: Option<WheelSpec>,
+    #[serde(default)]
+    pub magnet: Option<MagnetSpec>,
+    #[serde(default)]
+    pub camera: Option<CameraMount>,
+    #[serde(default)]
+    pub lidar: Option<LidarMount>,
     #[serde(skip)]
     pub path: PathBuf,
     /// `--set profile.KEY=VALUE`: set in the firmware profile whenever it is loaded.
     #[serde(skip)]
     pub profile_overrides: Vec<Override>,
+}
+
+/// The climbing robot's mechanics, which its world is built from.
+#[derive(Debug, Clone)]
+pub struct Climber {
+    pub body: BodySpec,
+    pub wheel: WheelSpec,
+    pub magnet: MagnetSpec,
+    pub camera: CameraMount,
+    pub lidar: LidarMount,
 }
 
 /// `--set robot.KEY=VALUE` and `--set profile.KEY=VALUE`: keys of the robot description and of
@@ -180,17 +220,52 @@ impl RobotDescription {
         if !robot.profile_overrides.is_empty() {
             robot.profile()?;
         }
+        // Half a climber is a mistake in the file, whatever it is served with.
+        robot.mechanics_present()?;
         Ok(robot)
     }
 
-    /// The firmware profile, with this description's `--set profile.…` keys.
+    /// The climbing robot's mechanics present and absent, or an error for some without others.
+    fn mechanics_present(&self) -> Result<bool, RobotError> {
+        let parts = [("[body]", self.body.is_some()), ("[wheel]", self.wheel.is_some()), ("[magnet]", self.magnet.is_some()), ("[camera]", self.camera.is_some()), ("[lidar]", self.lidar.is_some())];
+        let named = |present: bool| parts.iter().filter(|(_, p)| *p == present).map(|(name, _)| *name).collect::<Vec<_>>().join(", ");
+        match parts.iter().filter(|(_, present)| *present).count() {
+            0 => Ok(false),
+            n if n == parts.len() => Ok(true),
+            _ => Err(RobotError::PartialClimber { path: self.path.clone(), present: named(true), missing: named(false) }),
+        }
+    }
+
+    /// The climbing robot's mechanics and every servo's place in them, or why this description
+    /// has none (a robot served on the bench only).
+    pub fn climber(&self) -> Result<Climber, RobotError> {
+        let (Some(body), Some(wheel), Some(magnet), Some(camera), Some(lidar)) = (&self.body, &self.wheel, &self.magnet, &self.camera, &self.lidar) else {
+            return Err(match self.mechanics_present() {
+                Ok(_) => RobotError::NotAClimber { path: self.path.clone(), missing: "[body], [wheel], [magnet], [camera] or [lidar]".into() },
+                Err(partial) => partial,
+            });
+        };
+        if let Some(servo) = self.servo.iter().find(|s| s.role.is_none() || s.wheel.is_none()) {
+            let what = if servo.role.is_none() { "no role" } else { "no wheel" };
+            return Err(RobotError::ServoWithoutPlace { path: self.path.clone(), id: servo.id, name: servo.name.clone(), what: what.into() });
+        }
+        Ok(Climber { body: body.clone(), wheel: wheel.clone(), magnet: magnet.clone(), camera: camera.clone(), lidar: lidar.clone() })
+    }
+
+    /// The bus's firmware profile (every servo's that names none), with this description's
+    /// `--set profile.…` keys.
     pub fn profile(&self) -> Result<FirmwareProfile, RobotError> {
         Ok(FirmwareProfile::load_with(&self.profile_path(), &self.profile_overrides)?)
     }
 
-    /// The firmware profile path, resolved against this file's folder.
+    /// The bus's firmware profile path, resolved against this file's folder.
     pub fn profile_path(&self) -> PathBuf {
-        self.path.parent().unwrap_or(Path::new(".")).join(&self.bus.profile)
+        self.resolve(&self.bus.profile)
+    }
+
+    /// `path` as the description names it, resolved against its folder.
+    fn resolve(&self, path: &Path) -> PathBuf {
+        self.path.parent().unwrap_or(Path::new(".")).join(path)
     }
 
     pub fn ids(&self) -> Vec<u8> {
@@ -208,11 +283,28 @@ impl RobotDescription {
         self.bus_of(servos, plant, timing, baud_override)
     }
 
-    /// Factory-fresh servos for this description (power-on baud from it unless given).
+    /// Factory-fresh servos for this description, each with its own profile and power-on baud
+    /// (`baud_override`, `--baud`, over every servo's). `--set profile.…` keys apply to every
+    /// profile loaded.
     pub fn servos(&self, baud_override: Option<u32>) -> Result<Vec<Servo>, RobotError> {
-        let profile = Arc::new(self.profile()?);
-        let baud = baud_override.unwrap_or(self.bus.baud_bps);
-        bus::servos_from_profile(&profile, &self.ids(), baud, self.bus.supply_voltage_v).map_err(|source| RobotError::Bus { path: self.path.clone(), source })
+        let mut loaded: Vec<(PathBuf, Arc<FirmwareProfile>)> = vec![(self.profile_path(), Arc::new(self.profile()?))];
+        let mut servos = Vec::with_capacity(self.servo.len());
+        for spec in &self.servo {
+            let path = spec.profile.as_deref().map_or_else(|| self.profile_path(), |p| self.resolve(p));
+            let profile = match loaded.iter().find(|(p, _)| *p == path) {
+                Some((_, profile)) => Arc::clone(profile),
+                None => {
+                    let profile = Arc::new(FirmwareProfile::load_with(&path, &self.profile_overrides)?);
+                    loaded.push((path, Arc::clone(&profile)));
+                    profile
+                }
+            };
+            let baud = baud_override.or(spec.baud_bps).unwrap_or(self.bus.baud_bps);
+            let supply = self.bus.supply_voltage_v.unwrap_or(profile.motor.rated_voltage_v);
+            let servo = bus::servos_from_profile(&profile, &[spec.id], baud, supply).map_err(|source| RobotError::Bus { path: self.path.clone(), source })?;
+            servos.extend(servo);
+        }
+        Ok(servos)
     }
 
     /// A bus of `servos` driving `plant`.
@@ -236,8 +328,57 @@ mod tests {
         assert_eq!(scenario, sets(&["world.seed=3"]));
         assert_eq!((robot_sets.robot.clone(), robot_sets.profile.clone()), (sets(&["robot.wheel.friction=0.35"]), sets(&["profile.motor.coulomb_friction_nm=0.05"])));
         let robot = RobotDescription::load_with(&RobotDescription::default_path(), &robot_sets).expect("loads");
-        assert_eq!(robot.wheel.friction, 0.35);
+        assert_eq!(robot.climber().expect("the climbing robot").wheel.friction, 0.35);
         assert_eq!(robot.profile().expect("the profile loads").motor.coulomb_friction_nm, 0.05);
+    }
+
+    fn parse(text: &str) -> Result<RobotDescription, RobotError> {
+        let path = std::env::temp_dir().join(format!("climbsim-robot-{}-{}.toml", std::process::id(), text.len()));
+        std::fs::write(&path, text).expect("a temporary file");
+        let loaded = RobotDescription::load(&path);
+        let _ = std::fs::remove_file(&path);
+        loaded
+    }
+
+    const BENCH_BUS: &str = "[bus]\nprofile = \"xm540-w270-r.toml\"\nbaud_bps = 1000000\n\n[[servo]]\nid = 1\nname = \"pan\"\n";
+
+    #[test]
+    fn a_bus_alone_is_a_bench_robot_and_says_so_when_asked_for_a_world() {
+        let robot = parse(BENCH_BUS).expect("a bus alone loads");
+        let error = robot.climber().expect_err("no mechanics").to_string();
+        assert!(error.contains("describes no climbing robot") && error.contains("served on the bench only"), "{error}");
+    }
+
+    #[test]
+    fn half_a_climber_is_refused_when_the_file_loads() {
+        let text = format!("{BENCH_BUS}\n[wheel]\nouter_radius_m = 0.05\ninner_radius_m = 0.04\nwidth_m = 0.03\nmass_kg = 0.2\nfriction = 0.6\n");
+        let error = parse(&text).expect_err("a wheel without a body").to_string();
+        assert!(error.contains("has [wheel] but no [body], [magnet], [camera], [lidar]"), "{error}");
+    }
+
+    #[test]
+    fn a_climber_servo_without_a_role_is_named() {
+        let shipped = std::fs::read_to_string(RobotDescription::default_path()).expect("the shipped description");
+        let text = shipped.replacen("role = \"wheel_drive\"\n", "", 1);
+        let path = RobotDescription::default_path().with_file_name("robot-without-role.toml");
+        std::fs::write(&path, text).expect("written beside the shipped one, so its profile resolves");
+        let loaded = RobotDescription::load(&path);
+        let _ = std::fs::remove_file(&path);
+        let error = loaded.expect("loads").climber().expect_err("servo 1 has no role").to_string();
+        assert!(error.contains("servo 1 (wheel_front_left) has no role"), "{error}");
+    }
+
+    #[test]
+    fn each_servo_has_its_own_profile_baud_and_supply() {
+        let koch = Path::new(env!("CARGO_MANIFEST_DIR")).join("hil/robots/koch-follower.toml");
+        let robot = RobotDescription::load(&koch).expect("the Koch follower's bus loads");
+        let servos = robot.servos(None).expect("every profile loads");
+        let models: Vec<u16> = servos.iter().map(|s| s.profile().model.model_number).collect();
+        assert_eq!(models, [1060, 1060, 1200, 1200, 1200, 1200]);
+        assert!(servos.iter().all(|s| s.baud_bps() == Some(1_000_000)));
+        assert_eq!(servos.iter().map(Servo::supply_voltage).collect::<Vec<_>>(), [11.1, 11.1, 5.0, 5.0, 5.0, 5.0]);
+        // --baud reaches every servo; a servo's own baud is its power-on one otherwise.
+        assert!(robot.servos(Some(57_600)).expect("57 600 is every model's").iter().all(|s| s.baud_bps() == Some(57_600)));
     }
 
     #[test]

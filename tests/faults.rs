@@ -431,7 +431,7 @@ fn climb(specs: &[&str], seconds: u64) -> (f32, f32, f32) {
         sim.run(Duration::from_millis(10));
         slip += WheelPosition::ALL.iter().map(|&w| sim.world().wheel_slip(w)).sum::<f32>() / 4.0 / 100.0;
     }
-    let tread = 50.0 * 0.229 / 60.0 * std::f32::consts::TAU * robot().wheel.outer_radius_m;
+    let tread = 50.0 * 0.229 / 60.0 * std::f32::consts::TAU * climber().wheel.outer_radius_m;
     (sim.world().chassis_pose().translation.x - x0, slip, tread)
 }
 

@@ -81,10 +81,19 @@ fn first(cell: &str) -> &str {
     cell.split(" / ").next().unwrap_or(cell).trim()
 }
 
-/// The departures from the page the facts file names, as "key.field".
-fn deviations(facts: &toml::Table) -> Vec<String> {
-    let Some(section) = facts.get("deviations").and_then(|d| d.as_table()) else { return Vec::new() };
-    section.iter().flat_map(|(key, fields)| fields.as_table().into_iter().flat_map(move |f| f.keys().filter(|k| *k != "why").map(move |field| format!("{key}.{field}")))).collect()
+/// The departures from the page the facts file names, as "key.field" with the value the profile
+/// takes instead; each names why.
+fn deviations(facts: &toml::Table) -> BTreeMap<String, toml::Value> {
+    let Some(section) = facts.get("deviations").and_then(|d| d.as_table()) else { return BTreeMap::new() };
+    let mut found = BTreeMap::new();
+    for (key, fields) in section {
+        let fields = fields.as_table().unwrap_or_else(|| panic!("[deviations.{key}] is a table"));
+        assert!(fields.get("why").and_then(|w| w.as_str()).is_some_and(|w| !w.is_empty()), "[deviations.{key}] says why");
+        for (field, value) in fields.iter().filter(|(field, _)| *field != "why") {
+            found.insert(format!("{key}.{field}"), value.clone());
+        }
+    }
+    found
 }
 
 fn bound_address(profile: &FirmwareProfile, bound: Option<Bound>) -> Option<(bool, u16)> {
@@ -110,6 +119,49 @@ fn at_voltage(cell: &str, volts: f64) -> (f64, Option<f64>) {
     panic!("no reading at {volts} V in {cell:?}")
 }
 
+/// The mode an e-manual section names ("Current-based Position Control Mode", …).
+fn mode_role(name: &str) -> &'static str {
+    let name = name.to_lowercase();
+    [("current-based", "current_based_position"), ("extended", "extended_position"), ("pwm", "pwm"), ("current", "current"), ("velocity", "velocity"), ("position", "position")]
+        .into_iter()
+        .find(|(word, _)| name.contains(word))
+        .map(|(_, role)| role)
+        .unwrap_or_else(|| panic!("no mode in {name:?}"))
+}
+
+/// A unit as profiles spell it, from the e-manual's (`[μsec]` is `us`).
+fn unit_name(page: &str) -> &str {
+    match page {
+        "μsec" => "us",
+        "°C" => "degC",
+        "msec" => "ms",
+        "rev/min²" | "rev/min2" => "rev/min^2",
+        other => other,
+    }
+}
+
+/// The indirect blocks the page's rows show: (address start, data start, entries), each from its
+/// first listed Indirect Address to its last (the page elides the middle of a block).
+fn page_indirect_blocks(rows: &[Row]) -> Vec<(u16, u16, u16)> {
+    let numbered = |prefix: &str| -> BTreeMap<u16, u16> { rows.iter().filter_map(|r| r.name.strip_prefix(prefix).and_then(|n| n.parse().ok()).map(|n| (n, r.address))).collect() };
+    let (addresses, data) = (numbered("Indirect Address "), numbered("Indirect Data "));
+    let mut blocks: Vec<(u16, u16, u16)> = Vec::new();
+    let mut first: Option<u16> = None;
+    for (&n, &address) in &addresses {
+        match first {
+            Some(start) if address == addresses[&start] + 2 * (n - start) => {}
+            _ => first = Some(n),
+        }
+        let start = first.expect("set above");
+        let block = (addresses[&start], data[&start], n - start + 1);
+        match blocks.last_mut() {
+            Some(last) if last.0 == block.0 => *last = block,
+            _ => blocks.push(block),
+        }
+    }
+    blocks
+}
+
 #[test]
 fn every_profile_matches_its_e_manual_page_item_by_item() {
     let mut checked = BTreeMap::new();
@@ -128,7 +180,7 @@ fn every_profile_matches_its_e_manual_page_item_by_item() {
             };
             let item = &profile.items[index];
             let key = &item.spec.key;
-            let departs = |field: &str| allowed.contains(&format!("{key}.{field}"));
+            let instead = |field: &str| allowed.get(&format!("{key}.{field}"));
             if item.spec.name != row.name && !(row.name == "Protocol Version" && key == "protocol_type") {
                 problems.push(format!("{at}: named `{}`", item.spec.name));
             }
@@ -143,24 +195,23 @@ fn every_profile_matches_its_e_manual_page_item_by_item() {
             if item.spec.area != area {
                 problems.push(format!("{at}: area {:?}", item.spec.area));
             }
-            if let Ok(default) = row.default.parse::<i64>()
-                && item.spec.default != Some(default)
-                && !departs("default")
-            {
-                problems.push(format!("{at}: default {:?} against the page's {default}", item.spec.default));
+            let value = |field: &str| instead(field).map(|v| v.as_integer().unwrap_or_else(|| panic!("{at}: [deviations.{key}] {field} is an integer")));
+            if let Ok(page_default) = row.default.parse::<i64>() {
+                let expected = value("default").unwrap_or(page_default);
+                if item.spec.default != Some(expected) {
+                    problems.push(format!("{at}: default {:?} against {expected} (the page's {page_default})", item.spec.default));
+                }
             }
             let range = first(&row.range);
-            if let Some((low, high)) = range.split_once('~') {
-                match (low.trim().parse::<i64>(), high.trim().parse::<i64>()) {
-                    (Ok(low), Ok(high)) => {
-                        if item.spec.min != Some(low) && !departs("min") {
-                            problems.push(format!("{at}: min {:?} against the page's {low}", item.spec.min));
-                        }
-                        if item.spec.max != Some(high) && !departs("max") {
-                            problems.push(format!("{at}: max {:?} against the page's {high}", item.spec.max));
-                        }
-                    }
-                    _ => {
+            // The constant bounds the page gives: none ("-"), "low ~ high", or "3" (0 to 3,
+            // Startup Configuration's bits); bounds named by items are checked on their own.
+            let numbers = |low: &str, high: &str| low.trim().parse::<i64>().ok().zip(high.trim().parse::<i64>().ok());
+            let page_bounds: Option<(Option<i64>, Option<i64>)> = if range == "-" {
+                Some((None, None))
+            } else if let Some((low, high)) = range.split_once('~') {
+                match numbers(low, high) {
+                    Some((low, high)) => Some((Some(low), Some(high))),
+                    None => {
                         // "-PWM Limit(36) ~ PWM Limit(36)": bounds named by the items' addresses.
                         let reference = |side: &str| {
                             let side = side.trim();
@@ -170,31 +221,57 @@ fn every_profile_matches_its_e_manual_page_item_by_item() {
                         if bound_address(&profile, item.min) != Some(reference(low)) || bound_address(&profile, item.max) != Some(reference(high)) {
                             problems.push(format!("{at}: bounds {:?}..{:?} against the page's {range}", item.spec.min_ref, item.spec.max_ref));
                         }
+                        None
                     }
                 }
             } else if let Ok(high) = range.parse::<i64>() {
-                // "3": the largest value (Startup Configuration's two bits).
-                if item.spec.max != Some(high) && !departs("max") {
-                    problems.push(format!("{at}: max {:?} against the page's {high}", item.spec.max));
+                Some((Some(0), Some(high)))
+            } else {
+                problems.push(format!("{at}: the range {range:?} is not one this test reads"));
+                None
+            };
+            if let Some((page_min, page_max)) = page_bounds {
+                let expected = (value("min").or(page_min), value("max").or(page_max));
+                if (item.spec.min, item.spec.max) != expected || (page_min.is_none() && (item.spec.min_ref.is_some() || item.spec.max_ref.is_some())) {
+                    problems.push(format!("{at}: bounds {:?}..{:?} against {:?}..{:?} (the page's {range})", item.spec.min, item.spec.max, expected.0, expected.1));
                 }
             }
+            // A value that may be negative is signed.
+            let negative = range != "-" && (range.starts_with('-') || range.contains("~ -") || range.contains("~-"));
+            if negative && !item.spec.signed {
+                problems.push(format!("{at}: unsigned, but the page's range {range} goes below zero"));
+            }
             let unit = first(&row.unit);
-            if unit != "-" {
-                let scale: f64 = unit.split('[').next().and_then(|s| s.trim().parse().ok()).unwrap_or_else(|| panic!("{at}: unit {unit:?}"));
-                if item.spec.scale != Some(scale) {
-                    problems.push(format!("{at}: scale {:?} against the page's {unit}", item.spec.scale));
+            if unit == "-" {
+                // A gain's unit is its section's divisor; otherwise none, or the departure's.
+                let divisor = facts.get("conversions").and_then(|c| c.get(key.as_str())).and_then(toml::Value::as_integer);
+                let expected = match (divisor, instead("scale")) {
+                    (_, Some(scale)) => (instead("unit").and_then(|u| u.as_str()), scale.as_float()),
+                    (Some(divisor), None) => (None, Some(1.0 / divisor as f64)),
+                    (None, None) => (None, None),
+                };
+                if (item.spec.unit.as_deref(), item.spec.scale) != expected {
+                    problems.push(format!("{at}: unit {:?} × {:?} where the page gives none (expected {expected:?})", item.spec.unit, item.spec.scale));
+                }
+            } else {
+                let (scale, name) = unit.split_once('[').unwrap_or_else(|| panic!("{at}: unit {unit:?}"));
+                let scale: f64 = scale.trim().parse().unwrap_or_else(|_| panic!("{at}: unit {unit:?}"));
+                let name = unit_name(name.trim_end_matches(']').trim());
+                if item.spec.scale != Some(scale) || item.spec.unit.as_deref() != Some(name) {
+                    problems.push(format!("{at}: unit {:?} × {:?} against the page's {unit}", item.spec.unit, item.spec.scale));
                 }
             }
         }
         // What the profile has and the page does not write: only the indirect entries the page
-        // elides inside a block it lists.
+        // elides inside a block it lists (from its first listed entry to its last).
+        let blocks = page_indirect_blocks(&rows);
         for item in &profile.items {
             if rows.iter().any(|row| row.address == item.address()) {
                 continue;
             }
-            let elided = profile.indirect_blocks.iter().any(|block| {
-                let address = (block.address_start..block.address_start + 2 * block.count).step_by(2).any(|a| a == item.address());
-                let data = (block.data_start..block.data_start + block.count).any(|a| a == item.address());
+            let elided = blocks.iter().any(|&(address_start, data_start, count)| {
+                let address = (address_start..address_start + 2 * count).step_by(2).any(|a| a == item.address());
+                let data = (data_start..data_start + count).any(|a| a == item.address());
                 address || data
             });
             if !elided {
@@ -223,11 +300,31 @@ fn every_profile_matches_its_e_manual_page_item_by_item() {
         if operating_mode.spec.values.as_ref() != Some(&modes) {
             problems.push(format!("{}: operating modes {:?} against the page's {modes:?}", path.display(), operating_mode.spec.values));
         }
+        let page_modes: BTreeMap<&str, i64> = text(&facts, "sections", "operating_mode_values")
+            .split(',')
+            .map(|pair| {
+                let (code, name) = pair.trim().split_once(':').expect("code:name");
+                (mode_role(name), code.parse().expect("a mode"))
+            })
+            .collect();
         let named = &profile.operating_modes;
-        let declared: Vec<i64> =
-            [named.current, Some(named.velocity), Some(named.position), Some(named.extended_position), named.current_based_position, Some(named.pwm)].into_iter().flatten().map(i64::from).collect();
-        if let Some(missing) = declared.iter().find(|m| !modes.contains(m)) {
-            problems.push(format!("{}: [operating_modes] names mode {missing}, which the page does not list", path.display()));
+        let declared: BTreeMap<&str, i64> = [
+            ("current", named.current),
+            ("velocity", Some(named.velocity)),
+            ("position", Some(named.position)),
+            ("extended_position", Some(named.extended_position)),
+            ("current_based_position", named.current_based_position),
+            ("pwm", Some(named.pwm)),
+        ]
+        .into_iter()
+        .filter_map(|(role, code)| code.map(|code| (role, i64::from(code))))
+        .collect();
+        if declared != page_modes {
+            problems.push(format!("{}: [operating_modes] {declared:?} against the page's {page_modes:?}", path.display()));
+        }
+        let page_name = text(&facts, "model", "name");
+        if profile.model.name != page_name {
+            problems.push(format!("{}: [model] name {:?} against the facts' {page_name:?}", path.display(), profile.model.name));
         }
         // The motor's datasheet figures at the recommended voltage.
         let motor = &profile.motor;
@@ -297,6 +394,33 @@ fn every_profiles_servo_pings_with_its_model_and_runs_at_its_datasheet_speed() {
         let rpm = load.state().velocity_rad_s * 60.0 / TAU;
         let page = profile.motor.no_load_speed_rpm;
         assert!((rpm - page).abs() / page < 0.02, "{}: {rpm:.2} rev/min at full PWM, the page says {page}", path.display());
+    }
+}
+
+#[test]
+fn every_profiles_servo_holds_a_velocity_and_a_position_with_its_factory_gains() {
+    for (path, _) in profiles() {
+        let profile = Arc::new(FirmwareProfile::load(&path).expect("loads"));
+        let volts = profile.motor.rated_voltage_v;
+        // Velocity mode: a quarter of the no-load speed, held by the factory PI gains.
+        let mut servo = Servo::new(Arc::clone(&profile), 1, 1, volts);
+        let rpm_per_unit = profile.items[profile.index("goal_velocity")].spec.scale.expect("a velocity unit");
+        let goal = (profile.motor.no_load_speed_rpm / 4.0 / rpm_per_unit).round() as i32;
+        write(&mut servo, 11, &[profile.operating_modes.velocity]).expect("velocity mode");
+        write(&mut servo, 64, &[1]).expect("torque on");
+        write(&mut servo, 104, &goal.to_le_bytes()).expect("Goal Velocity");
+        let mut load = BenchLoad::new(0.0);
+        run(&mut servo, &mut load, 3.0);
+        let present = i32::from_le_bytes(read(&mut servo, 128, 4).try_into().expect("four bytes"));
+        assert!((present - goal).abs() <= 2 + goal / 50, "{}: Present Velocity {present} for a goal of {goal}", path.display());
+        // Position mode: a quarter turn, reached by the factory PID gains.
+        let mut servo = Servo::new(Arc::clone(&profile), 1, 1, volts);
+        write(&mut servo, 64, &[1]).expect("torque on");
+        write(&mut servo, 116, &3072i32.to_le_bytes()).expect("Goal Position");
+        let mut load = BenchLoad::new(0.0);
+        run(&mut servo, &mut load, 3.0);
+        let present = i32::from_le_bytes(read(&mut servo, 132, 4).try_into().expect("four bytes"));
+        assert!((present - 3072).abs() <= 10, "{}: Present Position {present} for a goal of 3072", path.display());
     }
 }
 

@@ -60,7 +60,7 @@ fn without_magnets_the_robot_falls_off_a_vertical_wall() {
 fn magnets_pull_every_wheel_on_flat_ground() {
     let mut sim = world(flat(), Vector::new(0.0, -G, 0.0), true);
     sim.run(Duration::from_millis(200));
-    let pull = robot().magnet.pull_at_contact_n;
+    let pull = climber().magnet.pull_at_contact_n;
     for (wheel, sample) in WheelPosition::ALL.iter().zip(sim.world().adhesion()) {
         assert!((sample.force_n - pull).abs() / pull < 0.05, "{wheel:?}: {sample:?}");
         assert!(sample.gap_m < 0.001, "{wheel:?} gap {} m", sample.gap_m);
@@ -119,7 +119,7 @@ fn rocker_keeps_all_four_wheels_on_a_one_sided_step() {
     set_wheel_goal(&mut sim, 0);
     sim.run(Duration::from_millis(300));
     for (wheel, sample) in WheelPosition::ALL.iter().zip(sim.world().adhesion()) {
-        assert!(sample.force_n > 0.5 * robot().magnet.pull_at_contact_n && sample.gap_m < 0.001, "{wheel:?} lost contact: {sample:?}");
+        assert!(sample.force_n > 0.5 * climber().magnet.pull_at_contact_n && sample.gap_m < 0.001, "{wheel:?} lost contact: {sample:?}");
     }
 }
 
@@ -173,6 +173,6 @@ fn passive_magnets_carry_the_robot_from_the_floor_up_a_filleted_wall() {
     let rear = sim.world().wheel_centre(WheelPosition::RearLeft);
     assert!(rear.y > 0.4, "the rear axle has left the fillet and climbs: {:.3} m up", rear.y);
     for (wheel, sample) in WheelPosition::ALL.iter().zip(sim.world().adhesion()) {
-        assert!(sample.force_n > 0.9 * robot().magnet.pull_at_contact_n, "{wheel:?} holds: {sample:?}");
+        assert!(sample.force_n > 0.9 * climber().magnet.pull_at_contact_n, "{wheel:?} holds: {sample:?}");
     }
 }

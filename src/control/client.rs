@@ -27,6 +27,9 @@ pub enum ControlError {
     Length { id: u8, what: &'static str, got: usize, expected: usize },
     #[error("the robot description has no {0}")]
     MissingServo(&'static str),
+    /// The description has no climbing robot for the reference controller to drive.
+    #[error("{0}")]
+    NotAClimber(String),
 }
 
 /// Reads and writes control-table items by address over a [`BusLink`].

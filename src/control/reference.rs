@@ -223,7 +223,10 @@ impl Addresses {
 
 impl ReferenceController {
     pub fn new(robot: &RobotDescription, profile: &FirmwareProfile, config: ReferenceConfig, target_speed_m_s: f64) -> Result<Self, ControlError> {
-        let find = |role: ServoRole, wheel: WheelPosition, what: &'static str| robot.servo.iter().find(|s| s.role == role && s.wheel == wheel).map(|s| s.id).ok_or(ControlError::MissingServo(what));
+        let climber = robot.climber().map_err(|error| ControlError::NotAClimber(error.to_string()))?;
+        let find = |role: ServoRole, wheel: WheelPosition, what: &'static str| {
+            robot.servo.iter().find(|s| s.role == Some(role) && s.wheel == Some(wheel)).map(|s| s.id).ok_or(ControlError::MissingServo(what))
+        };
         let mut wheels = [WheelServos { drive: 0, magnet: 0 }; 4];
         for position in WheelPosition::ALL {
             wheels[position.index()] = WheelServos { drive: find(ServoRole::WheelDrive, position, "wheel drive servo")?, magnet: find(ServoRole::MagnetShaft, position, "magnet shaft servo")? };
@@ -231,7 +234,7 @@ impl ReferenceController {
         let goal_velocity = &profile.items[profile.index("goal_velocity")];
         let velocity_limit = &profile.items[profile.index("velocity_limit")];
         // Spin the speed loop's integral no further than the fastest the wheels can go.
-        let radius_m = f64::from(robot.wheel.outer_radius_m);
+        let radius_m = f64::from(climber.wheel.outer_radius_m);
         let rpm_per_velocity_unit = goal_velocity.spec.scale.unwrap_or(0.229);
         let velocity_limit_units = velocity_limit.spec.default.unwrap_or(128) as f64;
         let top_speed = velocity_limit_units * rpm_per_velocity_unit / 60.0 * TAU * radius_m;
@@ -242,11 +245,11 @@ impl ReferenceController {
             config,
             wheels,
             radius_m,
-            track_m: f64::from(robot.body.track_m),
+            track_m: f64::from(climber.body.track_m),
             rad_per_pulse: TAU / f64::from(profile.motor.pulses_per_rev),
             rpm_per_velocity_unit,
             velocity_limit_units,
-            magnet_zero_pulses: i64::from(robot.magnet.encoder_at_down_pulses),
+            magnet_zero_pulses: i64::from(climber.magnet.encoder_at_down_pulses),
             target_speed_m_s,
             history: VecDeque::new(),
             dither_residual: [0.0; 4],

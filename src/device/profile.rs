@@ -306,6 +306,7 @@ impl FirmwareProfile {
             return Err("no [[baud_rate]] entries".into());
         }
         self.check_motor()?;
+        self.check_modes_and_units()?;
         for block in &self.indirect_blocks {
             for n in 0..block.count {
                 let addr = self.item_index_at(block.address_start + 2 * n);
@@ -314,6 +315,38 @@ impl FirmwareProfile {
                     return Err(format!("indirect block at {} has no item for entry {n}", block.address_start));
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// The firmware's modes must be the ones Operating Mode accepts, a current mode needs the
+    /// current items, and every unit the servo model converts with must be given: a missing one
+    /// would silently be 1 (885 units of PWM Limit read as 885 %).
+    fn check_modes_and_units(&self) -> Result<(), String> {
+        let modes = &self.operating_modes;
+        let mut declared: Vec<i64> =
+            [modes.current, Some(modes.velocity), Some(modes.position), Some(modes.extended_position), modes.current_based_position, Some(modes.pwm)].into_iter().flatten().map(i64::from).collect();
+        declared.sort_unstable();
+        if declared.windows(2).any(|pair| pair[0] == pair[1]) {
+            return Err(format!("[operating_modes] gives one value to two modes: {declared:?}"));
+        }
+        let operating_mode = &self.items[self.index("operating_mode")].spec;
+        if let Some(values) = &operating_mode.values {
+            let mut accepted = values.clone();
+            accepted.sort_unstable();
+            if accepted != declared {
+                return Err(format!("item `operating_mode` accepts {accepted:?} but [operating_modes] names {declared:?}: each accepted value is one mode the firmware runs"));
+            }
+        }
+        if modes.current.is_some() || modes.current_based_position.is_some() {
+            let missing: Vec<&str> = ["goal_current", "current_limit", "present_current"].into_iter().filter(|key| self.find(key).is_none()).collect();
+            if !missing.is_empty() {
+                return Err(format!("[operating_modes] has a current mode but the table has no {missing:?}"));
+            }
+        }
+        let converted = ["pwm_limit", "present_velocity", "profile_acceleration", "present_input_voltage", "return_delay_time", "bus_watchdog", "present_current", "current_limit", "goal_current"];
+        if let Some(key) = converted.into_iter().find(|key| self.find(key).is_some_and(|index| self.items[index].spec.scale.is_none())) {
+            return Err(format!("item `{key}` has no scale: the servo model converts its unit"));
         }
         Ok(())
     }
@@ -425,6 +458,24 @@ pub(crate) mod tests {
         let text = std::fs::read_to_string(xm540().path).unwrap().replace("coulomb_friction_nm = 0.03", "coulomb_friction_nm = nan");
         let err = FirmwareProfile::parse(Path::new("x.toml"), &text).unwrap_err();
         assert!(err.to_string().contains("coulomb_friction_nm = NaN"), "{err}");
+    }
+
+    #[test]
+    fn modes_and_units_the_firmware_relies_on_are_checked_at_load() {
+        let text = std::fs::read_to_string(xm540().path).unwrap();
+        let cases = [
+            (text.replace("values = [0, 1, 3, 4, 5, 16]", "values = [1, 3, 4, 16]"), "accepts [1, 3, 4, 16] but [operating_modes] names [0, 1, 3, 4, 5, 16]"),
+            (text.replace("current_based_position = 5", "current_based_position = 4"), "gives one value to two modes"),
+            (text.replace("unit = \"%\"\nscale = 0.113\nbackup = true\nnote = \"885 = 100 %. Bounds Goal PWM.\"", "backup = true"), "item `pwm_limit` has no scale"),
+        ];
+        for (text, expected) in cases {
+            let err = FirmwareProfile::parse(Path::new("x.toml"), &text).unwrap_err();
+            assert!(err.to_string().contains(expected), "{err}");
+        }
+        let xl430 = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles/xl430-w250.toml")).unwrap();
+        let text = xl430.replace("velocity = 1\n", "current = 0\nvelocity = 1\n").replace("values = [1, 3, 4, 16]", "values = [0, 1, 3, 4, 16]");
+        let err = FirmwareProfile::parse(Path::new("x.toml"), &text).unwrap_err();
+        assert!(err.to_string().contains("has a current mode but the table has no [\"goal_current\", \"current_limit\", \"present_current\"]"), "{err}");
     }
 
     #[test]

@@ -215,7 +215,7 @@ impl Reenactor {
         let live_url = observer.start_view(&ViewOptions { mcap: recording.map(Path::to_owned), live, packets: true, compare: true }, &mut bus)?;
         let Some(servo) = bus.servos().first() else { return Err(CompareError::NothingToCompare { path: transcript.to_owned() }) };
         let (profile, tick) = (Arc::clone(servo.profile()), servo.control_period());
-        let wheels = robot.servo.iter().filter(|servo| servo.role == crate::parts::ServoRole::WheelDrive).map(|servo| servo.id);
+        let wheels = robot.servo.iter().filter(|servo| servo.role == Some(crate::parts::ServoRole::WheelDrive)).map(|servo| servo.id);
         Ok(Self {
             transcript: transcript.to_owned(),
             options: options.clone(),

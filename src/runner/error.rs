@@ -21,6 +21,8 @@ pub enum RunError {
     View(#[from] crate::runner::view::ViewError),
     #[error(transparent)]
     Sim(#[from] SimError),
+    #[error(transparent)]
+    Robot(#[from] crate::robot::RobotError),
     /// A weld (`line`, or `welds[i]`) that cannot be drawn, at its line in the file.
     #[error("scenario {path}{}: {weld}: {source}", .line.map_or(String::new(), |l| format!(":{l}")))]
     Line { path: PathBuf, line: Option<usize>, weld: String, source: WeldLineError },

@@ -71,7 +71,9 @@ fn f32_json(value: f32) -> Value {
 /// overrides, which are listed too), the values taken from the robot description where the
 /// scenario gives none (camera, friction), the start pose as computed, and the robot.
 pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
-    let camera = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
+    // The run's world was built from the robot's mechanics; a description without them has no
+    // camera or tread of its own to record.
+    let camera = scenario.camera.clone().or_else(|| robot.camera.as_ref().map(LineCameraSettings::from_mount));
     let start = scenario.start.clone().unwrap_or_default();
     let pose = scenario.start_pose();
     json!({
@@ -97,7 +99,7 @@ pub fn settings_json(scenario: &Scenario, robot: &RobotDescription) -> Value {
         },
         "solver": scenario.world.solver,
         "payload_kg": f32_json(scenario.world.payload_kg),
-        "friction": f32_json(scenario.world.friction.unwrap_or(robot.wheel.friction)),
+        "friction": scenario.world.friction.or(robot.wheel.as_ref().map(|wheel| wheel.friction)).map_or(Value::Null, f32_json),
         "magnets": scenario.world.magnets,
         "bus_baud_bps": scenario.bus.baud_bps.unwrap_or(robot.bus.baud_bps),
         "capture": {

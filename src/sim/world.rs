@@ -15,7 +15,7 @@ use rapier3d::prelude::*;
 use thiserror::Error;
 
 use crate::device::{BenchLoad, Plant, Servo, ShaftDrive};
-use crate::robot::{RobotDescription, ServoRole, WheelPosition};
+use crate::robot::{Climber, RobotDescription, ServoRole, WheelPosition};
 
 use super::obstacles::{ObstacleError, ObstacleSpec};
 use super::terrain::TerrainGeometry;
@@ -38,6 +38,8 @@ const STATIC_CONTACT_HZ: f32 = 240.0;
 pub enum WorldError {
     #[error("robot description has no servo for the {role:?} of wheel {wheel:?}")]
     MissingServo { role: ServoRole, wheel: WheelPosition },
+    #[error(transparent)]
+    Robot(#[from] crate::robot::RobotError),
     #[error("obstacles[{index}]: {source}")]
     Obstacle { index: usize, source: ObstacleError },
 }
@@ -335,6 +337,8 @@ pub struct RobotWorld {
     links: Vec<ServoLink>,
     magnets: [MagnetShaft; 4],
     robot: RobotDescription,
+    /// The robot's mechanics (the description's, checked when the world was built).
+    climber: Climber,
     magnets_on: bool,
     /// Fraction of its pull each magnet keeps (1 unless a magnet-failure fault).
     magnet_pull: [f32; 4],

@@ -17,6 +17,11 @@ pub const PRESENT_CURRENT: u16 = 126;
 pub const PRESENT_POSITION: u16 = 132;
 pub const VELOCITY_MODE: u8 = 1;
 
+/// The shipped robot's mechanics.
+pub fn climber() -> climbsim::robot::Climber {
+    robot().climber().expect("the shipped robot is the climbing robot")
+}
+
 pub fn robot() -> RobotDescription {
     RobotDescription::load(&RobotDescription::default_path()).expect("robot description")
 }
@@ -73,7 +78,7 @@ pub fn flat_ground_speed(solver: SolverSettings) -> (f32, f32, f32) {
     let x0 = sim.world().chassis_pose().translation.x;
     sim.run(Duration::from_secs(2));
     let speed = (sim.world().chassis_pose().translation.x - x0) / 2.0;
-    let expected = goal as f32 * 0.229 / 60.0 * std::f32::consts::TAU * robot().wheel.outer_radius_m;
+    let expected = goal as f32 * 0.229 / 60.0 * std::f32::consts::TAU * climber().wheel.outer_radius_m;
     (speed, expected, sim.world().chassis_pose().translation.z.abs())
 }
 
@@ -107,7 +112,7 @@ fn total_wheel_current(deg: f32, solver: SolverSettings) -> i64 {
 /// torque / 10.6 N·m × 4.4 A.
 pub fn climbing_current(solver: SolverSettings) -> (f32, f32) {
     let extra = (total_wheel_current(60.0, solver) - total_wheel_current(0.0, solver)) as f32;
-    let robot = robot();
+    let robot = climber();
     let mass = robot.body.front.mass_kg + robot.body.middle.mass_kg + robot.body.rear.mass_kg + 4.0 * (robot.wheel.mass_kg + robot.magnet.mass_kg);
     let torque = mass * G * 60f32.to_radians().sin() * robot.wheel.outer_radius_m;
     (extra, torque / 10.6 * 4.4 / 2.69e-3)
@@ -139,7 +144,7 @@ pub fn climb_with_payload(deg: f32, payload_kg: f32, solver: SolverSettings) -> 
     set_wheel_goal(&mut sim, 100);
     sim.run(Duration::from_millis(1500));
     let travel_m = (sim.world().chassis_pose().translation - start).x / deg.to_radians().cos();
-    let rolled_m = (wheel_angle(&mut sim) - turned_from) * robot().wheel.outer_radius_m;
+    let rolled_m = (wheel_angle(&mut sim) - turned_from) * climber().wheel.outer_radius_m;
     let current = (1..=4).map(|id| sim.read_signed(id, PRESENT_CURRENT, 2).expect("current")).sum::<i64>() / 4;
     Climb { travel_m, current, slip_m: travel_m - rolled_m, sim }
 }
@@ -147,7 +152,7 @@ pub fn climb_with_payload(deg: f32, payload_kg: f32, solver: SolverSettings) -> 
 /// Encoder reading of a magnet servo as an angle from straight down (rad, positive forward).
 fn magnet_encoder_angle(sim: &mut Lockstep, id: u8) -> f32 {
     let pulses = sim.read_signed(id, PRESENT_POSITION, 4).expect("magnet position");
-    (pulses - i64::from(robot().magnet.encoder_at_down_pulses)) as f32 * std::f32::consts::TAU / 4096.0
+    (pulses - i64::from(climber().magnet.encoder_at_down_pulses)) as f32 * std::f32::consts::TAU / 4096.0
 }
 
 /// A 30 mm bump under the left wheels' track, on fine cells (4 mm) so that the facets' normals

@@ -137,7 +137,7 @@ impl Units {
         Self {
             rpm_per_velocity: scale(keys.present_velocity),
             rpm_per_min_per_accel: scale(keys.profile_acceleration),
-            // PWM Limit's unit: every page gives it (an older page leaves Present PWM's blank).
+            // PWM Limit's unit: every page gives it (most leave Present PWM's blank).
             percent_per_pwm: scale(keys.pwm_limit),
             // A model without current sensing never converts current units (it has no current
             // modes); 1 mA keeps the conversion finite.

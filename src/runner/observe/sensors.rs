@@ -25,10 +25,11 @@ pub struct Sensors {
 impl Sensors {
     pub fn new(scenario: &Scenario, robot: &RobotDescription) -> Result<Self, RunError> {
         let path = &scenario.path;
-        let settings = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&robot.camera));
+        let climber = robot.climber()?;
+        let settings = scenario.camera.clone().unwrap_or_else(|| LineCameraSettings::from_mount(&climber.camera));
         let camera = LineCamera::new(settings).map_err(|e| RunError::Camera { path: path.clone(), message: e.to_string() })?;
         let detector = LineDetector::new(DetectorSettings::default())?;
-        let lidar = scenario.lidar.clone().map(|settings| Lidar::new(settings, robot.lidar.position_m)).transpose().map_err(|e| RunError::Lidar { path: path.clone(), message: e.to_string() })?;
+        let lidar = scenario.lidar.clone().map(|settings| Lidar::new(settings, climber.lidar.position_m)).transpose().map_err(|e| RunError::Lidar { path: path.clone(), message: e.to_string() })?;
         Ok(Self { camera, detector, latest: None, frames_seen: 0, lidar })
     }
 

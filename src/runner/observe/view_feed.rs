@@ -37,8 +37,8 @@ impl ViewFeed {
     pub fn start(options: &ViewOptions, world: &RobotWorld, welds: &Welds, servo_names: Vec<(u8, String)>, has_lidar: bool, scenario_path: &Path) -> Result<Self, RunError> {
         let names: Vec<String> = servo_names.iter().map(|(_, name)| name.clone()).collect();
         let camera = world.camera_pose().translation;
-        let camera_distance_m = world.surface_below(camera.x, camera.z).map_or(world.robot().camera.position_m[1], |(ground, _)| camera.y - ground.y);
-        let setup = Setup { columns: COLUMNS, servo_names: &names, has_lidar, tyre_radius_m: world.robot().wheel.outer_radius_m, camera_distance_m };
+        let camera_distance_m = world.surface_below(camera.x, camera.z).map_or(world.climber().camera.position_m[1], |(ground, _)| camera.y - ground.y);
+        let setup = Setup { columns: COLUMNS, servo_names: &names, has_lidar, tyre_radius_m: world.climber().wheel.outer_radius_m, camera_distance_m };
         let view = View::start(options, &setup)?;
         view.terrain(Duration::ZERO, world, &welds.samples());
         view.robot(Duration::ZERO, world);

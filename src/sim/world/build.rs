@@ -16,6 +16,7 @@ impl RobotWorld {
     /// Build the world for `servos` (in bus order). Their firmware tick is the physics step, and
     /// their profile's reflected rotor inertia is added to every joint they drive.
     pub fn new(robot: &RobotDescription, config: WorldConfig, servos: &[Servo]) -> Result<Self, WorldError> {
+        let climber = robot.climber()?;
         let period = servos.first().map_or(Duration::from_millis(1), Servo::control_period);
         let rotor_inertia = servos.first().map_or(0.0, |s| {
             let motor = &s.profile().motor;
@@ -28,7 +29,7 @@ impl RobotWorld {
         // 0.5 % of it. At 1 m a wheel sinks ~3 mm under the magnets' pull, 6 % of its radius,
         // which would shorten the rolling radius by as much. The wheel diameter is the robot's
         // characteristic length.
-        physics.integration_parameters.length_unit = 2.0 * robot.wheel.outer_radius_m;
+        physics.integration_parameters.length_unit = 2.0 * climber.wheel.outer_radius_m;
         // Contacts with the (fixed) terrain are soft springs tuned for 60 Hz games: under 80 N of
         // magnet pull a wheel sank 2.6 mm (5 % of its radius, so 5 % of ground speed). Stiffer,
         // still well inside the 1 kHz step's stability: the sink drops below 0.2 mm.
@@ -37,7 +38,7 @@ impl RobotWorld {
         physics.integration_parameters.num_internal_pgs_iterations = config.solver.internal_iterations.get();
 
         let terrain_body = physics.insert_body(RigidBodyBuilder::fixed());
-        let friction = config.friction.unwrap_or(robot.wheel.friction);
+        let friction = config.friction.unwrap_or(climber.wheel.friction);
         let terrain_collider = config.terrain.collider().friction(friction).collision_groups(InteractionGroups::new(TERRAIN_GROUP, ROBOT_GROUP, InteractionTestMode::And));
         let terrain = physics.insert_collider(terrain_collider, Some(terrain_body));
 
@@ -55,8 +56,8 @@ impl RobotWorld {
             }
             physics.step();
         }
-        let body = &robot.body;
-        let wheel = &robot.wheel;
+        let body = &climber.body;
+        let wheel = &climber.wheel;
         let half_base = body.wheelbase_m / 2.0;
         let (origin, attitude) = start_frame(&physics, &config.start, half_base, body.track_m / 2.0);
         let axle_y = wheel.outer_radius_m + config.start.clearance_m;
@@ -109,7 +110,7 @@ impl RobotWorld {
             let ring_cross = 0.5 * ring + wheel.mass_kg * wheel.width_m.powi(2) / 12.0;
             // The magnet assembly's mass rides on the axle, so it is carried by the wheel body;
             // its rotation is the magnet shaft's own degree of freedom (`MagnetShaft`).
-            let wheel_mass = MassProperties::new(Vector::ZERO, wheel.mass_kg + robot.magnet.mass_kg, Vector::new(ring_cross, ring_cross, ring + rotor_inertia));
+            let wheel_mass = MassProperties::new(Vector::ZERO, wheel.mass_kg + climber.magnet.mass_kg, Vector::new(ring_cross, ring_cross, ring + rotor_inertia));
             let wheel_body = physics.insert_body(RigidBodyBuilder::dynamic().pose(Pose::from_parts(centre, yaw)).additional_mass_properties(wheel_mass));
             let collider = physics.insert_collider(ColliderBuilder::ball(wheel.outer_radius_m).density(0.0).friction(friction).collision_groups(robot_groups()), Some(wheel_body));
             // Positive wheel-servo rotation drives the robot forward (about -z); positive magnet
@@ -147,8 +148,10 @@ impl RobotWorld {
         let mut links = Vec::with_capacity(servos.len());
         for servo in servos {
             let Some(spec) = robot.servo.iter().find(|s| s.id == servo.id()) else { continue };
-            let parts = wheels[spec.wheel.index()];
-            links.push(match spec.role {
+            // `climber()` has checked every servo has its role and wheel.
+            let (Some(role), Some(wheel)) = (spec.role, spec.wheel) else { continue };
+            let parts = wheels[wheel.index()];
+            links.push(match role {
                 ServoRole::WheelDrive => ServoLink::Wheel(ServoJoint {
                     parent: parts.section,
                     child: parts.wheel,
@@ -161,18 +164,18 @@ impl RobotWorld {
                     solved_rate_before: 0.0,
                 }),
                 ServoRole::MagnetShaft => {
-                    let zero_rad = f64::from(robot.magnet.encoder_at_down_pulses) / 4096.0 * std::f64::consts::TAU;
-                    ServoLink::Magnet { wheel: spec.wheel.index(), zero_rad }
+                    let zero_rad = f64::from(climber.magnet.encoder_at_down_pulses) / 4096.0 * std::f64::consts::TAU;
+                    ServoLink::Magnet { wheel: wheel.index(), zero_rad }
                 }
             });
         }
         // The magnet assembly on its lever (a disc of the lever's radius about its own centre).
-        let magnet = &robot.magnet;
+        let magnet = &climber.magnet;
         let magnet_inertia = f64::from(magnet.mass_kg * magnet.lever_m.powi(2) * 1.25);
         let magnets: [MagnetShaft; 4] = std::array::from_fn(|_| MagnetShaft { load: BenchLoad::new(magnet_inertia), ..MagnetShaft::default() });
         for role in [ServoRole::WheelDrive, ServoRole::MagnetShaft] {
             for wheel in WheelPosition::ALL {
-                if !robot.servo.iter().any(|s| s.role == role && s.wheel == wheel) {
+                if !robot.servo.iter().any(|s| s.role == Some(role) && s.wheel == Some(wheel)) {
                     return Err(WorldError::MissingServo { role, wheel });
                 }
             }
@@ -187,6 +190,7 @@ impl RobotWorld {
             links,
             magnets,
             robot: robot.clone(),
+            climber,
             magnets_on: config.magnets_on,
             magnet_pull: [1.0; 4],
             slip: SlipPatches::default(),

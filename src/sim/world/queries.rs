@@ -17,6 +17,11 @@ impl RobotWorld {
         &self.robot
     }
 
+    /// The robot's mechanics the world was built from.
+    pub fn climber(&self) -> &crate::robot::Climber {
+        &self.climber
+    }
+
     pub fn time(&self) -> Duration {
         self.time
     }
@@ -112,7 +117,7 @@ impl RobotWorld {
         let parts = self.wheels[wheel.index()];
         let forward = self.physics.bodies[parts.section].rotation() * Vector::X;
         let ground = self.physics.bodies[parts.wheel].linvel().dot(forward);
-        self.wheel_rate(wheel) * self.robot.wheel.outer_radius_m - ground
+        self.wheel_rate(wheel) * self.climber.wheel.outer_radius_m - ground
     }
 
     /// The middle section's pose (the robot's reference frame).
@@ -146,7 +151,7 @@ impl RobotWorld {
     /// it looks (the body's down), +x the image's columns (the body's right, +z), +y its rows
     /// (row 0 is the body's forward edge, so +y is the body's back, -x).
     pub fn camera_optical_pose(&self) -> Pose {
-        let [x, y, z] = self.robot.camera.position_m;
+        let [x, y, z] = self.climber.camera.position_m;
         let optical = Rotation::from_mat3(&rapier3d::math::Matrix::from_cols(Vector::Z, -Vector::X, -Vector::Y));
         Pose::from_parts(Vector::new(x, y, z), optical)
     }
@@ -183,7 +188,7 @@ impl RobotWorld {
                 }
             }
         }
-        let wheel = &self.robot.wheel;
+        let wheel = &self.climber.wheel;
         for position in WheelPosition::ALL {
             // The wheel body's z axis is its axle.
             shapes.push(PartShape { frame: wheel_frame(position), pose: Pose::IDENTITY, kind: PartShapeKind::Cylinder { radius_m: wheel.outer_radius_m, length_m: wheel.width_m } });
@@ -194,7 +199,7 @@ impl RobotWorld {
     /// The downward camera's pose: its mount (`[camera] position_m`) on the middle section,
     /// looking along the section's −y axis.
     pub fn camera_pose(&self) -> Pose {
-        let [x, y, z] = self.robot.camera.position_m;
+        let [x, y, z] = self.climber.camera.position_m;
         self.chassis_pose() * Pose::from_translation(Vector::new(x, y, z))
     }
 
@@ -267,8 +272,8 @@ impl RobotWorld {
     pub fn tread_gap_m(&self, wheel: WheelPosition) -> Option<f32> {
         let centre = self.physics.bodies[self.wheels[wheel.index()].wheel].translation();
         let filter = QueryFilter::default().groups(robot_groups());
-        let outer = self.robot.wheel.outer_radius_m;
-        let (_, projection) = self.physics.project_point(centre, outer + self.robot.magnet.range_m, true, filter)?;
+        let outer = self.climber.wheel.outer_radius_m;
+        let (_, projection) = self.physics.project_point(centre, outer + self.climber.magnet.range_m, true, filter)?;
         Some(((projection.point - centre).length() - outer).max(0.0))
     }
 
@@ -287,7 +292,7 @@ impl RobotWorld {
         let parts = self.wheels[wheel.index()];
         let centre = self.physics.bodies[parts.wheel].translation();
         let filter = QueryFilter::default().groups(robot_groups());
-        let reach = self.robot.wheel.outer_radius_m + self.robot.magnet.range_m;
+        let reach = self.climber.wheel.outer_radius_m + self.climber.magnet.range_m;
         let (_, projection) = self.physics.project_point(centre, reach, true, filter)?;
         let local = self.physics.bodies[parts.section].rotation().inverse() * (projection.point - centre);
         let in_plane = local.x.hypot(local.y);

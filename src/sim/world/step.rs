@@ -138,7 +138,7 @@ impl RobotWorld {
     /// (for the physics step about to run).
     fn step_magnets(&mut self, react: bool) {
         let dt = self.period.as_secs_f64();
-        let damping = f64::from(self.robot.magnet.damping_nm_s_per_rad);
+        let damping = f64::from(self.climber.magnet.damping_nm_s_per_rad);
         for index in 0..4 {
             let parts = self.wheels[index];
             let shaft = &mut self.magnets[index];
@@ -173,8 +173,8 @@ impl RobotWorld {
     /// magnet's alignment with the normal, and turn the magnet toward the normal with the same
     /// pull on its lever.
     fn apply_adhesion(&mut self) {
-        let magnet = &self.robot.magnet;
-        let outer = self.robot.wheel.outer_radius_m;
+        let magnet = &self.climber.magnet;
+        let outer = self.climber.wheel.outer_radius_m;
         let gravity = self.physics.gravity;
         for index in 0..4 {
             let parts = self.wheels[index];
