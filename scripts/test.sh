@@ -31,6 +31,30 @@ fi
 export CLIMBSIM_PYTHON="$venv/bin/python"
 stage_done "the SDK's venv"
 
+# LeRobot's robot classes (tests/lerobot) need Python 3.12 or newer: the first found on PATH or
+# under pyenv. LeRobot itself goes in without its dependencies (tests/lerobot/requirements.txt).
+lerobot_venv="$repo/.venv-lerobot"
+lerobot_stamp="$lerobot_venv/.requirements.sha256"
+lerobot_want="$(sha256sum tests/lerobot/requirements.txt | cut -d' ' -f1)"
+if [[ ! -x "$lerobot_venv/bin/python" || "$(cat "$lerobot_stamp" 2>/dev/null)" != "$lerobot_want" ]]; then
+    python312=""
+    for candidate in python3.13 python3.12 "$HOME"/.pyenv/versions/3.13*/bin/python3.13 "$HOME"/.pyenv/versions/3.12*/bin/python3.12; do
+        if command -v "$candidate" >/dev/null 2>&1; then python312="$(command -v "$candidate")"; break; fi
+    done
+    if [[ -z "$python312" ]]; then
+        echo "LeRobot's tests need Python 3.12 or newer and none is on PATH or under ~/.pyenv/versions (pyenv install 3.12)" >&2
+        exit 1
+    fi
+    echo "==> creating $lerobot_venv with $python312, lerobot 0.5.1 and tests/lerobot/requirements.txt"
+    rm -rf "$lerobot_venv"
+    "$python312" -m venv "$lerobot_venv"
+    "$lerobot_venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps lerobot==0.5.1
+    "$lerobot_venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tests/lerobot/requirements.txt
+    echo "$lerobot_want" > "$lerobot_stamp"
+fi
+export CLIMBSIM_LEROBOT_PYTHON="$lerobot_venv/bin/python"
+stage_done "LeRobot's venv"
+
 # The Node.js controller of the virtual-time tests runs on npm's serialport (prebuilt for
 # linux-x64 in the package: nothing compiles), pinned by tests/vt/node/package-lock.json.
 node_modules="tests/vt/node/node_modules"

@@ -31,6 +31,8 @@ pub enum RobotError {
     NotAClimber { path: PathBuf, missing: String },
     #[error("robot description {path} has {present} but no {missing}: the climbing robot's mechanics are [body], [wheel], [magnet], [camera] and [lidar] together")]
     PartialClimber { path: PathBuf, present: String, missing: String },
+    #[error("robot description {path}: servo {id} ({name}): {message}")]
+    ServoProfile { path: PathBuf, id: u8, name: String, message: String },
     #[error("robot description {path}: servo {id} ({name}) has {what}; every servo of the climbing robot has a role and a wheel")]
     ServoWithoutPlace { path: PathBuf, id: u8, name: String, what: String },
 }
@@ -220,8 +222,12 @@ impl RobotDescription {
         if !robot.profile_overrides.is_empty() {
             robot.profile()?;
         }
-        // Half a climber is a mistake in the file, whatever it is served with.
+        // Half a climber is a mistake in the file, whatever it is served with; so is a servo whose
+        // own profile does not load or does not offer its baud.
         robot.mechanics_present()?;
+        if robot.servo.iter().any(|s| s.profile.is_some() || s.baud_bps.is_some()) {
+            robot.servos(None)?;
+        }
         Ok(robot)
     }
 
@@ -291,17 +297,19 @@ impl RobotDescription {
         let mut servos = Vec::with_capacity(self.servo.len());
         for spec in &self.servo {
             let path = spec.profile.as_deref().map_or_else(|| self.profile_path(), |p| self.resolve(p));
+            let this_servo = |message: String| RobotError::ServoProfile { path: self.path.clone(), id: spec.id, name: spec.name.clone(), message };
             let profile = match loaded.iter().find(|(p, _)| *p == path) {
                 Some((_, profile)) => Arc::clone(profile),
                 None => {
-                    let profile = Arc::new(FirmwareProfile::load_with(&path, &self.profile_overrides)?);
+                    let profile = Arc::new(FirmwareProfile::load_with(&path, &self.profile_overrides).map_err(|e| this_servo(e.to_string()))?);
                     loaded.push((path, Arc::clone(&profile)));
                     profile
                 }
             };
             let baud = baud_override.or(spec.baud_bps).unwrap_or(self.bus.baud_bps);
             let supply = self.bus.supply_voltage_v.unwrap_or(profile.motor.rated_voltage_v);
-            let servo = bus::servos_from_profile(&profile, &[spec.id], baud, supply).map_err(|source| RobotError::Bus { path: self.path.clone(), source })?;
+            let servo = bus::servos_from_profile(&profile, &[spec.id], baud, supply)
+                .map_err(|source| if spec.profile.is_some() || spec.baud_bps.is_some() { this_servo(source.to_string()) } else { RobotError::Bus { path: self.path.clone(), source } })?;
             servos.extend(servo);
         }
         Ok(servos)
@@ -356,16 +364,35 @@ mod tests {
         assert!(error.contains("has [wheel] but no [body], [magnet], [camera], [lidar]"), "{error}");
     }
 
+    /// The firmware profiles' folder, absolute, for descriptions written to a temporary file.
+    fn profiles() -> String {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("firmware-profiles").display().to_string()
+    }
+
     #[test]
     fn a_climber_servo_without_a_role_is_named() {
         let shipped = std::fs::read_to_string(RobotDescription::default_path()).expect("the shipped description");
-        let text = shipped.replacen("role = \"wheel_drive\"\n", "", 1);
-        let path = RobotDescription::default_path().with_file_name("robot-without-role.toml");
-        std::fs::write(&path, text).expect("written beside the shipped one, so its profile resolves");
-        let loaded = RobotDescription::load(&path);
-        let _ = std::fs::remove_file(&path);
-        let error = loaded.expect("loads").climber().expect_err("servo 1 has no role").to_string();
+        let text = shipped.replacen("role = \"wheel_drive\"\n", "", 1).replace("\"../firmware-profiles", &format!("\"{}", profiles()));
+        let error = parse(&text).expect("loads").climber().expect_err("servo 1 has no role").to_string();
         assert!(error.contains("servo 1 (wheel_front_left) has no role"), "{error}");
+    }
+
+    #[test]
+    fn a_servos_own_baud_is_its_power_on_one_and_a_bad_profile_or_baud_names_the_servo() {
+        let dir = profiles();
+        let bus = format!(
+            "[bus]\nprofile = \"{dir}/xl330-m288.toml\"\nbaud_bps = 1000000\n\n[[servo]]\nid = 1\nname = \"pan\"\n\n[[servo]]\nid = 7\nname = \"spare\"\nprofile = \"{dir}/xl430-w250.toml\"\nbaud_bps = 57600\n"
+        );
+        let robot = parse(&bus).expect("loads");
+        let bauds: Vec<Option<u32>> = robot.servos(None).expect("builds").iter().map(Servo::baud_bps).collect();
+        assert_eq!(bauds, [Some(1_000_000), Some(57_600)]);
+        // 4.5 Mbps is an XL430's code 7: servo 7 may start there.
+        parse(&bus.replace("baud_bps = 57600", "baud_bps = 4500000")).expect("the XL430 offers 4.5 Mbps");
+        // An XL330 (the bus's profile) has no 4.5 Mbps: the servo asking for it is named.
+        let error = parse(&bus.replace(&format!("profile = \"{dir}/xl430-w250.toml\"\nbaud_bps = 57600"), "baud_bps = 4500000")).expect_err("the XL330 has no 4.5 Mbps").to_string();
+        assert!(error.contains("servo 7 (spare)") && error.contains("4500000"), "{error}");
+        let error = parse(&bus.replace("xl430-w250.toml", "xl999.toml")).expect_err("no such profile").to_string();
+        assert!(error.contains("servo 7 (spare)") && error.contains("xl999.toml"), "{error}");
     }
 
     #[test]

@@ -246,17 +246,27 @@ fn fitted_robot(robot: &Path, sets: &[Override], fitted_profile: Option<&str>) -
     if let Some(profile) = table.get_mut("bus").and_then(|bus| bus.get_mut("profile"))
         && let Some(relative) = profile.as_str()
     {
-        let resolved = match fitted_profile {
-            Some(beside) => PathBuf::from(beside),
-            None => {
-                let absolute = robot.parent().unwrap_or(Path::new(".")).join(relative);
-                match crate::embedded::find(&absolute) {
-                    Some(built_in) => built_in.embedded_path(),
-                    None => std::fs::canonicalize(&absolute).unwrap_or(absolute),
-                }
-            }
-        };
+        let resolved = fitted_profile.map_or_else(|| named_from_anywhere(robot, relative), PathBuf::from);
         *profile = toml::Value::String(resolved.display().to_string());
     }
+    // A servo's own profile is named relative to the original too. (Fitted profile keys are
+    // written into the bus's profile only; a robot with per-servo profiles is not fitted yet.)
+    if let Some(servos) = table.get_mut("servo").and_then(|servos| servos.as_array_mut()) {
+        for profile in servos.iter_mut().filter_map(|servo| servo.get_mut("profile")) {
+            if let Some(relative) = profile.as_str() {
+                *profile = toml::Value::String(named_from_anywhere(robot, relative).display().to_string());
+            }
+        }
+    }
     Ok(fitted_text(robot, sets, &table))
+}
+
+/// A file `robot` names relative to itself, as a path that works from any folder: a file
+/// climbsim has built in, or the absolute path.
+fn named_from_anywhere(robot: &Path, relative: &str) -> PathBuf {
+    let absolute = robot.parent().unwrap_or(Path::new(".")).join(relative);
+    match crate::embedded::find(&absolute) {
+        Some(built_in) => built_in.embedded_path(),
+        None => std::fs::canonicalize(&absolute).unwrap_or(absolute),
+    }
 }

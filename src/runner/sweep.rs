@@ -83,6 +83,8 @@ pub struct SweepPlan<'a> {
 /// the number of runs, then called as each finishes.
 pub fn sweep(scenario_path: &Path, plan: &SweepPlan<'_>, robot: &RobotDescription, out_dir: &Path, stop: &AtomicBool, console: &dyn Console, progress: &dyn Progress) -> Result<()> {
     let SweepPlan { axes, jobs, shard, pace, record_mcap } = *plan;
+    // Every point runs in the climbing robot's world: a bench robot is refused before any runs.
+    robot.climber()?;
     let points = shard.select(grid(axes));
     if points.is_empty() {
         return Err(RunnerError::Invalid(format!("shard {}/{} of this grid is empty", shard.index, shard.count)));

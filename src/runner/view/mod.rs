@@ -102,7 +102,7 @@ const PACKET_SCHEMA: &str =
 
 /// The registers `/servos` shows, by control-table key.
 const SERVO_REGISTERS: &[&str] =
-    &["torque_enable", "goal_velocity", "present_velocity", "present_position", "present_current", "present_load", "present_input_voltage", "present_temperature", "hardware_error_status"];
+    &["torque_enable", "goal_velocity", "present_velocity", "present_position", "present_current", "present_input_voltage", "present_temperature", "hardware_error_status"];
 
 struct Recording {
     /// Taken when the recording is finished (closed and renamed).
