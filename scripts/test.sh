@@ -38,8 +38,12 @@ lerobot_stamp="$lerobot_venv/.requirements.sha256"
 lerobot_want="$(sha256sum tests/lerobot/requirements.txt | cut -d' ' -f1)"
 if [[ ! -x "$lerobot_venv/bin/python" || "$(cat "$lerobot_stamp" 2>/dev/null)" != "$lerobot_want" ]]; then
     python312=""
+    # A pyenv shim answers `command -v` for a version that is not selected: ask each to run.
     for candidate in python3.13 python3.12 "$HOME"/.pyenv/versions/3.13*/bin/python3.13 "$HOME"/.pyenv/versions/3.12*/bin/python3.12; do
-        if command -v "$candidate" >/dev/null 2>&1; then python312="$(command -v "$candidate")"; break; fi
+        if "$candidate" -c 'import sys; assert sys.version_info >= (3, 12)' >/dev/null 2>&1; then
+            python312="$(command -v "$candidate")"
+            break
+        fi
     done
     if [[ -z "$python312" ]]; then
         echo "LeRobot's tests need Python 3.12 or newer and none is on PATH or under ~/.pyenv/versions (pyenv install 3.12)" >&2
