@@ -476,3 +476,42 @@ fn from_an_empty_folder_climbsim_runs_on_the_files_it_has_built_in() {
     assert!(std::fs::read_to_string(dir.join("out2/settings.json")).expect("settings.json").contains("my-robot/robot.toml"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A built-in robot by name, from a folder with no checkout: `serve --robot koch-follower`
+/// serves LeRobot's Koch follower bus from the files climbsim has built in (each servo its own
+/// model, at 1 Mbps); a name no robot has is refused with the names there are.
+#[test]
+fn a_built_in_robot_is_served_by_name_from_any_folder() {
+    use std::io::{BufRead, BufReader};
+    let dir = std::env::temp_dir().join(format!("climbsim-named-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("an empty folder");
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_climbsim"))
+        .args(["serve", "--robot", "koch-follower", "--link", "ttyKoch"])
+        .current_dir(&dir)
+        .env_remove("CLIMBSIM_ROBOT")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("climbsim serve");
+    let mut lines = BufReader::new(serve.stdout.take().expect("stdout"));
+    let mut first = String::new();
+    lines.read_line(&mut first).expect("a line");
+    let port = first.strip_prefix("port: ").map(str::trim).unwrap_or_else(|| panic!("not a port line: {first:?}"));
+    let port = support::open_raw_port(&dir.join(port), nix::sys::termios::BaudRate::B1000000);
+    let mut reply = [0u8; 14];
+    for (id, model) in [(1u8, 1060u16), (6, 1200)] {
+        let mut ping = vec![0xFF, 0xFF, 0xFD, 0x00, id, 0x03, 0x00, 0x01];
+        let crc = climbsim::protocol::crc16(&ping);
+        ping.extend_from_slice(&crc.to_le_bytes());
+        support::round_trip(&port, &ping, reply.len(), &mut reply);
+        assert_eq!((reply[4], u16::from_le_bytes([reply[9], reply[10]])), (id, model), "ping of {id}: {reply:02X?}");
+    }
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(serve.id() as i32), nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
+    assert!(serve.wait().expect("ends").success());
+
+    let unknown = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(["serve", "--robot", "koch-leader", "--link", "ttyX"]).current_dir(&dir).env_remove("CLIMBSIM_ROBOT").output().expect("climbsim");
+    assert_eq!(unknown.status.code(), Some(2), "{}", text(&unknown));
+    assert!(text(&unknown).contains("koch-leader") && text(&unknown).contains("koch-follower"), "names the robots there are: {}", text(&unknown));
+    let _ = std::fs::remove_dir_all(&dir);
+}

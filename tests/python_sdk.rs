@@ -6,7 +6,6 @@
 //! SDK is a failure, never a silent skip.
 
 use std::path::PathBuf;
-use std::process::Command;
 
 mod support;
 
@@ -34,27 +33,7 @@ fn pytest(selection: &[String]) {
     for file in WITH_THE_SOAK {
         assert!(repo.join("tests/sdk").join(file).is_file(), "tests/sdk/{file} is gone: take it out of WITH_THE_SOAK");
     }
-    let python = support::sdk_python();
     let hint = "run ./scripts/test.sh (it creates .venv and installs tests/sdk/requirements.txt), \
                 or point CLIMBSIM_PYTHON at a python with dynamixel-sdk 4.0.5 and pytest";
-
-    let probe = Command::new(&python).args(["-c", "import dynamixel_sdk, pytest, serial"]).output();
-    match probe {
-        Err(e) => panic!("cannot run {}: {e}; {hint}", python.display()),
-        Ok(out) if !out.status.success() => panic!("{} cannot import dynamixel_sdk/pytest/serial: {}; {hint}", python.display(), String::from_utf8_lossy(&out.stderr).trim()),
-        Ok(_) => {}
-    }
-
-    let out = Command::new(&python)
-        .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
-        .args(selection)
-        .current_dir(&repo)
-        .env("CLIMBSIM_BIN", env!("CARGO_BIN_EXE_climbsim"))
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run pytest with {}: {e}", python.display()));
-
-    print!("{}", String::from_utf8_lossy(&out.stdout));
-    eprint!("{}", String::from_utf8_lossy(&out.stderr));
-    assert!(out.status.success(), "official-SDK conformance suite ({}) failed ({}); pytest output is above", selection.join(" "), out.status);
+    support::pytest_with(&support::sdk_python(), "dynamixel_sdk, pytest, serial", hint, selection);
 }

@@ -133,13 +133,25 @@ pub fn load_robot(path: &Path) -> Result<RobotDescription> {
 
 /// [`load_robot`] with `--set robot.…` and `--set profile.…` keys.
 pub fn load_robot_with(path: &Path, overrides: &RobotOverrides) -> Result<RobotDescription> {
-    Ok(RobotDescription::load_with(&robot_path(path), overrides)?)
+    let resolved = robot_path(path);
+    // A bare name that is neither a file here nor a built-in robot: say which names there are.
+    if !resolved.exists() && !embedded::is_embedded(&resolved) && path.extension().is_none() && path.components().count() == 1 {
+        let names: Vec<&str> = embedded::ROBOTS.iter().map(|(name, _)| *name).collect();
+        bail!("--robot {}: no such file, and no robot climbsim has built in is called that (it has {})", path.display(), names.join(", "));
+    }
+    Ok(RobotDescription::load_with(&resolved, overrides)?)
 }
 
 /// The robot description `--robot` names. Its default, `hil/robot.toml`, is the checkout's
 /// when climbsim runs in one (or a folder that has its own), else the one built into climbsim
-/// (`embedded:hil/robot.toml`): an installed binary runs from any folder.
+/// (`embedded:hil/robot.toml`): an installed binary runs from any folder. A built-in robot's
+/// name (`koch-follower`, `climber`) that is no file here names that robot.
 pub fn robot_path(path: &Path) -> PathBuf {
+    if !path.exists()
+        && let Some(named) = path.to_str().and_then(embedded::robot_named)
+    {
+        return named;
+    }
     built_in_unless_here(path, ROBOT_IN_CHECKOUT, &embedded::ROBOT)
 }
 

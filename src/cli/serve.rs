@@ -82,7 +82,8 @@ pub struct ServeArgs {
     /// Write every bus transaction to this file as JSON lines.
     #[arg(long)]
     pub trace_bus: Option<PathBuf>,
-    /// Robot description (servo IDs, firmware profile, power-on baud).
+    /// Robot description (servo IDs, firmware profiles, power-on baud), or a built-in robot by
+    /// name: `climber` (the default), `koch-follower` (LeRobot's arm, its bus on the bench).
     #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
     pub robot: PathBuf,
     /// Override a key (repeatable): the scenario's (`world.seed=2`), the robot description's

@@ -48,8 +48,43 @@ pub const CONTROLLER: EmbeddedFile = shipped!("hil/controllers/line_follower.py"
 /// `run`'s default scenario: the built-in controller following a weld line on flat steel.
 pub const SCENARIO: EmbeddedFile = shipped!("scenarios/flat-line.toml");
 
-/// Every shipped file.
-pub const FILES: [EmbeddedFile; 6] = [ROBOT, PROFILE, LAYOUT, COMPARE_LAYOUT, CONTROLLER, SCENARIO];
+/// LeRobot's Koch follower arm, its bus alone.
+pub const KOCH_FOLLOWER: EmbeddedFile = shipped!("hil/robots/koch-follower.toml");
+
+/// The robots `--robot NAME` names: the description in the checkout when climbsim runs in one,
+/// else the one built in.
+pub const ROBOTS: [(&str, EmbeddedFile); 2] = [("climber", ROBOT), ("koch-follower", KOCH_FOLLOWER)];
+
+/// Every servo model's firmware profile (a robot's `profile` resolves among them).
+pub const PROFILES: [EmbeddedFile; 11] = [
+    PROFILE,
+    shipped!("firmware-profiles/xl330-m077.toml"),
+    shipped!("firmware-profiles/xl330-m288.toml"),
+    shipped!("firmware-profiles/xc330-t288.toml"),
+    shipped!("firmware-profiles/xl430-w250.toml"),
+    shipped!("firmware-profiles/xc430-w150.toml"),
+    shipped!("firmware-profiles/xm430-w210.toml"),
+    shipped!("firmware-profiles/xm430-w350.toml"),
+    shipped!("firmware-profiles/xh430-w350.toml"),
+    shipped!("firmware-profiles/xm540-w150.toml"),
+    shipped!("firmware-profiles/xw540-t260.toml"),
+];
+
+/// Every shipped file but the profiles.
+pub const FILES: [EmbeddedFile; 7] = [ROBOT, KOCH_FOLLOWER, PROFILE, LAYOUT, COMPARE_LAYOUT, CONTROLLER, SCENARIO];
+
+/// Every shipped file, the profiles too.
+fn every_file() -> impl Iterator<Item = &'static EmbeddedFile> {
+    FILES.iter().chain(PROFILES.iter().skip(1))
+}
+
+/// The built-in robot `name` names (`koch-follower`): the checkout's description when it is
+/// here, else the one built in; `None` for a name no robot has.
+pub fn robot_named(name: &str) -> Option<PathBuf> {
+    let (_, file) = ROBOTS.iter().find(|(robot, _)| *robot == name)?;
+    let here = Path::new(file.path);
+    Some(if here.is_file() { here.to_owned() } else { file.embedded_path() })
+}
 
 impl EmbeddedFile {
     /// The path that names it (`embedded:hil/robot.toml`).
@@ -84,14 +119,14 @@ pub fn find(path: &Path) -> Option<&'static EmbeddedFile> {
         }
     }
     let wanted = parts.join("/");
-    FILES.iter().find(|file| file.path == wanted)
+    every_file().find(|file| file.path == wanted)
 }
 
 /// The text at `path`: an embedded file's, or the file system's.
 pub fn read_to_string(path: &Path) -> std::io::Result<String> {
     if is_embedded(path) {
         return find(path).map(|file| file.text.to_owned()).ok_or_else(|| {
-            let known: Vec<String> = FILES.iter().map(|f| f.embedded_path().display().to_string()).collect();
+            let known: Vec<String> = every_file().map(|f| f.embedded_path().display().to_string()).collect();
             std::io::Error::new(std::io::ErrorKind::NotFound, format!("climbsim has no such file built in (it has {})", known.join(", ")))
         });
     }

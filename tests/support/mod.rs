@@ -273,7 +273,29 @@ pub fn sdk_python() -> PathBuf {
     }
 }
 
-/// A fresh, empty folder under the target directory for one test's outputs.
+/// Run pytest on `selection` with `python` from the repository, against this build's climbsim
+/// (`CLIMBSIM_BIN`): first `imports` must load (else a failure with `hint`, never a skip); pytest's
+/// output is printed and its failure fails the test.
+pub fn pytest_with(python: &Path, imports: &str, hint: &str, selection: &[String]) {
+    let probe = Command::new(python).args(["-c", &format!("import {imports}")]).output();
+    match probe {
+        Err(e) => panic!("cannot run {}: {e}; {hint}", python.display()),
+        Ok(out) if !out.status.success() => panic!("{} cannot import {imports}: {}; {hint}", python.display(), String::from_utf8_lossy(&out.stderr).trim()),
+        Ok(_) => {}
+    }
+    let out = Command::new(python)
+        .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
+        .args(selection)
+        .current_dir(repo())
+        .env("CLIMBSIM_BIN", env!("CARGO_BIN_EXE_climbsim"))
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run pytest with {}: {e}", python.display()));
+    print!("{}", String::from_utf8_lossy(&out.stdout));
+    eprint!("{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "pytest on {} failed ({}); its output is above", selection.join(" "), out.status);
+}
+
 /// An executable script `name` in `dir` holding `text` (with its `#!` line); its path.
 pub fn executable_script(dir: &Path, name: &str, text: &str) -> PathBuf {
     use std::os::unix::fs::PermissionsExt;
@@ -283,6 +305,7 @@ pub fn executable_script(dir: &Path, name: &str, text: &str) -> PathBuf {
     script
 }
 
+/// A fresh, empty folder under the target directory for one test's outputs.
 pub fn scratch_dir(name: &str) -> PathBuf {
     let dir = results_dir().join("scratch").join(format!("{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
