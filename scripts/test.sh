@@ -34,13 +34,15 @@ stage_done "the SDK's venv"
 # LeRobot's robot classes (tests/lerobot) need Python 3.12 or newer: the first found on PATH or
 # under pyenv. LeRobot itself goes in without its dependencies (tests/lerobot/requirements.txt).
 lerobot_venv="$repo/.venv-lerobot"
+lerobot_pin="lerobot==0.5.1"
 lerobot_stamp="$lerobot_venv/.requirements.sha256"
-lerobot_want="$(sha256sum tests/lerobot/requirements.txt | cut -d' ' -f1)"
+lerobot_want="$( (echo "$lerobot_pin"; cat tests/lerobot/requirements.txt) | sha256sum | cut -d' ' -f1)"
 if [[ ! -x "$lerobot_venv/bin/python" || "$(cat "$lerobot_stamp" 2>/dev/null)" != "$lerobot_want" ]]; then
     python312=""
-    # A pyenv shim answers `command -v` for a version that is not selected: ask each to run.
-    for candidate in python3.13 python3.12 "$HOME"/.pyenv/versions/3.13*/bin/python3.13 "$HOME"/.pyenv/versions/3.12*/bin/python3.12; do
-        if "$candidate" -c 'import sys; assert sys.version_info >= (3, 12)' >/dev/null 2>&1; then
+    # A pyenv shim answers `command -v` for a version that is not selected, and a Debian python3.12
+    # may lack venv: ask each to run, be 3.12 or newer, and have venv with ensurepip.
+    for candidate in python3.13 python3.12 "${HOME:-/root}"/.pyenv/versions/3.13*/bin/python3.13 "${HOME:-/root}"/.pyenv/versions/3.12*/bin/python3.12; do
+        if "$candidate" -c 'import sys, venv, ensurepip; sys.exit(sys.version_info < (3, 12))' >/dev/null 2>&1; then
             python312="$(command -v "$candidate")"
             break
         fi
@@ -49,10 +51,10 @@ if [[ ! -x "$lerobot_venv/bin/python" || "$(cat "$lerobot_stamp" 2>/dev/null)" !
         echo "LeRobot's tests need Python 3.12 or newer and none is on PATH or under ~/.pyenv/versions (pyenv install 3.12)" >&2
         exit 1
     fi
-    echo "==> creating $lerobot_venv with $python312, lerobot 0.5.1 and tests/lerobot/requirements.txt"
+    echo "==> creating $lerobot_venv with $python312, $lerobot_pin and tests/lerobot/requirements.txt"
     rm -rf "$lerobot_venv"
     "$python312" -m venv "$lerobot_venv"
-    "$lerobot_venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps lerobot==0.5.1
+    "$lerobot_venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps "$lerobot_pin"
     "$lerobot_venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tests/lerobot/requirements.txt
     echo "$lerobot_want" > "$lerobot_stamp"
 fi

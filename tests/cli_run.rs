@@ -486,6 +486,14 @@ fn a_built_in_robot_is_served_by_name_from_any_folder() {
     let dir = std::env::temp_dir().join(format!("climbsim-named-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("an empty folder");
+    /// Ends climbsim whatever the test does (a failed assert would leave it serving).
+    struct Served(std::process::Child);
+    impl Drop for Served {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
     let mut serve = Command::new(env!("CARGO_BIN_EXE_climbsim"))
         .args(["serve", "--robot", "koch-follower", "--link", "ttyKoch"])
         .current_dir(&dir)
@@ -493,8 +501,9 @@ fn a_built_in_robot_is_served_by_name_from_any_folder() {
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
+        .map(Served)
         .expect("climbsim serve");
-    let mut lines = BufReader::new(serve.stdout.take().expect("stdout"));
+    let mut lines = BufReader::new(serve.0.stdout.take().expect("stdout"));
     let mut first = String::new();
     lines.read_line(&mut first).expect("a line");
     let port = first.strip_prefix("port: ").map(str::trim).unwrap_or_else(|| panic!("not a port line: {first:?}"));
@@ -507,8 +516,8 @@ fn a_built_in_robot_is_served_by_name_from_any_folder() {
         support::round_trip(&port, &ping, reply.len(), &mut reply);
         assert_eq!((reply[4], u16::from_le_bytes([reply[9], reply[10]])), (id, model), "ping of {id}: {reply:02X?}");
     }
-    nix::sys::signal::kill(nix::unistd::Pid::from_raw(serve.id() as i32), nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
-    assert!(serve.wait().expect("ends").success());
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(serve.0.id() as i32), nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
+    assert!(serve.0.wait().expect("ends").success());
 
     let unknown = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(["serve", "--robot", "koch-leader", "--link", "ttyX"]).current_dir(&dir).env_remove("CLIMBSIM_ROBOT").output().expect("climbsim");
     assert_eq!(unknown.status.code(), Some(2), "{}", text(&unknown));

@@ -9,6 +9,7 @@ Prints each run's rate and their median; the machine should be otherwise idle.
 
 from __future__ import annotations
 
+import builtins
 import json
 import pathlib
 import signal
@@ -35,24 +36,30 @@ for run in range(runs):
         tmp = pathlib.Path(tmp)
         link = tmp / "ttyDXL"
         server = subprocess.Popen([climbsim, "serve", "--robot", str(REPO / "hil/robots/koch-follower.toml"), "--link", str(link)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        assert server.stdout.readline().startswith("port:")
-        (tmp / "calibration").mkdir()
-        (tmp / "calibration" / "bench.json").write_text(json.dumps(CALIBRATION))
-        robot = KochFollower(KochFollowerConfig(port=str(link), id="bench", calibration_dir=tmp / "calibration"))
-        import builtins
-
-        builtins.input = lambda prompt="": ""
-        robot.connect(calibrate=True)
-        action = {f"{motor}.pos": 0.0 for motor in CALIBRATION}
-        rounds, started = 0, time.perf_counter()
-        while time.perf_counter() - started < seconds:
-            robot.get_observation()
-            robot.send_action(action)
-            rounds += 1
-        rate = rounds / (time.perf_counter() - started)
-        robot.disconnect()
-        server.send_signal(signal.SIGTERM)
-        server.wait(timeout=10)
+        try:
+            assert server.stdout.readline().startswith("port:"), "climbsim did not publish its port"
+            (tmp / "calibration").mkdir()
+            (tmp / "calibration" / "bench.json").write_text(json.dumps(CALIBRATION))
+            robot = KochFollower(KochFollowerConfig(port=str(link), id="bench", calibration_dir=tmp / "calibration"))
+            builtins.input = lambda prompt="": ""
+            robot.connect(calibrate=True)
+            action = {f"{motor}.pos": 0.0 for motor in CALIBRATION}
+            rounds, started = 0, time.perf_counter()
+            while time.perf_counter() - started < seconds:
+                robot.get_observation()
+                robot.send_action(action)
+                rounds += 1
+            rate = rounds / (time.perf_counter() - started)
+            robot.disconnect()
+        finally:
+            server.send_signal(signal.SIGTERM)
+            try:
+                code = server.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                server.kill()
+                code = server.wait()
+        if code != 0:
+            sys.exit(f"climbsim ended with {code}")
         rates.append(rate)
         print(f"run {run + 1}: {rate:.0f} rounds/s ({rounds} in {seconds:.0f} s)")
 print(f"median {statistics.median(rates):.0f} rounds/s over {runs} runs of {seconds:.0f} s (min {min(rates):.0f}, max {max(rates):.0f})")

@@ -135,7 +135,7 @@ pub fn load_robot(path: &Path) -> Result<RobotDescription> {
 pub fn load_robot_with(path: &Path, overrides: &RobotOverrides) -> Result<RobotDescription> {
     let resolved = robot_path(path);
     // A bare name that is neither a file here nor a built-in robot: say which names there are.
-    if !resolved.exists() && !embedded::is_embedded(&resolved) && path.extension().is_none() && path.components().count() == 1 {
+    if !resolved.is_file() && !embedded::is_embedded(&resolved) && path.extension().is_none() && path.components().count() == 1 {
         let names: Vec<&str> = embedded::ROBOTS.iter().map(|(name, _)| *name).collect();
         bail!("--robot {}: no such file, and no robot climbsim has built in is called that (it has {})", path.display(), names.join(", "));
     }
@@ -147,7 +147,8 @@ pub fn load_robot_with(path: &Path, overrides: &RobotOverrides) -> Result<RobotD
 /// (`embedded:hil/robot.toml`): an installed binary runs from any folder. A built-in robot's
 /// name (`koch-follower`, `climber`) that is no file here names that robot.
 pub fn robot_path(path: &Path) -> PathBuf {
-    if !path.exists()
+    // A file wins over a name; a folder of that name does not.
+    if !path.is_file()
         && let Some(named) = path.to_str().and_then(embedded::robot_named)
     {
         return named;

@@ -126,8 +126,8 @@ pub fn find(path: &Path) -> Option<&'static EmbeddedFile> {
 pub fn read_to_string(path: &Path) -> std::io::Result<String> {
     if is_embedded(path) {
         return find(path).map(|file| file.text.to_owned()).ok_or_else(|| {
-            let known: Vec<String> = every_file().map(|f| f.embedded_path().display().to_string()).collect();
-            std::io::Error::new(std::io::ErrorKind::NotFound, format!("climbsim has no such file built in (it has {})", known.join(", ")))
+            let known: Vec<String> = FILES.iter().map(|f| f.embedded_path().display().to_string()).collect();
+            std::io::Error::new(std::io::ErrorKind::NotFound, format!("climbsim has no such file built in (it has {}, and each servo model's profile in {PREFIX}firmware-profiles/)", known.join(", ")))
         });
     }
     std::fs::read_to_string(path)
