@@ -519,8 +519,8 @@ fn a_built_in_robot_is_served_by_name_from_any_folder() {
     nix::sys::signal::kill(nix::unistd::Pid::from_raw(serve.0.id() as i32), nix::sys::signal::Signal::SIGTERM).expect("SIGTERM");
     assert!(serve.0.wait().expect("ends").success());
 
-    let unknown = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(["serve", "--robot", "koch-leader", "--link", "ttyX"]).current_dir(&dir).env_remove("CLIMBSIM_ROBOT").output().expect("climbsim");
+    let unknown = Command::new(env!("CARGO_BIN_EXE_climbsim")).args(["serve", "--robot", "koch-lead", "--link", "ttyX"]).current_dir(&dir).env_remove("CLIMBSIM_ROBOT").output().expect("climbsim");
     assert_eq!(unknown.status.code(), Some(2), "{}", text(&unknown));
-    assert!(text(&unknown).contains("koch-leader") && text(&unknown).contains("koch-follower"), "names the robots there are: {}", text(&unknown));
+    assert!(text(&unknown).contains("koch-lead:") && text(&unknown).contains("koch-follower, koch-leader"), "names the robots there are: {}", text(&unknown));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -83,7 +83,8 @@ pub struct ServeArgs {
     #[arg(long)]
     pub trace_bus: Option<PathBuf>,
     /// Robot description (servo IDs, firmware profiles, power-on baud), or a built-in robot by
-    /// name: `climber` (the default), `koch-follower` (LeRobot's arm, its bus on the bench).
+    /// name: `climber` (the default), `koch-follower` or `koch-leader` (LeRobot's arms, their
+    /// buses on the bench).
     #[arg(long, env = "CLIMBSIM_ROBOT", default_value = ROBOT_IN_CHECKOUT)]
     pub robot: PathBuf,
     /// Override a key (repeatable): the scenario's (`world.seed=2`), the robot description's

@@ -50,10 +50,12 @@ pub const SCENARIO: EmbeddedFile = shipped!("scenarios/flat-line.toml");
 
 /// LeRobot's Koch follower arm, its bus alone.
 pub const KOCH_FOLLOWER: EmbeddedFile = shipped!("hil/robots/koch-follower.toml");
+/// LeRobot's Koch leader arm, its bus alone.
+pub const KOCH_LEADER: EmbeddedFile = shipped!("hil/robots/koch-leader.toml");
 
 /// The robots `--robot NAME` names: the description in the checkout when climbsim runs in one,
 /// else the one built in.
-pub const ROBOTS: [(&str, EmbeddedFile); 2] = [("climber", ROBOT), ("koch-follower", KOCH_FOLLOWER)];
+pub const ROBOTS: [(&str, EmbeddedFile); 3] = [("climber", ROBOT), ("koch-follower", KOCH_FOLLOWER), ("koch-leader", KOCH_LEADER)];
 
 /// Every servo model's firmware profile (a robot's `profile` resolves among them).
 pub const PROFILES: [EmbeddedFile; 11] = [
@@ -71,7 +73,7 @@ pub const PROFILES: [EmbeddedFile; 11] = [
 ];
 
 /// Every shipped file but the profiles.
-pub const FILES: [EmbeddedFile; 7] = [ROBOT, KOCH_FOLLOWER, PROFILE, LAYOUT, COMPARE_LAYOUT, CONTROLLER, SCENARIO];
+pub const FILES: [EmbeddedFile; 8] = [ROBOT, KOCH_FOLLOWER, KOCH_LEADER, PROFILE, LAYOUT, COMPARE_LAYOUT, CONTROLLER, SCENARIO];
 
 /// Every shipped file, the profiles too.
 fn every_file() -> impl Iterator<Item = &'static EmbeddedFile> {

@@ -173,12 +173,20 @@ impl Servo {
         } else if mode == modes.velocity {
             self.velocity_loop(dt) * percent
         } else if self.is_position_mode(i64::from(mode)) {
-            let output = self.position_loop(dt);
+            let duty = self.position_loop(dt) * percent;
             if Some(mode) == modes.current_based_position {
-                let limit = self.get_or(keys.goal_current, 0).abs() as f64;
-                current_duty(self, output.clamp(-limit, limit))
+                // Goal Current "sets a limit to current in Current-based Position Control mode"
+                // (e-manual, Goal Current(102)): the position loop drives the motor's voltage as
+                // in position mode, and the current that voltage would draw is held within Goal
+                // Current. climbsim had taken the loop's output for a current command, which
+                // leaves the shaft undamped (no back-EMF through an ideal current loop): a
+                // gripper at rest oscillated ±170 pulses; the manual wins.
+                let limit_units = self.get_or(keys.goal_current, 0).abs() as f64;
+                let drawn_a = self.motor.current_for_torque(self.motor.drive(duty, self.supply_voltage_v).electrical_torque(omega));
+                let limit_a = limit_units * self.units.ma_per_current / 1000.0;
+                if drawn_a.abs() > limit_a { current_duty(self, limit_units.copysign(drawn_a)) } else { duty }
             } else {
-                output * percent
+                duty
             }
         } else {
             0.0

@@ -260,3 +260,33 @@ fn watchdog_expiry_in_pwm_mode_zeroes_goal_pwm() {
     assert_eq!(read_i16(&s, 100), 0);
     assert_eq!(read_i16(&s, 124), 0, "Present PWM after the stop");
 }
+
+/// Current-based position (mode 5): the position loop drives the voltage and Goal Current caps
+/// the current (e-manual, Goal Current(102)). The shaft settles on its goal instead of ringing
+/// round it, and against a heavy load the current stays within the cap.
+#[test]
+fn current_based_position_settles_and_caps_its_current() {
+    let mut s = servo();
+    let mut load = BenchLoad::new(0.0);
+    write(&mut s, Duration::ZERO, 11, &[5]).unwrap();
+    write(&mut s, Duration::ZERO, 64, &[1]).unwrap();
+    write(&mut s, Duration::ZERO, 116, &600i32.to_le_bytes()).unwrap();
+    let mut now = run(&mut s, &mut load, Duration::ZERO, 1.0);
+    let mut spread = (i32::MAX, i32::MIN);
+    for _ in 0..50 {
+        now = run(&mut s, &mut load, now, 0.01);
+        let present = read_i32(&mut s, 132);
+        spread = (spread.0.min(present), spread.1.max(present));
+    }
+    assert!((spread.0 - 600).abs() <= 5 && (spread.1 - 600).abs() <= 5, "Present Position over the last half second: {spread:?}");
+
+    let mut s = servo();
+    let mut heavy = BenchLoad::new(50.0);
+    write(&mut s, Duration::ZERO, 11, &[5]).unwrap();
+    write(&mut s, Duration::ZERO, 102, &200i16.to_le_bytes()).unwrap();
+    write(&mut s, Duration::ZERO, 64, &[1]).unwrap();
+    write(&mut s, Duration::ZERO, 116, &4000i32.to_le_bytes()).unwrap();
+    run(&mut s, &mut heavy, Duration::ZERO, 0.2);
+    let current = i16::from_le_bytes(s.table().read(126, 2).unwrap().try_into().unwrap());
+    assert!(current > 150 && current <= 201, "Present Current {current} under a Goal Current of 200 while it pushes the load");
+}
