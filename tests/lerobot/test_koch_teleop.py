@@ -17,7 +17,7 @@ from test_koch_follower import CALIBRATION as FOLLOWER_CALIBRATION
 # The leader's calibration: its shafts rest at 0, so each Homing Offset is where the joint reads.
 LEADER_CALIBRATION = {
     "shoulder_pan": {"id": 1, "drive_mode": 0, "homing_offset": 2047, "range_min": 0, "range_max": 4095},
-    "shoulder_lift": {"id": 2, "drive_mode": 0, "homing_offset": 1500, "range_min": 1000, "range_max": 3000},
+    "shoulder_lift": {"id": 2, "drive_mode": 0, "homing_offset": 2300, "range_min": 1000, "range_max": 3000},
     "elbow_flex": {"id": 3, "drive_mode": 0, "homing_offset": 1200, "range_min": 0, "range_max": 2000},
     "wrist_flex": {"id": 4, "drive_mode": 0, "homing_offset": 1800, "range_min": 1200, "range_max": 2900},
     "wrist_roll": {"id": 5, "drive_mode": 0, "homing_offset": 3000, "range_min": 0, "range_max": 4095},
@@ -35,6 +35,21 @@ def calibration_dir(tmp_path, name, calibration):
     return folder
 
 
+def teleoperate(leader, follower, until=lambda action: True):
+    """LeRobot's loop, leader read and follower commanded, until the follower has held every one
+    of the leader's joints for 20 rounds in a row with `until(action)` true."""
+    rounds, held, started = 0, 0, time.monotonic()
+    off = {}
+    while held < 20 and time.monotonic() - started < 15.0:
+        action = leader.get_action()
+        follower.send_action(action)
+        observation = follower.get_observation()
+        rounds += 1
+        off = {key: (observation[key], value) for key, value in action.items() if abs(observation[key] - value) > TOLERANCE}
+        held = 0 if off or not until(action) else held + 1
+    assert held >= 20, f"after {rounds} rounds, follower joints away from the leader's (follower, leader): {off}"
+
+
 def test_the_follower_follows_the_leader_through_two_climbsim_buses(serve, tmp_path, monkeypatch):
     leader_bus, follower_bus = serve("hil/robots/koch-leader.toml"), serve("hil/robots/koch-follower.toml")
     monkeypatch.setattr("builtins.input", lambda prompt="": "")
@@ -45,20 +60,20 @@ def test_the_follower_follows_the_leader_through_two_climbsim_buses(serve, tmp_p
     try:
         # LeRobot's leader check: its six XL330-M077s answered with their model, and it is calibrated.
         assert leader.is_calibrated and follower.is_calibrated
-        rounds, held, started = 0, 0, time.monotonic()
-        off = {}
-        while held < 20 and time.monotonic() - started < 15.0:
-            action = leader.get_action()
-            follower.send_action(action)
-            observation = follower.get_observation()
-            rounds += 1
-            off = {key: (observation[key], value) for key, value in action.items() if abs(observation[key] - value) > TOLERANCE}
-            held = 0 if off else held + 1
-        assert held >= 20, f"after {rounds} rounds, follower joints away from the leader's (follower, leader): {off}"
-        # The leader's gripper went to its open position under its own torque; the rest stayed.
+        teleoperate(leader, follower)
+        # The leader's gripper went to its open position under its own torque; the rest stayed
+        # where their calibration puts them (the follower's own rest would read otherwise).
         action = leader.get_action()
         assert abs(action["gripper.pos"] - leader.config.gripper_open_pos) < TOLERANCE, action
-        assert abs(action["shoulder_lift.pos"] - -50.0) < TOLERANCE and abs(action["elbow_flex.pos"] - 20.0) < TOLERANCE, action
+        assert abs(action["shoulder_lift.pos"] - 30.0) < TOLERANCE and abs(action["elbow_flex.pos"] - 20.0) < TOLERANCE, action
+        # A hand turns the leader's wrist: its own torque stands in for the hand here. The
+        # follower's wrist goes with it.
+        before = follower.get_observation()["wrist_roll.pos"]
+        leader.bus.enable_torque("wrist_roll")
+        leader.bus.write("Goal_Position", "wrist_roll", 3800, normalize=False)
+        teleoperate(leader, follower, until=lambda action: abs(action["wrist_roll.pos"] - before) > 25.0)
+        after = follower.get_observation()["wrist_roll.pos"]
+        assert after - before > 25.0, (before, after)
     finally:
         leader.disconnect()
         follower.disconnect()

@@ -228,8 +228,8 @@ impl Servo {
         kp * error + ki * self.loops.velocity_integral
     }
 
-    /// Position modes: the profile generator, then the PID with feedforward. Output is PWM units,
-    /// or current units in current-based position mode.
+    /// Position modes: the profile generator, then the PID with feedforward. Output is PWM units
+    /// in every position mode (current-based position caps the current it draws afterwards).
     pub(super) fn position_loop(&mut self, dt: f64) -> f64 {
         let keys = self.keys;
         let goal = self.get(keys.goal_position) as f64;

@@ -289,4 +289,26 @@ fn current_based_position_settles_and_caps_its_current() {
     run(&mut s, &mut heavy, Duration::ZERO, 0.2);
     let current = i16::from_le_bytes(s.table().read(126, 2).unwrap().try_into().unwrap());
     assert!(current > 150 && current <= 201, "Present Current {current} under a Goal Current of 200 while it pushes the load");
+
+    // Reversed (Drive Mode bit 0), a light load, a low cap that holds while the shaft runs (where
+    // the back-EMF matters), towards a negative goal: the current keeps the move's sign and its
+    // cap all the way, and the goal is reached.
+    let mut s = servo();
+    let mut light = BenchLoad::new(0.05);
+    write(&mut s, Duration::ZERO, 10, &[1]).unwrap();
+    write(&mut s, Duration::ZERO, 11, &[5]).unwrap();
+    write(&mut s, Duration::ZERO, 102, &100i16.to_le_bytes()).unwrap();
+    write(&mut s, Duration::ZERO, 64, &[1]).unwrap();
+    write(&mut s, Duration::ZERO, 116, &(-2000i32).to_le_bytes()).unwrap();
+    let mut now = Duration::ZERO;
+    let mut currents = Vec::new();
+    for _ in 0..40 {
+        now = run(&mut s, &mut light, now, 0.01);
+        currents.push(i16::from_le_bytes(s.table().read(126, 2).unwrap().try_into().unwrap()));
+    }
+    assert!(currents.iter().all(|&c| c.abs() <= 101), "the cap of 100 held: {currents:?}");
+    assert!(currents[..5].iter().all(|&c| c < -50), "pushing towards the negative goal at the cap: {currents:?}");
+    run(&mut s, &mut light, now, 3.0);
+    let present = read_i32(&mut s, 132);
+    assert!((present + 2000).abs() <= 10, "reached -2000 under the cap: {present}");
 }
