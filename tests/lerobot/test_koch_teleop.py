@@ -1,8 +1,9 @@
 """Teleoperation as LeRobot does it (`lerobot-teleoperate`'s loop): its own `KochLeader` read and
 its `KochFollower` commanded with what the leader reads, each on its own climbsim bus (two
-ports). Nobody moves the leader here: its joints rest where their calibration puts them, its
-gripper springs to `gripper_open_pos` under its own torque, and the follower must come to the
-same positions."""
+ports). The leader's joints rest where their calibration puts them, its gripper springs to
+`gripper_open_pos` under its own torque, and the follower must come to the same positions; then
+the leader's wrist is turned (by its own torque, standing in for a hand) and the follower's must
+go with it."""
 
 from __future__ import annotations
 
