@@ -340,8 +340,12 @@ mod tests {
         assert_eq!(robot.profile().expect("the profile loads").motor.coulomb_friction_nm, 0.05);
     }
 
+    /// Load `text` as a description from a file of its own (tests run side by side: each call
+    /// gets its own name).
     fn parse(text: &str) -> Result<RobotDescription, RobotError> {
-        let path = std::env::temp_dir().join(format!("climbsim-robot-{}-{}.toml", std::process::id(), text.len()));
+        static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = std::env::temp_dir().join(format!("climbsim-robot-{}-{call}.toml", std::process::id()));
         std::fs::write(&path, text).expect("a temporary file");
         let loaded = RobotDescription::load(&path);
         let _ = std::fs::remove_file(&path);
