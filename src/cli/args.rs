@@ -147,11 +147,13 @@ pub fn load_robot_with(path: &Path, overrides: &RobotOverrides) -> Result<RobotD
 /// (`embedded:hil/robot.toml`): an installed binary runs from any folder. A built-in robot's
 /// name (`koch-follower`, `climber`) that is no file here names that robot.
 pub fn robot_path(path: &Path) -> PathBuf {
-    // A file wins over a name; a folder of that name does not.
+    // A file wins over a name; a folder of that name does not. A named robot is the checkout's
+    // description when it is here, else the one built in.
     if !path.is_file()
         && let Some(named) = path.to_str().and_then(embedded::robot_named)
     {
-        return named;
+        let here = Path::new(named.path);
+        return if here.is_file() { here.to_owned() } else { named.embedded_path() };
     }
     built_in_unless_here(path, ROBOT_IN_CHECKOUT, &embedded::ROBOT)
 }

@@ -75,17 +75,15 @@ pub const PROFILES: [EmbeddedFile; 11] = [
 /// Every shipped file but the profiles.
 pub const FILES: [EmbeddedFile; 8] = [ROBOT, KOCH_FOLLOWER, KOCH_LEADER, PROFILE, LAYOUT, COMPARE_LAYOUT, CONTROLLER, SCENARIO];
 
-/// Every shipped file, the profiles too.
+/// Every shipped file, the profiles too (the robot's own profile is in both lists: a lookup
+/// finds it in the first).
 fn every_file() -> impl Iterator<Item = &'static EmbeddedFile> {
-    FILES.iter().chain(PROFILES.iter().skip(1))
+    FILES.iter().chain(&PROFILES)
 }
 
-/// The built-in robot `name` names (`koch-follower`): the checkout's description when it is
-/// here, else the one built in; `None` for a name no robot has.
-pub fn robot_named(name: &str) -> Option<PathBuf> {
-    let (_, file) = ROBOTS.iter().find(|(robot, _)| *robot == name)?;
-    let here = Path::new(file.path);
-    Some(if here.is_file() { here.to_owned() } else { file.embedded_path() })
+/// The built-in robot called `name` (`koch-follower`), if there is one.
+pub fn robot_named(name: &str) -> Option<&'static EmbeddedFile> {
+    ROBOTS.iter().find(|(robot, _)| *robot == name).map(|(_, file)| file)
 }
 
 impl EmbeddedFile {

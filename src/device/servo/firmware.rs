@@ -119,8 +119,10 @@ impl Servo {
         self.set_if_present(self.keys.present_current, (self.direction() * current_a * 1000.0 / self.units.ma_per_current).round() as i64);
         // Present Load (XL430, XC430): 0.1 % of the maximum, signed by direction. Chosen: the
         // winding current over the stall current (the e-manual gives the unit, not the estimate).
-        let load_permille = (self.direction() * current_a / self.motor.spec().stall_current_a * 1000.0).clamp(-1000.0, 1000.0);
-        self.set_if_present(self.keys.present_load, load_permille.round() as i64);
+        if let Some(present_load) = self.keys.present_load {
+            let load_permille = (self.direction() * current_a / self.motor.spec().stall_current_a * 1000.0).clamp(-1000.0, 1000.0);
+            self.table.set(present_load, load_permille.round() as i64);
+        }
         self.table.set(self.keys.present_pwm, (self.last_duty * 100.0 / self.units.percent_per_pwm).round() as i64);
         self.check_protections(current_a, dt);
         self.check_watchdog(now);
